@@ -1,0 +1,1 @@
+"""mitm_proxy package."""

@@ -1,0 +1,267 @@
+"""The scenario schema: world, vehicles and their sensors.
+
+Shared by flightsim (what to simulate), attack_profiles (which sensor ids
+exist, where anchors are), estimators' evaluation and the proxy's secure stage
+(measurement models). Frame: local NED in metres, origin = home, so a vehicle
+2.5 m above ground has ``z = -2.5``.
+
+Sensor ids on the wire follow DESIGN.md (see :mod:`secuav_common.sensor_ids`):
+rangefinders 0-9, UWB anchor k -> 10+k, peer sysid n -> 50+n.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from secuav_common.loading import load_model, parse_document, validate
+from secuav_common.sensor_ids import MAX_ANCHORS, MAX_PEER_SYSID, MAX_RANGEFINDERS
+
+Vec3 = tuple[float, float, float]
+Probability = Annotated[float, Field(ge=0.0, le=1.0)]
+PositiveFloat = Annotated[float, Field(gt=0.0)]
+NonNegFloat = Annotated[float, Field(ge=0.0)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Home(_Strict):
+    """Geodetic position of the NED origin (PX4 SITL's default site)."""
+
+    lat_deg: float = Field(47.397742, ge=-90, le=90)
+    lon_deg: float = Field(8.545594, ge=-180, le=180)
+    alt_m: float = Field(488.0, description="altitude above mean sea level")
+
+
+class Wall(_Strict):
+    """An infinite vertical or tilted plane the vehicle must not cross."""
+
+    name: str
+    point_ned_m: Vec3 = Field(description="any point on the plane")
+    normal_ned: Vec3 = Field(description="normal pointing into the free side (where vehicles fly)")
+
+    @field_validator("normal_ned")
+    @classmethod
+    def _unit_normal(cls, v: Vec3) -> Vec3:
+        norm = math.sqrt(sum(c * c for c in v))
+        if norm < 1e-9:
+            raise ValueError("normal must not be zero")
+        return (v[0] / norm, v[1] / norm, v[2] / norm)
+
+
+class Anchor(_Strict):
+    """A UWB anchor at a known position; ranges to it go out as sensor id 10+id."""
+
+    id: int = Field(ge=0, lt=MAX_ANCHORS)
+    pos_ned_m: Vec3
+
+
+class World(_Strict):
+    home: Home = Field(default_factory=Home)
+    walls: list[Wall] = []
+    anchors: list[Anchor] = []
+
+    @model_validator(mode="after")
+    def _unique(self) -> World:
+        _require_unique([a.id for a in self.anchors], "anchors", "id")
+        _require_unique([w.name for w in self.walls], "walls", "name")
+        return self
+
+
+RangefinderType = Literal["laser", "ultrasound", "infrared", "radar"]
+Orientation = Literal["forward", "backward", "left", "right", "up", "down"]
+
+
+class Rangefinder(_Strict):
+    """A 1-D range sensor rigidly mounted on the body, ray-cast against walls and ground."""
+
+    id: int = Field(ge=0, lt=MAX_RANGEFINDERS)
+    type: RangefinderType = "laser"
+    orientation: Orientation = "forward"
+    min_m: NonNegFloat = 0.1
+    max_m: PositiveFloat = 40.0
+    noise_std_m: NonNegFloat = 0.02
+    rate_hz: PositiveFloat = 20.0
+    dropout_prob: Probability = 0.0
+
+    @model_validator(mode="after")
+    def _limits(self) -> Rangefinder:
+        if self.max_m <= self.min_m:
+            raise ValueError(f"max_m ({self.max_m}) must exceed min_m ({self.min_m})")
+        return self
+
+
+class UwbRanging(_Strict):
+    """Two-way ranging to anchors of the world (3-D distances)."""
+
+    anchors: list[int] | Literal["all"] = "all"
+    noise_std_m: NonNegFloat = 0.10
+    rate_hz: PositiveFloat = 10.0
+    dropout_prob: Probability = 0.0
+    max_m: PositiveFloat = 100.0
+
+
+class InterVehicleRanging(_Strict):
+    """Ranges to other vehicles of the scenario, by their sysid."""
+
+    peers: list[int]
+    noise_std_m: NonNegFloat = 0.10
+    rate_hz: PositiveFloat = 10.0
+    dropout_prob: Probability = 0.0
+
+
+class Gps(_Strict):
+    """GNSS receiver; also sets the noise of the vehicle's own position estimate."""
+
+    enabled: bool = True
+    horizontal_std_m: NonNegFloat = 0.05
+    vertical_std_m: NonNegFloat = 0.08
+    rate_hz: PositiveFloat = 10.0
+    satellites: int = Field(12, ge=0, le=40)
+
+
+class Sensors(_Strict):
+    rangefinders: list[Rangefinder] = []
+    uwb: UwbRanging | None = None
+    inter_vehicle: InterVehicleRanging | None = None
+    gps: Gps = Field(default_factory=Gps)
+
+    @model_validator(mode="after")
+    def _unique(self) -> Sensors:
+        _require_unique([r.id for r in self.rangefinders], "rangefinders", "id")
+        return self
+
+
+class StartPose(_Strict):
+    pos_ned_m: Vec3 = (0.0, 0.0, 0.0)
+    yaw_deg: float = Field(0.0, ge=-360, le=360)
+
+
+class HoldTarget(_Strict):
+    """Hold a position (seed test case 1: the area's centre)."""
+
+    kind: Literal["hold"] = "hold"
+    pos_ned_m: Vec3
+
+
+class WallDistanceTarget(_Strict):
+    """Hold a distance from a wall, measured by a rangefinder group (seed Fig. A.5)."""
+
+    kind: Literal["wall_distance"] = "wall_distance"
+    wall: str
+    distance_m: PositiveFloat = 2.5
+    altitude_m: PositiveFloat = 2.5
+    sensor_ids: list[int] = Field(description="the redundant rangefinder group that measures it")
+
+
+class KeepRangeTarget(_Strict):
+    """Keep a distance from another vehicle (seed test case 2)."""
+
+    kind: Literal["keep_range"] = "keep_range"
+    peer: int
+    distance_m: PositiveFloat
+    altitude_m: PositiveFloat = 2.5
+
+
+Target = Annotated[HoldTarget | WallDistanceTarget | KeepRangeTarget, Field(discriminator="kind")]
+
+
+class Vehicle(_Strict):
+    sysid: int = Field(ge=1, le=MAX_PEER_SYSID)
+    name: str = ""
+    model: str = "F450"
+    start: StartPose = Field(default_factory=StartPose)
+    sensors: Sensors = Field(default_factory=Sensors)
+    target: Target | None = None
+
+
+class Scenario(_Strict):
+    name: str
+    description: str = ""
+    seed: int = 0
+    duration_s: PositiveFloat = 60.0
+    world: World = Field(default_factory=World)
+    vehicles: list[Vehicle] = Field(min_length=1)
+
+    @model_validator(mode="after")
+    def _cross_refs(self) -> Scenario:
+        _require_unique([v.sysid for v in self.vehicles], "vehicles", "sysid")
+        anchor_ids = {a.id for a in self.world.anchors}
+        sysids = {v.sysid for v in self.vehicles}
+        walls = {w.name for w in self.world.walls}
+        for i, veh in enumerate(self.vehicles):
+            where = f"vehicles[{i}].sensors"
+            uwb = veh.sensors.uwb
+            if uwb is not None and uwb.anchors != "all":
+                for j, k in enumerate(uwb.anchors):
+                    if k not in anchor_ids:
+                        raise ValueError(f"{where}.uwb.anchors[{j}]: no anchor with id {k} in world.anchors")
+            if uwb is not None and not anchor_ids:
+                raise ValueError(f"{where}.uwb: world.anchors is empty")
+            iv = veh.sensors.inter_vehicle
+            if iv is not None:
+                for j, peer in enumerate(iv.peers):
+                    if peer not in sysids or peer == veh.sysid:
+                        raise ValueError(f"{where}.inter_vehicle.peers[{j}]: {peer} is not another vehicle's sysid")
+            tgt = veh.target
+            if isinstance(tgt, WallDistanceTarget):
+                if tgt.wall not in walls:
+                    raise ValueError(f"vehicles[{i}].target.wall: no wall named {tgt.wall!r}")
+                ids = {r.id for r in veh.sensors.rangefinders}
+                for j, sid in enumerate(tgt.sensor_ids):
+                    if sid not in ids:
+                        raise ValueError(f"vehicles[{i}].target.sensor_ids[{j}]: no rangefinder with id {sid}")
+            if isinstance(tgt, KeepRangeTarget) and (tgt.peer not in sysids or tgt.peer == veh.sysid):
+                raise ValueError(f"vehicles[{i}].target.peer: {tgt.peer} is not another vehicle's sysid")
+        return self
+
+    def vehicle(self, sysid: int) -> Vehicle:
+        for veh in self.vehicles:
+            if veh.sysid == sysid:
+                return veh
+        raise KeyError(f"scenario {self.name!r} has no vehicle with sysid {sysid}")
+
+    def anchor_positions(self, ids: list[int] | Literal["all"] = "all") -> dict[int, Vec3]:
+        """Anchor id -> NED position, for the ids given (or all)."""
+        table = {a.id: a.pos_ned_m for a in self.world.anchors}
+        return table if ids == "all" else {k: table[k] for k in ids}
+
+    def wall(self, name: str) -> Wall:
+        for wall in self.world.walls:
+            if wall.name == name:
+                return wall
+        raise KeyError(f"scenario {self.name!r} has no wall named {name!r}")
+
+
+def _require_unique(values: list[object], where: str, field: str) -> None:
+    seen: set[object] = set()
+    for i, v in enumerate(values):
+        if v in seen:
+            raise ValueError(f"{where}[{i}].{field}: duplicate value {v!r}")
+        seen.add(v)
+
+
+SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
+DEFAULT_SCENARIO = SCENARIO_DIR / "wall_hover.yaml"
+
+
+def resolve_scenario_path(name_or_path: str | Path) -> Path:
+    """Accept a path, or a bare name of a bundled scenario (``anchors8``)."""
+    path = Path(name_or_path)
+    if path.exists() or path.suffix:
+        return path
+    return SCENARIO_DIR / f"{name_or_path}.yaml"
+
+
+def load_scenario(name_or_path: str | Path = DEFAULT_SCENARIO) -> Scenario:
+    """Load and validate a scenario; raises ``InputError`` naming file, field and value."""
+    return load_model(Scenario, resolve_scenario_path(name_or_path))
+
+
+def parse_scenario(text: str, source: str = "<scenario>") -> Scenario:
+    return validate(Scenario, parse_document(text, source), source)

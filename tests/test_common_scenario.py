@@ -1,0 +1,100 @@
+"""The scenario schema: bundled files load, bad files fail with one clear line."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from secuav_common.geo import geodetic_to_ned, ned_to_geodetic
+from secuav_common.loading import InputError
+from secuav_common.scenario import Home, load_scenario, parse_scenario
+from secuav_common.sensor_ids import SensorKind, anchor_sensor_id, classify, peer_sensor_id
+from secuav_common.urls import parse_endpoint
+
+
+@pytest.mark.parametrize("name", ["wall_hover", "anchors8", "formation"])
+def test_bundled_scenarios_load(name: str) -> None:
+    scenario = load_scenario(name)
+    assert scenario.vehicles
+
+
+def test_anchor_layout_is_the_seed_test_case_1() -> None:
+    scenario = load_scenario("anchors8")
+    xy = sorted((a.pos_ned_m[0], a.pos_ned_m[1]) for a in scenario.world.anchors)
+    assert xy == sorted([(0, 0), (2.5, 0), (5, 0), (5, 2.5), (5, 5), (2.5, 5), (0, 5), (0, 2.5)])
+    assert scenario.vehicles[0].target.pos_ned_m[:2] == (2.5, 2.5)
+
+
+def test_wall_hover_has_five_forward_sensors_of_four_kinds() -> None:
+    vehicle = load_scenario("wall_hover").vehicles[0]
+    group = [r for r in vehicle.sensors.rangefinders if r.id in vehicle.target.sensor_ids]
+    assert len(group) == 5
+    assert {r.orientation for r in group} == {"forward"}
+    assert sorted(r.type for r in group) == ["infrared", "laser", "laser", "radar", "ultrasound"]
+
+
+@pytest.mark.parametrize(
+    ("text", "field", "value"),
+    [
+        ("name: x\nvehicles: [{sysid: 0}]", "vehicles[0].sysid", "0"),
+        ("name: x\nvehicles: [{sysid: 1, sensors: {rangefinders: [{id: 0, type: lidar}]}}]",
+         "vehicles[0].sensors.rangefinders[0].type", "'lidar'"),
+        ("name: x\nvehicles: [{sysid: 1, sensors: {uwb: {anchors: [3]}}}]",
+         "vehicles[0].sensors.uwb.anchors[0]", "3"),
+        ("name: x\nvehicles: [{sysid: 1}, {sysid: 1}]", "vehicles[1].sysid", "1"),
+        ("name: x\nvehicles: [{sysid: 1, sensors: {rangefinders: [{id: 0, min_m: 5, max_m: 1}]}}]",
+         "vehicles[0].sensors.rangefinders[0]", "1"),
+    ],
+)
+def test_bad_scenario_names_file_field_and_value(text: str, field: str, value: str) -> None:
+    with pytest.raises(InputError) as info:
+        parse_scenario(text, "bad.yaml")
+    message = str(info.value)
+    assert message.startswith("bad.yaml: ")
+    assert field in message
+    assert value in message
+    assert "\n" not in message
+
+
+def test_missing_file_is_one_line(tmp_path) -> None:
+    with pytest.raises(InputError, match=r"nope\.yaml"):
+        load_scenario(tmp_path / "nope.yaml")
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.text(max_size=200) | st.binary(max_size=200).map(lambda b: b.decode("latin-1")))
+def test_garbage_documents_raise_only_input_error(text: str) -> None:
+    try:
+        parse_scenario(text, "fuzz.yaml")
+    except InputError as err:
+        assert str(err).startswith("fuzz.yaml")
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(-500, 500), st.floats(-500, 500), st.floats(-100, 100))
+def test_geo_round_trip(north: float, east: float, down: float) -> None:
+    home = Home()
+    back = geodetic_to_ned(home, *ned_to_geodetic(home, north, east, down))
+    assert math.dist(back, (north, east, down)) < 1e-6
+
+
+def test_sensor_id_plan() -> None:
+    assert anchor_sensor_id(3) == 13
+    assert peer_sensor_id(2) == 52
+    assert classify(4) == (SensorKind.RANGEFINDER, 4)
+    assert classify(17) == (SensorKind.ANCHOR, 7)
+    assert classify(52) == (SensorKind.PEER, 2)
+    with pytest.raises(ValueError):
+        classify(120)
+
+
+def test_endpoint_urls() -> None:
+    ep = parse_endpoint("udpin://0.0.0.0:14540")
+    assert (ep.mode, ep.host, ep.port) == ("udpin", "0.0.0.0", 14540)
+    assert str(parse_endpoint("udpout://127.0.0.1:14550")) == "udpout://127.0.0.1:14550"
+    for bad in ["tcp://1.2.3.4:5", "udpin://host", "udpout://h:99999", "14540"]:
+        with pytest.raises(ValueError, match="endpoint"):
+            parse_endpoint(bad)
