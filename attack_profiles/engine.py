@@ -1,0 +1,371 @@
+"""The engine: applies one profile to live MAVLink messages or to an offline array.
+
+Live (the proxy's attack stage)::
+
+    engine = Engine(profile, seed=0, scenario=scenario)
+    if msgid in engine.message_ids:          # decode only these
+        action = engine.process(now_s, msgid, fields, Direction.DOWNLINK, sysid, compid)
+
+``fields`` is pymavlink's decoded field dict in wire units; ``Action.fields``
+holds the changed fields, also in wire units, clamped to what the wire type can
+carry (the names of clamped fields are in ``Action.clamped``).
+
+Offline (the evaluation)::
+
+    z_attacked = engine.apply_array(t_s, z_m, sensor_ids, true_pos_ned_m=truth)
+
+in physical units, NaN for a missing or dropped sample.
+
+Rules apply in profile order, each to the value the previous rules left. A rule
+that drops the frame ends the chain. Stateful primitives keep their state per
+target (vehicle, sensor id), and every call of :meth:`Engine.apply_array` starts
+from fresh state, so it is repeatable; the live state starts at
+:meth:`Engine.activate`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import random
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from attack_profiles.action import FORWARD, Action, Direction
+from attack_profiles.primitives import PRIMITIVES, Context, Primitive, Sample
+from attack_profiles.primitives.base import Vec3
+from attack_profiles.primitives.coordinated_spoof import CoordinatedSpoof, CoordinatedSpoofRule
+from attack_profiles.profile import Profile
+from attack_profiles.rule import RuleBase
+from attack_profiles.units import EPOCH_USEC_THRESHOLD, LOCAL_POSITION_NED_ID, MESSAGES, FieldSpec, MessageSpec
+from secuav_common.loading import InputError
+from secuav_common.scenario import Scenario
+from secuav_common.sensor_ids import ANCHOR_BASE, PEER_BASE
+
+_DIRECTIONS = {
+    "downlink": frozenset((Direction.DOWNLINK,)),
+    "uplink": frozenset((Direction.UPLINK,)),
+    "both": frozenset((Direction.DOWNLINK, Direction.UPLINK)),
+}
+
+
+@dataclass(frozen=True, slots=True)
+class Window:
+    """A rule's time window on the profile clock; :meth:`tau` is the time into it or ``None``."""
+
+    start_s: float
+    length_s: float  # inf: no end
+    period_s: float | None
+
+    @classmethod
+    def of(cls, rule: RuleBase) -> Window:
+        length = math.inf if rule.end_s is None else rule.end_s - rule.start_s
+        return cls(rule.start_s, length, rule.repeat_period_s)
+
+    def tau(self, t_s: float) -> float | None:
+        d = t_s - self.start_s
+        if d < 0.0:
+            return None
+        if self.period_s is not None:
+            d %= self.period_s
+        return d if d < self.length_s else None
+
+
+@dataclass(slots=True)
+class _Compiled:
+    """One rule, resolved for fast matching."""
+
+    index: int
+    prim: Primitive
+    window: Window
+    stateful: bool
+    directions: frozenset[Direction]
+    sysid: int | None
+    ids: frozenset[int] | None
+    field: str | None  # None: frame-level primitive
+    spec: FieldSpec | None
+
+
+@dataclass(slots=True)
+class _State:
+    """Everything that changes while a profile runs; rebuilt by activate() and per apply_array()."""
+
+    plans: dict[int, tuple[_Compiled, ...]]
+    active_at_s: float | None = None
+    vehicle_time_s: dict[int, float] = field(default_factory=dict)  # sysid -> last time_boot seen
+    positions: dict[int, Vec3] = field(default_factory=dict)  # sysid -> last LOCAL_POSITION_NED
+    sample: Sample = field(default_factory=Sample)
+
+
+def _rule_seed(profile_seed: int, engine_seed: int, index: int) -> int:
+    # A hash rather than arithmetic so neighbouring seeds give unrelated streams.
+    digest = hashlib.sha256(f"{profile_seed}:{engine_seed}:{index}".encode()).digest()
+    return int.from_bytes(digest[:8], "little")
+
+
+class Engine:
+    """Applies ``profile``; ``scenario`` is needed for the coordinated spoof and to check sensor ids."""
+
+    def __init__(self, profile: Profile, seed: int = 0, scenario: Scenario | None = None) -> None:
+        self.profile = profile
+        self.seed = seed
+        self.scenario = scenario
+        self._anchors: dict[int, Vec3] = {}
+        if scenario is not None:
+            self.validate_against(scenario)
+            self._anchors = {ANCHOR_BASE + k: pos for k, pos in scenario.anchor_positions().items()}
+        for i, rule in enumerate(profile.rules):
+            if isinstance(rule, CoordinatedSpoofRule) and scenario is None:
+                raise InputError(profile.source, f"rules[{i}].kind", rule.kind, "needs a scenario for anchor positions")
+        self._msg_by_id: dict[int, MessageSpec] = {
+            MESSAGES[r.target.message].msgid: MESSAGES[r.target.message] for r in profile.rules
+        }
+        self._tracks_position = any(isinstance(r, CoordinatedSpoofRule) for r in profile.rules)
+        ids = set(self._msg_by_id)
+        if self._tracks_position:
+            ids.add(LOCAL_POSITION_NED_ID)
+        self.message_ids: frozenset[int] = frozenset(ids)
+        self._live = self._new_state()
+
+    # -- checks ---------------------------------------------------------------------------------------
+
+    def validate_against(self, scenario: Scenario) -> None:
+        """Raise ``InputError`` naming the rule and id if a target names a vehicle or sensor the scenario lacks."""
+        source = self.profile.source
+        sysids = {v.sysid for v in scenario.vehicles}
+        anchors = {ANCHOR_BASE + a.id for a in scenario.world.anchors}
+        for i, rule in enumerate(self.profile.rules):
+            target = rule.target
+            if target.sysid is not None and target.sysid not in sysids:
+                raise InputError(
+                    source, f"rules[{i}].target.sysid", target.sysid, f"scenario {scenario.name!r} has no such vehicle"
+                )
+            wanted = target.sensor_ids()
+            if wanted is None or MESSAGES[target.message].id_field is None:
+                continue
+            vehicles = [v for v in scenario.vehicles if target.sysid in (None, v.sysid)]
+            present = set().union(*(_sensor_ids(v, anchors) for v in vehicles))
+            if isinstance(rule, CoordinatedSpoofRule):
+                present &= anchors
+            for sid in sorted(wanted):
+                if sid not in present:
+                    raise InputError(
+                        source,
+                        f"rules[{i}].target.sensor_id",
+                        sid,
+                        f"scenario {scenario.name!r} has no such sensor (ids: {sorted(present)})",
+                    )
+
+    # -- live path ------------------------------------------------------------------------------------
+
+    def activate(self, now_s: float) -> None:
+        """Start (or restart) the profile: fresh state, activation clock zero at ``now_s``."""
+        self._live = self._new_state()
+        self._live.active_at_s = now_s
+
+    def process(
+        self,
+        now_s: float,
+        msgid: int,
+        fields: Mapping[str, Any],
+        direction: Direction,
+        sysid: int,
+        compid: int,
+    ) -> Action:
+        """Decide what happens to one decoded message (fields in wire units).
+
+        ``now_s`` is the caller's monotonic clock; the first call activates the
+        profile if :meth:`activate` was not called.
+        """
+        rules = self._live.plans.get(msgid)
+        if rules is None:
+            return FORWARD
+        st = self._live
+        if self._tracks_position and msgid == LOCAL_POSITION_NED_ID:
+            x, y, z = fields.get("x"), fields.get("y"), fields.get("z")
+            if x is not None and y is not None and z is not None:
+                st.positions[sysid] = (x, y, z)
+            if not rules:
+                return FORWARD
+        msg = self._msg_by_id[msgid]
+        t = self._clock(st, now_s, msg, fields, sysid)
+        if t is None:
+            return FORWARD
+        sid = fields.get(msg.id_field, -1) if msg.id_field is not None else -1
+        s = st.sample
+        s.t_s = t
+        s.key = (sysid, sid)
+        s.drop = False
+        s.delay_s = 0.0
+        s.offline = False
+        s.true_pos_ned_m = st.positions.get(sysid)
+        working: dict[str, float] = {}
+        acted: list[int] = []
+        for r in rules:
+            if (r.sysid is not None and r.sysid != sysid) or direction not in r.directions:
+                continue
+            if r.ids is not None and sid not in r.ids:
+                continue
+            tau = r.window.tau(t)
+            if tau is None and not r.stateful:
+                continue
+            name = r.field
+            if name is not None:
+                if name in working:
+                    s.value = working[name]
+                else:
+                    raw = fields.get(name)
+                    if raw is None:
+                        continue
+                    s.value = raw * r.spec.scale  # type: ignore[union-attr]
+            r.prim.apply(s, tau)
+            if tau is None:
+                continue
+            acted.append(r.index)
+            if s.drop:
+                return Action(drop=True, rules=tuple(acted))
+            if name is not None:
+                working[name] = s.value
+        if not acted:
+            return FORWARD
+        changed: dict[str, Any] = {}
+        clamped: list[str] = []
+        for name, value in working.items():
+            wire, was_clamped = msg.fields[name].to_wire(value)
+            if was_clamped:
+                clamped.append(name)
+            if wire != fields.get(name):
+                changed[name] = wire
+        return Action(fields=changed or None, delay_s=s.delay_s, rules=tuple(acted), clamped=tuple(clamped))
+
+    def _clock(self, st: _State, now_s: float, msg: MessageSpec, fields: Mapping[str, Any], sysid: int) -> float | None:
+        if self.profile.clock == "activation":
+            if st.active_at_s is None:
+                st.active_at_s = now_s
+            return now_s - st.active_at_s
+        # Vehicle clock: the message's own boot time, else the last one this vehicle sent.
+        if msg.time_field == "time_boot_ms":
+            ms = fields.get("time_boot_ms")
+            if ms is not None:
+                st.vehicle_time_s[sysid] = ms * 1e-3
+                return ms * 1e-3
+        elif msg.time_field == "time_usec":
+            us = fields.get("time_usec")
+            if us is not None and 0 < us < EPOCH_USEC_THRESHOLD:  # since boot, not a UNIX time
+                st.vehicle_time_s[sysid] = us * 1e-6
+                return us * 1e-6
+        return st.vehicle_time_s.get(sysid)
+
+    # -- offline path ---------------------------------------------------------------------------------
+
+    def apply_array(
+        self,
+        t_s: np.ndarray,
+        z: np.ndarray,
+        sensor_ids: Sequence[int],
+        message: str = "DISTANCE_SENSOR",
+        field: str = "current_distance",
+        *,
+        sysid: int = 1,
+        true_pos_ned_m: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Attack an offline stream: ``z[k, j]`` is sensor ``sensor_ids[j]`` at ``t_s[k]``.
+
+        Physical units in and out (metres for ranges); NaN is a missing sample
+        and stays missing; a dropped sample becomes NaN; delay shows the value
+        from ``delay_s`` earlier. ``t_s`` is read on the profile's clock
+        (seconds since activation, or vehicle boot time) and must not decrease.
+        ``true_pos_ned_m`` (T x 3) is needed by a coordinated spoof. Only rules
+        targeting ``message``/``field`` (or whole frames of ``message``) on the
+        downlink of ``sysid`` apply. Values are clamped to the wire range.
+        """
+        t_arr = np.asarray(t_s, dtype=float)
+        z_arr = np.asarray(z, dtype=float)
+        if z_arr.ndim != 2 or t_arr.shape != (z_arr.shape[0],) or len(sensor_ids) != z_arr.shape[1]:
+            raise ValueError(f"need t_s[T], z[T, p], p sensor ids; got {t_arr.shape}, {z_arr.shape}, {len(sensor_ids)}")
+        if t_arr.size and np.any(np.diff(t_arr) < 0):
+            raise ValueError("t_s must not decrease")
+        msg = MESSAGES.get(message)
+        if msg is None or field not in msg.fields:
+            raise ValueError(f"{message}.{field} is not an attackable field")
+        spec = msg.fields[field]
+        st = self._new_state()
+        chain = [
+            r
+            for r in st.plans.get(msg.msgid, ())
+            if r.field in (None, field) and Direction.DOWNLINK in r.directions and r.sysid in (None, sysid)
+        ]
+        columns = [[r for r in chain if r.ids is None or sid in r.ids] for sid in sensor_ids]
+        positions: np.ndarray | None = None
+        for r in chain:
+            if isinstance(r.prim, CoordinatedSpoof) and any(r in col for col in columns):
+                if true_pos_ned_m is None:
+                    raise ValueError(f"rules[{r.index}] (coordinated_spoof) needs true_pos_ned_m")
+                positions = np.asarray(true_pos_ned_m, dtype=float)
+                if positions.shape != (t_arr.size, 3):
+                    raise ValueError(f"true_pos_ned_m must be T x 3, got {positions.shape}")
+        lo, hi = sorted((spec.lo * spec.scale, spec.hi * spec.scale))
+        out = z_arr.copy()
+        s = st.sample
+        s.offline = True
+        for k in range(t_arr.size):
+            t = float(t_arr[k])
+            s.t_s = t
+            s.true_pos_ned_m = None if positions is None else tuple(positions[k])  # type: ignore[assignment]
+            for j, rules in enumerate(columns):
+                value = z_arr[k, j]
+                if not rules or value != value:  # untargeted, or no sample: nothing to attack
+                    continue
+                s.key = (sysid, int(sensor_ids[j]))
+                s.value = float(value)
+                s.drop = False
+                for r in rules:
+                    tau = r.window.tau(t)
+                    if tau is None and not r.stateful:
+                        continue
+                    r.prim.apply(s, tau)
+                    if tau is not None and s.drop:
+                        break
+                v = s.value
+                out[k, j] = math.nan if s.drop else (v if v != v else min(max(v, lo), hi))
+        return out
+
+    # -- construction ---------------------------------------------------------------------------------
+
+    def _new_state(self) -> _State:
+        plans: dict[int, list[_Compiled]] = {mid: [] for mid in self.message_ids}
+        for i, rule in enumerate(self.profile.rules):
+            msg = MESSAGES[rule.target.message]
+            cls = PRIMITIVES[rule.kind]  # type: ignore[attr-defined]
+            name = None if cls.frame_level else (rule.target.field or msg.default_field)
+            spec = msg.fields[name] if name is not None else None
+            ctx = Context(i, spec, random.Random(_rule_seed(self.profile.seed, self.seed, i)), self._anchors)
+            plans[msg.msgid].append(
+                _Compiled(
+                    index=i,
+                    prim=cls(rule, ctx),
+                    window=Window.of(rule),
+                    stateful=cls.stateful,
+                    directions=_DIRECTIONS[rule.target.direction],
+                    sysid=rule.target.sysid,
+                    ids=rule.target.sensor_ids(),
+                    field=name,
+                    spec=spec,
+                )
+            )
+        return _State(plans={mid: tuple(rs) for mid, rs in plans.items()})
+
+
+def _sensor_ids(vehicle: Any, anchors: set[int]) -> set[int]:
+    """DISTANCE_SENSOR ids a scenario vehicle sends."""
+    ids = {r.id for r in vehicle.sensors.rangefinders}
+    uwb = vehicle.sensors.uwb
+    if uwb is not None:
+        ids |= anchors if uwb.anchors == "all" else {ANCHOR_BASE + k for k in uwb.anchors}
+    iv = vehicle.sensors.inter_vehicle
+    if iv is not None:
+        ids |= {PEER_BASE + n for n in iv.peers}
+    return ids

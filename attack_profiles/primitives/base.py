@@ -1,0 +1,63 @@
+"""The one shape every attack primitive has.
+
+A primitive is built from its validated rule and a :class:`Context` (the field
+it acts on, its own seeded random generator, anchor positions) and has one
+method, :meth:`Primitive.apply`, that rewrites a :class:`Sample` in place: the
+value in physical units, or the frame-level decisions (drop, delay). The engine
+calls it only for samples the rule's target matches, with ``tau_s`` = time since
+the current window occurrence began, or ``None`` outside the window; only
+``stateful`` primitives are called outside their window, to watch the clean stream.
+"""
+
+from __future__ import annotations
+
+import random
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+from attack_profiles.rule import RuleBase
+from attack_profiles.units import FieldSpec
+
+Vec3 = tuple[float, float, float]
+SampleKey = tuple[int, int]  # (sysid, sensor id or -1): stateful primitives keep state per key
+
+
+@dataclass(slots=True)
+class Sample:
+    """One value on its way through the rule chain (mutable, reused by the engine)."""
+
+    t_s: float = 0.0  # profile clock
+    key: SampleKey = (0, -1)
+    value: float = 0.0  # physical units of the targeted field
+    drop: bool = False
+    delay_s: float = 0.0
+    offline: bool = False  # True on the array path: delay acts on the value stream
+    true_pos_ned_m: Vec3 | None = None  # for the coordinated spoof
+
+
+@dataclass(frozen=True, slots=True)
+class Context:
+    """What a primitive may know besides its rule."""
+
+    rule_index: int
+    spec: FieldSpec | None  # None for frame-level rules
+    rng: random.Random
+    anchors_ned_m: dict[int, Vec3] = field(default_factory=dict)  # sensor id -> anchor position
+
+
+class Primitive(ABC):
+    """Base of every primitive; subclasses set ``kind`` and ``rule_model``."""
+
+    kind: ClassVar[str]
+    rule_model: ClassVar[type[RuleBase]]
+    stateful: ClassVar[bool] = False  # must see samples outside its window
+    frame_level: ClassVar[bool] = False  # acts on the whole frame, not on a field
+
+    def __init__(self, rule: RuleBase, ctx: Context) -> None:
+        self.rule = rule
+        self.ctx = ctx
+
+    @abstractmethod
+    def apply(self, s: Sample, tau_s: float | None) -> None:
+        """Rewrite ``s`` for time ``tau_s`` into the window (``None``: outside it)."""

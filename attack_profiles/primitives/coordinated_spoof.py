@@ -1,0 +1,60 @@
+"""coordinated_spoof: anchor ranges consistent with a fake position drifting off the true one.
+
+For UWB anchor links (DISTANCE_SENSOR ids 10+k, anchor positions from the
+scenario) the attacked ranges become exactly the distances from a fake position
+
+    p_fake(tau) = p_true(t) + offset_ned_m + velocity_ned_m_s * tau
+
+to each attacked anchor. Every attacked range then agrees with one position, so
+a residual test over the attacked links alone sees nothing wrong: the hardest
+case for a secure estimator, which has to notice that the attacked set and the
+clean set disagree.
+
+Where ``p_true`` comes from: on the array path the caller passes the true
+trajectory; on the live path the engine uses the latest LOCAL_POSITION_NED the
+same vehicle sent (the position an attacker on the link can read). Until one has
+been seen, ranges pass unchanged.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+from attack_profiles.primitives.base import Context, Primitive, Sample
+from attack_profiles.rule import RuleBase, Vec3Param
+
+
+class CoordinatedSpoofRule(RuleBase):
+    """Target: DISTANCE_SENSOR ``current_distance`` of anchor links (ids 10-49). Needs a scenario."""
+
+    kind: Literal["coordinated_spoof"] = "coordinated_spoof"
+    velocity_ned_m_s: Vec3Param = (0.0, 0.0, 0.0)
+    offset_ned_m: Vec3Param = (0.0, 0.0, 0.0)
+
+
+class CoordinatedSpoof(Primitive):
+    kind = "coordinated_spoof"
+    rule_model = CoordinatedSpoofRule
+
+    def __init__(self, rule: CoordinatedSpoofRule, ctx: Context) -> None:
+        super().__init__(rule, ctx)
+        self.velocity = rule.velocity_ned_m_s
+        self.offset = rule.offset_ned_m
+        self.anchors = ctx.anchors_ned_m
+
+    def fake_position(self, true_pos: tuple[float, float, float], tau_s: float) -> tuple[float, float, float]:
+        v, o = self.velocity, self.offset
+        return (
+            true_pos[0] + o[0] + v[0] * tau_s,
+            true_pos[1] + o[1] + v[1] * tau_s,
+            true_pos[2] + o[2] + v[2] * tau_s,
+        )
+
+    def apply(self, s: Sample, tau_s: float | None) -> None:
+        true_pos = s.true_pos_ned_m
+        anchor = self.anchors.get(s.key[1])
+        if true_pos is None or anchor is None:
+            return
+        p = self.fake_position(true_pos, tau_s)  # type: ignore[arg-type]
+        s.value = math.sqrt((p[0] - anchor[0]) ** 2 + (p[1] - anchor[1]) ** 2 + (p[2] - anchor[2]) ** 2)

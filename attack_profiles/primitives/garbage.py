@@ -1,0 +1,35 @@
+"""garbage: the field carries random wire values (PX4 "garbage")."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from attack_profiles.primitives.base import Context, Primitive, Sample
+from attack_profiles.rule import RuleBase
+
+
+class GarbageRule(RuleBase):
+    """Replace the field with a value drawn uniformly from everything its wire type can carry
+    (0..65535 cm for ``current_distance``; any float32 for float fields)."""
+
+    kind: Literal["garbage"] = "garbage"
+
+
+class Garbage(Primitive):
+    kind = "garbage"
+    rule_model = GarbageRule
+
+    def __init__(self, rule: GarbageRule, ctx: Context) -> None:
+        super().__init__(rule, ctx)
+        spec = ctx.spec
+        assert spec is not None  # the profile check requires a field for garbage
+        self.spec = spec
+        self.rng = ctx.rng
+
+    def apply(self, s: Sample, tau_s: float | None) -> None:
+        spec = self.spec
+        if spec.integer:
+            wire: float = self.rng.randint(int(spec.lo), int(spec.hi))
+        else:
+            wire = self.rng.uniform(spec.lo, spec.hi)
+        s.value = spec.to_physical(wire)

@@ -1,0 +1,263 @@
+"""The profile document: a name, a clock, a seed, optional parameters and a list of rules.
+
+Reading a profile is all-or-nothing: pydantic checks types and ranges, then
+:func:`check_profile` checks what the schema cannot express (the field exists
+on the message, windows are ordered, the coordinated spoof targets anchors).
+Any failure is one :class:`~secuav_common.loading.InputError` naming the file,
+the rule's place (``rules[2].target.field``) and the bad value; a profile that
+was returned is complete and valid.
+
+Parameters make a profile a template: ``parameters: {links: {default: [10, 13]}}``
+declares one, and a value written exactly ``"$links"`` anywhere in the rules is
+replaced by it before validation (the library's ``type-a`` takes its attacked
+links this way).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import Field, JsonValue, PrivateAttr, TypeAdapter, ValidationError
+
+from attack_profiles.primitives import PRIMITIVES
+from attack_profiles.primitives.bias import BiasRule
+from attack_profiles.primitives.coordinated_spoof import CoordinatedSpoofRule
+from attack_profiles.primitives.delay import DelayRule
+from attack_profiles.primitives.drop import DropRule
+from attack_profiles.primitives.freeze import FreezeRule
+from attack_profiles.primitives.garbage import GarbageRule
+from attack_profiles.primitives.intermittent import IntermittentRule
+from attack_profiles.primitives.noise import NoiseRule
+from attack_profiles.primitives.ramp import RampRule
+from attack_profiles.primitives.replay import ReplayRule
+from attack_profiles.primitives.scale import ScaleRule
+from attack_profiles.primitives.set import SetRule
+from attack_profiles.primitives.sinusoid import SinusoidRule
+from attack_profiles.rule import RuleBase, Strict
+from attack_profiles.units import MESSAGES
+from secuav_common.loading import (
+    _MISSING,  # the "no value to show" sentinel InputError understands
+    InputError,
+    dump_json,
+    field_path,
+    parse_document,
+)
+from secuav_common.sensor_ids import ANCHOR_BASE, MAX_ANCHORS
+
+Rule = Annotated[
+    BiasRule
+    | RampRule
+    | SinusoidRule
+    | NoiseRule
+    | ScaleRule
+    | SetRule
+    | FreezeRule
+    | ReplayRule
+    | DelayRule
+    | DropRule
+    | IntermittentRule
+    | GarbageRule
+    | CoordinatedSpoofRule,
+    Field(discriminator="kind"),
+]
+
+
+class Parameter(Strict):
+    """A template parameter: its default value and what it means."""
+
+    default: JsonValue
+    description: str = ""
+
+
+class Profile(Strict):
+    """An attack profile (see DESIGN.md "Attack profiles")."""
+
+    name: Annotated[str, Field(min_length=1, max_length=100)]
+    description: str = ""
+    clock: Literal["activation", "vehicle"] = Field(
+        "activation",
+        description="activation: seconds since the profile became active; vehicle: the stream's time_boot_ms",
+    )
+    seed: int = Field(0, ge=0, lt=2**63, description="seeds noise, drop and garbage; with the engine's seed")
+    parameters: dict[str, Parameter] = Field(default_factory=dict)
+    rules: list[Rule] = Field(default_factory=list)
+
+    _source: str = PrivateAttr("<profile>")
+
+    @property
+    def source(self) -> str:
+        """Where the profile was read from (file path, ``library:NAME``, ``<mqtt>``)."""
+        return self._source
+
+    def canonical_json(self) -> str:
+        return dump_json(self)
+
+    def content_hash(self) -> str:
+        """SHA-256 of the canonical JSON: equal for equal profiles, whatever their source or spelling."""
+        return hashlib.sha256(self.canonical_json().encode()).hexdigest()
+
+
+assert set(PRIMITIVES) == {m.model_fields["kind"].default for m in Rule.__origin__.__args__}  # type: ignore[attr-defined]
+
+FRAME_KINDS = frozenset(k for k, cls in PRIMITIVES.items() if cls.frame_level)
+
+
+def _to_input_error(err: ValidationError, source: str) -> InputError:
+    """The first pydantic error as an InputError naming ``rules[i].field``.
+
+    pydantic puts the discriminator tag into the location (``rules.0.bias.offset``);
+    users never wrote it, so it is dropped here, and an unknown or missing ``kind``
+    is reported against ``rules[i].kind``.
+    """
+    detail = err.errors(include_url=False)[0]
+    loc = list(detail["loc"])
+    loc = [p for i, p in enumerate(loc) if not (i > 0 and isinstance(loc[i - 1], int) and p in PRIMITIVES)]
+    known = ", ".join(PRIMITIVES)
+    if detail["type"] == "union_tag_not_found":
+        return InputError(source, field_path((*loc, "kind")), _MISSING, f"missing; one of {known}")
+    if detail["type"] == "union_tag_invalid":
+        data = detail.get("input")
+        tag = data.get("kind") if isinstance(data, dict) else data
+        return InputError(source, field_path((*loc, "kind")), tag, f"unknown primitive; one of {known}")
+    value = detail.get("input", _MISSING) if loc and detail["type"] != "missing" else _MISSING
+    reason = detail["msg"].removeprefix("Value error, ")
+    return InputError(source, field_path(tuple(loc)), value, reason)
+
+
+def _substitute(node: Any, values: dict[str, Any], path: str, source: str) -> Any:
+    if isinstance(node, str) and node.startswith("$") and len(node) > 1:
+        name = node[1:]
+        if name not in values:
+            raise InputError(source, path, node, f"no parameter {name!r} (declared: {', '.join(values) or 'none'})")
+        return values[name]
+    if isinstance(node, dict):
+        return {k: _substitute(v, values, f"{path}.{k}", source) for k, v in node.items()}
+    if isinstance(node, list):
+        return [_substitute(v, values, f"{path}[{i}]", source) for i, v in enumerate(node)]
+    return node
+
+
+def _apply_parameters(data: dict[str, Any], params: dict[str, Any], source: str) -> dict[str, Any]:
+    declared = data.get("parameters") or {}
+    if not isinstance(declared, dict):
+        raise InputError(source, "parameters", declared, "must be a mapping of name to {default, description}")
+    values: dict[str, Any] = {}
+    for name, spec in declared.items():
+        if not isinstance(spec, dict) or "default" not in spec:
+            raise InputError(source, f"parameters.{name}", spec, "must be a mapping with a 'default'")
+        values[str(name)] = spec["default"]
+    for name, value in params.items():
+        if name not in values:
+            declared_names = ", ".join(values) or "none"
+            raise InputError(source, name, value, f"not a parameter of this profile (declared: {declared_names})")
+        values[name] = value
+    if "rules" not in data:
+        return data
+    return {**data, "rules": _substitute(data["rules"], values, "rules", source)}
+
+
+def _check_window(rule: RuleBase, where: str, source: str) -> None:
+    if rule.end_s is not None and rule.end_s <= rule.start_s:
+        raise InputError(source, f"{where}.end_s", rule.end_s, f"window ends before it starts (start_s {rule.start_s})")
+    if rule.repeat_period_s is not None:
+        if rule.end_s is None:
+            raise InputError(source, f"{where}.repeat_period_s", rule.repeat_period_s, "a repeating window needs end_s")
+        if rule.repeat_period_s < rule.end_s - rule.start_s:
+            raise InputError(
+                source,
+                f"{where}.repeat_period_s",
+                rule.repeat_period_s,
+                f"shorter than the window ({rule.end_s - rule.start_s} s)",
+            )
+
+
+def check_rule(rule: RuleBase, index: int, source: str) -> None:
+    """Checks the schema cannot express; raises InputError naming ``rules[index]...``."""
+    where = f"rules[{index}]"
+    kind: str = rule.kind  # type: ignore[attr-defined]
+    target = rule.target
+    spec = MESSAGES[target.message]
+    if target.field is not None and target.field not in spec.fields:
+        known = ", ".join(spec.fields)
+        raise InputError(
+            source, f"{where}.target.field", target.field, f"not an attackable field of {spec.name} ({known})"
+        )
+    if kind not in FRAME_KINDS and target.field is None and spec.default_field is None:
+        raise InputError(source, f"{where}.target.field", None, f"{kind} on {spec.name} needs a field")
+    if target.sensor_id is not None:
+        if spec.id_field is None:
+            raise InputError(source, f"{where}.target.sensor_id", target.sensor_id, f"{spec.name} has no sensor id")
+        sid = target.sensor_id
+        if not isinstance(sid, int | list) and sid.last < sid.first:
+            raise InputError(source, f"{where}.target.sensor_id.last", sid.last, f"below first ({sid.first})")
+        if isinstance(sid, list) and not sid:
+            raise InputError(source, f"{where}.target.sensor_id", sid, "empty id list; leave it out to target all")
+    _check_window(rule, where, source)
+    if isinstance(rule, ReplayRule):
+        if rule.source_end_s <= rule.source_start_s:
+            raise InputError(source, f"{where}.source_end_s", rule.source_end_s, "source window ends before it starts")
+        if rule.source_end_s > rule.start_s:
+            raise InputError(
+                source, f"{where}.source_end_s", rule.source_end_s, f"replays the future: rule starts at {rule.start_s}"
+            )
+    if isinstance(rule, CoordinatedSpoofRule):
+        field = target.field or spec.default_field
+        if target.message != "DISTANCE_SENSOR" or field != "current_distance":
+            raise InputError(
+                source, f"{where}.target", f"{target.message}.{field}", "must be DISTANCE_SENSOR.current_distance"
+            )
+        ids = target.sensor_ids()
+        if ids is None:
+            raise InputError(source, f"{where}.target.sensor_id", None, "name the attacked anchor links (ids 10-49)")
+        for sid_ in sorted(ids):
+            if not ANCHOR_BASE <= sid_ < ANCHOR_BASE + MAX_ANCHORS:
+                raise InputError(source, f"{where}.target.sensor_id", sid_, "not an anchor link (ids 10-49)")
+
+
+def check_profile(profile: Profile, source: str) -> None:
+    for i, rule in enumerate(profile.rules):
+        check_rule(rule, i, source)
+
+
+def parse_profile(data_or_text: Any, source: str = "<mqtt>", **params: Any) -> Profile:
+    """Validate a profile given as text (YAML/JSON) or already-parsed data.
+
+    ``params`` override the profile's declared parameters. Raises ``InputError``.
+    """
+    data = parse_document(data_or_text, source) if isinstance(data_or_text, str | bytes) else data_or_text
+    if data is None:
+        raise InputError(source, "profile", None, "document is empty")
+    if not isinstance(data, dict):
+        raise InputError(source, "profile", data, "a profile must be a mapping (name, rules, ...)")
+    data = _apply_parameters(data, params, source)
+    try:
+        profile = Profile.model_validate(data)
+    except ValidationError as err:
+        raise _to_input_error(err, source) from None
+    check_profile(profile, source)
+    profile._source = source
+    return profile
+
+
+def load_profile(path: str | Path, **params: Any) -> Profile:
+    """Read and validate a profile file (YAML or JSON); raises ``InputError``."""
+    path = Path(path)
+    source = str(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise InputError(source, "", None, exc.strerror or str(exc)) from None
+    return parse_profile(parse_document(raw, source), source, **params)
+
+
+_RULE_ADAPTER: TypeAdapter[Any] = TypeAdapter(Rule)
+
+
+def profile_json_schema() -> dict[str, Any]:
+    """The JSON Schema of a profile document, as exported to ``schema/profile.schema.json``."""
+    schema = Profile.model_json_schema()
+    schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
+    schema["$id"] = "https://secuav.example/schema/profile.schema.json"
+    return schema

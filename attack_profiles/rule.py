@@ -1,0 +1,83 @@
+"""What every rule has, whatever its primitive: a target and a time window.
+
+Each primitive module (``attack_profiles/primitives/*.py``) subclasses
+:class:`RuleBase` with its ``kind`` tag and its parameters; the profile model
+joins them into one discriminated union on ``kind``. Parameters are in physical
+units of the targeted field (metres, m/s, degrees; see :mod:`attack_profiles.units`).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from attack_profiles.units import MESSAGE_NAMES
+
+MessageName = Literal[MESSAGE_NAMES]  # type: ignore[valid-type]
+DirectionName = Literal["downlink", "uplink", "both"]
+SensorId = Annotated[int, Field(ge=0, le=255)]
+Seconds = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+Positive = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
+Probability = Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
+Vec3Param = tuple[Finite, Finite, Finite]
+
+
+class Strict(BaseModel):
+    """Unknown keys are errors, values are immutable, NaN and infinity are refused
+    (they would not survive a JSON round trip and never make sense as a parameter)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+class IdRange(Strict):
+    """An inclusive range of sensor ids, e.g. the eight anchor links ``{first: 10, last: 17}``."""
+
+    first: SensorId
+    last: SensorId
+
+
+class Target(Strict):
+    """Which values a rule acts on.
+
+    ``sensor_id`` (a single id, a list, or an inclusive range) only applies to
+    messages that carry one (DISTANCE_SENSOR's ``id``); leaving it out targets
+    every sensor. ``field`` defaults to the message's main field where it has
+    one (DISTANCE_SENSOR: ``current_distance``); drop, delay and intermittent
+    act on whole frames and ignore it. ``sysid`` left out targets every vehicle.
+    """
+
+    message: MessageName
+    sensor_id: SensorId | list[SensorId] | IdRange | None = None
+    field: str | None = None
+    direction: DirectionName = "downlink"
+    sysid: Annotated[int, Field(ge=0, le=255)] | None = None
+
+    def sensor_ids(self) -> frozenset[int] | None:
+        """The targeted ids, or ``None`` for every sensor."""
+        sid = self.sensor_id
+        if sid is None:
+            return None
+        if isinstance(sid, int):
+            return frozenset((sid,))
+        if isinstance(sid, IdRange):
+            return frozenset(range(sid.first, sid.last + 1))
+        return frozenset(sid)
+
+
+class RuleBase(Strict):
+    """Target and window shared by every rule.
+
+    The rule is active while ``start_s <= t < end_s`` on the profile's clock
+    (no ``end_s``: until the profile is cleared). With ``repeat_period_s`` the
+    window recurs: active while ``(t - start_s) mod repeat_period_s`` is below
+    ``end_s - start_s``. Time-varying primitives measure their own time ``tau``
+    from the start of the current window occurrence.
+    """
+
+    target: Target
+    start_s: Seconds = 0.0
+    end_s: Seconds | None = None
+    repeat_period_s: Annotated[float, Field(gt=0.0, allow_inf_nan=False)] | None = None
+    note: str = Field("", description="free text, e.g. why this rule exists")

@@ -1,0 +1,224 @@
+"""Wire <-> physical units of the MAVLink fields a profile may attack.
+
+Profiles speak physical units (metres, m/s, degrees, seconds); pymavlink hands
+the engine wire units (cm, mm, 1e7 degrees, centidegrees, ...). One table per
+message says, for each attackable field, how many physical units one wire unit
+is and which range the wire type can carry, so the engine can convert both ways
+and clamp instead of letting pymavlink's ``struct.pack`` fail on overflow.
+
+The tables are written out rather than derived from pymavlink at import time:
+importing a dialect costs more than the whole engine, and a test checks these
+entries against pymavlink's own field types and units.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+# Representable ranges of the MAVLink wire types.
+_INT_RANGE = {
+    "uint8_t": (0, 2**8 - 1),
+    "int8_t": (-(2**7), 2**7 - 1),
+    "uint16_t": (0, 2**16 - 1),
+    "int16_t": (-(2**15), 2**15 - 1),
+    "uint32_t": (0, 2**32 - 1),
+    "int32_t": (-(2**31), 2**31 - 1),
+    "uint64_t": (0, 2**64 - 1),
+}
+_FLOAT32_MAX = 3.4028234663852886e38
+
+# Physical units per wire unit; the physical unit is what profiles are written in.
+_UNIT = {
+    "m": (1.0, "m"),
+    "cm": (0.01, "m"),
+    "mm": (0.001, "m"),
+    "m/s": (1.0, "m/s"),
+    "cm/s": (0.01, "m/s"),
+    "mm/s": (0.001, "m/s"),
+    "degE7": (1e-7, "deg"),
+    "degE5": (1e-5, "deg"),
+    "cdeg": (0.01, "deg"),
+    "rad": (180.0 / math.pi, "deg"),
+    "rad/s": (180.0 / math.pi, "deg/s"),
+    "ms": (0.001, "s"),
+    "us": (1e-6, "s"),
+    "%": (1.0, "%"),
+    "": (1.0, ""),
+}
+
+
+@dataclass(frozen=True, slots=True)
+class FieldSpec:
+    """One attackable field: wire type, wire unit and the conversion to physical units."""
+
+    name: str
+    wire_type: str  # MAVLink type name, e.g. "uint16_t"
+    wire_unit: str  # as the MAVLink XML writes it, e.g. "cm"
+    scale: float  # physical value = wire value * scale
+    unit: str  # physical unit, e.g. "m"
+    lo: float  # smallest representable wire value
+    hi: float  # largest representable wire value
+    integer: bool
+
+    def to_physical(self, wire: float) -> float:
+        return wire * self.scale
+
+    def to_wire(self, physical: float) -> tuple[float | int, bool]:
+        """Physical value -> (wire value, clamped?). NaN becomes the range's low end, flagged as clamped."""
+        raw = physical / self.scale
+        if raw != raw:  # NaN: no wire type but float can carry it
+            if not self.integer:
+                return raw, False
+            return int(self.lo), True
+        if raw < self.lo:
+            return (int(self.lo) if self.integer else self.lo), True
+        if raw > self.hi:
+            return (int(self.hi) if self.integer else self.hi), True
+        if self.integer:
+            return round(raw), False
+        return raw, False
+
+
+def _spec(name: str, wire_type: str, wire_unit: str = "") -> FieldSpec:
+    scale, unit = _UNIT[wire_unit]
+    if wire_type == "float":
+        lo, hi, integer = -_FLOAT32_MAX, _FLOAT32_MAX, False
+    else:
+        lo, hi = _INT_RANGE[wire_type]
+        integer = True
+    return FieldSpec(name, wire_type, wire_unit, scale, unit, float(lo), float(hi), integer)
+
+
+@dataclass(frozen=True, slots=True)
+class MessageSpec:
+    """An attackable message: its id, its fields, and how it names a sensor and a time."""
+
+    name: str
+    msgid: int
+    fields: dict[str, FieldSpec]
+    default_field: str | None  # used when a rule's target names no field
+    id_field: str | None  # field that carries the sensor id, if any
+    time_field: str | None  # vehicle clock: "time_boot_ms" or "time_usec"
+
+
+def _message(
+    name: str,
+    msgid: int,
+    fields: list[tuple[str, str, str]],
+    default_field: str | None = None,
+    id_field: str | None = None,
+    time_field: str | None = "time_boot_ms",
+) -> MessageSpec:
+    table = {f: _spec(f, t, u) for f, t, u in fields}
+    return MessageSpec(name, msgid, table, default_field, id_field, time_field)
+
+
+MESSAGES: dict[str, MessageSpec] = {
+    m.name: m
+    for m in (
+        _message(
+            "DISTANCE_SENSOR",
+            132,
+            [
+                ("current_distance", "uint16_t", "cm"),
+                ("min_distance", "uint16_t", "cm"),
+                ("max_distance", "uint16_t", "cm"),
+                ("covariance", "uint8_t", ""),  # cm^2 on the wire; kept raw, nothing physical to scale it to
+                ("signal_quality", "uint8_t", "%"),
+                ("horizontal_fov", "float", "rad"),
+                ("vertical_fov", "float", "rad"),
+            ],
+            default_field="current_distance",
+            id_field="id",
+        ),
+        _message(
+            "LOCAL_POSITION_NED",
+            32,
+            [
+                ("x", "float", "m"),
+                ("y", "float", "m"),
+                ("z", "float", "m"),
+                ("vx", "float", "m/s"),
+                ("vy", "float", "m/s"),
+                ("vz", "float", "m/s"),
+            ],
+        ),
+        _message(
+            "GLOBAL_POSITION_INT",
+            33,
+            [
+                ("lat", "int32_t", "degE7"),
+                ("lon", "int32_t", "degE7"),
+                ("alt", "int32_t", "mm"),
+                ("relative_alt", "int32_t", "mm"),
+                ("vx", "int16_t", "cm/s"),
+                ("vy", "int16_t", "cm/s"),
+                ("vz", "int16_t", "cm/s"),
+                ("hdg", "uint16_t", "cdeg"),
+            ],
+        ),
+        _message(
+            "GPS_RAW_INT",
+            24,
+            [
+                ("lat", "int32_t", "degE7"),
+                ("lon", "int32_t", "degE7"),
+                ("alt", "int32_t", "mm"),
+                ("eph", "uint16_t", ""),  # HDOP * 100, dimensionless
+                ("epv", "uint16_t", ""),
+                ("vel", "uint16_t", "cm/s"),
+                ("cog", "uint16_t", "cdeg"),
+                ("satellites_visible", "uint8_t", ""),
+                ("fix_type", "uint8_t", ""),
+                ("alt_ellipsoid", "int32_t", "mm"),
+                ("h_acc", "uint32_t", "mm"),
+                ("v_acc", "uint32_t", "mm"),
+                ("vel_acc", "uint32_t", "mm/s"),
+            ],
+            time_field="time_usec",
+        ),
+        _message(
+            "ODOMETRY",
+            331,
+            [
+                ("x", "float", "m"),
+                ("y", "float", "m"),
+                ("z", "float", "m"),
+                ("vx", "float", "m/s"),
+                ("vy", "float", "m/s"),
+                ("vz", "float", "m/s"),
+                ("rollspeed", "float", "rad/s"),
+                ("pitchspeed", "float", "rad/s"),
+                ("yawspeed", "float", "rad/s"),
+                ("quality", "int8_t", "%"),
+            ],
+            time_field="time_usec",
+        ),
+        _message(
+            "ATTITUDE",
+            30,
+            [
+                ("roll", "float", "rad"),
+                ("pitch", "float", "rad"),
+                ("yaw", "float", "rad"),
+                ("rollspeed", "float", "rad/s"),
+                ("pitchspeed", "float", "rad/s"),
+                ("yawspeed", "float", "rad/s"),
+            ],
+        ),
+    )
+}
+
+MESSAGE_NAMES: tuple[str, ...] = tuple(MESSAGES)
+MESSAGE_BY_ID: dict[int, MessageSpec] = {m.msgid: m for m in MESSAGES.values()}
+
+LOCAL_POSITION_NED_ID = MESSAGES["LOCAL_POSITION_NED"].msgid
+
+# time_usec above this is a UNIX epoch, not time since boot (about 31 years in microseconds).
+EPOCH_USEC_THRESHOLD = 10**15
+
+
+def field_spec(message: str, field: str) -> FieldSpec:
+    """The spec of ``message.field``; ``KeyError`` if it is not attackable."""
+    return MESSAGES[message].fields[field]
