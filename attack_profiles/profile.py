@@ -16,10 +16,11 @@ links this way).
 from __future__ import annotations
 
 import hashlib
+import json
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import Field, JsonValue, PrivateAttr, TypeAdapter, ValidationError
+from pydantic import Field, JsonValue, PrivateAttr, ValidationError
 
 from attack_profiles.primitives import PRIMITIVES
 from attack_profiles.primitives.bias import BiasRule
@@ -153,9 +154,15 @@ def _apply_parameters(data: dict[str, Any], params: dict[str, Any], source: str)
             declared_names = ", ".join(values) or "none"
             raise InputError(source, name, value, f"not a parameter of this profile (declared: {declared_names})")
         values[name] = value
-    if "rules" not in data:
+    if not values:
         return data
-    return {**data, "rules": _substitute(data["rules"], values, "rules", source)}
+    # The resolved profile records the values it was built with, so it describes itself
+    # and parses back to the same profile (and the same content hash).
+    resolved = {name: {**spec, "default": values[str(name)]} for name, spec in declared.items()}
+    out = {**data, "parameters": resolved}
+    if "rules" in data:
+        out["rules"] = _substitute(data["rules"], values, "rules", source)
+    return out
 
 
 def _check_window(rule: RuleBase, where: str, source: str) -> None:
@@ -248,11 +255,11 @@ def load_profile(path: str | Path, **params: Any) -> Profile:
     try:
         raw = path.read_bytes()
     except OSError as exc:
-        raise InputError(source, "", None, exc.strerror or str(exc)) from None
+        raise InputError(source, "", _MISSING, exc.strerror or str(exc)) from None
     return parse_profile(parse_document(raw, source), source, **params)
 
 
-_RULE_ADAPTER: TypeAdapter[Any] = TypeAdapter(Rule)
+SCHEMA_PATH = Path(__file__).resolve().parent / "schema" / "profile.schema.json"
 
 
 def profile_json_schema() -> dict[str, Any]:
@@ -261,3 +268,8 @@ def profile_json_schema() -> dict[str, Any]:
     schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
     schema["$id"] = "https://secuav.example/schema/profile.schema.json"
     return schema
+
+
+def profile_schema_text() -> str:
+    """The exported schema file's exact content (a test keeps the file in step with the models)."""
+    return json.dumps(profile_json_schema(), indent=2, sort_keys=True) + "\n"

@@ -1,0 +1,149 @@
+"""``secuav-attack``: check, list, show and export attack profiles.
+
+Offline subcommands live here: ``validate F [--scenario S]``, ``list``,
+``show NAME``, ``schema``. ``apply``, ``clear`` and ``status`` talk to a running
+proxy; their parsers are defined here so the proxy's CLI can reuse
+:func:`build_parser` and plug in real handlers through ``live_handlers``
+(until then they answer with one line saying so and exit 2).
+
+Every failure is one line on stderr and a non-zero exit code; no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from attack_profiles import library
+from attack_profiles.engine import Engine
+from attack_profiles.profile import Profile, load_profile, profile_schema_text
+from secuav_common.loading import InputError, parse_document
+from secuav_common.scenario import load_scenario
+
+Handler = Callable[[argparse.Namespace], int]
+LIVE_COMMANDS = ("apply", "clear", "status")
+
+
+def _params(pairs: Sequence[str]) -> dict[str, Any]:
+    """``--param links=[11,14] --param offset_m=2`` -> typed values (YAML/JSON syntax)."""
+    out: dict[str, Any] = {}
+    for pair in pairs:
+        name, sep, raw = pair.partition("=")
+        if not sep or not name:
+            raise InputError("--param", "", pair, "expected NAME=VALUE")
+        out[name] = parse_document(raw, f"--param {name}") if raw else None
+    return out
+
+
+def _resolve(ref: str, params: dict[str, Any]) -> Profile:
+    """A file path, or the name of a library profile."""
+    if Path(ref).exists() or Path(ref).suffix:
+        return load_profile(ref, **params)
+    return library.load(ref, **params)
+
+
+def cmd_validate(args: argparse.Namespace) -> int:
+    profile = _resolve(args.profile, _params(args.param))
+    where = ""
+    if args.scenario:
+        scenario = load_scenario(args.scenario)
+        Engine(profile, scenario=scenario)  # checks sensor ids and builds every rule
+        where = f", fits scenario {scenario.name!r}"
+    elif not _needs_scenario(profile):
+        Engine(profile)  # builds every rule, as the proxy will
+    print(f"ok: {profile.name} ({len(profile.rules)} rules, hash {profile.content_hash()[:12]}{where})")
+    return 0
+
+
+def _needs_scenario(profile: Profile) -> bool:
+    return any(r.kind == "coordinated_spoof" for r in profile.rules)
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    entries = library.describe()
+    width = max(len(name) for name, _ in entries)
+    for name, description in entries:
+        print(f"{name:<{width}}  {description}")
+    return 0
+
+
+def cmd_show(args: argparse.Namespace) -> int:
+    if args.param:
+        profile = library.load(args.name, **_params(args.param))
+        print(json.dumps(profile.model_dump(mode="json"), indent=2))
+    else:
+        sys.stdout.write(library.text(args.name))
+    return 0
+
+
+def cmd_schema(args: argparse.Namespace) -> int:
+    sys.stdout.write(profile_schema_text())
+    return 0
+
+
+def needs_proxy(args: argparse.Namespace) -> int:
+    print(
+        f"secuav-attack {args.command}: needs a running proxy; this arrives with the proxy issue "
+        "(offline: validate, list, show, schema)",
+        file=sys.stderr,
+    )
+    return 2
+
+
+def build_parser(live_handlers: Mapping[str, Handler] | None = None) -> argparse.ArgumentParser:
+    """The full command line; ``live_handlers`` maps apply/clear/status to real implementations."""
+    live = dict.fromkeys(LIVE_COMMANDS, needs_proxy)
+    live.update(live_handlers or {})
+    parser = argparse.ArgumentParser(prog="secuav-attack", description="Check, list and apply SecUAV attack profiles.")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("validate", help="check a profile file (or library name) offline")
+    p.add_argument("profile", metavar="F", help="profile file (YAML/JSON) or library name")
+    p.add_argument("--scenario", metavar="S", help="also check sensor ids against this scenario (file or bundled name)")
+    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="override a profile parameter")
+    p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("list", help="the library of ready profiles, one line each")
+    p.set_defaults(func=cmd_list)
+
+    p = sub.add_parser("show", help="print a library profile")
+    p.add_argument("name", metavar="NAME")
+    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="print it resolved, as JSON")
+    p.set_defaults(func=cmd_show)
+
+    p = sub.add_parser("schema", help="print the profile JSON Schema")
+    p.set_defaults(func=cmd_schema)
+
+    p = sub.add_parser("apply", help="activate a profile on a running proxy")
+    p.add_argument("profile", metavar="F", help="profile file (YAML/JSON) or library name")
+    p.add_argument("--vehicle", type=int, metavar="N", help="only this vehicle's sysid")
+    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="override a profile parameter")
+    p.set_defaults(func=live["apply"])
+
+    p = sub.add_parser("clear", help="remove the active profile on a running proxy")
+    p.add_argument("--vehicle", type=int, metavar="N", help="only this vehicle's sysid")
+    p.set_defaults(func=live["clear"])
+
+    p = sub.add_parser("status", help="show the active profile of a running proxy")
+    p.add_argument("--vehicle", type=int, metavar="N", help="only this vehicle's sysid")
+    p.set_defaults(func=live["status"])
+    return parser
+
+
+def main(argv: Sequence[str] | None = None, live_handlers: Mapping[str, Handler] | None = None) -> int:
+    args = build_parser(live_handlers).parse_args(argv)
+    try:
+        return int(args.func(args))
+    except InputError as err:
+        print(f"secuav-attack: {err}", file=sys.stderr)
+        return 1
+    except BrokenPipeError:  # `secuav-attack list | head`
+        return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
