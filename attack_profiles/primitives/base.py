@@ -22,6 +22,10 @@ from attack_profiles.units import FieldSpec
 Vec3 = tuple[float, float, float]
 SampleKey = tuple[int, int]  # (sysid, sensor id or -1): stateful primitives keep state per key
 
+# Times are compared with this slack: "the sample 0.2 s ago" must find the sample stamped
+# 0.4 when asked at 0.6, although 0.6 - 0.2 is 0.39999999999999997 in binary floating point.
+TIME_EPS_S = 1e-9
+
 
 @dataclass(slots=True)
 class Sample:

@@ -7,7 +7,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field
 
-from attack_profiles.primitives.base import Context, Primitive, Sample, SampleKey
+from attack_profiles.primitives.base import TIME_EPS_S, Context, Primitive, Sample, SampleKey
 from attack_profiles.rule import RuleBase
 
 
@@ -42,7 +42,7 @@ class Delay(Primitive):
         hist.append((s.t_s, s.value))
         if tau_s is None:
             return
-        cutoff = s.t_s - self.delay_s
+        cutoff = s.t_s - self.delay_s + TIME_EPS_S
         # Keep only the newest sample at or before the cutoff and everything after it.
         while len(hist) > 1 and hist[1][0] <= cutoff:
             hist.popleft()

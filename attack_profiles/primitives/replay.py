@@ -5,7 +5,7 @@ from __future__ import annotations
 from bisect import bisect_right
 from typing import Literal
 
-from attack_profiles.primitives.base import Context, Primitive, Sample, SampleKey
+from attack_profiles.primitives.base import TIME_EPS_S, Context, Primitive, Sample, SampleKey
 from attack_profiles.rule import RuleBase, Seconds
 
 MAX_RECORDED = 100_000  # per target; bounds memory if a source window is long and the rate high
@@ -46,6 +46,6 @@ class Replay(Primitive):
         times = self.times.get(s.key)
         if not times:
             return
-        src_t = self.src_start + tau_s % self.src_len
+        src_t = self.src_start + tau_s % self.src_len + TIME_EPS_S
         i = bisect_right(times, src_t) - 1
         s.value = self.values[s.key][max(i, 0)]
