@@ -105,22 +105,50 @@ assert set(PRIMITIVES) == {m.model_fields["kind"].default for m in Rule.__origin
 FRAME_KINDS = frozenset(k for k, cls in PRIMITIVES.items() if cls.frame_level)
 
 
-def _to_input_error(err: ValidationError, source: str) -> InputError:
-    """The first pydantic error as an InputError naming ``rules[i].field``.
+def _user_path(loc: tuple[int | str, ...], data: Any) -> tuple[list[int | str], int]:
+    """The parts of a pydantic error location that exist in the user's document, and how many matched.
 
-    pydantic puts the discriminator tag into the location (``rules.0.bias.offset``);
-    users never wrote it, so it is dropped here, and an unknown or missing ``kind``
-    is reported against ``rules[i].kind``.
+    pydantic inserts union member tags (``rules.0.bias.offset``,
+    ``target.sensor_id.constrained-int``) that users never wrote; walking the
+    document tells them apart from real keys. A final key or index missing from
+    its container is kept: it is the missing field itself.
     """
-    detail = err.errors(include_url=False)[0]
-    loc = list(detail["loc"])
-    loc = [p for i, p in enumerate(loc) if not (i > 0 and isinstance(loc[i - 1], int) and p in PRIMITIVES)]
+    out: list[int | str] = []
+    matched = 0
+    cur = data
+    last = len(loc) - 1
+    for i, part in enumerate(loc):
+        in_dict = isinstance(cur, dict) and part in cur
+        in_list = isinstance(cur, list) and isinstance(part, int) and 0 <= part < len(cur)
+        if in_dict or in_list:
+            cur = cur[part]  # type: ignore[index]
+            matched += 1
+        elif i == last and isinstance(cur, dict) and isinstance(part, str) and part.isidentifier():
+            if part in PRIMITIVES or part[0].isupper() or part in ("int", "float", "str", "bool", "none"):
+                continue  # a union member's tag, not a missing key
+        elif not (i == last and isinstance(cur, list) and isinstance(part, int)):
+            continue
+        out.append(part)
+    return out, matched
+
+
+def _to_input_error(err: ValidationError, data: Any, source: str) -> InputError:
+    """The most specific pydantic error as one InputError naming ``rules[i].field`` as the user wrote it.
+
+    For a value that fits none of a union's members pydantic reports one error per
+    member; the one that reaches deepest into what the user wrote explains it best
+    (a mapping given for ``sensor_id`` is judged as an id range, not as an integer).
+    """
+    details = err.errors(include_url=False)
+    paths = [_user_path(tuple(d["loc"]), data) for d in details]
+    best = max(range(len(details)), key=lambda i: (paths[i][1], len(paths[i][0])))  # first of the deepest
+    detail, loc = details[best], paths[best][0]
     known = ", ".join(PRIMITIVES)
     if detail["type"] == "union_tag_not_found":
         return InputError(source, field_path((*loc, "kind")), _MISSING, f"missing; one of {known}")
     if detail["type"] == "union_tag_invalid":
-        data = detail.get("input")
-        tag = data.get("kind") if isinstance(data, dict) else data
+        tag = detail.get("input")
+        tag = tag.get("kind") if isinstance(tag, dict) else tag
         return InputError(source, field_path((*loc, "kind")), tag, f"unknown primitive; one of {known}")
     value = detail.get("input", _MISSING) if loc and detail["type"] != "missing" else _MISSING
     reason = detail["msg"].removeprefix("Value error, ")
@@ -242,7 +270,7 @@ def parse_profile(data_or_text: Any, source: str = "<mqtt>", **params: Any) -> P
     try:
         profile = Profile.model_validate(data)
     except ValidationError as err:
-        raise _to_input_error(err, source) from None
+        raise _to_input_error(err, data, source) from None
     check_profile(profile, source)
     profile._source = source
     return profile
