@@ -40,9 +40,9 @@ from attack_profiles.rule import RuleBase, Strict
 from attack_profiles.units import MESSAGES
 from secuav_common.loading import (
     _MISSING,  # the "no value to show" sentinel InputError understands
+    MAX_DOCUMENT_BYTES,
     InputError,
     dump_json,
-    field_path,
     parse_document,
 )
 from secuav_common.sensor_ids import ANCHOR_BASE, MAX_ANCHORS
@@ -92,6 +92,13 @@ class Profile(Strict):
         """Where the profile was read from (file path, ``library:NAME``, ``<mqtt>``)."""
         return self._source
 
+    def __eq__(self, other: object) -> bool:
+        # Equal content is equal, whichever file, topic or library name it came from.
+        return isinstance(other, Profile) and self.canonical_json() == other.canonical_json()
+
+    def __hash__(self) -> int:
+        return hash(self.canonical_json())
+
     def canonical_json(self) -> str:
         return dump_json(self)
 
@@ -103,6 +110,19 @@ class Profile(Strict):
 assert set(PRIMITIVES) == {m.model_fields["kind"].default for m in Rule.__origin__.__args__}  # type: ignore[attr-defined]
 
 FRAME_KINDS = frozenset(k for k, cls in PRIMITIVES.items() if cls.frame_level)
+
+
+def _path(loc: tuple[int | str, ...] | list[int | str]) -> str:
+    """``rules[2].target.field``; a key that is not a plain name is quoted: ``rules[0]['']``."""
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        elif part.isidentifier():
+            out += ("." if out else "") + part
+        else:
+            out += f"[{part!r}]"
+    return out
 
 
 def _user_path(loc: tuple[int | str, ...], data: Any) -> tuple[list[int | str], int]:
@@ -145,14 +165,14 @@ def _to_input_error(err: ValidationError, data: Any, source: str) -> InputError:
     detail, loc = details[best], paths[best][0]
     known = ", ".join(PRIMITIVES)
     if detail["type"] == "union_tag_not_found":
-        return InputError(source, field_path((*loc, "kind")), _MISSING, f"missing; one of {known}")
+        return InputError(source, _path((*loc, "kind")), _MISSING, f"missing; one of {known}")
     if detail["type"] == "union_tag_invalid":
         tag = detail.get("input")
         tag = tag.get("kind") if isinstance(tag, dict) else tag
-        return InputError(source, field_path((*loc, "kind")), tag, f"unknown primitive; one of {known}")
+        return InputError(source, _path((*loc, "kind")), tag, f"unknown primitive; one of {known}")
     value = detail.get("input", _MISSING) if loc and detail["type"] != "missing" else _MISSING
     reason = detail["msg"].removeprefix("Value error, ")
-    return InputError(source, field_path(tuple(loc)), value, reason)
+    return InputError(source, _path(loc), value, reason)
 
 
 def _substitute(node: Any, values: dict[str, Any], path: str, source: str) -> Any:
@@ -256,12 +276,23 @@ def check_profile(profile: Profile, source: str) -> None:
         check_rule(rule, i, source)
 
 
+def _parse_text(text: str | bytes, source: str) -> Any:
+    """JSON first (what MQTT carries; the YAML parser mangles JSON's surrogate-pair escapes
+    of characters beyond the BMP), YAML for everything else."""
+    if len(text) <= MAX_DOCUMENT_BYTES:
+        try:
+            return json.loads(text)
+        except (ValueError, RecursionError):
+            pass
+    return parse_document(text, source)
+
+
 def parse_profile(data_or_text: Any, source: str = "<mqtt>", **params: Any) -> Profile:
     """Validate a profile given as text (YAML/JSON) or already-parsed data.
 
     ``params`` override the profile's declared parameters. Raises ``InputError``.
     """
-    data = parse_document(data_or_text, source) if isinstance(data_or_text, str | bytes) else data_or_text
+    data = _parse_text(data_or_text, source) if isinstance(data_or_text, str | bytes) else data_or_text
     if data is None:
         raise InputError(source, "profile", None, "document is empty")
     if not isinstance(data, dict):

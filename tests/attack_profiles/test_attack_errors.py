@@ -56,6 +56,14 @@ CASES = [
         "11",
     ),
     ({**GOOD, "target": {"message": "DISTANCE_SENSOR", "sensor_id": 300}}, "rules[1].target.sensor_id", "300"),
+    # A union value is judged by the member its shape asks for, at the path the user wrote.
+    (
+        {**GOOD, "target": {"message": "DISTANCE_SENSOR", "sensor_id": {"first": 1}}},
+        "rules[1].target.sensor_id.last",
+        "",
+    ),
+    ({**GOOD, "target": {"message": "DISTANCE_SENSOR", "sensor_id": [1, "x"]}}, "rules[1].target.sensor_id[1]", "'x'"),
+    ({**GOOD, "": 1}, "rules[1]['']", "1"),
 ]
 
 
