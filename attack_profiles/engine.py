@@ -38,6 +38,7 @@ from attack_profiles.action import FORWARD, Action, Direction
 from attack_profiles.primitives import PRIMITIVES, Context, Primitive, Sample
 from attack_profiles.primitives.base import Vec3
 from attack_profiles.primitives.coordinated_spoof import CoordinatedSpoof, CoordinatedSpoofRule
+from attack_profiles.primitives.garbage import GarbageRule
 from attack_profiles.profile import Profile
 from attack_profiles.rule import RuleBase
 from attack_profiles.units import EPOCH_USEC_THRESHOLD, LOCAL_POSITION_NED_ID, MESSAGES, FieldSpec, MessageSpec
@@ -100,7 +101,7 @@ class _State:
     sample: Sample = field(default_factory=Sample)
 
 
-def _rule_seed(profile_seed: int, engine_seed: int, index: int) -> int:
+def _rule_seed(profile_seed: int, engine_seed: int, index: int | str) -> int:
     # A hash rather than arithmetic so neighbouring seeds give unrelated streams.
     digest = hashlib.sha256(f"{profile_seed}:{engine_seed}:{index}".encode()).digest()
     return int.from_bytes(digest[:8], "little")
@@ -224,7 +225,8 @@ class Engine:
             r.prim.apply(s, tau)
             if tau is None:
                 continue
-            acted.append(r.index)
+            if not acted or acted[-1] != r.index:  # frame-scope garbage is one rule over many fields
+                acted.append(r.index)
             if s.drop:
                 return Action(drop=True, rules=tuple(acted))
             if name is not None:
@@ -340,23 +342,33 @@ class Engine:
         for i, rule in enumerate(self.profile.rules):
             msg = MESSAGES[rule.target.message]
             cls = PRIMITIVES[rule.kind]  # type: ignore[attr-defined]
-            name = None if cls.frame_level else (rule.target.field or msg.default_field)
-            spec = msg.fields[name] if name is not None else None
-            ctx = Context(i, spec, random.Random(_rule_seed(self.profile.seed, self.seed, i)), self._anchors)
-            plans[msg.msgid].append(
-                _Compiled(
-                    index=i,
-                    prim=cls(rule, ctx),
-                    window=Window.of(rule),
-                    stateful=cls.stateful,
-                    directions=_DIRECTIONS[rule.target.direction],
-                    sysid=rule.target.sysid,
-                    ids=rule.target.sensor_ids(),
-                    field=name,
-                    spec=spec,
+            for name in _fields_of(rule, msg, cls):
+                spec = msg.fields[name] if name is not None else None
+                seed = _rule_seed(self.profile.seed, self.seed, i if name is None else f"{i}.{name}")
+                ctx = Context(i, spec, random.Random(seed), self._anchors)
+                plans[msg.msgid].append(
+                    _Compiled(
+                        index=i,
+                        prim=cls(rule, ctx),
+                        window=Window.of(rule),
+                        stateful=cls.stateful,
+                        directions=_DIRECTIONS[rule.target.direction],
+                        sysid=rule.target.sysid,
+                        ids=rule.target.sensor_ids(),
+                        field=name,
+                        spec=spec,
+                    )
                 )
-            )
         return _State(plans={mid: tuple(rs) for mid, rs in plans.items()})
+
+
+def _fields_of(rule: RuleBase, msg: MessageSpec, cls: type[Primitive]) -> list[str | None]:
+    """The fields one rule acts on: none for frame-level primitives, all for frame-scope garbage."""
+    if cls.frame_level:
+        return [None]
+    if isinstance(rule, GarbageRule) and rule.scope == "frame":
+        return list(msg.fields)
+    return [rule.target.field or msg.default_field]
 
 
 def _sensor_ids(vehicle: Any, anchors: set[int]) -> set[int]:

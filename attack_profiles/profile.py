@@ -250,6 +250,8 @@ def check_rule(rule: RuleBase, index: int, source: str) -> None:
         if isinstance(sid, list) and not sid:
             raise InputError(source, f"{where}.target.sensor_id", sid, "empty id list; leave it out to target all")
     _check_window(rule, where, source)
+    if isinstance(rule, GarbageRule) and rule.scope == "frame" and target.field is not None:
+        raise InputError(source, f"{where}.target.field", target.field, "scope frame covers every field; leave it out")
     if isinstance(rule, ReplayRule):
         if rule.source_end_s <= rule.source_start_s:
             raise InputError(source, f"{where}.source_end_s", rule.source_end_s, "source window ends before it starts")

@@ -10,9 +10,12 @@ from attack_profiles.rule import RuleBase
 
 class GarbageRule(RuleBase):
     """Replace the field with a value drawn uniformly from everything its wire type can carry
-    (0..65535 cm for ``current_distance``; any float32 for float fields)."""
+    (0..65535 cm for ``current_distance``; any float32 for float fields). ``scope: frame`` does
+    this to every attackable field of the message (the sensor id and timestamps stay, so the
+    frame still parses and says whose it is); the target then names no field."""
 
     kind: Literal["garbage"] = "garbage"
+    scope: Literal["field", "frame"] = "field"
 
 
 class Garbage(Primitive):

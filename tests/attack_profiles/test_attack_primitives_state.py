@@ -184,3 +184,12 @@ def test_coordinated_spoof_offline_needs_the_truth() -> None:
         engine.apply_array(np.zeros(2), np.ones((2, 1)), [11])
     # A stream the rule does not target does not need it.
     np.testing.assert_array_equal(engine.apply_array(np.zeros(2), np.ones((2, 1)), [12]), np.ones((2, 1)))
+
+
+def test_garbage_frame_scope_randomises_every_field_but_keeps_id_and_time() -> None:
+    engine = started(make_profile(rule("garbage", sensor_id=3, scope="frame")))
+    action = send(engine, 0.0, distance(3, 250, time_boot_ms=1234))
+    assert action.rules == (0,)
+    assert action.fields is not None
+    assert {"current_distance", "min_distance", "max_distance", "signal_quality"} <= set(action.fields)
+    assert "id" not in action.fields and "time_boot_ms" not in action.fields
