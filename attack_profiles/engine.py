@@ -40,7 +40,7 @@ from attack_profiles.primitives.base import Vec3
 from attack_profiles.primitives.coordinated_spoof import CoordinatedSpoof, CoordinatedSpoofRule
 from attack_profiles.primitives.garbage import GarbageRule
 from attack_profiles.profile import Profile
-from attack_profiles.rule import RuleBase
+from attack_profiles.rule import IdRange, RuleBase
 from attack_profiles.units import EPOCH_USEC_THRESHOLD, LOCAL_POSITION_NED_ID, MESSAGES, FieldSpec, MessageSpec
 from secuav_common.loading import InputError
 from secuav_common.scenario import Scenario
@@ -151,6 +151,16 @@ class Engine:
             present = set().union(*(_sensor_ids(v, anchors) for v in vehicles))
             if isinstance(rule, CoordinatedSpoofRule):
                 present &= anchors
+            if isinstance(target.sensor_id, IdRange):
+                # A range is a shorthand ("the anchor links 10-49"): it must reach some sensor, not all.
+                if not wanted & present:
+                    raise InputError(
+                        source,
+                        f"rules[{i}].target.sensor_id",
+                        target.sensor_id.model_dump(),
+                        f"scenario {scenario.name!r} has no sensor in this range (ids: {sorted(present)})",
+                    )
+                continue
             for sid in sorted(wanted):
                 if sid not in present:
                     raise InputError(
@@ -342,7 +352,7 @@ class Engine:
         for i, rule in enumerate(self.profile.rules):
             msg = MESSAGES[rule.target.message]
             cls = PRIMITIVES[rule.kind]  # type: ignore[attr-defined]
-            for name in _fields_of(rule, msg, cls):
+            for name in _fields_of(rule, msg):
                 spec = msg.fields[name] if name is not None else None
                 seed = _rule_seed(self.profile.seed, self.seed, i if name is None else f"{i}.{name}")
                 ctx = Context(i, spec, random.Random(seed), self._anchors)
@@ -362,9 +372,9 @@ class Engine:
         return _State(plans={mid: tuple(rs) for mid, rs in plans.items()})
 
 
-def _fields_of(rule: RuleBase, msg: MessageSpec, cls: type[Primitive]) -> list[str | None]:
+def _fields_of(rule: RuleBase, msg: MessageSpec) -> list[str | None]:
     """The fields one rule acts on: none for frame-level primitives, all for frame-scope garbage."""
-    if cls.frame_level:
+    if rule.frame_level:
         return [None]
     if isinstance(rule, GarbageRule) and rule.scope == "frame":
         return list(msg.fields)

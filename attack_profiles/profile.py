@@ -17,27 +17,15 @@ from __future__ import annotations
 
 import hashlib
 import json
+import operator
+from functools import reduce
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from pydantic import Field, JsonValue, PrivateAttr, ValidationError
 
 from attack_profiles.primitives import PRIMITIVES
-from attack_profiles.primitives.bias import BiasRule
-from attack_profiles.primitives.coordinated_spoof import CoordinatedSpoofRule
-from attack_profiles.primitives.delay import DelayRule
-from attack_profiles.primitives.drop import DropRule
-from attack_profiles.primitives.freeze import FreezeRule
-from attack_profiles.primitives.garbage import GarbageRule
-from attack_profiles.primitives.intermittent import IntermittentRule
-from attack_profiles.primitives.noise import NoiseRule
-from attack_profiles.primitives.ramp import RampRule
-from attack_profiles.primitives.replay import ReplayRule
-from attack_profiles.primitives.scale import ScaleRule
-from attack_profiles.primitives.set import SetRule
-from attack_profiles.primitives.sinusoid import SinusoidRule
-from attack_profiles.rule import RuleBase, Strict
-from attack_profiles.units import MESSAGES
+from attack_profiles.rule import Strict
 from secuav_common.loading import (
     _MISSING,  # the "no value to show" sentinel InputError understands
     MAX_DOCUMENT_BYTES,
@@ -45,24 +33,10 @@ from secuav_common.loading import (
     dump_json,
     parse_document,
 )
-from secuav_common.sensor_ids import ANCHOR_BASE, MAX_ANCHORS
 
-Rule = Annotated[
-    BiasRule
-    | RampRule
-    | SinusoidRule
-    | NoiseRule
-    | ScaleRule
-    | SetRule
-    | FreezeRule
-    | ReplayRule
-    | DelayRule
-    | DropRule
-    | IntermittentRule
-    | GarbageRule
-    | CoordinatedSpoofRule,
-    Field(discriminator="kind"),
-]
+# One discriminated union over every registered primitive's rule model: adding a
+# primitive to the registry is all it takes for profiles and the schema to accept it.
+Rule = Annotated[reduce(operator.or_, (cls.rule_model for cls in PRIMITIVES.values())), Field(discriminator="kind")]
 
 
 class Parameter(Strict):
@@ -105,11 +79,6 @@ class Profile(Strict):
     def content_hash(self) -> str:
         """SHA-256 of the canonical JSON: equal for equal profiles, whatever their source or spelling."""
         return hashlib.sha256(self.canonical_json().encode()).hexdigest()
-
-
-assert set(PRIMITIVES) == {m.model_fields["kind"].default for m in Rule.__origin__.__args__}  # type: ignore[attr-defined]
-
-FRAME_KINDS = frozenset(k for k, cls in PRIMITIVES.items() if cls.frame_level)
 
 
 def _path(loc: tuple[int | str, ...] | list[int | str]) -> str:
@@ -213,69 +182,10 @@ def _apply_parameters(data: dict[str, Any], params: dict[str, Any], source: str)
     return out
 
 
-def _check_window(rule: RuleBase, where: str, source: str) -> None:
-    if rule.end_s is not None and rule.end_s <= rule.start_s:
-        raise InputError(source, f"{where}.end_s", rule.end_s, f"window ends before it starts (start_s {rule.start_s})")
-    if rule.repeat_period_s is not None:
-        if rule.end_s is None:
-            raise InputError(source, f"{where}.repeat_period_s", rule.repeat_period_s, "a repeating window needs end_s")
-        if rule.repeat_period_s < rule.end_s - rule.start_s:
-            raise InputError(
-                source,
-                f"{where}.repeat_period_s",
-                rule.repeat_period_s,
-                f"shorter than the window ({rule.end_s - rule.start_s} s)",
-            )
-
-
-def check_rule(rule: RuleBase, index: int, source: str) -> None:
-    """Checks the schema cannot express; raises InputError naming ``rules[index]...``."""
-    where = f"rules[{index}]"
-    kind: str = rule.kind  # type: ignore[attr-defined]
-    target = rule.target
-    spec = MESSAGES[target.message]
-    if target.field is not None and target.field not in spec.fields:
-        known = ", ".join(spec.fields)
-        raise InputError(
-            source, f"{where}.target.field", target.field, f"not an attackable field of {spec.name} ({known})"
-        )
-    if kind not in FRAME_KINDS and target.field is None and spec.default_field is None:
-        raise InputError(source, f"{where}.target.field", None, f"{kind} on {spec.name} needs a field")
-    if target.sensor_id is not None:
-        if spec.id_field is None:
-            raise InputError(source, f"{where}.target.sensor_id", target.sensor_id, f"{spec.name} has no sensor id")
-        sid = target.sensor_id
-        if not isinstance(sid, int | list) and sid.last < sid.first:
-            raise InputError(source, f"{where}.target.sensor_id.last", sid.last, f"below first ({sid.first})")
-        if isinstance(sid, list) and not sid:
-            raise InputError(source, f"{where}.target.sensor_id", sid, "empty id list; leave it out to target all")
-    _check_window(rule, where, source)
-    if isinstance(rule, GarbageRule) and rule.scope == "frame" and target.field is not None:
-        raise InputError(source, f"{where}.target.field", target.field, "scope frame covers every field; leave it out")
-    if isinstance(rule, ReplayRule):
-        if rule.source_end_s <= rule.source_start_s:
-            raise InputError(source, f"{where}.source_end_s", rule.source_end_s, "source window ends before it starts")
-        if rule.source_end_s > rule.start_s:
-            raise InputError(
-                source, f"{where}.source_end_s", rule.source_end_s, f"replays the future: rule starts at {rule.start_s}"
-            )
-    if isinstance(rule, CoordinatedSpoofRule):
-        field = target.field or spec.default_field
-        if target.message != "DISTANCE_SENSOR" or field != "current_distance":
-            raise InputError(
-                source, f"{where}.target", f"{target.message}.{field}", "must be DISTANCE_SENSOR.current_distance"
-            )
-        ids = target.sensor_ids()
-        if ids is None:
-            raise InputError(source, f"{where}.target.sensor_id", None, "name the attacked anchor links (ids 10-49)")
-        for sid_ in sorted(ids):
-            if not ANCHOR_BASE <= sid_ < ANCHOR_BASE + MAX_ANCHORS:
-                raise InputError(source, f"{where}.target.sensor_id", sid_, "not an anchor link (ids 10-49)")
-
-
 def check_profile(profile: Profile, source: str) -> None:
+    """Every rule's own checks, in order; the first failure is raised."""
     for i, rule in enumerate(profile.rules):
-        check_rule(rule, i, source)
+        rule.check(f"rules[{i}]", source)
 
 
 def _parse_text(text: str | bytes, source: str) -> Any:

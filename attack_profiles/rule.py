@@ -8,11 +8,15 @@ units of the targeted field (metres, m/s, degrees; see :mod:`attack_profiles.uni
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from attack_profiles.units import MESSAGE_NAMES
+from attack_profiles.units import MESSAGE_NAMES, MESSAGES
+from secuav_common.loading import (
+    _MISSING,  # the "no value to show" sentinel InputError understands
+    InputError,
+)
 
 MessageName = Literal[MESSAGE_NAMES]  # type: ignore[valid-type]
 DirectionName = Literal["downlink", "uplink", "both"]
@@ -81,3 +85,44 @@ class RuleBase(Strict):
     end_s: Seconds | None = None
     repeat_period_s: Annotated[float, Field(gt=0.0, allow_inf_nan=False)] | None = None
     note: str = Field("", description="free text, e.g. why this rule exists")
+
+    # Drop, delay and intermittent act on whole frames: their target needs no field.
+    frame_level: ClassVar[bool] = False
+
+    def check(self, where: str, source: str) -> None:
+        """What the schema cannot express; raises ``InputError`` at ``where`` (``rules[2]``).
+
+        Primitives with cross-field constraints extend this (and call it first).
+        """
+        target = self.target
+        spec = MESSAGES[target.message]
+        kind = getattr(self, "kind", "?")
+        if target.field is not None and target.field not in spec.fields:
+            known = ", ".join(spec.fields)
+            raise InputError(
+                source, f"{where}.target.field", target.field, f"not an attackable field of {spec.name} ({known})"
+            )
+        if not self.frame_level and target.field is None and spec.default_field is None:
+            raise InputError(source, f"{where}.target.field", _MISSING, f"{kind} on {spec.name} needs a field")
+        sid = target.sensor_id
+        if sid is not None:
+            if spec.id_field is None:
+                raise InputError(source, f"{where}.target.sensor_id", sid, f"{spec.name} has no sensor id")
+            if isinstance(sid, IdRange) and sid.last < sid.first:
+                raise InputError(source, f"{where}.target.sensor_id.last", sid.last, f"below first ({sid.first})")
+            if isinstance(sid, list) and not sid:
+                raise InputError(source, f"{where}.target.sensor_id", sid, "empty id list; leave it out to target all")
+        if self.end_s is not None and self.end_s <= self.start_s:
+            raise InputError(
+                source, f"{where}.end_s", self.end_s, f"window ends before it starts (start_s {self.start_s})"
+            )
+        if self.repeat_period_s is not None:
+            if self.end_s is None:
+                raise InputError(
+                    source, f"{where}.repeat_period_s", self.repeat_period_s, "a repeating window needs end_s"
+                )
+            if self.repeat_period_s < self.end_s - self.start_s:
+                length = self.end_s - self.start_s
+                raise InputError(
+                    source, f"{where}.repeat_period_s", self.repeat_period_s, f"shorter than the window ({length} s)"
+                )

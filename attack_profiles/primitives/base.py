@@ -56,7 +56,6 @@ class Primitive(ABC):
     kind: ClassVar[str]
     rule_model: ClassVar[type[RuleBase]]
     stateful: ClassVar[bool] = False  # must see samples outside its window
-    frame_level: ClassVar[bool] = False  # acts on the whole frame, not on a field
 
     def __init__(self, rule: RuleBase, ctx: Context) -> None:
         self.rule = rule

@@ -23,6 +23,11 @@ from typing import Literal
 
 from attack_profiles.primitives.base import Context, Primitive, Sample
 from attack_profiles.rule import RuleBase, Vec3Param
+from secuav_common.loading import (
+    _MISSING,  # the "no value to show" sentinel InputError understands
+    InputError,
+)
+from secuav_common.sensor_ids import ANCHOR_BASE, MAX_ANCHORS
 
 
 class CoordinatedSpoofRule(RuleBase):
@@ -31,6 +36,21 @@ class CoordinatedSpoofRule(RuleBase):
     kind: Literal["coordinated_spoof"] = "coordinated_spoof"
     velocity_ned_m_s: Vec3Param = (0.0, 0.0, 0.0)
     offset_ned_m: Vec3Param = (0.0, 0.0, 0.0)
+
+    def check(self, where: str, source: str) -> None:
+        super().check(where, source)
+        target = self.target
+        field = target.field or "current_distance"
+        if target.message != "DISTANCE_SENSOR" or field != "current_distance":
+            raise InputError(
+                source, f"{where}.target", f"{target.message}.{field}", "must be DISTANCE_SENSOR.current_distance"
+            )
+        ids = target.sensor_ids()
+        if ids is None:
+            raise InputError(source, f"{where}.target.sensor_id", _MISSING, "name the attacked anchor links (10-49)")
+        for sid in sorted(ids):
+            if not ANCHOR_BASE <= sid < ANCHOR_BASE + MAX_ANCHORS:
+                raise InputError(source, f"{where}.target.sensor_id", sid, "not an anchor link (ids 10-49)")
 
 
 class CoordinatedSpoof(Primitive):

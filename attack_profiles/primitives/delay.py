@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections import deque
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Literal
 
 from pydantic import Field
 
@@ -17,6 +17,7 @@ class DelayRule(RuleBase):
     carries the value the target had at ``t - delay_s`` (NaN if there was none yet)."""
 
     kind: Literal["delay"] = "delay"
+    frame_level: ClassVar[bool] = True
     delay_s: Annotated[float, Field(gt=0.0, le=60.0, allow_inf_nan=False)]
 
 
@@ -24,7 +25,6 @@ class Delay(Primitive):
     kind = "delay"
     rule_model = DelayRule
     stateful = True  # offline it must remember the stream before the window
-    frame_level = True
 
     def __init__(self, rule: DelayRule, ctx: Context) -> None:
         super().__init__(rule, ctx)

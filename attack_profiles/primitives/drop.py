@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
 from attack_profiles.primitives.base import Context, Primitive, Sample
 from attack_profiles.rule import Probability, RuleBase
@@ -12,13 +12,13 @@ class DropRule(RuleBase):
     """Drop each matching frame with ``probability`` (1: all of them). Offline, a dropped sample is NaN."""
 
     kind: Literal["drop"] = "drop"
+    frame_level: ClassVar[bool] = True
     probability: Probability = 1.0
 
 
 class Drop(Primitive):
     kind = "drop"
     rule_model = DropRule
-    frame_level = True
 
     def __init__(self, rule: DropRule, ctx: Context) -> None:
         super().__init__(rule, ctx)

@@ -6,6 +6,7 @@ from typing import Literal
 
 from attack_profiles.primitives.base import Context, Primitive, Sample
 from attack_profiles.rule import RuleBase
+from secuav_common.loading import InputError
 
 
 class GarbageRule(RuleBase):
@@ -16,6 +17,11 @@ class GarbageRule(RuleBase):
 
     kind: Literal["garbage"] = "garbage"
     scope: Literal["field", "frame"] = "field"
+
+    def check(self, where: str, source: str) -> None:
+        super().check(where, source)
+        if self.scope == "frame" and self.target.field is not None:
+            raise InputError(source, f"{where}.target.field", self.target.field, "scope frame covers every field")
 
 
 class Garbage(Primitive):

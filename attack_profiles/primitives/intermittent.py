@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
 from attack_profiles.primitives.base import Context, Primitive, Sample
 from attack_profiles.rule import Positive, RuleBase
@@ -12,6 +12,7 @@ class IntermittentRule(RuleBase):
     """From the window's start: frames pass for ``on_s``, are dropped for ``off_s``, repeat."""
 
     kind: Literal["intermittent"] = "intermittent"
+    frame_level: ClassVar[bool] = True
     on_s: Positive
     off_s: Positive
 
@@ -19,7 +20,6 @@ class IntermittentRule(RuleBase):
 class Intermittent(Primitive):
     kind = "intermittent"
     rule_model = IntermittentRule
-    frame_level = True
 
     def __init__(self, rule: IntermittentRule, ctx: Context) -> None:
         super().__init__(rule, ctx)

@@ -7,6 +7,7 @@ from typing import Literal
 
 from attack_profiles.primitives.base import TIME_EPS_S, Context, Primitive, Sample, SampleKey
 from attack_profiles.rule import RuleBase, Seconds
+from secuav_common.loading import InputError
 
 MAX_RECORDED = 100_000  # per target; bounds memory if a source window is long and the rate high
 
@@ -20,6 +21,15 @@ class ReplayRule(RuleBase):
     kind: Literal["replay"] = "replay"
     source_start_s: Seconds
     source_end_s: Seconds
+
+    def check(self, where: str, source: str) -> None:
+        super().check(where, source)
+        if self.source_end_s <= self.source_start_s:
+            raise InputError(source, f"{where}.source_end_s", self.source_end_s, "source window ends before it starts")
+        if self.source_end_s > self.start_s:
+            raise InputError(
+                source, f"{where}.source_end_s", self.source_end_s, f"replays the future: rule starts at {self.start_s}"
+            )
 
 
 class Replay(Primitive):

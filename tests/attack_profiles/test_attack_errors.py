@@ -118,3 +118,11 @@ def test_nothing_half_applied_a_late_error_rejects_the_whole_profile() -> None:
     good_rules = [GOOD] * 5
     with pytest.raises(InputError, match=r"rules\[5\]"):
         parse_profile({"name": "t", "rules": [*good_rules, {**GOOD, "end_s": -1}]})
+
+
+def test_scenario_check_accepts_a_range_that_reaches_some_sensor_only() -> None:
+    anchors8 = load_scenario("anchors8")
+    Engine(make_profile(rule("bias", sensor_id={"first": 10, "last": 49}, offset=1.0)), scenario=anchors8)
+    far = make_profile(rule("bias", sensor_id={"first": 30, "last": 49}, offset=1.0))
+    with pytest.raises(InputError, match=r"rules\[0\]\.target\.sensor_id: .*no sensor in this range"):
+        Engine(far, scenario=anchors8)
