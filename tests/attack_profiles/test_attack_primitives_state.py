@@ -193,3 +193,21 @@ def test_garbage_frame_scope_randomises_every_field_but_keeps_id_and_time() -> N
     assert action.fields is not None
     assert {"current_distance", "min_distance", "max_distance", "signal_quality"} <= set(action.fields)
     assert "id" not in action.fields and "time_boot_ms" not in action.fields
+
+
+def test_freeze_state_is_per_vehicle() -> None:
+    engine = started(make_profile(rule("freeze", start_s=1.0)))
+    send(engine, 0.0, distance(0, 100), sysid=1)
+    send(engine, 0.0, distance(0, 700), sysid=2)
+    assert send(engine, 2.0, distance(0, 111), sysid=1).fields == {"current_distance": 100}
+    assert send(engine, 2.0, distance(0, 777), sysid=2).fields == {"current_distance": 700}
+
+
+def test_delay_offline_keeps_one_history_per_sensor() -> None:
+    engine = started(make_profile(rule("delay", sensor_id=None, delay_s=1.0)))
+    t = np.arange(4.0)
+    z = np.column_stack([np.arange(4.0), 10 + np.arange(4.0)])
+    z[1, 1] = np.nan  # a missing sample is not part of the stream
+    out = engine.apply_array(t, z, [0, 1])
+    np.testing.assert_allclose(out[:, 0], [np.nan, 0.0, 1.0, 2.0])
+    np.testing.assert_allclose(out[:, 1], [np.nan, np.nan, 10.0, 12.0])
