@@ -18,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import json
 import operator
+import re
 from functools import reduce
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -144,8 +145,11 @@ def _to_input_error(err: ValidationError, data: Any, source: str) -> InputError:
     return InputError(source, _path(loc), value, reason)
 
 
+_PLACEHOLDER = re.compile(r"\$[A-Za-z_][A-Za-z0-9_]*")  # "$links"; "$5 budget" in a note stays text
+
+
 def _substitute(node: Any, values: dict[str, Any], path: str, source: str) -> Any:
-    if isinstance(node, str) and node.startswith("$") and len(node) > 1:
+    if isinstance(node, str) and _PLACEHOLDER.fullmatch(node):
         name = node[1:]
         if name not in values:
             raise InputError(source, path, node, f"no parameter {name!r} (declared: {', '.join(values) or 'none'})")

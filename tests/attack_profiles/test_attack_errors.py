@@ -126,3 +126,10 @@ def test_scenario_check_accepts_a_range_that_reaches_some_sensor_only() -> None:
     far = make_profile(rule("bias", sensor_id={"first": 30, "last": 49}, offset=1.0))
     with pytest.raises(InputError, match=r"rules\[0\]\.target\.sensor_id: .*no sensor in this range"):
         Engine(far, scenario=anchors8)
+
+
+def test_only_whole_placeholder_strings_are_substituted() -> None:
+    doc = {"name": "t", "parameters": {"o": {"default": 2.0}}, "rules": [{**GOOD, "offset": "$o", "note": "$5 and $o"}]}
+    profile = parse_profile(doc)
+    assert profile.rules[0].offset == 2.0  # type: ignore[union-attr]
+    assert profile.rules[0].note == "$5 and $o"
