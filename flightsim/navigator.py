@@ -1,0 +1,184 @@
+"""Navigator: turns the active flight mode into a position-controller setpoint.
+
+It plays the part of PX4's navigator and flight tasks: takeoff (climb straight
+up at MPC_TKO_SPEED), hold (brake, then keep the stopping point), land (descend
+at MPC_Z_VEL_MAX_DN, then MPC_LAND_SPEED below MPC_LAND_ALT2), return to launch
+(climb to RTL_RETURN_ALT, fly home, land) and missions (items in the local
+frame, accepted within their radius). Heights are above home; positions NED.
+
+``update`` returns a :class:`Guidance`: the setpoint plus the speed limits that
+apply to it, and sets ``event`` when a manoeuvre completes ("takeoff_done",
+"mission_rtl", "mission_land") so the commander can switch modes.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import Enum
+
+from flightsim.api import NavCommand, NavItem, State
+from flightsim.control import Setpoint
+from flightsim.control.rotation import Vec3
+from flightsim.params import Params
+
+NAN = math.nan
+
+
+@dataclass(frozen=True, slots=True)
+class Guidance:
+    setpoint: Setpoint
+    xy_speed_m_s: float
+    up_speed_m_s: float
+    dn_speed_m_s: float
+    wants_climb: bool  # on the ground: should the motors spool up and leave it?
+
+
+class RtlPhase(Enum):
+    CLIMB = 1
+    RETURN = 2
+    LAND = 3
+
+
+class Navigator:
+    def __init__(self, params: Params) -> None:
+        self.p = params
+        self.hold_pos: Vec3 = (0.0, 0.0, 0.0)
+        self.yaw: float = 0.0
+        self.target: Vec3 = (0.0, 0.0, 0.0)
+        self.rtl_phase = RtlPhase.CLIMB
+        self.rtl_alt_m = 0.0
+        self.mission: list[NavItem] = []
+        self.mission_current = 0
+        self.mission_finished = False
+        self._mission_hold_until: float | None = None
+        self._mission_climb_alt: float | None = None
+        self.event: str | None = None
+
+    # -- starting manoeuvres ---------------------------------------------------
+    def start_hold(self, est: State) -> None:
+        """Brake to the stopping point (constant deceleration MPC_ACC_HOR) and keep it."""
+        p, v = est.pos_ned_m, est.vel_ned_m_s
+        a = self.p["MPC_ACC_HOR"]
+        speed = math.hypot(v[0], v[1])
+        k = speed / (2 * a)
+        self.hold_pos = (p[0] + v[0] * k, p[1] + v[1] * k, p[2] + v[2] * abs(v[2]) / (2 * 3.0))
+        self.yaw = est.euler_rad[2]
+
+    def start_takeoff(self, est: State, altitude_m: float) -> None:
+        p = est.pos_ned_m
+        self.target = (p[0], p[1], -altitude_m)
+        self.yaw = est.euler_rad[2]
+
+    def start_land(self, est: State) -> None:
+        self.target = est.pos_ned_m
+        self.yaw = est.euler_rad[2]
+
+    def start_rtl(self, est: State) -> None:
+        p = est.pos_ned_m
+        self.yaw = est.euler_rad[2]
+        self.rtl_alt_m = max(self.p["RTL_RETURN_ALT"], -p[2])
+        self.target = (p[0], p[1], -self.rtl_alt_m)
+        self.rtl_phase = RtlPhase.LAND if math.hypot(p[0], p[1]) < self.p["NAV_ACC_RAD"] else RtlPhase.CLIMB
+
+    def start_mission(self, est: State, landed: bool) -> None:
+        self.mission_finished = False
+        self._mission_hold_until = None
+        self.yaw = est.euler_rad[2]
+        self.hold_pos = est.pos_ned_m
+        self._mission_climb_alt = None
+        if landed and self.mission_current < len(self.mission):
+            item = self.mission[self.mission_current]
+            alt = max(self.p["MIS_TAKEOFF_ALT"], -item.pos_ned_m[2])
+            self._mission_climb_alt = alt
+            self.target = (est.pos_ned_m[0], est.pos_ned_m[1], -alt)
+
+    # -- per control tick -------------------------------------------------------
+    def hold(self) -> Guidance:
+        return self._go(self.hold_pos)
+
+    def takeoff(self, est: State) -> Guidance:
+        if abs(est.pos_ned_m[2] - self.target[2]) < self.p["NAV_MC_ALT_RAD"]:
+            self.event = "takeoff_done"
+        return self._go(self.target, up=self.p["MPC_TKO_SPEED"])
+
+    def land(self, est: State) -> Guidance:
+        alt = -est.pos_ned_m[2]
+        speed = self.p["MPC_Z_VEL_MAX_DN"] if alt > self.p["MPC_LAND_ALT2"] else self.p["MPC_LAND_SPEED"]
+        sp = Setpoint(pos_ned_m=(self.target[0], self.target[1], NAN), vel_ned_m_s=(0.0, 0.0, speed), yaw_rad=self.yaw)
+        return Guidance(sp, self.p["MPC_XY_CRUISE"], self.p["MPC_Z_VEL_MAX_UP"], speed, False)
+
+    def rtl(self, est: State) -> Guidance:
+        p = est.pos_ned_m
+        if self.rtl_phase is RtlPhase.CLIMB:
+            if p[2] - self.target[2] < self.p["NAV_MC_ALT_RAD"]:
+                self.rtl_phase = RtlPhase.RETURN
+                self.target = (0.0, 0.0, -self.rtl_alt_m)
+            return self._go(self.target)
+        if self.rtl_phase is RtlPhase.RETURN:
+            if math.hypot(p[0] - self.target[0], p[1] - self.target[1]) < self.p["NAV_ACC_RAD"]:
+                self.rtl_phase = RtlPhase.LAND
+                self.target = (0.0, 0.0, p[2])
+            return self._go(self.target, xy=self.p["MPC_XY_CRUISE"])
+        return self.land(est)
+
+    def mission_step(self, est: State, t_s: float) -> Guidance:
+        """Fly the current item; advance when it is reached (and its hold time is over)."""
+        if self._mission_climb_alt is not None:
+            if abs(est.pos_ned_m[2] - self.target[2]) < self.p["NAV_MC_ALT_RAD"]:
+                self._mission_climb_alt = None
+                if self.mission[self.mission_current].command == NavCommand.TAKEOFF:
+                    self._advance(est)
+            return self._go(self.target, up=self.p["MPC_TKO_SPEED"])
+        if self.mission_finished or self.mission_current >= len(self.mission):
+            self.mission_finished = True
+            return self._go(self.hold_pos)
+        item = self.mission[self.mission_current]
+        if item.yaw_rad is not None:
+            self.yaw = item.yaw_rad
+        if item.command == NavCommand.RETURN_TO_LAUNCH:
+            self.event = "mission_rtl"
+            return self._go(self.hold_pos)
+        if item.command == NavCommand.TAKEOFF:
+            p = est.pos_ned_m
+            self.target = (p[0], p[1], item.pos_ned_m[2])
+            self._mission_climb_alt = -item.pos_ned_m[2]
+            return self._go(self.target, up=self.p["MPC_TKO_SPEED"])
+        goal = item.pos_ned_m
+        if item.command == NavCommand.LAND:
+            goal = (goal[0], goal[1], est.pos_ned_m[2])
+        radius = item.acceptance_radius_m if item.acceptance_radius_m > 0 else self.p["NAV_ACC_RAD"]
+        p = est.pos_ned_m
+        reached = math.hypot(p[0] - goal[0], p[1] - goal[1]) < radius and abs(p[2] - goal[2]) < max(
+            self.p["NAV_MC_ALT_RAD"], radius
+        )
+        if reached:
+            if item.command == NavCommand.LAND:
+                self.target = goal
+                self.event = "mission_land"
+                return self.land(est)
+            if item.command == NavCommand.LOITER_UNLIM:
+                return self._go(goal)
+            if self._mission_hold_until is None:
+                self._mission_hold_until = t_s + item.hold_s
+            if t_s >= self._mission_hold_until:
+                self._advance(est, goal)
+        return self._go(goal, xy=self.p["MPC_XY_CRUISE"])
+
+    def _advance(self, est: State, reached: Vec3 | None = None) -> None:
+        self._mission_hold_until = None
+        self.hold_pos = reached if reached is not None else est.pos_ned_m
+        self.mission_current += 1
+        if self.mission_current >= len(self.mission):
+            self.mission_current = max(0, len(self.mission) - 1)
+            self.mission_finished = True
+
+    def _go(self, pos: Vec3, xy: float | None = None, up: float | None = None) -> Guidance:
+        sp = Setpoint(pos_ned_m=pos, yaw_rad=self.yaw)
+        return Guidance(
+            sp,
+            xy if xy is not None else self.p["MPC_XY_VEL_MAX"],
+            up if up is not None else self.p["MPC_Z_VEL_MAX_UP"],
+            self.p["MPC_Z_VEL_MAX_DN"],
+            wants_climb=pos[2] < -0.3,
+        )

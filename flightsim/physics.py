@@ -1,0 +1,164 @@
+"""JSBSim F450 rigid-body physics for one vehicle.
+
+JSBSim integrates the 6-DOF dynamics of its bundled ``F450`` quad X (1.4 kg,
+four DJI E305 motors with 9.4" props, ground contacts, simple drag). Its own
+stability augmentation is switched off (``fcs/ScasEngage`` = 0), so the four
+motor commands ``fcs/cmd{FR,AL,FL,AR}_ext_nd`` (0..1) are the only inputs.
+
+The vehicle starts at rest on flat ground at the scenario's start position,
+whose latitude/longitude come from the home point. Outputs are converted to the
+scenario frame: local NED in metres with origin at home, ``z = 0`` when the
+vehicle stands on the ground (the centre of gravity is then ~0.15 m above it).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+
+from flightsim.api import State
+from flightsim.control.rotation import Vec3, quat_from_euler
+from secuav_common.geo import ned_to_geodetic
+from secuav_common.scenario import Home
+
+FT_M = 0.3048
+SLUG_KG = 14.593903
+SLUGFT2_KGM2 = 1.3558179
+GEAR_HEIGHT_M = 0.1524  # CG above the contact points in the F450 model (Gear.xml)
+START_AGL_FT = 0.52  # a hair above rest, so the model settles onto its gear
+# WGS84, for the local linearisation of JSBSim's geodetic position.
+_WGS84_A = 6_378_137.0
+_WGS84_E2 = 6.69437999014e-3
+
+MOTOR_PROPS = ("fcs/cmdFR_ext_nd", "fcs/cmdAL_ext_nd", "fcs/cmdFL_ext_nd", "fcs/cmdAR_ext_nd")
+
+
+def _import_jsbsim():  # type: ignore[no-untyped-def]
+    # JSBSim prints a banner at construction unless told otherwise.
+    os.environ.setdefault("JSBSIM_DEBUG", "0")
+    import jsbsim
+
+    return jsbsim
+
+
+@contextlib.contextmanager
+def _quiet_fd(fd: int):  # type: ignore[no-untyped-def]
+    """Silence C++ chatter on a file descriptor (the F450 files trigger version warnings)."""
+    saved = os.dup(fd)
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), fd)
+        yield
+    finally:
+        os.dup2(saved, fd)
+        os.close(saved)
+
+
+class F450Physics:
+    """One JSBSim F450; ``step()`` advances ``dt_s`` with the current motor commands."""
+
+    def __init__(self, home: Home, start_pos_ned_m: Vec3, start_yaw_rad: float, dt_s: float = 1 / 250) -> None:
+        jsbsim = _import_jsbsim()
+        with _quiet_fd(1), _quiet_fd(2):
+            fdm = jsbsim.FGFDMExec(jsbsim.get_default_root_dir())
+            fdm.set_debug_level(0)
+            if not fdm.load_model("F450"):
+                raise RuntimeError("JSBSim could not load the F450 model")
+        self._fdm = fdm
+        self.dt_s = dt_s
+        fdm.set_dt(dt_s)
+        self._n0, self._e0 = start_pos_ned_m[0], start_pos_ned_m[1]
+        lat, lon, _ = ned_to_geodetic(home, start_pos_ned_m[0], start_pos_ned_m[1], 0.0)
+        fdm["ic/lat-geod-deg"] = lat
+        fdm["ic/long-gc-deg"] = lon
+        fdm["ic/terrain-elevation-ft"] = home.alt_m / FT_M
+        fdm["ic/h-agl-ft"] = START_AGL_FT
+        fdm["ic/psi-true-deg"] = math.degrees(start_yaw_rad)
+        fdm["ic/u-fps"] = 0.0
+        fdm["ic/v-fps"] = 0.0
+        fdm["ic/w-fps"] = 0.0
+        with _quiet_fd(1), _quiet_fd(2):
+            fdm.run_ic()
+        fdm["fcs/ScasEngage"] = 0.0
+        self._lat0 = math.radians(lat)
+        self._lon0 = math.radians(lon)
+        s = math.sin(self._lat0)
+        w = math.sqrt(1 - _WGS84_E2 * s * s)
+        alt = home.alt_m
+        self._m_per_rad_lat = _WGS84_A * (1 - _WGS84_E2) / (w * w * w) + alt
+        self._m_per_rad_lon = (_WGS84_A / w + alt) * math.cos(self._lat0)
+        pm = fdm.get_property_manager()
+        node = pm.get_node
+        self._motor_nodes = [node(p) for p in MOTOR_PROPS]
+        self._n = {
+            name: node(prop)
+            for name, prop in {
+                "lat": "position/lat-geod-rad",
+                "lon": "position/long-gc-rad",
+                "agl": "position/h-agl-ft",
+                "vn": "velocities/v-north-fps",
+                "ve": "velocities/v-east-fps",
+                "vd": "velocities/v-down-fps",
+                "phi": "attitude/phi-rad",
+                "theta": "attitude/theta-rad",
+                "psi": "attitude/psi-rad",
+                "p": "velocities/p-rad_sec",
+                "q": "velocities/q-rad_sec",
+                "r": "velocities/r-rad_sec",
+                "wow0": "gear/unit[0]/WOW",
+                "wow1": "gear/unit[1]/WOW",
+                "wow2": "gear/unit[2]/WOW",
+            }.items()
+        }
+        self.mass_kg = float(fdm["inertia/mass-slugs"]) * SLUG_KG
+        self.inertia_kgm2: Vec3 = (
+            float(fdm["inertia/ixx-slugs_ft2"]) * SLUGFT2_KGM2,
+            float(fdm["inertia/iyy-slugs_ft2"]) * SLUGFT2_KGM2,
+            float(fdm["inertia/izz-slugs_ft2"]) * SLUGFT2_KGM2,
+        )
+        self.t_s = 0.0
+        self.motors: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+        self._prev_vel: Vec3 = (0.0, 0.0, 0.0)
+        self._acc: Vec3 = (0.0, 0.0, 0.0)
+        self._state = self._read()
+
+    def set_motors(self, cmds: tuple[float, float, float, float]) -> None:
+        """Motor commands 0..1 in JSBSim engine order: FR, AL, FL, AR."""
+        self.motors = tuple(max(0.0, min(1.0, c)) for c in cmds)  # type: ignore[assignment]
+        for node, c in zip(self._motor_nodes, self.motors, strict=True):
+            node.set_double_value(c)
+
+    def step(self) -> State:
+        """Advance one physics step; returns the new true state."""
+        if not self._fdm.run():
+            raise RuntimeError("JSBSim stopped integrating")
+        self.t_s += self.dt_s
+        self._state = self._read()
+        return self._state
+
+    @property
+    def state(self) -> State:
+        return self._state
+
+    @property
+    def on_ground(self) -> bool:
+        """Any landing-gear contact carries weight (JSBSim weight-on-wheels)."""
+        n = self._n
+        return bool(n["wow0"].get_double_value() or n["wow1"].get_double_value() or n["wow2"].get_double_value())
+
+    def _read(self) -> State:
+        n = self._n
+        north = self._n0 + (n["lat"].get_double_value() - self._lat0) * self._m_per_rad_lat
+        east = self._e0 + (n["lon"].get_double_value() - self._lon0) * self._m_per_rad_lon
+        down = -(n["agl"].get_double_value() * FT_M - GEAR_HEIGHT_M)
+        vel = (n["vn"].get_double_value() * FT_M, n["ve"].get_double_value() * FT_M, n["vd"].get_double_value() * FT_M)
+        pv = self._prev_vel
+        dt = self.dt_s
+        self._acc = ((vel[0] - pv[0]) / dt, (vel[1] - pv[1]) / dt, (vel[2] - pv[2]) / dt)
+        self._prev_vel = vel
+        euler = (n["phi"].get_double_value(), n["theta"].get_double_value(), n["psi"].get_double_value())
+        yaw = euler[2] if euler[2] <= math.pi else euler[2] - 2 * math.pi
+        euler = (euler[0], euler[1], yaw)
+        rates = (n["p"].get_double_value(), n["q"].get_double_value(), n["r"].get_double_value())
+        return State(self.t_s, (north, east, down), vel, self._acc, quat_from_euler(*euler), euler, rates)
