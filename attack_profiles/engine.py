@@ -43,7 +43,7 @@ from attack_profiles.profile import Profile
 from attack_profiles.rule import IdRange, RuleBase
 from attack_profiles.units import EPOCH_USEC_THRESHOLD, LOCAL_POSITION_NED_ID, MESSAGES, FieldSpec, MessageSpec
 from secuav_common.loading import InputError
-from secuav_common.scenario import Scenario
+from secuav_common.scenario import Scenario, Vehicle
 from secuav_common.sensor_ids import ANCHOR_BASE, PEER_BASE
 
 _DIRECTIONS = {
@@ -381,7 +381,7 @@ def _fields_of(rule: RuleBase, msg: MessageSpec) -> list[str | None]:
     return [rule.target.field or msg.default_field]
 
 
-def _sensor_ids(vehicle: Any, anchors: set[int]) -> set[int]:
+def _sensor_ids(vehicle: Vehicle, anchors: set[int]) -> set[int]:
     """DISTANCE_SENSOR ids a scenario vehicle sends."""
     ids = {r.id for r in vehicle.sensors.rangefinders}
     uwb = vehicle.sensors.uwb

@@ -9,7 +9,9 @@ import pytest
 
 from attack_profiles import Engine, library
 from attack_profiles.cli import build_parser, main
+from attack_profiles.primitives import PRIMITIVES, Primitive
 from attack_profiles.profile import SCHEMA_PATH, profile_json_schema, profile_schema_text
+from attack_profiles.rule import RuleBase
 from secuav_common.loading import InputError
 from secuav_common.scenario import load_scenario
 
@@ -128,3 +130,12 @@ def test_build_parser_lets_the_proxy_plug_in_live_handlers() -> None:
     parser = build_parser({"apply": lambda args: seen.append((args.profile, args.vehicle)) or 0})
     args = parser.parse_args(["apply", "anchors-ramp", "--vehicle", "2"])
     assert args.func(args) == 0 and seen == [("anchors-ramp", 2)]
+
+
+def test_every_primitive_module_has_the_same_shape() -> None:
+    schema_models = set(json.loads(SCHEMA_PATH.read_text())["$defs"])
+    for kind, cls in PRIMITIVES.items():
+        assert issubclass(cls, Primitive) and issubclass(cls.rule_model, RuleBase)
+        assert cls.rule_model.model_fields["kind"].default == kind
+        assert cls.__module__ == f"attack_profiles.primitives.{kind}"
+        assert cls.rule_model.__doc__ and cls.rule_model.__name__ in schema_models
