@@ -133,3 +133,25 @@ def test_only_whole_placeholder_strings_are_substituted() -> None:
     profile = parse_profile(doc)
     assert profile.rules[0].offset == 2.0  # type: ignore[union-attr]
     assert profile.rules[0].note == "$5 and $o"
+
+
+DESIGN_EXAMPLE = """
+name: wall-spoof-ramp
+clock: activation          # or: vehicle (time_boot_ms of the stream)
+rules:
+  - target: {message: DISTANCE_SENSOR, sensor_id: 0, field: current_distance}
+    kind: ramp             # bias | ramp | sinusoid | noise | scale | set | freeze | replay | delay | drop
+    rate_per_s: 0.2        # metres per second in the field's physical unit
+    start_s: 10
+    end_s: 40
+  - target: {message: DISTANCE_SENSOR, sensor_id: 12, field: current_distance}
+    kind: bias
+    offset_m: 2.0          # no end_s: until the profile is cleared
+    start_s: 0
+"""
+
+
+def test_the_design_md_example_is_a_valid_profile() -> None:
+    profile = parse_profile(DESIGN_EXAMPLE, "DESIGN.md")
+    assert [r.kind for r in profile.rules] == ["ramp", "bias"]
+    assert profile.rules[1].offset == 2.0  # type: ignore[union-attr]
