@@ -56,12 +56,17 @@ class Commander:
         self._est: State | None = None
         self._t_s = 0.0
 
+    def observe(self, t_s: float, est: State) -> None:
+        """Latest clock and estimate, so commands between control ticks act on fresh data."""
+        self._t_s = t_s
+        self._est = est
+
     # -- queries ------------------------------------------------------------------
     @property
     def landed_state(self) -> LandedState:
         if self.landed:
             return LandedState.ON_GROUND
-        if self.takeoff_phase:
+        if self.takeoff_phase or (self.mode == FlightMode.MISSION and self.nav.mission_climbing):
             return LandedState.TAKEOFF
         landing = self.mode == FlightMode.LAND or (self.mode == FlightMode.RTL and self.nav.rtl_phase is RtlPhase.LAND)
         return LandedState.LANDING if landing else LandedState.IN_AIR
@@ -217,15 +222,15 @@ class Commander:
     # -- per control tick ---------------------------------------------------------------
     def update(self, t_s: float, dt_s: float, est: State, contact: bool) -> tuple[Motors, Guidance | None]:
         """Advance land detection, failsafes and mode logic; return what the motors should do."""
-        self._t_s = t_s
-        self._est = est
+        self.observe(t_s, est)
         self._detect_landing(dt_s, est, contact)
         self._failsafes(t_s, est)
         if not self.armed:
             return Motors.OFF, None
         guidance = self._guidance(est, t_s)
         if self.landed and not guidance.wants_climb:
-            if self._has_flown and self._landed_t_s >= self.p["COM_DISARM_LAND"] >= 0:
+            landing_done = self._has_flown or self.mode == FlightMode.LAND
+            if landing_done and self._landed_t_s >= self.p["COM_DISARM_LAND"] >= 0:
                 self.disarm(reason="Disarmed by landing")
                 self._after_landing()
                 return Motors.OFF, None

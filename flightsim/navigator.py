@@ -93,6 +93,11 @@ class Navigator:
             self._mission_climb_alt = alt
             self.target = (est.pos_ned_m[0], est.pos_ned_m[1], -alt)
 
+    @property
+    def mission_climbing(self) -> bool:
+        """Still in the vertical climb that starts a mission from the ground."""
+        return self._mission_climb_alt is not None
+
     # -- per control tick -------------------------------------------------------
     def hold(self) -> Guidance:
         return self._go(self.hold_pos)

@@ -14,6 +14,8 @@ vehicle stands on the ground (the centre of gravity is then ~0.15 m above it).
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import io
 import math
 import os
 
@@ -43,16 +45,27 @@ def _import_jsbsim():  # type: ignore[no-untyped-def]
 
 
 @contextlib.contextmanager
-def _quiet_fd(fd: int):  # type: ignore[no-untyped-def]
-    """Silence C++ chatter on a file descriptor (the F450 files trigger version warnings)."""
-    saved = os.dup(fd)
+def _quiet():  # type: ignore[no-untyped-def]
+    """Silence JSBSim's loading chatter (the F450 files trigger version warnings).
+
+    The bindings send C++ output to Python's ``sys.stdout`` when it is not the
+    terminal (pytest, the runner) and to file descriptors 1/2 otherwise, so
+    both are muted.
+    """
+    saved = [os.dup(1), os.dup(2)]
+    libc = ctypes.CDLL(None)
+    sink = io.StringIO()
     try:
         with open(os.devnull, "wb") as null:
-            os.dup2(null.fileno(), fd)
-        yield
+            os.dup2(null.fileno(), 1)
+            os.dup2(null.fileno(), 2)
+        with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
+            yield
     finally:
-        os.dup2(saved, fd)
-        os.close(saved)
+        libc.fflush(None)  # C++ streams write through C stdio: flush them while still muted
+        for fd, copy in zip((1, 2), saved, strict=True):
+            os.dup2(copy, fd)
+            os.close(copy)
 
 
 class F450Physics:
@@ -60,7 +73,7 @@ class F450Physics:
 
     def __init__(self, home: Home, start_pos_ned_m: Vec3, start_yaw_rad: float, dt_s: float = 1 / 250) -> None:
         jsbsim = _import_jsbsim()
-        with _quiet_fd(1), _quiet_fd(2):
+        with _quiet():
             fdm = jsbsim.FGFDMExec(jsbsim.get_default_root_dir())
             fdm.set_debug_level(0)
             if not fdm.load_model("F450"):
@@ -78,7 +91,7 @@ class F450Physics:
         fdm["ic/u-fps"] = 0.0
         fdm["ic/v-fps"] = 0.0
         fdm["ic/w-fps"] = 0.0
-        with _quiet_fd(1), _quiet_fd(2):
+        with _quiet():
             fdm.run_ic()
         fdm["fcs/ScasEngage"] = 0.0
         self._lat0 = math.radians(lat)
@@ -118,6 +131,7 @@ class F450Physics:
             float(fdm["inertia/izz-slugs_ft2"]) * SLUGFT2_KGM2,
         )
         self.t_s = 0.0
+        self._steps = 0
         self.motors: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
         self._prev_vel: Vec3 = (0.0, 0.0, 0.0)
         self._acc: Vec3 = (0.0, 0.0, 0.0)
@@ -133,7 +147,8 @@ class F450Physics:
         """Advance one physics step; returns the new true state."""
         if not self._fdm.run():
             raise RuntimeError("JSBSim stopped integrating")
-        self.t_s += self.dt_s
+        self._steps += 1
+        self.t_s = self._steps * self.dt_s  # a step count, so the clock never drifts
         self._state = self._read()
         return self._state
 

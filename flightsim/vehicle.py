@@ -92,7 +92,9 @@ class Vehicle:
         self._gps: deque[GpsFix] = deque(maxlen=QUEUE_MAX)
         self._frozen: State | None = None
         self._estimate = self.estimator.update(self.physics.state, 0.0)
+        self.commander.observe(0.0, self._estimate)
         self._battery_warned = False
+        self._apply_params()
 
     # -- VehicleModel: state ---------------------------------------------------------
     @property
@@ -220,7 +222,7 @@ class Vehicle:
                     truth, vel_ned_m_s=(0.0, 0.0, 0.0), acc_ned_m_s2=(0.0, 0.0, 0.0), rates_rad_s=(0.0, 0.0, 0.0)
                 )
         else:
-            self.t_s += dt
+            self.t_s = self._step_count * dt
         self._sample_sensors(self.truth, peers)
 
     def _inner_loop(self) -> tuple[float, float, float, float]:

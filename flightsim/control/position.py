@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from flightsim.control.rotation import Quat, Vec3, quat_from_body_z_and_yaw, rotate
 
 GRAVITY_M_S2 = 9.80665
+INTEGRATE_BELOW_M_S = 0.5
 
 
 @dataclass(frozen=True, slots=True)
@@ -47,9 +48,9 @@ class Limits:
 
 @dataclass(frozen=True, slots=True)
 class PositionGains:
-    xy_p: float = 0.95  # MPC_XY_P, 1/s
+    xy_p: float = 1.2  # MPC_XY_P, 1/s
     z_p: float = 1.0  # MPC_Z_P
-    xy_vel_p: float = 1.8  # MPC_XY_VEL_P_ACC, (m/s^2)/(m/s)
+    xy_vel_p: float = 4.0  # MPC_XY_VEL_P_ACC, (m/s^2)/(m/s)
     xy_vel_i: float = 0.4  # MPC_XY_VEL_I_ACC
     xy_vel_d: float = 0.2  # MPC_XY_VEL_D_ACC
     z_vel_p: float = 4.0  # MPC_Z_VEL_P_ACC
@@ -116,7 +117,11 @@ class PositionController:
             for i in range(3):
                 kp, ki, kd = (g.xy_vel_p, g.xy_vel_i, g.xy_vel_d) if i < 2 else (g.z_vel_p, g.z_vel_i, g.z_vel_d)
                 err = vsp[i] - vel[i]
-                self._integral[i] = max(-g.i_limit_m_s2, min(g.i_limit_m_s2, self._integral[i] + ki * err * dt_s))
+                # Integrate only near the setpoint: during a manoeuvre the error is
+                # transient, and winding it up would cost an overshoot afterwards.
+                if abs(err) < INTEGRATE_BELOW_M_S:
+                    i_max = g.i_limit_m_s2
+                    self._integral[i] = max(-i_max, min(i_max, self._integral[i] + ki * err * dt_s))
                 acc[i] = kp * err + self._integral[i] - kd * (vel[i] - prev[i]) / dt_s + acc_ff[i]
         self._prev_vel = vel
         # Thrust vector (N, NED) that produces the acceleration against gravity.

@@ -1,0 +1,131 @@
+"""Flight behaviour on real JSBSim: takeoff, hover quality, steps, land, RTL, missions."""
+
+from __future__ import annotations
+
+import math
+import statistics
+
+from flight_helpers import airborne, texts
+
+from flightsim.api import FlightMode, LandedState, NavCommand, NavItem, OffboardSetpoint
+from flightsim.simulation import Simulation
+from secuav_common.scenario import load_scenario
+
+
+def test_takeoff_reaches_mis_takeoff_alt_within_20cm_and_hovers_still() -> None:
+    sim, v = airborne()
+    assert abs(-v.truth.pos_ned_m[2] - 2.5) < 0.2
+    assert v.landed_state == LandedState.IN_AIR
+    track: list[tuple[float, float, float]] = []
+    sim.run_for(20.0, lambda _s: track.append(v.truth.pos_ned_m))
+    for axis in range(3):
+        assert statistics.pstdev(p[axis] for p in track) < 0.1
+    # It holds where it took off (2.5, 2.5), not somewhere else.
+    assert math.dist(track[-1][:2], (2.5, 2.5)) < 0.3
+
+
+def test_takeoff_to_requested_altitude_and_param_change() -> None:
+    sim = Simulation(load_scenario("anchors8"))
+    v = sim.vehicles[1]
+    sim.run_for(0.2)
+    v.arm()
+    assert v.landed_state == LandedState.ON_GROUND
+    assert v.takeoff(4.0).ok
+    sim.run_for(1.0)
+    assert v.landed_state == LandedState.TAKEOFF
+    sim.run_for(9.0)
+    assert abs(-v.truth.pos_ned_m[2] - 4.0) < 0.2
+    assert v.set_param("MIS_TAKEOFF_ALT", 3.0) is not None
+    assert v.takeoff().ok
+    sim.run_for(6.0)
+    assert abs(-v.truth.pos_ned_m[2] - 3.0) < 0.2
+
+
+def test_position_step_is_crisp() -> None:
+    sim, v = airborne()
+    start_n = v.estimate.pos_ned_m[0]
+    target = (start_n + 2.0, 2.5, -2.5)
+    track: list[tuple[float, float]] = []
+    v.offboard_setpoint(OffboardSetpoint(pos_ned_m=target, yaw_rad=0.0))
+    assert v.set_mode(FlightMode.OFFBOARD).ok
+    t0 = sim.t_s
+
+    def stream(_s: Simulation) -> None:
+        v.offboard_setpoint(OffboardSetpoint(pos_ned_m=target, yaw_rad=0.0))
+        track.append((sim.t_s - t0, v.estimate.pos_ned_m[0]))
+
+    sim.run_for(6.0, stream)
+    overshoot = max(n for _, n in track) - target[0]
+    rise_90 = min(t for t, n in track if n > start_n + 1.8)
+    settled = max(t for t, n in track if abs(n - target[0]) > 0.1)
+    assert overshoot < 0.15
+    assert rise_90 < 2.0
+    assert settled < 3.0
+
+
+def test_land_detects_touchdown_then_disarms() -> None:
+    sim, v = airborne()
+    texts(v)
+    assert v.land().ok
+    sim.run_for(1.0)
+    assert v.landed_state == LandedState.LANDING
+    sim.run_for(9.0)
+    assert v.landed_state == LandedState.ON_GROUND
+    assert not v.armed
+    assert not v.crashed
+    assert abs(v.truth.pos_ned_m[2]) < 0.05
+    said = texts(v)
+    assert said.index("Landing detected") < said.index("Disarmed by landing")
+
+
+def test_return_to_launch_climbs_flies_home_and_lands() -> None:
+    sim, v = airborne()  # anchors8 starts at (2.5, 2.5), home is (0, 0)
+    max_alt = 0.0
+
+    def watch(_s: Simulation) -> None:
+        nonlocal max_alt
+        max_alt = max(max_alt, -v.truth.pos_ned_m[2])
+
+    assert v.return_to_launch().ok
+    assert v.mode == FlightMode.RTL
+    sim.run_for(25.0, watch)
+    assert abs(max_alt - v.get_param("RTL_RETURN_ALT").value) < 0.4  # type: ignore[union-attr]
+    assert math.hypot(*v.truth.pos_ned_m[:2]) < 0.3
+    assert v.landed_state == LandedState.ON_GROUND
+    assert not v.armed
+
+
+def test_mission_of_three_waypoints_from_the_ground() -> None:
+    sim = Simulation(load_scenario("anchors8"))
+    v = sim.vehicles[1]
+    sim.run_for(0.2)
+    wps = [(2.5, 2.5, -3.0), (4.0, 2.5, -3.0), (4.0, 4.0, -2.0)]
+    assert v.set_mission([NavItem(NavCommand.WAYPOINT, p, hold_s=0.5) for p in wps]).ok
+    assert v.set_mode(FlightMode.MISSION).ok
+    assert v.arm().ok
+    visited: list[int] = []
+    closest = [math.inf] * 3
+
+    def watch(_s: Simulation) -> None:
+        i = v.mission_current
+        if not visited or visited[-1] != i:
+            visited.append(i)
+        closest[i] = min(closest[i], math.dist(v.truth.pos_ned_m, wps[i]))
+
+    sim.run_for(25.0, watch)
+    assert visited == [0, 1, 2]
+    assert v.mission_finished
+    assert all(d < 0.6 for d in closest)
+    assert math.dist(v.truth.pos_ned_m, wps[2]) < 0.25
+    assert v.mode == FlightMode.MISSION
+
+
+def test_mission_ending_with_land_disarms() -> None:
+    sim, v = airborne()
+    items = [NavItem(NavCommand.WAYPOINT, (3.5, 2.5, -2.5)), NavItem(NavCommand.LAND, (3.5, 3.5, 0.0))]
+    assert v.set_mission(items).ok
+    assert v.set_mode(FlightMode.MISSION).ok
+    sim.run_for(20.0)
+    assert not v.armed
+    assert math.dist(v.truth.pos_ned_m[:2], (3.5, 3.5)) < 0.3
+    assert v.mission_finished
