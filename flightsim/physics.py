@@ -34,6 +34,20 @@ _WGS84_A = 6_378_137.0
 _WGS84_E2 = 6.69437999014e-3
 
 MOTOR_PROPS = ("fcs/cmdFR_ext_nd", "fcs/cmdAL_ext_nd", "fcs/cmdFL_ext_nd", "fcs/cmdAR_ext_nd")
+STATE_PROPS = (
+    "position/lat-geod-rad",
+    "position/long-gc-rad",
+    "position/h-agl-ft",
+    "velocities/v-north-fps",
+    "velocities/v-east-fps",
+    "velocities/v-down-fps",
+    "attitude/phi-rad",
+    "attitude/theta-rad",
+    "attitude/psi-rad",
+    "velocities/p-rad_sec",
+    "velocities/q-rad_sec",
+    "velocities/r-rad_sec",
+)
 
 
 def _import_jsbsim():  # type: ignore[no-untyped-def]
@@ -71,7 +85,7 @@ def _quiet():  # type: ignore[no-untyped-def]
 class F450Physics:
     """One JSBSim F450; ``step()`` advances ``dt_s`` with the current motor commands."""
 
-    def __init__(self, home: Home, start_pos_ned_m: Vec3, start_yaw_rad: float, dt_s: float = 1 / 250) -> None:
+    def __init__(self, home: Home, start_pos_ned_m: Vec3, start_yaw_rad: float, dt_s: float = 1 / 200) -> None:
         jsbsim = _import_jsbsim()
         with _quiet():
             fdm = jsbsim.FGFDMExec(jsbsim.get_default_root_dir())
@@ -101,29 +115,11 @@ class F450Physics:
         alt = home.alt_m
         self._m_per_rad_lat = _WGS84_A * (1 - _WGS84_E2) / (w * w * w) + alt
         self._m_per_rad_lon = (_WGS84_A / w + alt) * math.cos(self._lat0)
-        pm = fdm.get_property_manager()
-        node = pm.get_node
-        self._motor_nodes = [node(p) for p in MOTOR_PROPS]
-        self._n = {
-            name: node(prop)
-            for name, prop in {
-                "lat": "position/lat-geod-rad",
-                "lon": "position/long-gc-rad",
-                "agl": "position/h-agl-ft",
-                "vn": "velocities/v-north-fps",
-                "ve": "velocities/v-east-fps",
-                "vd": "velocities/v-down-fps",
-                "phi": "attitude/phi-rad",
-                "theta": "attitude/theta-rad",
-                "psi": "attitude/psi-rad",
-                "p": "velocities/p-rad_sec",
-                "q": "velocities/q-rad_sec",
-                "r": "velocities/r-rad_sec",
-                "wow0": "gear/unit[0]/WOW",
-                "wow1": "gear/unit[1]/WOW",
-                "wow2": "gear/unit[2]/WOW",
-            }.items()
-        }
+        node = fdm.get_property_manager().get_node
+        self._motor_setters = tuple(node(p).set_double_value for p in MOTOR_PROPS)
+        # Bound getters, read in this order by _read(): 0.1 us each, no string lookups in the loop.
+        self._getters = tuple(node(p).get_double_value for p in STATE_PROPS)
+        self._wow = tuple(node(f"gear/unit[{i}]/WOW").get_double_value for i in range(3))
         self.mass_kg = float(fdm["inertia/mass-slugs"]) * SLUG_KG
         self.inertia_kgm2: Vec3 = (
             float(fdm["inertia/ixx-slugs_ft2"]) * SLUGFT2_KGM2,
@@ -139,9 +135,13 @@ class F450Physics:
 
     def set_motors(self, cmds: tuple[float, float, float, float]) -> None:
         """Motor commands 0..1 in JSBSim engine order: FR, AL, FL, AR."""
-        self.motors = tuple(max(0.0, min(1.0, c)) for c in cmds)  # type: ignore[assignment]
-        for node, c in zip(self._motor_nodes, self.motors, strict=True):
-            node.set_double_value(c)
+        a, b, c, d = (max(0.0, min(1.0, x)) for x in cmds)
+        self.motors = (a, b, c, d)
+        s0, s1, s2, s3 = self._motor_setters
+        s0(a)
+        s1(b)
+        s2(c)
+        s3(d)
 
     def step(self) -> State:
         """Advance one physics step; returns the new true state."""
@@ -159,21 +159,26 @@ class F450Physics:
     @property
     def on_ground(self) -> bool:
         """Any landing-gear contact carries weight (JSBSim weight-on-wheels)."""
-        n = self._n
-        return bool(n["wow0"].get_double_value() or n["wow1"].get_double_value() or n["wow2"].get_double_value())
+        w0, w1, w2 = self._wow
+        return bool(w0() or w1() or w2())
 
     def _read(self) -> State:
-        n = self._n
-        north = self._n0 + (n["lat"].get_double_value() - self._lat0) * self._m_per_rad_lat
-        east = self._e0 + (n["lon"].get_double_value() - self._lon0) * self._m_per_rad_lon
-        down = -(n["agl"].get_double_value() * FT_M - GEAR_HEIGHT_M)
-        vel = (n["vn"].get_double_value() * FT_M, n["ve"].get_double_value() * FT_M, n["vd"].get_double_value() * FT_M)
+        lat, lon, agl, vn, ve, vd, phi, theta, psi, p, q, r = (g() for g in self._getters)
+        north = self._n0 + (lat - self._lat0) * self._m_per_rad_lat
+        east = self._e0 + (lon - self._lon0) * self._m_per_rad_lon
+        down = -(agl * FT_M - GEAR_HEIGHT_M)
+        vel = (vn * FT_M, ve * FT_M, vd * FT_M)
         pv = self._prev_vel
         dt = self.dt_s
         self._acc = ((vel[0] - pv[0]) / dt, (vel[1] - pv[1]) / dt, (vel[2] - pv[2]) / dt)
         self._prev_vel = vel
-        euler = (n["phi"].get_double_value(), n["theta"].get_double_value(), n["psi"].get_double_value())
-        yaw = euler[2] if euler[2] <= math.pi else euler[2] - 2 * math.pi
-        euler = (euler[0], euler[1], yaw)
-        rates = (n["p"].get_double_value(), n["q"].get_double_value(), n["r"].get_double_value())
-        return State(self.t_s, (north, east, down), vel, self._acc, quat_from_euler(*euler), euler, rates)
+        yaw = psi if psi <= math.pi else psi - 2 * math.pi  # JSBSim gives 0..2 pi
+        return State(
+            self.t_s,
+            (north, east, down),
+            vel,
+            self._acc,
+            quat_from_euler(phi, theta, yaw),
+            (phi, theta, yaw),
+            (p, q, r),
+        )

@@ -25,7 +25,7 @@ from collections.abc import Mapping
 
 from flightsim.api import GpsFix, RangeReading, State
 from flightsim.control.rotation import Vec3, quat_from_euler, rotate
-from flightsim.noise import GaussMarkov, stream
+from flightsim.noise import GaussMarkov
 from flightsim.world import World
 from secuav_common import scenario as sc
 from secuav_common.geo import ned_to_geodetic
@@ -54,13 +54,15 @@ NAN = math.nan
 class _Clock:
     """Fires at a fixed rate; ``due(t)`` is true once per period."""
 
+    TOLERANCE_S = 1e-9
+
     def __init__(self, rate_hz: float) -> None:
         self.period_s = 1.0 / rate_hz
         self.next_t_s = 0.0
 
     def due(self, t_s: float) -> bool:
         # A small tolerance so float accumulation in t_s never skips a sample.
-        if t_s + 1e-9 < self.next_t_s:
+        if t_s + self.TOLERANCE_S < self.next_t_s:
             return False
         self.next_t_s += self.period_s
         if self.next_t_s <= t_s:  # fell behind (rate above the physics rate): resync
@@ -75,6 +77,10 @@ class RangefinderModel:
         self._rng = rng
         self._clock = _Clock(cfg.rate_hz)
         self._mount = MOUNT_BODY[cfg.orientation]
+
+    @property
+    def next_t_s(self) -> float:
+        return self._clock.next_t_s
 
     def true_distance(self, truth: State) -> float:
         """Geometric distance along the beam to the nearest surface (inf if none)."""
@@ -108,6 +114,10 @@ class UwbModel:
         self._rng = rng
         self._clock = _Clock(cfg.rate_hz)
 
+    @property
+    def next_t_s(self) -> float:
+        return self._clock.next_t_s
+
     def sample(self, truth: State) -> list[RangeReading]:
         if not self._clock.due(truth.t_s):
             return []
@@ -127,6 +137,10 @@ class PeerRangeModel:
         self.cfg = cfg
         self._rng = rng
         self._clock = _Clock(cfg.rate_hz)
+
+    @property
+    def next_t_s(self) -> float:
+        return self._clock.next_t_s
 
     def sample(self, truth: State, peers: Mapping[int, State]) -> list[RangeReading]:
         if not self._clock.due(truth.t_s):
@@ -190,6 +204,10 @@ class GpsModel:
         self.error = error
         self._rng = rng
         self._clock = _Clock(cfg.rate_hz)
+
+    @property
+    def next_t_s(self) -> float:
+        return self._clock.next_t_s if self.cfg.enabled else math.inf
 
     def sample(self, truth: State) -> GpsFix | None:
         if not self.cfg.enabled or not self._clock.due(truth.t_s):
@@ -258,11 +276,6 @@ class StateEstimator:
             rates_rad_s=(r[0] + g(0, sg), r[1] + g(0, sg), r[2] + g(0, sg)),
         )
         return self.state
-
-
-def make_streams(seed: int, sysid: int) -> dict[str, random.Random]:
-    names = ("position", "estimate", "gps", "uwb", "peers")
-    return {n: stream(seed, sysid, n) for n in names}
 
 
 def _dist(a: Vec3, b: Vec3) -> float:

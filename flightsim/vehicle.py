@@ -1,8 +1,8 @@
 """One simulated vehicle: JSBSim physics + PX4-like autopilot + sensors.
 
 Implements :class:`flightsim.api.VehicleModel`. Each ``step`` advances one
-physics step (``dt_s``, 250 Hz by default); the outer loops run every
-``CONTROL_DIVIDER``-th step (50 Hz), like PX4's position controller:
+physics step (``dt_s``, 200 Hz by default); the outer loops run every
+``control_divider``-th step (``CONTROL_RATE_HZ`` = 50 Hz), like PX4's position controller:
 
 - every step: attitude + rate control on the true attitude and body rates (an
   AHRS this good is assumed), mixer, JSBSim, collision check, sensor sampling;
@@ -37,16 +37,16 @@ from flightsim.battery import Battery
 from flightsim.commander import WARNING, Commander, Motors
 from flightsim.control import AttitudeController, Limits, PositionController, RateController, XQuadMixer
 from flightsim.control.position import AttitudeTarget, PositionGains
-from flightsim.control.rotation import tilt_rad
 from flightsim.noise import stream
 from flightsim.params import Params
 from flightsim.physics import F450Physics
 from flightsim.sensors import GpsModel, PeerRangeModel, PositionError, RangefinderModel, StateEstimator, UwbModel
-from flightsim.world import World
+from flightsim.world import NEAR_GROUND_M, World
 from secuav_common.scenario import Scenario
 from secuav_common.scenario import Vehicle as VehicleConfig
 
-CONTROL_DIVIDER = 5
+CONTROL_RATE_HZ = 50.0
+_CLOCK_TOLERANCE_S = 1e-9  # as the sensors' own clocks
 QUEUE_MAX = 8192  # unread readings beyond this are dropped oldest-first (headless runs may never read)
 
 
@@ -56,6 +56,7 @@ class Vehicle:
         self.sysid = config.sysid
         self.home = scenario.world.home
         self.dt_s = dt_s
+        self.control_divider = max(1, round(1.0 / (CONTROL_RATE_HZ * dt_s)))
         self.world = world
         self.param_table = Params(config.sysid)
         start = config.start
@@ -84,6 +85,13 @@ class Vehicle:
             PeerRangeModel(sensors.inter_vehicle, stream(seed, sid, "peers")) if sensors.inter_vehicle else None
         )
 
+        self._sensor_models: list[RangefinderModel | UwbModel | PeerRangeModel | GpsModel] = [
+            *self.rangefinders,
+            *([self.uwb] if self.uwb else []),
+            *([self.peer_ranging] if self.peer_ranging else []),
+            self.gps,
+        ]
+        self._next_sample_t_s = 0.0
         self.t_s = 0.0
         self._step_count = 0
         self._motors = Motors.OFF
@@ -204,16 +212,17 @@ class Vehicle:
     def step(self, peers: Mapping[int, State]) -> None:
         """Advance one physics step; ``peers`` are the other vehicles' true states (for ranging)."""
         dt = self.dt_s
-        if self._step_count % CONTROL_DIVIDER == 0:
-            self._control_tick(dt * CONTROL_DIVIDER)
+        if self._step_count % self.control_divider == 0:
+            self._control_tick(dt * self.control_divider)
         self._step_count += 1
         if self._frozen is None:
             self.physics.set_motors(self._inner_loop())
             truth = self.physics.step()
             self.t_s = self.physics.t_s
-            hit = self.world.check_collision(
-                truth.pos_ned_m, truth.vel_ned_m_s, tilt_rad(truth.quat), self.physics.on_ground
-            )
+            pos, q = truth.pos_ned_m, truth.quat
+            on_ground = pos[2] > -NEAR_GROUND_M and self.physics.on_ground
+            cos_tilt = 1 - 2 * (q[1] * q[1] + q[2] * q[2])
+            hit = self.world.check_collision(pos, truth.vel_ned_m_s, cos_tilt, on_ground)
             if hit is not None:
                 self.commander.crash(hit.text)
                 self._motors = Motors.OFF
@@ -272,6 +281,9 @@ class Vehicle:
         self.commander.battery_low = low
 
     def _sample_sensors(self, truth: State, peers: Mapping[int, State]) -> None:
+        # Most physics steps sample nothing: skip them with one comparison.
+        if truth.t_s + _CLOCK_TOLERANCE_S < self._next_sample_t_s:
+            return
         for rf in self.rangefinders:
             r = rf.sample(truth)
             if r is not None:
@@ -283,6 +295,7 @@ class Vehicle:
         fix = self.gps.sample(truth)
         if fix is not None:
             self._gps.append(fix)
+        self._next_sample_t_s = min(m.next_t_s for m in self._sensor_models)
 
     def _apply_params(self) -> None:
         """Push the tunable params into the controllers (speed limits, tilt, gains)."""

@@ -21,6 +21,7 @@ from secuav_common.scenario import World as WorldConfig
 
 VEHICLE_RADIUS_M = 0.25
 HARD_LANDING_M_S = 2.0
+NEAR_GROUND_M = 0.3  # gear contact is only possible this close to z = 0 (the CG sits 0.15 m up)
 FLIP_TILT_RAD = math.radians(90.0)
 TIPPED_TILT_RAD = math.radians(60.0)
 GROUND_NAME = "ground"
@@ -86,14 +87,21 @@ class World:
                 best, name = d, plane.name
         return best, name
 
-    def check_collision(self, pos: Vec3, vel: Vec3, tilt_rad: float, on_ground: bool) -> Collision | None:
-        """The crash this state amounts to, if any."""
-        speed = math.sqrt(vel[0] * vel[0] + vel[1] * vel[1] + vel[2] * vel[2])
+    def check_collision(self, pos: Vec3, vel: Vec3, cos_tilt: float, on_ground: bool) -> Collision | None:
+        """The crash this state amounts to, if any; ``cos_tilt`` is body z . NED down."""
         for wall in self.walls:
             if wall.signed_distance(pos) < VEHICLE_RADIUS_M:
-                return Collision(wall.name, speed)
+                return Collision(wall.name, _norm(vel))
         if on_ground and vel[2] > HARD_LANDING_M_S:
             return Collision(GROUND_NAME, vel[2])
-        if tilt_rad > FLIP_TILT_RAD or (on_ground and tilt_rad > TIPPED_TILT_RAD):
-            return Collision("flip", speed)
+        if cos_tilt < _COS_FLIP or (on_ground and cos_tilt < _COS_TIPPED):
+            return Collision("flip", _norm(vel))
         return None
+
+
+_COS_FLIP = math.cos(FLIP_TILT_RAD)
+_COS_TIPPED = math.cos(TIPPED_TILT_RAD)
+
+
+def _norm(v: Vec3) -> float:
+    return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])

@@ -60,40 +60,39 @@ class XQuadMixer:
         self.f_min = self.motor.force_n(self.motor.idle_cmd)
         self.f_max = self.motor.max_force_n
         self.saturated = False
+        self._k_rp = 1.0 / (4 * ARM_M)
 
     def mix(self, thrust_n: float, torque_nm: Vec3) -> tuple[float, float, float, float]:
         tx, ty, tz = torque_nm
-        k = 1.0 / (4 * ARM_M * ARM_M)
-        rp = [(-MOTOR_Y[i] * tx + MOTOR_X[i] * ty) * k for i in range(4)]
-        span = self.f_max - self.f_min
+        # Roll/pitch share of each motor (FR, AL, FL, AR), from f_i = -y_i tx/(4L^2) + x_i ty/(4L^2).
+        rx = tx * self._k_rp
+        ry = ty * self._k_rp
+        rp = (-rx + ry, rx - ry, rx + ry, -rx - ry)
+        f_min, f_max = self.f_min, self.f_max
+        saturated = False
         spread = max(rp) - min(rp)
-        self.saturated = False
-        if spread > span:
-            scale = span / spread
-            rp = [v * scale for v in rp]
-            self.saturated = True
+        if spread > f_max - f_min:
+            scale = (f_max - f_min) / spread
+            rp = (rp[0] * scale, rp[1] * scale, rp[2] * scale, rp[3] * scale)
+            saturated = True
         base = thrust_n / 4
         lo, hi = base + min(rp), base + max(rp)
-        if lo < self.f_min:
-            base += self.f_min - lo
-            self.saturated = True
-        elif hi > self.f_max:
-            base -= hi - self.f_max
-            self.saturated = True
-        forces = [base + v for v in rp]
-        yaw_each = tz / (4 * self.motor.yaw_moment_m)
-        # Largest yaw share every motor can still take without leaving its range.
-        room = math.inf
-        for i in range(4):
-            push = MOTOR_SPIN[i] * (1.0 if yaw_each >= 0 else -1.0)
-            room = min(room, self.f_max - forces[i] if push > 0 else forces[i] - self.f_min)
-        if abs(yaw_each) > room:
-            yaw_each = math.copysign(max(room, 0.0), yaw_each)
-            self.saturated = True
+        if lo < f_min:
+            base += f_min - lo
+            saturated = True
+        elif hi > f_max:
+            base -= hi - f_max
+            saturated = True
+        f0, f1, f2, f3 = base + rp[0], base + rp[1], base + rp[2], base + rp[3]
+        # Yaw: FR and AL spin one way (+), FL and AR the other (-). Only the headroom left is used.
+        yaw = tz / (4 * self.motor.yaw_moment_m)
+        if yaw >= 0:
+            room = min(f_max - f0, f_max - f1, f2 - f_min, f3 - f_min)
+        else:
+            room = min(f0 - f_min, f1 - f_min, f_max - f2, f_max - f3)
+        if abs(yaw) > room:
+            yaw = math.copysign(max(room, 0.0), yaw)
+            saturated = True
+        self.saturated = saturated
         cmd = self.motor.cmd_for
-        return (
-            cmd(forces[0] + MOTOR_SPIN[0] * yaw_each),
-            cmd(forces[1] + MOTOR_SPIN[1] * yaw_each),
-            cmd(forces[2] + MOTOR_SPIN[2] * yaw_each),
-            cmd(forces[3] + MOTOR_SPIN[3] * yaw_each),
-        )
+        return cmd(f0 + yaw), cmd(f1 + yaw), cmd(f2 - yaw), cmd(f3 - yaw)

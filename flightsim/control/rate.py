@@ -35,14 +35,14 @@ class RateController:
     def update(self, rate_sp: Vec3, rates: Vec3, dt_s: float, saturated: bool) -> Vec3:
         g = self.gains
         prev = self._prev_rates or rates
-        torque = [0.0, 0.0, 0.0]
-        for i in range(3):
+        self._prev_rates = rates
+        integral = self._integral
+        out = []
+        for i in (0, 1, 2):
             err = rate_sp[i] - rates[i]
             if not saturated:
                 lim = g.i_limit[i]
-                self._integral[i] = max(-lim, min(lim, self._integral[i] + g.ki[i] * err * dt_s))
-            d_meas = (rates[i] - prev[i]) / dt_s
-            alpha = g.kp[i] * err + self._integral[i] - g.kd[i] * d_meas
-            torque[i] = alpha * self.inertia[i]
-        self._prev_rates = rates
-        return torque[0], torque[1], torque[2]
+                integral[i] = max(-lim, min(lim, integral[i] + g.ki[i] * err * dt_s))
+            alpha = g.kp[i] * err + integral[i] - g.kd[i] * (rates[i] - prev[i]) / dt_s
+            out.append(alpha * self.inertia[i])
+        return out[0], out[1], out[2]

@@ -2,7 +2,7 @@
 
 Quaternions are ``(w, x, y, z)`` and rotate body vectors into NED (the
 convention of :mod:`flightsim.api`). Plain floats instead of numpy because the
-controllers run 250 times per simulated second per vehicle and numpy's
+inner loops run 200 times per simulated second per vehicle and numpy's
 per-call overhead on 3-vectors would dominate.
 """
 
