@@ -190,7 +190,7 @@ class Commander:
         return Outcome(Result.ACCEPTED)
 
     def offboard_setpoint(self, setpoint: OffboardSetpoint) -> None:
-        self._offboard = setpoint
+        self._offboard = _sanitised(setpoint)
         self._offboard_t_s = self._t_s
 
     def set_mission(self, items: list[NavItem]) -> Outcome:
@@ -322,3 +322,22 @@ class Commander:
         )
         p = self.p
         return Guidance(setpoint, p["MPC_XY_VEL_MAX"], p["MPC_Z_VEL_MAX_UP"], p["MPC_Z_VEL_MAX_DN"], climb)
+
+
+def _sanitised(sp: OffboardSetpoint) -> OffboardSetpoint:
+    """NaN handling as PX4's: a NaN position axis is "not controlled", a NaN yaw "keep heading",
+    a NaN velocity or acceleration component zero (so a half-filled message cannot poison the loops)."""
+
+    def zero_nan(v: tuple[float, float, float] | None) -> tuple[float, float, float] | None:
+        return None if v is None else (_num(v[0]), _num(v[1]), _num(v[2]))
+
+    pos = sp.pos_ned_m
+    if pos is not None and all(math.isnan(c) for c in pos):
+        pos = None
+    yaw = None if sp.yaw_rad is None or not math.isfinite(sp.yaw_rad) else sp.yaw_rad
+    rate = None if sp.yaw_rate_rad_s is None or not math.isfinite(sp.yaw_rate_rad_s) else sp.yaw_rate_rad_s
+    return OffboardSetpoint(pos, zero_nan(sp.vel_m_s), zero_nan(sp.acc_m_s2), yaw, rate, sp.frame)
+
+
+def _num(x: float) -> float:
+    return x if math.isfinite(x) else 0.0

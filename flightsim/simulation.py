@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from flightsim.api import State
+from flightsim.api import FlightMode, State
 from flightsim.vehicle import Vehicle
 from flightsim.world import World
 from secuav_common.scenario import Scenario
@@ -22,6 +22,7 @@ from secuav_common.scenario import Scenario
 # 200 Hz: the attitude/rate loops want >= 5x the ~55 ms motor lag's bandwidth, and the
 # gear springs of the F450 model stay stable; 250 Hz (PX4 SITL's rate) costs 20 % more CPU for no visible gain.
 PHYSICS_RATE_HZ = 200.0
+SETTLED_M_S = 0.1
 
 
 class Simulation:
@@ -59,6 +60,30 @@ class Simulation:
 
     def run_for(self, duration_s: float, on_step: Callable[[Simulation], object] | None = None) -> None:
         self.run_until(self.t_s + duration_s, on_step)
+
+    def take_off(self, altitude_m: float | None = None, timeout_s: float = 30.0) -> None:
+        """Arm every vehicle, take off (default MIS_TAKEOFF_ALT) and run until all hold.
+
+        For headless runs (offline evaluation, benchmarks) that need vehicles in the
+        air without a ground station; returns once every vehicle is in Hold and
+        moving slower than ``SETTLED_M_S`` on each axis. Raises ``RuntimeError`` naming the vehicle
+        and PX4's reason if one refuses, ``TimeoutError`` if one never settles.
+        """
+        for sysid, v in self.vehicles.items():
+            for outcome in (v.arm(), v.takeoff(altitude_m)):
+                if not outcome.ok:
+                    raise RuntimeError(f"vehicle {sysid}: {outcome.reason}")
+        deadline = self.t_s + timeout_s
+
+        def settled(v: Vehicle) -> bool:
+            # PX4 switches to Hold 0.3 m short of the target; wait until the climb has died out too.
+            return v.mode == FlightMode.HOLD and max(abs(c) for c in v.estimate.vel_ned_m_s) < SETTLED_M_S
+
+        while not all(settled(v) for v in self.vehicles.values()):
+            if self.t_s >= deadline:
+                late = [s for s, v in self.vehicles.items() if not settled(v)]
+                raise TimeoutError(f"vehicles {late} not holding still after {timeout_s:g} s")
+            self.run_for(0.1)
 
     def vehicle(self, sysid: int) -> Vehicle:
         return self.vehicles[sysid]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import statistics
 
-from flight_helpers import airborne, texts
+from flight_helpers import airborne, fly_offboard, texts
 
 from flightsim.api import FlightMode, LandedState, NavCommand, NavItem, OffboardSetpoint
 from flightsim.simulation import Simulation
@@ -129,3 +129,24 @@ def test_mission_ending_with_land_disarms() -> None:
     assert not v.armed
     assert math.dist(v.truth.pos_ned_m[:2], (3.5, 3.5)) < 0.3
     assert v.mission_finished
+
+
+def test_headless_take_off_of_a_formation() -> None:
+    sim = Simulation(load_scenario("formation"))
+    sim.take_off(3.0)
+    for sysid, v in sim.vehicles.items():
+        start = sim.scenario.vehicle(sysid).start.pos_ned_m
+        assert math.dist(v.truth.pos_ned_m, (start[0], start[1], -3.0)) < 0.3
+    sim.run_for(5.0)
+    assert all(v.mode == FlightMode.HOLD and not v.crashed for v in sim.vehicles.values())
+
+
+def test_nan_fields_of_an_offboard_setpoint_are_not_poison() -> None:
+    sim, v = airborne()
+    nan = math.nan
+    # Altitude only (north/east not controlled), NaN yaw = keep heading.
+    fly_offboard(sim, v, OffboardSetpoint(pos_ned_m=(nan, nan, -3.5), yaw_rad=nan), 5.0)
+    assert abs(v.truth.pos_ned_m[2] + 3.5) < 0.2
+    fly_offboard(sim, v, OffboardSetpoint(vel_m_s=(nan, 0.5, 0.0)), 3.0)
+    assert abs(v.truth.vel_ned_m_s[1] - 0.5) < 0.1
+    assert all(math.isfinite(c) for c in v.truth.pos_ned_m)
