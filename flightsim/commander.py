@@ -196,19 +196,17 @@ class Commander:
     def set_mission(self, items: list[NavItem]) -> Outcome:
         for i, item in enumerate(items):
             if not all(math.isfinite(c) for c in item.pos_ned_m):
-                return Outcome(Result.DENIED, f"Mission rejected: item {i} has no valid position")
+                return self._deny(f"Mission rejected: item {i} has no valid position")
         self.nav.mission = list(items)
-        self.nav.mission_current = 0
-        self.nav.mission_finished = False
+        self.nav.jump_to(0)
         if self.mode == FlightMode.MISSION and self._est is not None and self.armed:
             self.nav.start_mission(self._est, self.landed)
         return Outcome(Result.ACCEPTED)
 
     def set_mission_current(self, seq: int) -> Outcome:
         if not 0 <= seq < max(1, len(self.nav.mission)):
-            return Outcome(Result.DENIED, f"Mission item {seq} does not exist")
-        self.nav.mission_current = seq
-        self.nav.mission_finished = False
+            return self._deny(f"Mission item {seq} does not exist")
+        self.nav.jump_to(seq)
         return Outcome(Result.ACCEPTED)
 
     def crash(self, text: str) -> None:

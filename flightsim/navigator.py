@@ -93,6 +93,12 @@ class Navigator:
             self._mission_climb_alt = alt
             self.target = (est.pos_ned_m[0], est.pos_ned_m[1], -alt)
 
+    def jump_to(self, seq: int) -> None:
+        """Make item ``seq`` the current one (a new upload starts at 0)."""
+        self.mission_current = seq
+        self.mission_finished = False
+        self._mission_hold_until = None
+
     @property
     def mission_climbing(self) -> bool:
         """Still in the vertical climb that starts a mission from the ground."""

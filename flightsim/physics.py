@@ -18,6 +18,8 @@ import ctypes
 import io
 import math
 import os
+from collections.abc import Iterator
+from types import ModuleType
 
 from flightsim.api import State
 from flightsim.control.rotation import Vec3, quat_from_euler
@@ -50,7 +52,7 @@ STATE_PROPS = (
 )
 
 
-def _import_jsbsim():  # type: ignore[no-untyped-def]
+def _import_jsbsim() -> ModuleType:
     # JSBSim prints a banner at construction unless told otherwise.
     os.environ.setdefault("JSBSIM_DEBUG", "0")
     import jsbsim
@@ -59,7 +61,7 @@ def _import_jsbsim():  # type: ignore[no-untyped-def]
 
 
 @contextlib.contextmanager
-def _quiet():  # type: ignore[no-untyped-def]
+def _quiet() -> Iterator[None]:
     """Silence JSBSim's loading chatter (the F450 files trigger version warnings).
 
     The bindings send C++ output to Python's ``sys.stdout`` when it is not the

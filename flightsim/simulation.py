@@ -12,11 +12,12 @@ pacing against the wall clock is the runner's job.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 from flightsim.api import FlightMode, State
 from flightsim.vehicle import Vehicle
-from flightsim.world import World
+from flightsim.world import NEAR_GROUND_M, World
 from secuav_common.scenario import Scenario
 
 # 200 Hz: the attitude/rate loops want >= 5x the ~55 ms motor lag's bandwidth, and the
@@ -49,6 +50,22 @@ class Simulation:
         for vehicle in self.vehicles.values():
             vehicle.step(peers)
         self._steps += 1
+        if len(self.vehicles) > 1:
+            self._check_midair()
+
+    def _check_midair(self) -> None:
+        """Vehicles that touch each other both crash (frozen vehicles still count as obstacles)."""
+        fleet = list(self.vehicles.values())
+        for i, a in enumerate(fleet):
+            for b in fleet[i + 1 :]:
+                ta, tb = a.truth, b.truth
+                if not World.vehicles_touch(ta.pos_ned_m, tb.pos_ned_m):
+                    continue
+                closing = math.dist(ta.vel_ned_m_s, tb.vel_ned_m_s)
+                if ta.pos_ned_m[2] > -NEAR_GROUND_M and tb.pos_ned_m[2] > -NEAR_GROUND_M and closing < 0.1:
+                    continue  # parked side by side on the ground
+                a.crash(f"collision with vehicle {b.sysid} at {closing:.1f} m/s")
+                b.crash(f"collision with vehicle {a.sysid} at {closing:.1f} m/s")
 
     def run_until(self, t_s: float, on_step: Callable[[Simulation], object] | None = None) -> None:
         """Step until simulated time reaches ``t_s``; ``on_step`` is called after every step."""

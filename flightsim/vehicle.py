@@ -224,15 +224,20 @@ class Vehicle:
             cos_tilt = 1 - 2 * (q[1] * q[1] + q[2] * q[2])
             hit = self.world.check_collision(pos, truth.vel_ned_m_s, cos_tilt, on_ground)
             if hit is not None:
-                self.commander.crash(hit.text)
-                self._motors = Motors.OFF
-                self.physics.set_motors((0.0, 0.0, 0.0, 0.0))
-                self._frozen = replace(
-                    truth, vel_ned_m_s=(0.0, 0.0, 0.0), acc_ned_m_s2=(0.0, 0.0, 0.0), rates_rad_s=(0.0, 0.0, 0.0)
-                )
+                self.crash(hit.text)
         else:
             self.t_s = self._step_count * dt
         self._sample_sensors(self.truth, peers)
+
+    def crash(self, text: str) -> None:
+        """End the flight where the vehicle is: motors off, disarmed, frozen, ``text`` as a CRITICAL status."""
+        if self._frozen is not None:
+            return
+        self.commander.crash(text)
+        self._motors = Motors.OFF
+        self.physics.set_motors((0.0, 0.0, 0.0, 0.0))
+        zero = (0.0, 0.0, 0.0)
+        self._frozen = replace(self.physics.state, vel_ned_m_s=zero, acc_ned_m_s2=zero, rates_rad_s=zero)
 
     def _inner_loop(self) -> tuple[float, float, float, float]:
         if self._motors is Motors.OFF:

@@ -6,7 +6,7 @@ plane ``z = 0`` with its free side up (negative z).
 
 A vehicle is treated as a sphere of ``VEHICLE_RADIUS_M`` around its centre of
 gravity for wall contact (an F450's arms and props reach about that far). It
-crashes when that sphere touches a wall, when it meets the ground descending
+crashes when that sphere touches a wall or another vehicle's, when it meets the ground descending
 faster than ``HARD_LANDING_M_S``, or when it is upside down (tilt over 90 deg)
 or tipped over on the ground (tilt over 60 deg while in contact).
 """
@@ -97,6 +97,11 @@ class World:
         if cos_tilt < _COS_FLIP or (on_ground and cos_tilt < _COS_TIPPED):
             return Collision("flip", _norm(vel))
         return None
+
+    @staticmethod
+    def vehicles_touch(a: Vec3, b: Vec3) -> bool:
+        """Two vehicles' spheres overlap (their props would meet)."""
+        return (a[0] - b[0]) ** 2 + (a[1] - b[1]) ** 2 + (a[2] - b[2]) ** 2 < (2 * VEHICLE_RADIUS_M) ** 2
 
 
 _COS_FLIP = math.cos(FLIP_TILT_RAD)

@@ -11,7 +11,7 @@ from flight_helpers import airborne
 from flightsim.api import OffboardSetpoint, State
 from flightsim.simulation import Simulation
 from secuav_common.geo import geodetic_to_ned
-from secuav_common.scenario import load_scenario
+from secuav_common.scenario import load_scenario, parse_scenario
 
 
 def test_wall_group_reads_the_distance_to_the_wall_within_noise_even_while_tilting() -> None:
@@ -103,3 +103,23 @@ def test_estimate_and_gps_are_noisy_truth_with_the_configured_spread() -> None:
         white = [b[axis] - a[axis] for a, b in itertools.pairwise(errs_gps)]
         assert 0.6 * std * math.sqrt(2) * 0.7 < statistics.pstdev(white) < 0.6 * std * math.sqrt(2) * 1.3
         assert max(abs(e[axis]) for e in errs_est) < 6 * std
+
+
+def test_start_heading_turns_the_forward_beam() -> None:
+    text = """
+name: east-wall
+world:
+  walls: [{name: east, point_ned_m: [0.0, 3.0, 0.0], normal_ned: [0.0, -1.0, 0.0]}]
+vehicles:
+  - sysid: 1
+    start: {pos_ned_m: [1.0, 0.0, 0.0], yaw_deg: 90}
+    sensors:
+      rangefinders: [{id: 0, orientation: forward, noise_std_m: 0.0}]
+"""
+    sim = Simulation(parse_scenario(text))
+    sim.run_for(0.5)
+    v = sim.vehicles[1]
+    assert abs(v.truth.euler_rad[2] - math.pi / 2) < 0.01
+    assert math.dist(v.truth.pos_ned_m, (1.0, 0.0, 0.0)) < 0.01
+    d = [r.distance_m for r in v.pop_readings()]
+    assert abs(d[-1] - 3.0) < 0.02

@@ -150,3 +150,18 @@ def test_nan_fields_of_an_offboard_setpoint_are_not_poison() -> None:
     fly_offboard(sim, v, OffboardSetpoint(vel_m_s=(nan, 0.5, 0.0)), 3.0)
     assert abs(v.truth.vel_ned_m_s[1] - 0.5) < 0.1
     assert all(math.isfinite(c) for c in v.truth.pos_ned_m)
+
+
+def test_vertical_speed_limits_hold_on_a_big_altitude_step() -> None:
+    sim, v = airborne()
+    up_max = v.get_param("MPC_Z_VEL_MAX_UP").value  # type: ignore[union-attr]
+    dn_max = v.get_param("MPC_Z_VEL_MAX_DN").value  # type: ignore[union-attr]
+    vz: list[float] = []
+    high = OffboardSetpoint(pos_ned_m=(2.5, 2.5, -10.0), yaw_rad=0.0)
+    low = OffboardSetpoint(pos_ned_m=(2.5, 2.5, -2.5), yaw_rad=0.0)
+    fly_offboard(sim, v, high, 0.0)
+    sim.run_for(6.0, lambda _s: (v.offboard_setpoint(high), vz.append(v.truth.vel_ned_m_s[2])))
+    assert up_max * 0.9 < -min(vz) < up_max * 1.1
+    vz.clear()
+    sim.run_for(8.0, lambda _s: (v.offboard_setpoint(low), vz.append(v.truth.vel_ned_m_s[2])))
+    assert dn_max * 0.9 < max(vz) < dn_max * 1.1

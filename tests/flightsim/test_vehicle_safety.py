@@ -63,3 +63,17 @@ def test_same_seed_same_flight_and_noise_other_seed_other_noise() -> None:
     assert a == b
     c = _flight_log(99)
     assert c != a
+
+
+def test_two_vehicles_meeting_in_the_air_both_crash() -> None:
+    sim = Simulation(load_scenario("formation"))
+    sim.take_off()
+    v1, v2 = sim.vehicles[1], sim.vehicles[2]
+    meet = OffboardSetpoint(pos_ned_m=(2.5, 2.5, -2.5), yaw_rad=0.0)
+    for v in (v1, v2):
+        v.offboard_setpoint(meet)
+        assert v.set_mode(FlightMode.OFFBOARD).ok
+    sim.run_for(6.0, lambda _s: (v1.offboard_setpoint(meet), v2.offboard_setpoint(meet)))
+    assert v1.crashed and v2.crashed
+    assert any(t.startswith("collision with vehicle 2") for t in texts(v1))
+    assert any(t.startswith("collision with vehicle 1") for t in texts(v2))
