@@ -6,6 +6,9 @@ Refusals carry the reason PX4 would print, and every notable event (mode
 refusals, failsafes, takeoff/landing detected, auto-disarm, crash) is queued
 as a (MAV_SEVERITY, text) status message.
 
+Land detection stands in for PX4's thrust-and-acceleration detector with the
+gear's weight-on-wheels (JSBSim contact) plus a still vertical estimate.
+
 Motor output has three states: ``OFF`` (disarmed), ``IDLE`` (armed on the
 ground with nothing asking to climb: props spin, controllers held in reset)
 and ``FLY`` (the control cascade runs).

@@ -58,6 +58,7 @@ SPECS: tuple[ParamSpec, ...] = (
     _i("COM_OBL_RC_ACT", 0, 0, 7),
     _f("COM_DISARM_LAND", 2.0, -1.0, 20.0, used=True),
     _f("COM_DISARM_PRFLT", 10.0, -1.0, 20.0, used=True),
+    _f("LNDMC_Z_VEL_MAX", 0.5, 0.1, 10.0, used=True),
     _f("COM_LOW_BAT_ACT", 0.0, 0.0, 3.0),
     _f("BAT_LOW_THR", 0.15, 0.12, 0.5, used=True),
     _f("BAT_CRIT_THR", 0.07, 0.05, 0.5),
@@ -96,7 +97,6 @@ SPECS: tuple[ParamSpec, ...] = (
     _f("RTL_DESCEND_ALT", 30.0, 2.0, 100.0),
     _f("RTL_LAND_DELAY", 0.0, -1.0, 300.0),
     _i("MIS_DIST_1WP", 900, 0, 10000),
-    _f("LNDMC_Z_VEL_MAX", 0.5, 0.1, 10.0),
 )
 
 _BY_NAME = {s.name: s for s in SPECS}

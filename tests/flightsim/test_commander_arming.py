@@ -138,3 +138,17 @@ def test_xy_speed_limit_param_is_respected() -> None:
     fly_offboard(sim, v, far, 1.0)
     sim.run_for(3.0, lambda s: (v.offboard_setpoint(far), watch(s)))
     assert 0.9 < top < 1.15
+
+
+def test_every_param_marked_used_is_read_by_the_autopilot() -> None:
+    import pathlib
+
+    import flightsim
+    from flightsim.params import SPECS
+
+    root = pathlib.Path(flightsim.__file__).parent
+    autopilot = ["commander.py", "navigator.py", "vehicle.py", "sensors.py", "simulation.py"]
+    files = [root / f for f in autopilot] + list((root / "control").glob("*.py"))
+    source = "".join(p.read_text() for p in files)
+    for spec in SPECS:
+        assert (f'"{spec.name}"' in source) == spec.used, spec.name
