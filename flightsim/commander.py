@@ -224,12 +224,15 @@ class Commander:
     def update(self, t_s: float, dt_s: float, est: State, contact: bool) -> tuple[Motors, Guidance | None]:
         """Advance land detection, failsafes and mode logic; return what the motors should do."""
         self.observe(t_s, est)
+        self.nav.dt_s = dt_s
         self._detect_landing(dt_s, est, contact)
         self._failsafes(t_s, est)
         if not self.armed:
+            self.nav.rest(est)
             return Motors.OFF, None
         guidance = self._guidance(est, t_s)
         if self.landed and not guidance.wants_climb:
+            self.nav.rest(est)
             landing_done = self._has_flown or self.mode == FlightMode.LAND
             if landing_done and self._landed_t_s >= self.p["COM_DISARM_LAND"] >= 0:
                 self.disarm(reason="Disarmed by landing")

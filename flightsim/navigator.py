@@ -6,9 +6,16 @@ at MPC_Z_VEL_MAX_DN, then MPC_LAND_SPEED below MPC_LAND_ALT2), return to launch
 (climb to RTL_RETURN_ALT, fly home, land) and missions (items in the local
 frame, accepted within their radius). Heights are above home; positions NED.
 
-``update`` returns a :class:`Guidance`: the setpoint plus the speed limits that
-apply to it, and sets ``event`` when a manoeuvre completes ("takeoff_done",
-"mission_rtl", "mission_land") so the commander can switch modes.
+Auto modes do not hand the raw target to the position controller: a
+:class:`Carrot` runs ahead of the vehicle from its position toward the target
+with trapezoidal speed (speed and acceleration limits from the params) and the
+controller tracks the carrot's position plus its velocity as feed-forward, so
+takeoffs, waypoints and returns arrive crisply instead of creeping in on a
+P-law tail (PX4's flight tasks do the same with jerk-limited trajectories).
+
+The per-mode methods return a :class:`Guidance`: the setpoint plus the speed
+limits that apply to it, and set ``event`` when a manoeuvre completes
+("takeoff_done", "mission_rtl", "mission_land") so the commander can switch modes.
 """
 
 from __future__ import annotations
@@ -40,6 +47,53 @@ class RtlPhase(Enum):
     LAND = 3
 
 
+class Carrot:
+    """A point moving toward a target with limited speed and acceleration (NED, SI).
+
+    Horizontal and vertical motion are shaped separately: each accelerates at
+    most ``acc`` toward the speed ``min(cap, sqrt(2 acc distance))``, the fastest
+    speed from which it can still stop on the target, and snaps onto the target
+    when the next step would reach it.
+    """
+
+    def __init__(self) -> None:
+        self.pos: Vec3 = (0.0, 0.0, 0.0)
+        self.vel: Vec3 = (0.0, 0.0, 0.0)
+
+    def reset(self, pos: Vec3, vel: Vec3) -> None:
+        self.pos, self.vel = pos, vel
+
+    def advance(
+        self, target: Vec3, xy_cap: float, up_cap: float, dn_cap: float, acc_xy: float, acc_z: float, dt_s: float
+    ) -> None:
+        (x, y), (vx, vy) = _shape(
+            (self.pos[0], self.pos[1]), (self.vel[0], self.vel[1]), (target[0], target[1]), xy_cap, acc_xy, dt_s
+        )
+        z_cap = dn_cap if target[2] > self.pos[2] else up_cap
+        (z,), (vz,) = _shape((self.pos[2],), (self.vel[2],), (target[2],), z_cap, acc_z, dt_s)
+        self.pos, self.vel = (x, y, z), (vx, vy, vz)
+
+
+def _shape(
+    pos: tuple[float, ...], vel: tuple[float, ...], target: tuple[float, ...], cap: float, acc: float, dt_s: float
+) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """One step of the carrot along 1 or 2 axes: returns the new (position, velocity)."""
+    d = [t - p for t, p in zip(target, pos, strict=True)]
+    dist = math.sqrt(sum(c * c for c in d))
+    speed_now = math.sqrt(sum(c * c for c in vel))
+    if dist <= max(speed_now * dt_s, 1e-6):
+        return target, tuple(0.0 for _ in pos)
+    want = min(cap, math.sqrt(2 * acc * dist))
+    desired = [c / dist * want for c in d]
+    dv = [w - v for w, v in zip(desired, vel, strict=True)]
+    dv_norm = math.sqrt(sum(c * c for c in dv))
+    limit = acc * dt_s
+    if dv_norm > limit:
+        dv = [c * limit / dv_norm for c in dv]
+    new_vel = tuple(v + c for v, c in zip(vel, dv, strict=True))
+    return tuple(p + v * dt_s for p, v in zip(pos, new_vel, strict=True)), new_vel
+
+
 class Navigator:
     def __init__(self, params: Params) -> None:
         self.p = params
@@ -54,6 +108,8 @@ class Navigator:
         self._mission_hold_until: float | None = None
         self._mission_climb_alt: float | None = None
         self.event: str | None = None
+        self.carrot = Carrot()
+        self.dt_s = 0.02  # the commander sets the control period before each tick
 
     # -- starting manoeuvres ---------------------------------------------------
     def start_hold(self, est: State) -> None:
@@ -62,13 +118,16 @@ class Navigator:
         a = self.p["MPC_ACC_HOR"]
         speed = math.hypot(v[0], v[1])
         k = speed / (2 * a)
-        self.hold_pos = (p[0] + v[0] * k, p[1] + v[1] * k, p[2] + v[2] * abs(v[2]) / (2 * 3.0))
+        a_z = min(self.p["MPC_ACC_UP_MAX"], self.p["MPC_ACC_DOWN_MAX"])
+        self.hold_pos = (p[0] + v[0] * k, p[1] + v[1] * k, p[2] + v[2] * abs(v[2]) / (2 * a_z))
         self.yaw = est.euler_rad[2]
+        self.carrot.reset(p, v)
 
     def start_takeoff(self, est: State, altitude_m: float) -> None:
         p = est.pos_ned_m
         self.target = (p[0], p[1], -altitude_m)
         self.yaw = est.euler_rad[2]
+        self.carrot.reset(p, est.vel_ned_m_s)
 
     def start_land(self, est: State) -> None:
         self.target = est.pos_ned_m
@@ -80,6 +139,7 @@ class Navigator:
         self.rtl_alt_m = max(self.p["RTL_RETURN_ALT"], -p[2])
         self.target = (p[0], p[1], -self.rtl_alt_m)
         self.rtl_phase = RtlPhase.LAND if math.hypot(p[0], p[1]) < self.p["NAV_ACC_RAD"] else RtlPhase.CLIMB
+        self.carrot.reset(p, est.vel_ned_m_s)
 
     def start_mission(self, est: State, landed: bool) -> None:
         self.mission_finished = False
@@ -87,6 +147,7 @@ class Navigator:
         self.yaw = est.euler_rad[2]
         self.hold_pos = est.pos_ned_m
         self._mission_climb_alt = None
+        self.carrot.reset(est.pos_ned_m, est.vel_ned_m_s)
         if landed and self.mission_current < len(self.mission):
             item = self.mission[self.mission_current]
             alt = max(self.p["MIS_TAKEOFF_ALT"], -item.pos_ned_m[2])
@@ -160,9 +221,7 @@ class Navigator:
             goal = (goal[0], goal[1], est.pos_ned_m[2])
         radius = item.acceptance_radius_m if item.acceptance_radius_m > 0 else self.p["NAV_ACC_RAD"]
         p = est.pos_ned_m
-        reached = math.hypot(p[0] - goal[0], p[1] - goal[1]) < radius and abs(p[2] - goal[2]) < max(
-            self.p["NAV_MC_ALT_RAD"], radius
-        )
+        reached = math.hypot(p[0] - goal[0], p[1] - goal[1]) < radius and abs(p[2] - goal[2]) < self.p["NAV_MC_ALT_RAD"]
         if reached:
             if item.command == NavCommand.LAND:
                 self.target = goal
@@ -185,11 +244,16 @@ class Navigator:
             self.mission_finished = True
 
     def _go(self, pos: Vec3, xy: float | None = None, up: float | None = None) -> Guidance:
-        sp = Setpoint(pos_ned_m=pos, yaw_rad=self.yaw)
-        return Guidance(
-            sp,
-            xy if xy is not None else self.p["MPC_XY_VEL_MAX"],
-            up if up is not None else self.p["MPC_Z_VEL_MAX_UP"],
-            self.p["MPC_Z_VEL_MAX_DN"],
-            wants_climb=pos[2] < -0.3,
-        )
+        """Fly toward ``pos`` behind the carrot, within the given (or default) speed limits."""
+        p = self.p
+        xy_cap = xy if xy is not None else p["MPC_XY_VEL_MAX"]
+        up_cap = up if up is not None else p["MPC_Z_VEL_MAX_UP"]
+        dn_cap = p["MPC_Z_VEL_MAX_DN"]
+        acc_z = min(p["MPC_ACC_UP_MAX"], p["MPC_ACC_DOWN_MAX"])
+        self.carrot.advance(pos, xy_cap, up_cap, dn_cap, p["MPC_ACC_HOR"], acc_z, self.dt_s)
+        sp = Setpoint(pos_ned_m=self.carrot.pos, vel_ned_m_s=self.carrot.vel, yaw_rad=self.yaw)
+        return Guidance(sp, xy_cap, up_cap, dn_cap, wants_climb=pos[2] < -0.3)
+
+    def rest(self, est: State) -> None:
+        """On the ground with motors idle: keep the carrot under the vehicle."""
+        self.carrot.reset(est.pos_ned_m, (0.0, 0.0, 0.0))

@@ -8,6 +8,17 @@ step so the result does not depend on the order vehicles are stepped in.
 Deterministic: the same scenario and seed (default: the scenario's ``seed``)
 give the same physics and the same noise. The clock is simulated time only;
 pacing against the wall clock is the runner's job.
+
+Headless use, e.g. an offline evaluation (no MAVLink)::
+
+    sim = Simulation(load_scenario("anchors8"), seed=7)
+    sim.take_off()                                  # arm all, MIS_TAKEOFF_ALT, settle in Hold
+    v = sim.vehicles[1]
+    leg = OffboardSetpoint(vel_m_s=(0.5, 0.0, 0.0), yaw_rad=0.0)
+    v.offboard_setpoint(leg)
+    v.set_mode(FlightMode.OFFBOARD)
+    log = []
+    sim.run_for(10.0, lambda s: (v.offboard_setpoint(leg), log.append((v.truth, v.pop_readings()))))
 """
 
 from __future__ import annotations

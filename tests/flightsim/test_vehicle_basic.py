@@ -30,3 +30,24 @@ def test_takeoff_hold_land_disarm() -> None:
     texts = [t for _, t in v.pop_status_texts()]
     assert "Landing detected" in texts
     assert "Disarmed by landing" in texts
+
+
+def test_vehicle_offers_everything_the_api_protocol_declares() -> None:
+    import inspect
+
+    from flightsim.api import VehicleModel
+    from flightsim.vehicle import Vehicle
+
+    sim = Simulation(load_scenario("formation"))
+    v = sim.vehicles[2]
+    members = set(VehicleModel.__annotations__) | {
+        n for n, _ in inspect.getmembers(VehicleModel) if not n.startswith("_")
+    }
+    assert {"truth", "estimate", "arm", "pop_readings", "config", "sysid", "home"} <= members
+    for name in members:
+        assert hasattr(v, name), name
+        proto = inspect.getattr_static(VehicleModel, name, None)
+        if inspect.isfunction(proto):
+            ours = inspect.signature(getattr(Vehicle, name))
+            assert list(ours.parameters) == list(inspect.signature(proto).parameters), name
+    assert v.sysid == 2 and v.config.sysid == 2 and v.home == sim.scenario.world.home
