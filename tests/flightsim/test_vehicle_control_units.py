@@ -16,6 +16,7 @@ from flightsim.control.rotation import (
     rotate,
     rotate_inverse,
 )
+from flightsim.navigator import Carrot
 
 small_torque = st.floats(-0.05, 0.05)
 angle = st.floats(-math.pi + 1e-6, math.pi - 1e-6)
@@ -93,3 +94,31 @@ def test_position_controller_hover_thrust_and_tilt_limit() -> None:
     tilt = math.acos(rotate(far.quat, (0.0, 0.0, 1.0))[2])
     assert math.isclose(tilt, pc.limits.tilt_max_rad, rel_tol=1e-6)
     assert rotate(far.quat, (1.0, 0.0, 0.0))[2] > 0  # nose down (x axis below the horizon) to go north
+
+
+@given(
+    target=st.tuples(st.floats(-30, 30), st.floats(-30, 30), st.floats(-20, 0)),
+    cap=st.floats(0.5, 8.0),
+    acc=st.floats(1.0, 5.0),
+)
+def test_carrot_reaches_any_target_within_its_limits_without_overshoot(
+    target: tuple[float, float, float], cap: float, acc: float
+) -> None:
+    carrot = Carrot()
+    carrot.reset((0.0, 0.0, -2.0), (0.0, 0.0, 0.0))
+    dt = 0.02
+    start_dist = math.dist(carrot.pos, target)
+    prev_vel = carrot.vel
+    for _ in range(5000):
+        carrot.advance(target, cap, cap, cap, acc, acc, dt)
+        vx, vy, vz = carrot.vel
+        assert math.hypot(vx, vy) <= cap + 1e-9 and abs(vz) <= cap + 1e-9
+        dvx, dvy = vx - prev_vel[0], vy - prev_vel[1]
+        # Acceleration limit holds except on the final snap onto the target (per axis group).
+        if carrot.pos[:2] != target[:2]:
+            assert math.hypot(dvx, dvy) <= acc * dt + 1e-9
+        assert math.dist(carrot.pos, target) <= start_dist + 1e-9
+        prev_vel = carrot.vel
+        if carrot.pos == target:
+            break
+    assert carrot.pos == target and carrot.vel == (0.0, 0.0, 0.0)
