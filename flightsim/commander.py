@@ -192,6 +192,20 @@ class Commander:
         self.nav.start_hold(est)
         return Outcome(Result.ACCEPTED)
 
+    def reposition(self, pos_ned_m: tuple[float, float, float], yaw_rad: float | None) -> Outcome:
+        """MAV_CMD_DO_REPOSITION: fly to a point and hold there (mode Hold), as PX4."""
+        if self.crashed:
+            return self._deny("Reposition denied: vehicle crashed")
+        if not self.armed or self.landed:
+            return self._deny("Reposition denied: vehicle is on the ground", Result.TEMPORARILY_REJECTED)
+        if all(math.isnan(c) for c in pos_ned_m) and (yaw_rad is None or math.isnan(yaw_rad)):
+            return self._deny("Reposition denied: no position given")
+        assert self._est is not None
+        self.mode = FlightMode.HOLD
+        self.takeoff_phase = False
+        self.nav.start_reposition(self._est, pos_ned_m, yaw_rad)
+        return Outcome(Result.ACCEPTED)
+
     def offboard_setpoint(self, setpoint: OffboardSetpoint) -> None:
         self._offboard = _sanitised(setpoint)
         self._offboard_t_s = self._t_s

@@ -98,6 +98,7 @@ class Navigator:
     def __init__(self, params: Params) -> None:
         self.p = params
         self.hold_pos: Vec3 = (0.0, 0.0, 0.0)
+        self.hold_xy_speed: float | None = None  # None: MPC_XY_VEL_MAX; a reposition flies at cruise speed
         self.yaw: float = 0.0
         self.target: Vec3 = (0.0, 0.0, 0.0)
         self.rtl_phase = RtlPhase.CLIMB
@@ -120,6 +121,7 @@ class Navigator:
         k = speed / (2 * a)
         a_z = min(self.p["MPC_ACC_UP_MAX"], self.p["MPC_ACC_DOWN_MAX"])
         self.hold_pos = (p[0] + v[0] * k, p[1] + v[1] * k, p[2] + v[2] * abs(v[2]) / (2 * a_z))
+        self.hold_xy_speed = None
         self.yaw = est.euler_rad[2]
         self.carrot.reset(p, v)
 
@@ -167,7 +169,16 @@ class Navigator:
 
     # -- per control tick -------------------------------------------------------
     def hold(self) -> Guidance:
-        return self._go(self.hold_pos)
+        return self._go(self.hold_pos, xy=self.hold_xy_speed)
+
+    def start_reposition(self, est: State, pos: Vec3, yaw: float | None) -> None:
+        """Hold somewhere else: fly there at MPC_XY_CRUISE (NaN axes keep the current value)."""
+        cur = est.pos_ned_m
+        self.hold_pos = tuple(c if math.isnan(p) else p for p, c in zip(pos, cur, strict=True))  # type: ignore[assignment]
+        if yaw is not None and math.isfinite(yaw):
+            self.yaw = yaw
+        self.hold_xy_speed = self.p["MPC_XY_CRUISE"]
+        self.carrot.reset(cur, est.vel_ned_m_s)
 
     def takeoff(self, est: State) -> Guidance:
         if abs(est.pos_ned_m[2] - self.target[2]) < self.p["NAV_MC_ALT_RAD"]:

@@ -171,6 +171,10 @@ class Vehicle:
     def set_mode(self, mode: FlightMode) -> Outcome:
         return self.commander.set_mode(mode)
 
+    def reposition(self, pos_ned_m: tuple[float, float, float], yaw_rad: float | None = None) -> Outcome:
+        """Fly to ``pos_ned_m`` (NaN axes: keep) and hold there in Hold mode (MAVSDK ``goto_location``)."""
+        return self.commander.reposition(pos_ned_m, yaw_rad)
+
     def offboard_setpoint(self, setpoint: OffboardSetpoint) -> None:
         self.commander.offboard_setpoint(setpoint)
 

@@ -165,3 +165,15 @@ def test_vertical_speed_limits_hold_on_a_big_altitude_step() -> None:
     vz.clear()
     sim.run_for(8.0, lambda _s: (v.offboard_setpoint(low), vz.append(v.truth.vel_ned_m_s[2])))
     assert dn_max * 0.9 < max(vz) < dn_max * 1.1
+
+
+def test_reposition_flies_there_and_holds() -> None:
+    sim, v = airborne()
+    assert v.reposition((4.0, 1.0, math.nan), math.radians(45)).ok
+    assert v.mode == FlightMode.HOLD
+    sim.run_for(6.0)
+    assert math.dist(v.truth.pos_ned_m[:2], (4.0, 1.0)) < 0.2
+    assert abs(v.truth.pos_ned_m[2] + 2.5) < 0.2  # NaN altitude: kept
+    assert abs(v.truth.euler_rad[2] - math.radians(45)) < 0.05
+    ground = Simulation(load_scenario("anchors8"))
+    assert not ground.vehicles[1].reposition((1.0, 1.0, -2.0)).ok  # on the ground, disarmed
