@@ -137,7 +137,12 @@ class F450Physics:
 
     def set_motors(self, cmds: tuple[float, float, float, float]) -> None:
         """Motor commands 0..1 in JSBSim engine order: FR, AL, FL, AR."""
-        a, b, c, d = (max(0.0, min(1.0, x)) for x in cmds)
+        a, b, c, d = cmds
+        # Clamp to 0..1 inline: this runs every physics step.
+        a = 0.0 if a < 0.0 else 1.0 if a > 1.0 else a
+        b = 0.0 if b < 0.0 else 1.0 if b > 1.0 else b
+        c = 0.0 if c < 0.0 else 1.0 if c > 1.0 else c
+        d = 0.0 if d < 0.0 else 1.0 if d > 1.0 else d
         self.motors = (a, b, c, d)
         s0, s1, s2, s3 = self._motor_setters
         s0(a)
@@ -165,7 +170,9 @@ class F450Physics:
         return bool(w0() or w1() or w2())
 
     def _read(self) -> State:
-        lat, lon, agl, vn, ve, vd, phi, theta, psi, p, q, r = (g() for g in self._getters)
+        g = self._getters
+        lat, lon, agl, vn, ve, vd = g[0](), g[1](), g[2](), g[3](), g[4](), g[5]()
+        phi, theta, psi, p, q, r = g[6](), g[7](), g[8](), g[9](), g[10](), g[11]()
         north = self._n0 + (lat - self._lat0) * self._m_per_rad_lat
         east = self._e0 + (lon - self._lon0) * self._m_per_rad_lon
         down = -(agl * FT_M - GEAR_HEIGHT_M)

@@ -51,6 +51,8 @@ QUEUE_MAX = 8192  # unread readings beyond this are dropped oldest-first (headle
 
 
 class Vehicle:
+    """One scenario vehicle (a :class:`flightsim.api.VehicleModel`); built and stepped by the Simulation."""
+
     def __init__(self, config: VehicleConfig, scenario: Scenario, world: World, seed: int, dt_s: float) -> None:
         self.config = config
         self.sysid = config.sysid
