@@ -127,3 +127,20 @@ def test_peer_ranges_go_out_as_50_plus_sysid() -> None:
     me = _state((4.0, 4.0, -2.5))
     out = model.sample(me, {2: _state((1.0, 0.0, -2.5)), 7: _state((4.0, 4.0, -4.5))})
     assert [(r.sensor_id, r.distance_m) for r in out] == [(52, 5.0), (57, 2.0)]
+
+
+def test_collision_rules_of_the_world() -> None:
+    world = _wall_world()
+    level, upside_down, tipped = 1.0, math.cos(math.radians(120)), math.cos(math.radians(70))
+    still = (0.0, 0.0, 0.0)
+    assert world.check_collision((2.0, 0.0, -2.0), still, level, False) is None
+    hit = world.check_collision((4.8, 0.0, -2.0), (1.8, 0.0, 0.0), level, False)
+    assert hit is not None and hit.text == "collision with wall 'wall' at 1.8 m/s"
+    assert world.check_collision((1.0, 0.0, 0.0), (0.0, 0.0, 1.5), level, True) is None  # firm landing
+    hard = world.check_collision((1.0, 0.0, 0.0), (0.0, 0.0, 3.1), level, True)
+    assert hard is not None and hard.text == "collision with the ground at 3.1 m/s"
+    assert world.check_collision((1.0, 0.0, -2.0), still, upside_down, False).what == "flip"  # type: ignore[union-attr]
+    assert world.check_collision((1.0, 0.0, -2.0), still, tipped, False) is None  # steep, but flying
+    assert world.check_collision((1.0, 0.0, 0.0), still, tipped, True).what == "flip"  # type: ignore[union-attr]
+    assert World.vehicles_touch((0.0, 0.0, -2.0), (0.0, 0.45, -2.0))
+    assert not World.vehicles_touch((0.0, 0.0, -2.0), (0.0, 0.55, -2.0))
