@@ -177,3 +177,38 @@ def test_reposition_flies_there_and_holds() -> None:
     assert abs(v.truth.euler_rad[2] - math.radians(45)) < 0.05
     ground = Simulation(load_scenario("anchors8"))
     assert not ground.vehicles[1].reposition((1.0, 1.0, -2.0)).ok  # on the ground, disarmed
+
+
+def test_mission_with_takeoff_loiter_and_rtl_items() -> None:
+    sim = Simulation(load_scenario("anchors8"))
+    v = sim.vehicles[1]
+    sim.run_for(0.2)
+    items = [
+        NavItem(NavCommand.TAKEOFF, (2.5, 2.5, -3.0)),
+        NavItem(NavCommand.LOITER_TIME, (3.5, 2.5, -3.0), hold_s=2.0),
+        NavItem(NavCommand.RETURN_TO_LAUNCH, (0.0, 0.0, 0.0)),
+    ]
+    assert v.set_mission(items).ok
+    assert v.set_mode(FlightMode.MISSION).ok
+    assert v.arm().ok
+    sim.run_for(1.0)
+    assert v.landed_state == LandedState.TAKEOFF
+    peak = 0.0
+    at_loiter: list[float] = []
+    events: list[tuple[int, FlightMode]] = []
+
+    def watch(_s: Simulation) -> None:
+        nonlocal peak
+        peak = max(peak, -v.truth.pos_ned_m[2])
+        if not events or events[-1] != (v.mission_current, v.mode):
+            events.append((v.mission_current, v.mode))
+        if v.mission_current == 1 and math.dist(v.truth.pos_ned_m, (3.5, 2.5, -3.0)) < 0.55:
+            at_loiter.append(sim.t_s)
+
+    sim.run_for(35.0, watch)
+    assert events[:3] == [(0, FlightMode.MISSION), (1, FlightMode.MISSION), (2, FlightMode.MISSION)]
+    assert (2, FlightMode.RTL) in events
+    assert abs(peak - max(3.0, v.get_param("RTL_RETURN_ALT").value)) < 0.25  # type: ignore[union-attr]
+    assert at_loiter and at_loiter[-1] - at_loiter[0] >= 1.9  # loitered its 2 s
+    assert not v.armed
+    assert math.hypot(*v.truth.pos_ned_m[:2]) < 0.3
