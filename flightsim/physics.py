@@ -5,8 +5,9 @@ four DJI E305 motors with 9.4" props, ground contacts, simple drag). Its own
 stability augmentation is switched off (``fcs/ScasEngage`` = 0), so the four
 motor commands ``fcs/cmd{FR,AL,FL,AR}_ext_nd`` (0..1) are the only inputs.
 
-The vehicle starts at rest on flat ground at the scenario's start position,
-whose latitude/longitude come from the home point. Outputs are converted to the
+The vehicle starts at rest on flat ground at the scenario's start position
+(north/east; a start ``z`` is ignored: every flight begins on the ground, as
+with PX4), whose latitude/longitude come from the home point. Outputs are converted to the
 scenario frame: local NED in metres with origin at home, ``z = 0`` when the
 vehicle stands on the ground (the centre of gravity is then ~0.15 m above it).
 """
