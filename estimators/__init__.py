@@ -1,1 +1,35 @@
-"""estimators package."""
+"""Secure state estimators for range-based UAV localisation (pure numpy/scipy library).
+
+``create(name, model, **params)`` builds one; ``names()`` lists them; every
+estimator has ``reset(x0=None, t_s=0.0, P0=None)`` and
+``step(t_s, z, known=None) -> Estimate``. Models live in ``estimators.models``.
+"""
+
+from estimators.base import Estimate, Estimator
+from estimators.ekf import ExtendedKalman
+from estimators.ls import LeastSquares
+from estimators.models import (
+    AnchorRanges2D,
+    AnchorRanges3D,
+    LinearModel,
+    MeasurementModel,
+    ScalarGroup,
+    TwoVehicleRanges,
+)
+from estimators.registry import create, names, register
+
+for _cls in (LeastSquares, ExtendedKalman):
+    register(_cls)
+
+__all__ = [
+    "AnchorRanges2D",
+    "AnchorRanges3D",
+    "Estimate",
+    "Estimator",
+    "LinearModel",
+    "MeasurementModel",
+    "ScalarGroup",
+    "TwoVehicleRanges",
+    "create",
+    "names",
+]

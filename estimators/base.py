@@ -1,0 +1,154 @@
+"""The one shape every estimator has: ``reset(...)``, ``step(t_s, z) -> Estimate``.
+
+Subclasses implement ``_reset`` and ``_step``; this base class owns the
+parameters every estimator shares (how many sensors may be attacked ``s``, the
+false-alarm level ``alpha`` that sets all chi-square thresholds, the process
+noise ``q_mps2`` of the constant-velocity model and the initial spreads), the
+clock, NaN handling of the input and the timing of each step.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+from typing import ClassVar
+
+import numpy as np
+
+from estimators.bank import Chi2Table, cv_matrices, gauss_newton
+from estimators.models import Known, MeasurementModel
+
+
+@dataclass(frozen=True, eq=False)
+class Estimate:
+    """One step's output.
+
+    ``position_m`` has the model's d entries (2-D anchors: north, east; scalar
+    group: the distance; two vehicles: n1, e1, n2, e2). ``velocity_mps`` is
+    None for snapshot estimators. ``covariance`` is over ``[position, velocity]``
+    when velocity is modelled, else over position. ``attacked`` and ``used`` are
+    indices into z. ``alarm``: the readings cannot single out an attacked set of
+    at most s sensors (more are attacked than tolerated, or the model is wrong).
+    ``ok`` is False while no estimate exists yet (position is NaN then).
+    """
+
+    t_s: float
+    position_m: np.ndarray
+    velocity_mps: np.ndarray | None
+    covariance: np.ndarray | None
+    attacked: frozenset[int]
+    alarm: bool
+    step_time_s: float
+    used: frozenset[int] = frozenset()
+    ok: bool = True
+
+
+def _indices(mask: np.ndarray) -> frozenset[int]:
+    return frozenset(int(i) for i in np.flatnonzero(mask))
+
+
+class Estimator:
+    """Common parameters and bookkeeping; see the module docstring."""
+
+    name: ClassVar[str] = ""
+    secure: ClassVar[bool] = False
+
+    def __init__(
+        self,
+        model: MeasurementModel,
+        *,
+        s: int | None = None,
+        alpha: float = 0.01,
+        q_mps2: float = 0.5,
+        p0_pos_m: float = 0.5,
+        p0_vel_mps: float = 0.5,
+        n_iter: int = 6,
+    ) -> None:
+        self.model = model
+        self.s = model.max_correctable if s is None else int(s)
+        if not 0 <= self.s < model.p:
+            raise ValueError(f"s={self.s} must lie in 0..{model.p - 1}")
+        self.alpha = alpha
+        self.chi = Chi2Table(alpha, 4 * model.p)
+        self.q_mps2 = q_mps2
+        self.p0_pos_m = p0_pos_m
+        self.p0_vel_mps = p0_vel_mps
+        self.n_iter = n_iter
+        self.t_s: float | None = None
+        self.reset()
+
+    # -- the public shape -------------------------------------------------
+    def reset(self, x0: np.ndarray | None = None, t_s: float = 0.0, P0: np.ndarray | None = None) -> None:
+        """Forget the past. ``x0``: position (d) or position+velocity (2d); None = bootstrap from data."""
+        self.t_s = None if x0 is None else float(t_s)
+        x = None
+        if x0 is not None:
+            x0 = np.asarray(x0, dtype=float).reshape(-1)
+            x = np.concatenate([x0, np.zeros(self.model.d)]) if x0.size == self.model.d else x0.copy()
+        self._reset(x, self._initial_cov() if P0 is None else np.asarray(P0, dtype=float))
+
+    def step(self, t_s: float, z: np.ndarray, known: Known = None) -> Estimate:
+        """Take one reading vector (NaN = missing) at time t_s; ``known`` e.g. the laser height."""
+        t0 = time.perf_counter()
+        zv = np.asarray(z, dtype=float).reshape(-1)
+        if zv.shape[0] != self.model.p:
+            raise ValueError(f"{self.name}: expected {self.model.p} readings, got {zv.shape[0]}")
+        zv = np.where(np.isfinite(zv), zv, np.nan)
+        dt_s = 0.0 if self.t_s is None else max(0.0, float(t_s) - self.t_s)
+        self.t_s = float(t_s)
+        est = self._step(float(t_s), dt_s, zv, self.model.default_known if known is None else known)
+        return replace(est, step_time_s=time.perf_counter() - t0)
+
+    # -- for subclasses ---------------------------------------------------
+    def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:
+        raise NotImplementedError
+
+    def _step(self, t_s: float, dt_s: float, z: np.ndarray, known: Known) -> Estimate:
+        raise NotImplementedError
+
+    def _initial_cov(self) -> np.ndarray:
+        d = self.model.d
+        return np.diag([self.p0_pos_m**2] * d + [self.p0_vel_mps**2] * d)
+
+    def _cv(self, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+        return cv_matrices(self.model.d, dt_s, self.q_mps2)
+
+    def _snapshot_fix(
+        self, z: np.ndarray, use: np.ndarray, start: np.ndarray | None, known: Known
+    ) -> tuple[np.ndarray, np.ndarray, float]:
+        """Weighted LS fix on the sensors in ``use``: (position, covariance, cost)."""
+        begin = self.model.initial_pos() if start is None else start
+        res = gauss_newton(self.model, z, use[None, :], begin, known, self.n_iter)
+        cov = np.linalg.pinv(res.info[0])
+        return res.pos[0], cov, float(res.cost[0])
+
+    def _flag(self, z: np.ndarray, pos: np.ndarray, cov_pos: np.ndarray, known: Known) -> np.ndarray:
+        """Per-sensor test: normalised residual against ``pos`` exceeds chi2_{1, 1-alpha}."""
+        jac = self.model.jac(pos, known)
+        var = self.model.sigma_m**2 + np.einsum("pd,de,pe->p", jac, cov_pos, jac)
+        t = (z - self.model.h(pos, known)) ** 2 / var
+        return np.where(np.isnan(z), False, t > self.chi(1))
+
+    def _estimate(
+        self,
+        t_s: float,
+        pos: np.ndarray | None,
+        vel: np.ndarray | None = None,
+        cov: np.ndarray | None = None,
+        attacked: np.ndarray | None = None,
+        alarm: bool = False,
+        used: np.ndarray | None = None,
+    ) -> Estimate:
+        d = self.model.d
+        ok = pos is not None and bool(np.all(np.isfinite(pos)))
+        return Estimate(
+            t_s=t_s,
+            position_m=np.full(d, np.nan) if pos is None else np.array(pos, dtype=float),
+            velocity_mps=None if vel is None else np.array(vel, dtype=float),
+            covariance=None if cov is None else np.array(cov, dtype=float),
+            attacked=frozenset() if attacked is None else _indices(attacked),
+            alarm=alarm,
+            step_time_s=0.0,
+            used=frozenset() if used is None else _indices(used),
+            ok=ok,
+        )

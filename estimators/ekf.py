@@ -1,0 +1,50 @@
+"""``ekf``: constant-velocity extended Kalman filter on all readings, the undefended baseline.
+
+Paper: none (textbook EKF, as in FilterPy's ``ExtendedKalmanFilter``).
+Model: any ``MeasurementModel``; state ``x = [pos (d), vel (d)]``.
+Attacker: none assumed; biased readings pull the state along, which the
+property tests and the benchmark show.
+
+Predict ``x <- F x``, ``P <- F P F^T + Q`` with ``F = [[I, dt I], [0, I]]``,
+``Q = q^2 G G^T``, ``G = [dt^2/2 I; dt I]`` (white acceleration of std q).
+Update with every reading present: ``nu = z - h(pos)``, ``H = [dh/dpos, 0]``,
+information form ``P+^-1 = P-^-1 + H^T R^-1 H``, ``x+ = x- + P+ H^T R^-1 nu``
+(same as the gain form; see ``bank.EkfBank``). The first step, without ``x0``,
+starts from a least-squares fix of the first readings.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from estimators.bank import EkfBank
+from estimators.base import Estimate, Estimator
+from estimators.models import Known
+
+
+class ExtendedKalman(Estimator):
+    name = "ekf"
+
+    def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:
+        self.bank = EkfBank(self.model, np.ones((1, self.model.p), dtype=bool), self.q_mps2)
+        self.started = x0 is not None
+        self.P0 = P0
+        if x0 is not None:
+            self.bank.seed(x0, P0)
+
+    def _step(self, t_s: float, dt_s: float, z: np.ndarray, known: Known) -> Estimate:
+        d = self.model.d
+        avail = ~np.isnan(z)
+        if not self.started:
+            if avail.sum() < self.model.min_sensors:
+                return self._estimate(t_s, None, used=avail)
+            pos, cov, _ = self._snapshot_fix(z, avail, None, known)
+            P0 = self.P0.copy()
+            P0[:d, :d] = cov + 1e-6 * np.eye(d)
+            self.bank.seed(np.concatenate([pos, np.zeros(d)]), P0)
+            self.started = True
+        else:
+            self.bank.predict(dt_s)
+            self.bank.update(z, known)
+        x, P = self.bank.x[0], self.bank.P[0]
+        return self._estimate(t_s, x[:d], x[d:], P, used=avail)

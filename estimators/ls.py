@@ -1,0 +1,36 @@
+"""``ls``: Gauss-Newton multilateration, the undefended snapshot baseline.
+
+Paper: none (textbook nonlinear least squares, e.g. Foy 1976 "Position-location
+solutions by Taylor-series estimation"). Model: any ``MeasurementModel``; on
+anchor ranges this is multilateration, on a scalar group the inverse-variance
+weighted mean. Attacker: none assumed; a single bad reading moves the fix
+without bound, which is why it is a baseline.
+
+Each step, from the previous fix (or the model's starting point), iterate
+``pos <- pos + (H^T W H)^-1 H^T W (z - h(pos))`` with ``W = diag(1/sigma_i^2)``
+over the readings present (NaN readings are left out), projected on the
+model's box. Covariance ``(H^T W H)^-1``. With fewer readings than the model
+needs the previous fix is held. Never reports attacked sensors or alarms.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from estimators.base import Estimate, Estimator
+from estimators.models import Known
+
+
+class LeastSquares(Estimator):
+    name = "ls"
+
+    def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:
+        d = self.model.d
+        self.pos = None if x0 is None else x0[:d].copy()
+        self.cov = P0[:d, :d].copy()
+
+    def _step(self, t_s: float, dt_s: float, z: np.ndarray, known: Known) -> Estimate:
+        avail = ~np.isnan(z)
+        if avail.sum() >= self.model.min_sensors:
+            self.pos, self.cov, _ = self._snapshot_fix(z, avail, self.pos, known)
+        return self._estimate(t_s, self.pos, cov=self.cov, used=avail)

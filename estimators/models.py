@@ -1,0 +1,378 @@
+"""Measurement models: what a vector of readings z says about a position.
+
+Every model maps a position ``pos`` (shape ``(..., d)``, broadcast over any
+leading axes so one call serves a whole bank of subset estimators) to the p
+noise-free readings ``h(pos)`` and their Jacobian ``jac(pos)`` (``(..., p, d)``).
+Readings are ``z = h(pos) + v + e``: ``v`` Gaussian with std ``sigma_m[i]``,
+``e`` the attack (zero on honest sensors). A missing reading is NaN.
+
+Some models need a quantity that is known each step but is not estimated (the
+vehicle's height from its downward laser in the 2-D anchor model). It travels
+as ``known`` (a float or an array); ``default_known`` is used when the caller
+gives none.
+
+``max_correctable`` is the largest number of attacked sensors for which the
+state can still be recovered from one snapshot (2s-sparse observability, notes
+§1.4): deleting any 2s sensors must leave ``min_sensors`` of them.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+
+import numpy as np
+
+Known = float | np.ndarray | None
+
+
+def _as_sigma(sigma_m: float | np.ndarray | list[float], p: int) -> np.ndarray:
+    arr = np.broadcast_to(np.asarray(sigma_m, dtype=float), (p,)).copy()
+    if np.any(arr <= 0):
+        raise ValueError("every noise std must be positive")
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class MeasurementModel:
+    """Base of all models; subclasses fill in ``h`` and ``jac``."""
+
+    sigma_m: np.ndarray
+    sensor_ids: tuple[int, ...] = ()
+    bounds_m: tuple[np.ndarray, np.ndarray] | None = None
+
+    @property
+    def p(self) -> int:
+        return int(self.sigma_m.shape[0])
+
+    @property
+    def d(self) -> int:
+        raise NotImplementedError
+
+    @property
+    def min_sensors(self) -> int:
+        """Fewest clean readings that pin the position down (without mirror ambiguity)."""
+        return self.d
+
+    @property
+    def max_correctable(self) -> int:
+        return max(0, (self.p - self.min_sensors) // 2)
+
+    @property
+    def default_known(self) -> Known:
+        return None
+
+    def h(self, pos: np.ndarray, known: Known = None) -> np.ndarray:
+        raise NotImplementedError
+
+    def jac(self, pos: np.ndarray, known: Known = None) -> np.ndarray:
+        raise NotImplementedError
+
+    def initial_pos(self) -> np.ndarray:
+        """Starting point for Gauss-Newton when nothing better is known."""
+        return np.zeros(self.d)
+
+    def clip(self, pos: np.ndarray) -> np.ndarray:
+        """Project onto the admissible box (rejects mirror solutions outside the area)."""
+        if self.bounds_m is None:
+            return pos
+        return np.clip(pos, self.bounds_m[0], self.bounds_m[1])
+
+    def ids(self) -> tuple[int, ...]:
+        return self.sensor_ids or tuple(range(self.p))
+
+
+def _anchor_box(anchors_xy: np.ndarray, margin_frac: float) -> tuple[np.ndarray, np.ndarray]:
+    lo, hi = anchors_xy.min(axis=0), anchors_xy.max(axis=0)
+    margin = margin_frac * max(float(np.max(hi - lo)), 1.0)
+    return lo - margin, hi + margin
+
+
+@dataclass(frozen=True, eq=False)
+class AnchorRanges2D(MeasurementModel):
+    """UWB ranges to p anchors; horizontal position (north, east) estimated, height known.
+
+    ``r_i = sqrt(||p - a_i||^2 + (z - z_i)^2)`` with ``p`` in R^2, ``a_i`` the
+    anchor's (north, east), ``z`` the vehicle's NED down coordinate (``known``,
+    from the downward laser), ``z_i`` the anchor's. Seed test case 1.
+    """
+
+    anchors_ned_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    vehicle_z_ned_m: float = -2.5
+
+    @classmethod
+    def build(
+        cls,
+        anchors_ned_m: np.ndarray | list[list[float]],
+        sigma_m: float | np.ndarray = 0.1,
+        vehicle_z_ned_m: float = -2.5,
+        sensor_ids: tuple[int, ...] = (),
+        margin_frac: float = 0.2,
+    ) -> AnchorRanges2D:
+        anchors = np.asarray(anchors_ned_m, dtype=float).reshape(-1, 3)
+        return cls(
+            sigma_m=_as_sigma(sigma_m, anchors.shape[0]),
+            sensor_ids=tuple(sensor_ids),
+            bounds_m=_anchor_box(anchors[:, :2], margin_frac),
+            anchors_ned_m=anchors,
+            vehicle_z_ned_m=float(vehicle_z_ned_m),
+        )
+
+    @property
+    def d(self) -> int:
+        return 2
+
+    @property
+    def min_sensors(self) -> int:
+        return 3  # two circles leave a mirror pair
+
+    @property
+    def default_known(self) -> Known:
+        return self.vehicle_z_ned_m
+
+    def _dz2(self, known: Known) -> np.ndarray:
+        z = self.vehicle_z_ned_m if known is None else float(np.asarray(known).reshape(-1)[0])
+        return (z - self.anchors_ned_m[:, 2]) ** 2
+
+    def h(self, pos: np.ndarray, known: Known = None) -> np.ndarray:
+        diff = pos[..., None, :] - self.anchors_ned_m[:, :2]
+        return np.sqrt(np.einsum("...ij,...ij->...i", diff, diff) + self._dz2(known))
+
+    def jac(self, pos: np.ndarray, known: Known = None) -> np.ndarray:
+        diff = pos[..., None, :] - self.anchors_ned_m[:, :2]
+        r = np.sqrt(np.einsum("...ij,...ij->...i", diff, diff) + self._dz2(known))
+        return diff / np.maximum(r, 1e-9)[..., None]
+
+    def initial_pos(self) -> np.ndarray:
+        return self.anchors_ned_m[:, :2].mean(axis=0)
+
+
+@dataclass(frozen=True, eq=False)
+class AnchorRanges3D(MeasurementModel):
+    """UWB ranges to p anchors; full NED position estimated: ``r_i = ||p - a_i||``.
+
+    Anchors in one plane leave a mirror solution across that plane; the box
+    (``bounds_m``) and the starting point (``start_above_m`` above the anchors,
+    where vehicles fly) pick the physical side.
+    """
+
+    anchors_ned_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    start_above_m: float = 1.5
+
+    @classmethod
+    def build(
+        cls,
+        anchors_ned_m: np.ndarray | list[list[float]],
+        sigma_m: float | np.ndarray = 0.1,
+        sensor_ids: tuple[int, ...] = (),
+        margin_frac: float = 0.2,
+        ceiling_m: float = 30.0,
+        start_above_m: float = 1.5,
+    ) -> AnchorRanges3D:
+        anchors = np.asarray(anchors_ned_m, dtype=float).reshape(-1, 3)
+        lo_xy, hi_xy = _anchor_box(anchors[:, :2], margin_frac)
+        # Vehicles fly above the lowest anchor (NED: smaller z); a coplanar
+        # anchor layout cannot tell above from below, so the box does.
+        z_hi = float(anchors[:, 2].max()) - 0.05 if np.ptp(anchors[:, 2]) < 0.5 else float(anchors[:, 2].max()) + 1.0
+        lo = np.array([lo_xy[0], lo_xy[1], float(anchors[:, 2].min()) - ceiling_m])
+        hi = np.array([hi_xy[0], hi_xy[1], z_hi])
+        return cls(
+            sigma_m=_as_sigma(sigma_m, anchors.shape[0]),
+            sensor_ids=tuple(sensor_ids),
+            bounds_m=(lo, hi),
+            anchors_ned_m=anchors,
+            start_above_m=start_above_m,
+        )
+
+    @property
+    def d(self) -> int:
+        return 3
+
+    @property
+    def min_sensors(self) -> int:
+        return 4
+
+    def h(self, pos: np.ndarray, known: Known = None) -> np.ndarray:
+        diff = pos[..., None, :] - self.anchors_ned_m
+        return np.sqrt(np.einsum("...ij,...ij->...i", diff, diff))
+
+    def jac(self, pos: np.ndarray, known: Known = None) -> np.ndarray:
+        diff = pos[..., None, :] - self.anchors_ned_m
+        r = np.sqrt(np.einsum("...ij,...ij->...i", diff, diff))
+        return diff / np.maximum(r, 1e-9)[..., None]
+
+    def initial_pos(self) -> np.ndarray:
+        c = self.anchors_ned_m.mean(axis=0)
+        return c - np.array([0.0, 0.0, self.start_above_m])
+
+
+@dataclass(frozen=True, eq=False)
+class ScalarGroup(MeasurementModel):
+    """A redundant group of m sensors measuring one scalar ``d`` (ReCaP's setting).
+
+    ``z_i = d + v_i + e_i``; the wall distance measured by lasers, sonar,
+    infrared and radar at once. The "position" is the scalar itself.
+    """
+
+    @classmethod
+    def build(
+        cls, sigma_m: float | np.ndarray | list[float], m: int | None = None, sensor_ids: tuple[int, ...] = ()
+    ) -> ScalarGroup:
+        count = m if m is not None else len(np.atleast_1d(sigma_m))
+        return cls(sigma_m=_as_sigma(sigma_m, count), sensor_ids=tuple(sensor_ids))
+
+    @property
+    def d(self) -> int:
+        return 1
+
+    def h(self, pos: np.ndarray, known: Known = None) -> np.ndarray:
+        return np.repeat(pos, self.p, axis=-1)
+
+    def jac(self, pos: np.ndarray, known: Known = None) -> np.ndarray:
+        return np.ones((*pos.shape[:-1], self.p, 1))
+
+    def initial_pos(self) -> np.ndarray:
+        return np.zeros(1)
+
+
+@dataclass(frozen=True, eq=False)
+class LinearModel(MeasurementModel):
+    """Linear readings ``y = C x`` (Fawzi et al.'s setting, one output per row)."""
+
+    C: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    _min_sensors: int = 0
+
+    @classmethod
+    def build(cls, C: np.ndarray, sigma_m: float | np.ndarray = 0.1, sensor_ids: tuple[int, ...] = ()) -> LinearModel:
+        mat = np.atleast_2d(np.asarray(C, dtype=float))
+        return cls(
+            sigma_m=_as_sigma(sigma_m, mat.shape[0]),
+            sensor_ids=tuple(sensor_ids),
+            C=mat,
+            _min_sensors=_min_rows_for_rank(mat),
+        )
+
+    @property
+    def d(self) -> int:
+        return int(self.C.shape[1])
+
+    @property
+    def min_sensors(self) -> int:
+        return self._min_sensors
+
+    @property
+    def max_correctable(self) -> int:
+        # Exact sparse-observability index: largest s with rank kept after removing any 2s rows.
+        p, n = self.C.shape
+        best = 0
+        for s in range(1, p // 2 + 1):
+            keep = p - 2 * s
+            if keep < n or not all(
+                np.linalg.matrix_rank(self.C[list(rows)]) == n for rows in itertools.combinations(range(p), keep)
+            ):
+                break
+            best = s
+        return best
+
+    def h(self, pos: np.ndarray, known: Known = None) -> np.ndarray:
+        return pos @ self.C.T
+
+    def jac(self, pos: np.ndarray, known: Known = None) -> np.ndarray:
+        return np.broadcast_to(self.C, (*pos.shape[:-1], *self.C.shape))
+
+
+def _min_rows_for_rank(C: np.ndarray) -> int:
+    """Fewest rows such that EVERY choice of that many rows has full column rank (else p + 1)."""
+    p, n = C.shape
+    for k in range(n, p + 1):
+        if all(np.linalg.matrix_rank(C[list(rows)]) == n for rows in itertools.combinations(range(p), k)):
+            return k
+    return p + 1
+
+
+@dataclass(frozen=True, eq=False)
+class TwoVehicleRanges(MeasurementModel):
+    """Two vehicles (seed test case 2): each one's anchor ranges plus the range between them.
+
+    Position ``[n1, e1, n2, e2]`` (2-D, heights known: ``known = (z1, z2)``).
+    Readings: ``p`` ranges of vehicle 1, then ``p`` of vehicle 2, then the
+    inter-vehicle range ``sqrt(||p1 - p2||^2 + (z1 - z2)^2)``.
+    """
+
+    anchors_ned_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    vehicle_z_ned_m: tuple[float, float] = (-2.5, -2.5)
+
+    @classmethod
+    def build(
+        cls,
+        anchors_ned_m: np.ndarray | list[list[float]],
+        sigma_m: float | np.ndarray = 0.1,
+        vehicle_z_ned_m: tuple[float, float] = (-2.5, -2.5),
+        sensor_ids: tuple[int, ...] = (),
+        margin_frac: float = 0.2,
+    ) -> TwoVehicleRanges:
+        anchors = np.asarray(anchors_ned_m, dtype=float).reshape(-1, 3)
+        lo, hi = _anchor_box(anchors[:, :2], margin_frac)
+        return cls(
+            sigma_m=_as_sigma(sigma_m, 2 * anchors.shape[0] + 1),
+            sensor_ids=tuple(sensor_ids),
+            bounds_m=(np.tile(lo, 2), np.tile(hi, 2)),
+            anchors_ned_m=anchors,
+            vehicle_z_ned_m=(float(vehicle_z_ned_m[0]), float(vehicle_z_ned_m[1])),
+        )
+
+    @property
+    def d(self) -> int:
+        return 4
+
+    @property
+    def n_anchors(self) -> int:
+        return int(self.anchors_ned_m.shape[0])
+
+    @property
+    def min_sensors(self) -> int:
+        return 6
+
+    @property
+    def max_correctable(self) -> int:
+        # Each vehicle alone must survive: its anchors obey the 2-D bound (notes §1.4).
+        return max(0, (self.n_anchors - 3) // 2)
+
+    @property
+    def default_known(self) -> Known:
+        return np.asarray(self.vehicle_z_ned_m)
+
+    def _z(self, known: Known) -> tuple[float, float]:
+        if known is None:
+            return self.vehicle_z_ned_m
+        arr = np.asarray(known, dtype=float).reshape(-1)
+        return float(arr[0]), float(arr[1])
+
+    def _parts(self, pos: np.ndarray, known: Known) -> tuple[np.ndarray, ...]:
+        z1, z2 = self._z(known)
+        a_xy, a_z = self.anchors_ned_m[:, :2], self.anchors_ned_m[:, 2]
+        d1 = pos[..., None, 0:2] - a_xy
+        d2 = pos[..., None, 2:4] - a_xy
+        r1 = np.sqrt(np.einsum("...ij,...ij->...i", d1, d1) + (z1 - a_z) ** 2)
+        r2 = np.sqrt(np.einsum("...ij,...ij->...i", d2, d2) + (z2 - a_z) ** 2)
+        d12 = pos[..., 0:2] - pos[..., 2:4]
+        r12 = np.sqrt(np.einsum("...i,...i->...", d12, d12) + (z1 - z2) ** 2)
+        return d1, d2, d12, r1, r2, r12
+
+    def h(self, pos: np.ndarray, known: Known = None) -> np.ndarray:
+        _, _, _, r1, r2, r12 = self._parts(pos, known)
+        return np.concatenate([r1, r2, r12[..., None]], axis=-1)
+
+    def jac(self, pos: np.ndarray, known: Known = None) -> np.ndarray:
+        d1, d2, d12, r1, r2, r12 = self._parts(pos, known)
+        q = self.n_anchors
+        out = np.zeros((*pos.shape[:-1], 2 * q + 1, 4))
+        out[..., :q, 0:2] = d1 / np.maximum(r1, 1e-9)[..., None]
+        out[..., q : 2 * q, 2:4] = d2 / np.maximum(r2, 1e-9)[..., None]
+        g = d12 / np.maximum(r12, 1e-9)[..., None]
+        out[..., 2 * q, 0:2] = g
+        out[..., 2 * q, 2:4] = -g
+        return out
+
+    def initial_pos(self) -> np.ndarray:
+        return np.tile(self.anchors_ned_m[:, :2].mean(axis=0), 2)
