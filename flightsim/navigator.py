@@ -9,7 +9,8 @@ frame, accepted within their radius). Heights are above home; positions NED.
 Auto modes do not hand the raw target to the position controller: a
 :class:`Carrot` runs ahead of the vehicle from its position toward the target
 with trapezoidal speed (speed and acceleration limits from the params) and the
-controller tracks the carrot's position plus its velocity as feed-forward, so
+controller tracks the carrot's position plus its velocity and acceleration as
+feed-forward, so
 takeoffs, waypoints and returns arrive crisply instead of creeping in on a
 P-law tail (PX4's flight tasks do the same with jerk-limited trajectories).
 
@@ -50,28 +51,43 @@ class RtlPhase(Enum):
 class Carrot:
     """A point moving toward a target with limited speed and acceleration (NED, SI).
 
-    Horizontal and vertical motion are shaped separately: each accelerates at
-    most ``acc`` toward the speed ``min(cap, sqrt(2 acc distance))``, the fastest
-    speed from which it can still stop on the target, and snaps onto the target
-    when the next step would reach it.
+    Two stages. The raw carrot moves horizontally and vertically (separately):
+    each accelerates at most ``acc`` toward the speed ``min(cap, sqrt(2 acc
+    distance))``, the fastest speed from which it can still stop on the target,
+    and snaps onto the target when the next step would reach it. A critically
+    damped second-order filter (natural frequency ``SMOOTHING_RAD_S``) then
+    smooths it, so the acceleration it hands the controller is continuous: a
+    quad needs time to tilt, and an acceleration step would leave it behind and
+    make it overshoot. The filter's impulse response is non-negative, so the
+    smoothed point never passes the target either.
+
+    ``pos``, ``vel`` and ``acc`` are the smoothed point: the controller's
+    position setpoint and its velocity and acceleration feed-forward.
     """
 
+    SMOOTHING_RAD_S = 4.0
+
     def __init__(self) -> None:
-        self.pos: Vec3 = (0.0, 0.0, 0.0)
-        self.vel: Vec3 = (0.0, 0.0, 0.0)
+        self.reset((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
 
     def reset(self, pos: Vec3, vel: Vec3) -> None:
-        self.pos, self.vel = pos, vel
+        self._raw_pos, self._raw_vel = pos, vel
+        self.pos, self.vel, self.acc = pos, vel, (0.0, 0.0, 0.0)
 
     def advance(
         self, target: Vec3, xy_cap: float, up_cap: float, dn_cap: float, acc_xy: float, acc_z: float, dt_s: float
     ) -> None:
-        (x, y), (vx, vy) = _shape(
-            (self.pos[0], self.pos[1]), (self.vel[0], self.vel[1]), (target[0], target[1]), xy_cap, acc_xy, dt_s
-        )
-        z_cap = dn_cap if target[2] > self.pos[2] else up_cap
-        (z,), (vz,) = _shape((self.pos[2],), (self.vel[2],), (target[2],), z_cap, acc_z, dt_s)
-        self.pos, self.vel = (x, y, z), (vx, vy, vz)
+        rp, rv = self._raw_pos, self._raw_vel
+        (x, y), (vx, vy) = _shape((rp[0], rp[1]), (rv[0], rv[1]), (target[0], target[1]), xy_cap, acc_xy, dt_s)
+        z_cap = dn_cap if target[2] > rp[2] else up_cap
+        (z,), (vz,) = _shape((rp[2],), (rv[2],), (target[2],), z_cap, acc_z, dt_s)
+        self._raw_pos, self._raw_vel = (x, y, z), (vx, vy, vz)
+        # Smoothing: a'' = w^2 (raw - p) - 2 w v, integrated semi-implicitly (velocity first).
+        w = self.SMOOTHING_RAD_S
+        acc = tuple(w * w * (r - p) - 2 * w * v for r, p, v in zip(self._raw_pos, self.pos, self.vel, strict=True))
+        vel = tuple(v + a * dt_s for v, a in zip(self.vel, acc, strict=True))
+        self.pos = tuple(p + v * dt_s for p, v in zip(self.pos, vel, strict=True))  # type: ignore[assignment]
+        self.vel, self.acc = vel, acc  # type: ignore[assignment]
 
 
 def _shape(
@@ -199,6 +215,7 @@ class Navigator:
                 self.target = (0.0, 0.0, -self.rtl_alt_m)
             return self._go(self.target)
         if self.rtl_phase is RtlPhase.RETURN:
+            self._face(p, self.target)
             if math.hypot(p[0] - self.target[0], p[1] - self.target[1]) < self.p["NAV_ACC_RAD"]:
                 self.rtl_phase = RtlPhase.LAND
                 self.target = (0.0, 0.0, p[2])
@@ -232,6 +249,8 @@ class Navigator:
             goal = (goal[0], goal[1], est.pos_ned_m[2])
         radius = item.acceptance_radius_m if item.acceptance_radius_m > 0 else self.p["NAV_ACC_RAD"]
         p = est.pos_ned_m
+        if item.yaw_rad is None:
+            self._face(p, goal)
         reached = math.hypot(p[0] - goal[0], p[1] - goal[1]) < radius and abs(p[2] - goal[2]) < self.p["NAV_MC_ALT_RAD"]
         if reached:
             if item.command == NavCommand.LAND:
@@ -245,6 +264,22 @@ class Navigator:
             if t_s >= self._mission_hold_until:
                 self._advance(est, goal)
         return self._go(goal, xy=self.p["MPC_XY_CRUISE"])
+
+    def _face(self, pos: Vec3, goal: Vec3) -> None:
+        """Heading on an auto leg, by MPC_YAW_MODE as PX4: 0/3/4 toward the goal, 1 toward home, 2 away.
+
+        Kept unchanged within NAV_ACC_RAD of the goal, so the vehicle does not spin on arrival.
+        """
+        dn, de = goal[0] - pos[0], goal[1] - pos[1]
+        if math.hypot(dn, de) < self.p["NAV_ACC_RAD"]:
+            return
+        mode = int(self.p["MPC_YAW_MODE"])
+        if mode == 1:
+            dn, de = -pos[0], -pos[1]
+        elif mode == 2:
+            dn, de = pos[0], pos[1]
+        if math.hypot(dn, de) > 1e-6:
+            self.yaw = math.atan2(de, dn)
 
     def _advance(self, est: State, reached: Vec3 | None = None) -> None:
         self._mission_hold_until = None
@@ -262,7 +297,8 @@ class Navigator:
         dn_cap = p["MPC_Z_VEL_MAX_DN"]
         acc_z = min(p["MPC_ACC_UP_MAX"], p["MPC_ACC_DOWN_MAX"])
         self.carrot.advance(pos, xy_cap, up_cap, dn_cap, p["MPC_ACC_HOR"], acc_z, self.dt_s)
-        sp = Setpoint(pos_ned_m=self.carrot.pos, vel_ned_m_s=self.carrot.vel, yaw_rad=self.yaw)
+        c = self.carrot
+        sp = Setpoint(pos_ned_m=c.pos, vel_ned_m_s=c.vel, acc_ned_m_s2=c.acc, yaw_rad=self.yaw)
         return Guidance(sp, xy_cap, up_cap, dn_cap, wants_climb=pos[2] < -0.3)
 
     def rest(self, est: State) -> None:

@@ -53,6 +53,7 @@ SPECS: tuple[ParamSpec, ...] = (
     _f("MPC_XY_VEL_D_ACC", 0.2, 0.0, 2.0, used=True),
     _f("MPC_Z_VEL_P_ACC", 4.0, 2.0, 15.0, used=True),
     _f("MPC_Z_VEL_I_ACC", 2.0, 0.2, 3.0, used=True),
+    _i("MPC_YAW_MODE", 0, 0, 4, used=True),  # 0: face the next waypoint on auto legs
     _f("NAV_ACC_RAD", 0.5, 0.05, 200.0, used=True),  # bench: PX4 uses 10 m
     _f("NAV_MC_ALT_RAD", 0.3, 0.05, 200.0, used=True),  # bench: PX4 uses 0.8 m
     _f("RTL_RETURN_ALT", 5.0, 0.0, 150.0, used=True),  # bench: PX4 uses 60 m

@@ -212,3 +212,34 @@ def test_mission_with_takeoff_loiter_and_rtl_items() -> None:
     assert at_loiter and at_loiter[-1] - at_loiter[0] >= 1.9  # loitered its 2 s
     assert not v.armed
     assert math.hypot(*v.truth.pos_ned_m[:2]) < 0.3
+
+
+def test_mission_legs_face_the_next_waypoint_unless_the_item_sets_a_yaw() -> None:
+    sim, v = airborne()
+    items = [
+        NavItem(NavCommand.WAYPOINT, (2.5, 5.0, -2.5)),  # due east
+        NavItem(NavCommand.WAYPOINT, (0.5, 5.0, -2.5)),  # due south
+        NavItem(NavCommand.WAYPOINT, (0.5, 3.0, -2.5), yaw_rad=0.0),  # west, but told to face north
+    ]
+    assert v.set_mission(items).ok
+    assert v.set_mode(FlightMode.MISSION).ok
+    # (heading, bearing from the vehicle to its waypoint) per leg
+    headings: dict[int, list[tuple[float, float]]] = {0: [], 1: [], 2: []}
+
+    def watch(_s: Simulation) -> None:
+        goal = items[v.mission_current].pos_ned_m
+        n, e, _ = v.truth.pos_ned_m
+        if not v.mission_finished and math.dist((n, e), goal[:2]) > 1.0:
+            headings[v.mission_current].append((v.truth.euler_rad[2], math.atan2(goal[1] - e, goal[0] - n)))
+
+    sim.run_for(20.0, watch)
+    assert v.mission_finished
+
+    def err(pair: tuple[float, float]) -> float:
+        return abs(math.remainder(pair[0] - pair[1], 2 * math.pi))
+
+    for i in (0, 1):
+        # Each leg starts with the nose ~90 deg off, then turns to face the waypoint.
+        assert err(headings[i][0]) > 1.0, i
+        assert min(err(h) for h in headings[i]) < 0.1, i
+    assert abs(math.remainder(v.truth.euler_rad[2], 2 * math.pi)) < 0.05  # the last item's own yaw wins
