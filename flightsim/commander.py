@@ -24,8 +24,8 @@ from flightsim.control import Setpoint
 from flightsim.navigator import Guidance, Navigator, RtlPhase
 from flightsim.params import Params
 
-# MAV_SEVERITY
-CRITICAL, ERROR, WARNING, NOTICE, INFO = 2, 3, 4, 5, 6
+# MAV_SEVERITY values used in status texts
+CRITICAL, WARNING, INFO = 2, 4, 6
 OFFBOARD_STREAM_MAX_AGE_S = 0.5  # PX4 wants setpoints at >2 Hz before it switches to offboard
 LAND_DETECT_S = 0.5  # contact and no vertical motion for this long = landed
 TAKEOFF_DETECT_S = 0.2

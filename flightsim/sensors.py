@@ -24,7 +24,7 @@ import random
 from collections.abc import Mapping
 
 from flightsim.api import GpsFix, RangeReading, State
-from flightsim.control.rotation import Vec3, quat_from_euler, rotate
+from flightsim.control.rotation import Vec3, quat_from_euler, rotate, wrap_pi
 from flightsim.noise import GaussMarkov
 from flightsim.world import World
 from secuav_common import scenario as sc
@@ -265,7 +265,7 @@ class StateEstimator:
             self.YAW_STD_RAD,
             self.GYRO_STD_RAD_S,
         )
-        euler = (e[0] + g(0, st), e[1] + g(0, st), _wrap(e[2] + g(0, sy)))
+        euler = (e[0] + g(0, st), e[1] + g(0, st), wrap_pi(e[2] + g(0, sy)))
         self.state = State(
             t_s=truth.t_s,
             pos_ned_m=(p[0] + b[0] + w[0], p[1] + b[1] + w[1], p[2] + b[2] + w[2]),
@@ -293,7 +293,3 @@ def _range(sensor_id: int, t_s: float, value: float, max_m: float, std: float) -
         orientation=ORIENTATION_CUSTOM,
         noise_std_m=std,
     )
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi

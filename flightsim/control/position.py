@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from flightsim.control.rotation import Quat, Vec3, quat_from_body_z_and_yaw, rotate
+from flightsim.control.rotation import Quat, Vec3, quat_from_body_z_and_yaw, rotate, wrap_pi
 
 GRAVITY_M_S2 = 9.80665
 INTEGRATE_BELOW_M_S = 0.5
@@ -142,12 +142,8 @@ class PositionController:
         if sp.yaw_rad is None and sp.yaw_rate_rad_s is not None:
             yaw_rate_ff = sp.yaw_rate_rad_s
             # Track the integrated heading but never let it run away from the real one.
-            self.yaw_sp = yaw + max(-0.3, min(0.3, _wrap(self.yaw_sp + yaw_rate_ff * dt_s - yaw)))
+            self.yaw_sp = yaw + max(-0.3, min(0.3, wrap_pi(self.yaw_sp + yaw_rate_ff * dt_s - yaw)))
         q_sp = quat_from_body_z_and_yaw(body_z, self.yaw_sp)
         cur_z = rotate(q, (0.0, 0.0, 1.0))
         thrust = max(0.0, -(fx * cur_z[0] + fy * cur_z[1] + fz * cur_z[2]))
         return AttitudeTarget(q_sp, thrust, yaw_rate_ff)
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi

@@ -114,12 +114,6 @@ def quat_from_matrix(m: tuple[Vec3, Vec3, Vec3]) -> Quat:
     return q if q[0] >= 0 else (-q[0], -q[1], -q[2], -q[3])
 
 
-def tilt_rad(q: Quat) -> float:
-    """Angle between the body z axis and the NED down axis."""
-    _, x, y, _ = q
-    cos_tilt = 1 - 2 * (x * x + y * y)
-    return math.acos(max(-1.0, min(1.0, cos_tilt)))
-
-
 def wrap_pi(angle: float) -> float:
+    """Angle in radians mapped to [-pi, pi)."""
     return (angle + math.pi) % (2 * math.pi) - math.pi
