@@ -198,7 +198,7 @@ class Commander:
             return self._deny("Reposition denied: vehicle crashed")
         if not self.armed or self.landed:
             return self._deny("Reposition denied: vehicle is on the ground", Result.TEMPORARILY_REJECTED)
-        if all(math.isnan(c) for c in pos_ned_m) and (yaw_rad is None or math.isnan(yaw_rad)):
+        if not any(math.isfinite(c) for c in pos_ned_m) and (yaw_rad is None or not math.isfinite(yaw_rad)):
             return self._deny("Reposition denied: no position given")
         assert self._est is not None
         self.mode = FlightMode.HOLD
@@ -343,15 +343,18 @@ class Commander:
 
 
 def _sanitised(sp: OffboardSetpoint) -> OffboardSetpoint:
-    """NaN handling as PX4's: a NaN position axis is "not controlled", a NaN yaw "keep heading",
-    a NaN velocity or acceleration component zero (so a half-filled message cannot poison the loops)."""
+    """NaN handling as PX4's: a NaN (or infinite) position axis is "not controlled", a NaN yaw
+    "keep heading", a NaN velocity or acceleration component zero (so a half-filled or garbled
+    message cannot poison the loops)."""
 
     def zero_nan(v: tuple[float, float, float] | None) -> tuple[float, float, float] | None:
         return None if v is None else (_num(v[0]), _num(v[1]), _num(v[2]))
 
     pos = sp.pos_ned_m
-    if pos is not None and all(math.isnan(c) for c in pos):
-        pos = None
+    if pos is not None:
+        pos = (_nan_if_bad(pos[0]), _nan_if_bad(pos[1]), _nan_if_bad(pos[2]))
+        if all(math.isnan(c) for c in pos):
+            pos = None
     yaw = None if sp.yaw_rad is None or not math.isfinite(sp.yaw_rad) else sp.yaw_rad
     rate = None if sp.yaw_rate_rad_s is None or not math.isfinite(sp.yaw_rate_rad_s) else sp.yaw_rate_rad_s
     return OffboardSetpoint(pos, zero_nan(sp.vel_m_s), zero_nan(sp.acc_m_s2), yaw, rate, sp.frame)
@@ -359,3 +362,7 @@ def _sanitised(sp: OffboardSetpoint) -> OffboardSetpoint:
 
 def _num(x: float) -> float:
     return x if math.isfinite(x) else 0.0
+
+
+def _nan_if_bad(x: float) -> float:
+    return x if math.isfinite(x) else math.nan

@@ -188,9 +188,9 @@ class Navigator:
         return self._go(self.hold_pos, xy=self.hold_xy_speed)
 
     def start_reposition(self, est: State, pos: Vec3, yaw: float | None) -> None:
-        """Hold somewhere else: fly there at MPC_XY_CRUISE (NaN axes keep the current value)."""
+        """Hold somewhere else: fly there at MPC_XY_CRUISE (NaN or infinite axes keep the current value)."""
         cur = est.pos_ned_m
-        self.hold_pos = tuple(c if math.isnan(p) else p for p, c in zip(pos, cur, strict=True))  # type: ignore[assignment]
+        self.hold_pos = tuple(p if math.isfinite(p) else c for p, c in zip(pos, cur, strict=True))  # type: ignore[assignment]
         if yaw is not None and math.isfinite(yaw):
             self.yaw = yaw
         self.hold_xy_speed = self.p["MPC_XY_CRUISE"]

@@ -149,7 +149,12 @@ def test_nan_fields_of_an_offboard_setpoint_are_not_poison() -> None:
     assert abs(v.truth.pos_ned_m[2] + 3.5) < 0.2
     fly_offboard(sim, v, OffboardSetpoint(vel_m_s=(nan, 0.5, 0.0)), 3.0)
     assert abs(v.truth.vel_ned_m_s[1] - 0.5) < 0.1
+    # Garbage: infinities in position and acceleration fields.
+    fly_offboard(sim, v, OffboardSetpoint(pos_ned_m=(math.inf, 2.0, -2.5), acc_m_s2=(math.inf, 0.0, -math.inf)), 3.0)
+    assert v.reposition((math.inf, -math.inf, -3.0)).ok
+    sim.run_for(3.0)
     assert all(math.isfinite(c) for c in v.truth.pos_ned_m)
+    assert not v.crashed and abs(v.truth.pos_ned_m[2] + 3.0) < 0.25
 
 
 def test_vertical_speed_limits_hold_on_a_big_altitude_step() -> None:
