@@ -7,6 +7,7 @@ estimator has ``reset(x0=None, t_s=0.0, P0=None)`` and
 
 from estimators.base import Estimate, Estimator
 from estimators.ekf import ExtendedKalman
+from estimators.l1 import L1Decoder
 from estimators.ls import LeastSquares
 from estimators.models import (
     AnchorRanges2D,
@@ -16,9 +17,13 @@ from estimators.models import (
     ScalarGroup,
     TwoVehicleRanges,
 )
+from estimators.rarse import Rarse
+from estimators.recap import Recap
 from estimators.registry import create, names, register
+from estimators.secekf import SecEkf
+from estimators.secopt import SecOpt
 
-for _cls in (LeastSquares, ExtendedKalman):
+for _cls in (LeastSquares, ExtendedKalman, L1Decoder, SecEkf, SecOpt, Recap, Rarse):
     register(_cls)
 
 __all__ = [

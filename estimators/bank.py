@@ -85,7 +85,7 @@ def gauss_newton(
     start: np.ndarray,
     known: Known = None,
     n_iter: int = 6,
-    tol_m: float = 1e-6,
+    tol_m: float = 1e-4,
 ) -> GnResult:
     """Weighted least squares per subset, all subsets at once (see module docstring)."""
     avail = ~np.isnan(z)
@@ -94,23 +94,47 @@ def gauss_newton(
     w = use / model.sigma_m**2
     n_sub, d = masks.shape[0], model.d
     pos = np.array(np.broadcast_to(start, (n_sub, d)), dtype=float)
-    eye = np.eye(d)
+    # Tiny Levenberg damping keeps rank-deficient subsets (too few readings) finite.
+    damp = 1e-9 * np.eye(d)
     for _ in range(n_iter):
-        r = np.where(use, zf - model.h(pos, known), 0.0)
-        jac = model.jac(pos, known)
-        jtw = jac * w[..., None]
-        a = np.einsum("jpd,jpe->jde", jtw, jac)
-        b = np.einsum("jpd,jp->jd", jtw, r)
-        # Tiny Levenberg damping keeps rank-deficient subsets (too few readings) finite.
-        damp = 1e-9 * (np.trace(a, axis1=1, axis2=2) + 1.0)
-        step = np.linalg.solve(a + damp[:, None, None] * eye, b[..., None])[..., 0]
+        hx, jac = model.h_jac(pos, known)
+        r = (zf - hx) * use
+        jtw = np.swapaxes(jac * w[..., None], 1, 2)
+        step = solve_small(jtw @ jac + damp, (jtw @ r[..., None])[..., 0])
         pos = model.clip(pos + step)
-        if np.max(np.abs(step)) < tol_m:
+        if float(np.einsum("jd,jd->", step, step)) < tol_m * tol_m:
             break
-    r = np.where(use, zf - model.h(pos, known), 0.0)
-    jac = model.jac(pos, known)
-    info = np.einsum("jpd,jpe->jde", jac * w[..., None], jac)
+    hx, jac = model.h_jac(pos, known)
+    r = (zf - hx) * use
+    info = np.swapaxes(jac * w[..., None], 1, 2) @ jac
     return GnResult(pos=pos, cost=np.einsum("jp,jp->j", w, r * r), info=info, n_used=use.sum(axis=1), resid=r)
+
+
+_SIGNS2 = np.array([[1.0, -1.0], [-1.0, 1.0]])
+
+
+def inv_small(a: np.ndarray) -> np.ndarray:
+    """Batched inverse of symmetric positive semi-definite d x d matrices, damped so singular ones stay finite."""
+    d = a.shape[-1]
+    damped = a + 1e-9 * (np.trace(a, axis1=-2, axis2=-1)[..., None, None] + 1e-9) * np.eye(d)
+    if d == 1:
+        return 1.0 / damped
+    if d == 2:
+        det = damped[..., 0, 0] * damped[..., 1, 1] - damped[..., 0, 1] * damped[..., 1, 0]
+        return damped[..., ::-1, ::-1] * _SIGNS2 / det[..., None, None]
+    return np.linalg.inv(damped)
+
+
+def solve_small(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Batched ``a[j] x[j] = b[j]``; closed form for 1x1 and 2x2 (LAPACK's call overhead dominates there)."""
+    d = a.shape[-1]
+    if d == 1:
+        return b / a[:, 0, :]
+    if d == 2:
+        adj = a[:, ::-1, ::-1] * _SIGNS2
+        det = a[:, 0, 0] * a[:, 1, 1] - a[:, 0, 1] * a[:, 1, 0]
+        return (adj @ b[..., None])[..., 0] / det[:, None]
+    return np.linalg.solve(a, b[..., None])[..., 0]
 
 
 def cv_matrices(d: int, dt_s: float, q_mps2: float) -> tuple[np.ndarray, np.ndarray]:
@@ -153,13 +177,12 @@ class EkfBank:
         avail = ~np.isnan(z)
         use = self.masks & avail
         w = use / model.sigma_m**2
-        pos = self.x[:, :d]
-        nu = np.where(use, np.where(avail, z, 0.0) - model.h(pos, known), 0.0)
-        jac = model.jac(pos, known)
-        jtw = jac * w[..., None]
-        info_meas = np.einsum("jpd,jpe->jde", jtw, jac)
+        hx, jac = model.h_jac(self.x[:, :d], known)
+        nu = (np.where(avail, z, 0.0) - hx) * use
+        jtw = np.swapaxes(jac * w[..., None], 1, 2)
+        info_meas = jtw @ jac
         a = np.zeros((self.x.shape[0], self.n))
-        a[:, :d] = np.einsum("jpd,jp->jd", jtw, nu)
+        a[:, :d] = (jtw @ nu[..., None])[..., 0]
         y = np.linalg.inv(self.P)
         y[:, :d, :d] += info_meas
         p_post = np.linalg.inv(y)

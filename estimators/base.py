@@ -15,7 +15,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from estimators.bank import Chi2Table, cv_matrices, gauss_newton
+from estimators.bank import Chi2Table, cv_matrices, gauss_newton, inv_small
 from estimators.models import Known, MeasurementModel
 
 
@@ -119,7 +119,7 @@ class Estimator:
         """Weighted LS fix on the sensors in ``use``: (position, covariance, cost)."""
         begin = self.model.initial_pos() if start is None else start
         res = gauss_newton(self.model, z, use[None, :], begin, known, self.n_iter)
-        cov = np.linalg.pinv(res.info[0])
+        cov = inv_small(res.info[0])
         return res.pos[0], cov, float(res.cost[0])
 
     def _flag(self, z: np.ndarray, pos: np.ndarray, cov_pos: np.ndarray, known: Known) -> np.ndarray:

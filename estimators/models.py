@@ -68,6 +68,10 @@ class MeasurementModel:
     def jac(self, pos: np.ndarray, known: Known = None) -> np.ndarray:
         raise NotImplementedError
 
+    def h_jac(self, pos: np.ndarray, known: Known = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(h(pos), jac(pos))`` in one pass (the hot path of every solver)."""
+        return self.h(pos, known), self.jac(pos, known)
+
     def initial_pos(self) -> np.ndarray:
         """Starting point for Gauss-Newton when nothing better is known."""
         return np.zeros(self.d)
@@ -130,18 +134,24 @@ class AnchorRanges2D(MeasurementModel):
     def default_known(self) -> Known:
         return self.vehicle_z_ned_m
 
-    def _dz2(self, known: Known) -> np.ndarray:
-        z = self.vehicle_z_ned_m if known is None else float(np.asarray(known).reshape(-1)[0])
-        return (z - self.anchors_ned_m[:, 2]) ** 2
+    def _dz2(self, known: Known) -> np.ndarray | float:
+        z = self.vehicle_z_ned_m if known is None else known if isinstance(known, float) else float(np.ravel(known)[0])
+        dz = z - self.anchors_ned_m[:, 2]
+        return dz * dz
 
     def h(self, pos: np.ndarray, known: Known = None) -> np.ndarray:
-        diff = pos[..., None, :] - self.anchors_ned_m[:, :2]
-        return np.sqrt(np.einsum("...ij,...ij->...i", diff, diff) + self._dz2(known))
+        return self.h_jac(pos, known)[0]
 
     def jac(self, pos: np.ndarray, known: Known = None) -> np.ndarray:
-        diff = pos[..., None, :] - self.anchors_ned_m[:, :2]
-        r = np.sqrt(np.einsum("...ij,...ij->...i", diff, diff) + self._dz2(known))
-        return diff / np.maximum(r, 1e-9)[..., None]
+        return self.h_jac(pos, known)[1]
+
+    def h_jac(self, pos: np.ndarray, known: Known = None) -> tuple[np.ndarray, np.ndarray]:
+        # Written out per axis: einsum/sum over a length-2 axis costs more than the arithmetic.
+        dn = pos[..., 0:1] - self.anchors_ned_m[:, 0]
+        de = pos[..., 1:2] - self.anchors_ned_m[:, 1]
+        r = np.sqrt(dn * dn + de * de + self._dz2(known))
+        inv = 1.0 / np.maximum(r, 1e-9)
+        return r, np.stack([dn * inv, de * inv], axis=-1)
 
     def initial_pos(self) -> np.ndarray:
         return self.anchors_ned_m[:, :2].mean(axis=0)
@@ -197,9 +207,12 @@ class AnchorRanges3D(MeasurementModel):
         return np.sqrt(np.einsum("...ij,...ij->...i", diff, diff))
 
     def jac(self, pos: np.ndarray, known: Known = None) -> np.ndarray:
+        return self.h_jac(pos, known)[1]
+
+    def h_jac(self, pos: np.ndarray, known: Known = None) -> tuple[np.ndarray, np.ndarray]:
         diff = pos[..., None, :] - self.anchors_ned_m
         r = np.sqrt(np.einsum("...ij,...ij->...i", diff, diff))
-        return diff / np.maximum(r, 1e-9)[..., None]
+        return r, diff / np.maximum(r, 1e-9)[..., None]
 
     def initial_pos(self) -> np.ndarray:
         c = self.anchors_ned_m.mean(axis=0)

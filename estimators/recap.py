@@ -1,0 +1,128 @@
+"""``recap``: ReCaP, per-group outlier detection and secure fusion in front of an EKF.
+
+Paper: A. Alanwar, F. Miao, O. Ploder, J. Hespanha, M. B. Srivastava, "ReCaP:
+Resilient Cyber Physical Systems Against Adversarial Sensor Attacks"
+(submitted to ACM SenSys; not public). The seed thesis names its parts: an
+outlier detector (its Alg. 4), "get Omega and initial x0 at i = 0" (Alg. 5) and
+a secure estimator per sensor group used when pa > 1 (Alg. 6).
+
+Model: a group of sensors reporting correlated signals. For a ``ScalarGroup``
+(the wall distance by lasers, sonar, infrared, radar) that is ReCaP's own
+setting; for anchor ranges (and the other models) the whole reading vector is
+one group, correlated through the position. Attacker: at most ``pa`` (= s,
+default ``model.max_correctable``, i.e. floor((m-1)/2) for a scalar group) of
+the group's m sensors carry arbitrary values; Gaussian noise.
+
+Equations, all RECON (notes §3; the paper could not be read):
+- Omega is the set of sensors currently trusted; the state is a constant-velocity
+  EKF fed only with Omega's readings.
+- Init (Alg. 5, our reading): on the first step, every subset S of m - pa
+  sensors is fitted by weighted least squares; the consistent one
+  (cost <= chi2_{|S| - d}) with the most readings, then the smallest cost, gives
+  Omega_0 and x0. No consistent subset: alarm, try again next step.
+- Outlier detector (Alg. 4): against the EKF prediction,
+  ``t_i = (z_i - h_i(x-))^2 / (sigma_i^2 + H_i P- H_i^T) > chi2_{1, 1-alpha}``
+  flags sensor i.
+- pa <= 1: drop the flagged sensors, Omega = the rest. (If more than pa are
+  flagged the prediction itself is suspect, so we fall through to the search.)
+- pa > 1 (Alg. 6): score every subset S of m - pa sensors by
+  ``D_S = sum_{i in S} w_i (z_i - h_i(p_S))^2 + (p_S - p-)^T (P-_pos + C_S)^-1 (p_S - p-)``,
+  p_S and C_S its least-squares fit and covariance; for a scalar group this is
+  the spread around the inverse-variance mean plus that mean's distance from
+  the prediction. Clean S: chi-square with |S| dof. Omega = the accepted S with
+  the most readings, then smallest D_S, the previous Omega winning ties.
+- Nothing accepted: alarm, coast on the prediction; after ``reinit_after``
+  alarmed steps in a row, run the init again (the prediction may be the stale
+  part).
+- Attacked: sensors outside Omega that fail the per-sensor chi2_1 test against
+  the updated state.
+Defaults: alpha = 0.01, q = 0.5 m/s^2, reinit_after = 5.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from estimators.bank import EkfBank, gauss_newton, inv_small, solve_small, subset_masks
+from estimators.base import Estimate, Estimator
+from estimators.models import Known, MeasurementModel
+from estimators.subsets import choose, secure_snapshot
+
+
+class Recap(Estimator):
+    name = "recap"
+    secure = True
+
+    def __init__(self, model: MeasurementModel, *, reinit_after: int = 5, **params) -> None:
+        self.reinit_after = int(reinit_after)
+        super().__init__(model, **params)
+
+    def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:
+        self.masks = subset_masks(self.model.p, self.model.p - self.s)
+        self.ekf = EkfBank(self.model, np.ones((1, self.model.p), dtype=bool), self.q_mps2)
+        self.P0 = P0
+        self.started = x0 is not None
+        self.omega = np.ones(self.model.p, dtype=bool)
+        self.alarms_in_row = 0
+        if x0 is not None:
+            self.ekf.seed(x0, P0)
+
+    def _init(self, z: np.ndarray, known: Known) -> bool:
+        fix = secure_snapshot(self.model, z, self.s, self.chi, None, known, self.n_iter)
+        if fix.alarm:
+            return False
+        d = self.model.d
+        P0 = self.P0.copy()
+        P0[:d, :d] = fix.cov + 1e-6 * np.eye(d)
+        self.ekf.seed(np.concatenate([fix.pos, np.zeros(d)]), P0)
+        self.omega = fix.use
+        self.alarms_in_row = 0
+        return True
+
+    def _step(self, t_s: float, dt_s: float, z: np.ndarray, known: Known) -> Estimate:
+        d = self.model.d
+        avail = ~np.isnan(z)
+        if not self.started:
+            self.started = self._init(z, known)
+            if not self.started:
+                return self._estimate(t_s, None, alarm=True)
+            return self._output(t_s, z, known, self.omega, False)
+        self.ekf.predict(dt_s)
+        x_pred, P_pred = self.ekf.x[0], self.ekf.P[0]
+        flagged = self._flag(z, x_pred[:d], P_pred[:d, :d], known)
+        if self.s <= 1 and flagged.sum() <= self.s:
+            omega, alarm = avail & ~flagged, False
+        else:
+            omega, alarm = self._search(z, known, x_pred[:d], P_pred[:d, :d])
+        if alarm:
+            self.alarms_in_row += 1
+            if self.alarms_in_row >= self.reinit_after and self._init(z, known):
+                return self._output(t_s, z, known, self.omega, False)
+            x, P = self.ekf.x[0], self.ekf.P[0]
+            return self._estimate(t_s, x[:d], x[d:], P, self._flag(z, x[:d], P[:d, :d], known), True, None)
+        self.alarms_in_row = 0
+        self.omega = omega
+        self.ekf.masks = omega[None, :]
+        self.ekf.update(z, known)
+        return self._output(t_s, z, known, omega, False)
+
+    def _search(
+        self, z: np.ndarray, known: Known, pos_pred: np.ndarray, cov_pred: np.ndarray
+    ) -> tuple[np.ndarray, bool]:
+        fits = gauss_newton(self.model, z, self.masks, pos_pred, known, self.n_iter)
+        gap = fits.pos - pos_pred
+        # Fit covariance C_S = info^-1; pseudo-inverse keeps rank-deficient subsets finite.
+        spread = cov_pred + inv_small(fits.info)
+        pred_term = np.einsum("jd,jd->j", gap, solve_small(spread, gap))
+        stat = fits.cost + pred_term
+        valid = fits.n_used >= self.model.min_sensors
+        # Previous Omega wins ties: a hair's advantage in the statistic.
+        same = np.all(self.masks == self.omega, axis=1)
+        choice = choose(stat - 1e-9 * same, fits.n_used, fits.n_used, valid, self.chi)
+        return self.masks[choice.index] & ~np.isnan(z), choice.alarm
+
+    def _output(self, t_s: float, z: np.ndarray, known: Known, omega: np.ndarray, alarm: bool) -> Estimate:
+        d = self.model.d
+        x, P = self.ekf.x[0], self.ekf.P[0]
+        attacked = self._flag(z, x[:d], P[:d, :d], known) & ~omega
+        return self._estimate(t_s, x[:d], x[d:], P, attacked, alarm, omega)
