@@ -84,10 +84,11 @@ class Carrot:
         self._raw_pos, self._raw_vel = (x, y, z), (vx, vy, vz)
         # Smoothing: a'' = w^2 (raw - p) - 2 w v, integrated semi-implicitly (velocity first).
         w = self.SMOOTHING_RAD_S
-        acc = tuple(w * w * (r - p) - 2 * w * v for r, p, v in zip(self._raw_pos, self.pos, self.vel, strict=True))
-        vel = tuple(v + a * dt_s for v, a in zip(self.vel, acc, strict=True))
-        self.pos = tuple(p + v * dt_s for p, v in zip(self.pos, vel, strict=True))  # type: ignore[assignment]
-        self.vel, self.acc = vel, acc  # type: ignore[assignment]
+        r, p, v = self._raw_pos, self.pos, self.vel
+        ax, ay, az = (w * w * (r[i] - p[i]) - 2 * w * v[i] for i in range(3))
+        vx, vy, vz = v[0] + ax * dt_s, v[1] + ay * dt_s, v[2] + az * dt_s
+        self.pos = (p[0] + vx * dt_s, p[1] + vy * dt_s, p[2] + vz * dt_s)
+        self.vel, self.acc = (vx, vy, vz), (ax, ay, az)
 
 
 def _shape(
@@ -190,7 +191,8 @@ class Navigator:
     def start_reposition(self, est: State, pos: Vec3, yaw: float | None) -> None:
         """Hold somewhere else: fly there at MPC_XY_CRUISE (NaN or infinite axes keep the current value)."""
         cur = est.pos_ned_m
-        self.hold_pos = tuple(p if math.isfinite(p) else c for p, c in zip(pos, cur, strict=True))  # type: ignore[assignment]
+        n, e, d = (p if math.isfinite(p) else c for p, c in zip(pos, cur, strict=True))
+        self.hold_pos = (n, e, d)
         if yaw is not None and math.isfinite(yaw):
             self.yaw = yaw
         self.hold_xy_speed = self.p["MPC_XY_CRUISE"]
