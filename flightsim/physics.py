@@ -30,8 +30,8 @@ from secuav_common.scenario import Home
 FT_M = 0.3048
 SLUG_KG = 14.593903
 SLUGFT2_KGM2 = 1.3558179
-GEAR_HEIGHT_M = 0.1524  # CG above the contact points in the F450 model (Gear.xml)
-START_AGL_FT = 0.52  # a hair above rest, so the model settles onto its gear
+REST_HEIGHT_M = 0.1507  # CG above ground when the F450 rests on its gear springs (measured: 0.494 ft)
+START_AGL_FT = 0.495  # a hair above where the F450 rests on its gear springs (0.494 ft), so it settles at once
 # WGS84, for the local linearisation of JSBSim's geodetic position.
 _WGS84_A = 6_378_137.0
 _WGS84_E2 = 6.69437999014e-3
@@ -176,7 +176,7 @@ class F450Physics:
         phi, theta, psi, p, q, r = g[6](), g[7](), g[8](), g[9](), g[10](), g[11]()
         north = self._n0 + (lat - self._lat0) * self._m_per_rad_lat
         east = self._e0 + (lon - self._lon0) * self._m_per_rad_lon
-        down = -(agl * FT_M - GEAR_HEIGHT_M)
+        down = -(agl * FT_M - REST_HEIGHT_M)
         vel = (vn * FT_M, ve * FT_M, vd * FT_M)
         pv = self._prev_vel
         dt = self.dt_s
