@@ -12,11 +12,16 @@ iterate. Attacker: at most ``s`` of p sensors arbitrary (default
 ``model.max_correctable``); Gaussian noise of std sigma_i.
 
 Equations (our snapshot reading, window T = 1, so each sensor's residual norm
-is ``|z_i - h_i(x)|``): minimise ``L(x) = sum_i |z_i - h_i(x)| / sigma_i`` by
+is ``|z_i - h_i(x)|``): minimise ``L(x) = sum_i |z_i - h_i(x)|`` by
 iteratively reweighted least squares: Gauss-Newton steps on
-``sum_i w_i (z_i - h_i(x))^2`` with ``w_i = 1 / (sigma_i max(|r_i|, eps sigma_i))``,
+``sum_i w_i (z_i - h_i(x))^2`` with ``w_i = 1 / max(|r_i|, eps sigma_i)``,
 which majorises L at the current iterate (``eps`` = 0.5 keeps noise-level
-residuals from dominating). Start at the previous estimate. Then decode: the
+residuals from dominating). Every sensor counts once in L, not weighted by
+1/sigma_i: L relaxes "number of attacked sensors", and weighting would let two
+attacked precise sensors outvote three honest coarse ones (on a scalar group
+L's minimiser is then the plain median). Noise weights enter the refit below.
+Start at the previous estimate (cold start: the model's starting point, with
+five times the iterations). Then decode: the
 (at most s) readings with the largest l1 residuals that fail
 ``chi2.ppf(1 - alpha, 1)`` are set aside, and the rest are refitted by weighted
 least squares (debiasing: the l1 solution alone is noisier than least squares
@@ -51,15 +56,15 @@ class L1Decoder(Estimator):
         d = self.model.d
         self.pos = None if x0 is None else x0[:d].copy()
 
-    def _irls(self, z: np.ndarray, avail: np.ndarray, start: np.ndarray, known: Known) -> np.ndarray:
+    def _irls(self, z: np.ndarray, avail: np.ndarray, start: np.ndarray, known: Known, n_iter: int) -> np.ndarray:
         model = self.model
         zf = np.where(avail, z, 0.0)
         pos = start[None, :].copy()
         damp = 1e-9 * np.eye(model.d)
-        for _ in range(self.n_irls):
+        for _ in range(n_iter):
             hx, jac = model.h_jac(pos, known)
             r = (zf - hx) * avail
-            w = avail / (model.sigma_m * np.maximum(np.abs(r), self.eps * model.sigma_m))
+            w = avail / np.maximum(np.abs(r), self.eps * model.sigma_m)
             jtw = np.swapaxes(jac * w[..., None], 1, 2)
             step = solve_small(jtw @ jac + damp, (jtw @ r[..., None])[..., 0])
             pos = model.clip(pos + step)
@@ -73,7 +78,8 @@ class L1Decoder(Estimator):
         if avail.sum() < model.min_sensors:
             return self._estimate(t_s, self.pos, alarm=self.pos is None)
         start = model.initial_pos() if self.pos is None else self.pos
-        pos = self._irls(z, avail, start, known)
+        # IRLS converges linearly: a cold start (far from the minimiser) gets five times the budget.
+        pos = self._irls(z, avail, start, known, self.n_irls if self.pos is not None else 5 * self.n_irls)
         resid = z - model.h(pos, known)
         t = np.nan_to_num(resid * resid / model.sigma_m**2, nan=-1.0)
         # Decode: at most s readings, the largest l1 residuals that fail the gate, are
