@@ -1,0 +1,163 @@
+"""Missing readings, and every model (scalar group, 3-D, two vehicles, linear) under attack."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from est_helpers import ANCHORS8_NED_M, HOVER_XY_M, SECURE, SIGMA_M, run_stream
+
+import estimators
+from estimators.models import AnchorRanges2D, AnchorRanges3D, LinearModel, ScalarGroup, TwoVehicleRanges
+
+ALL = tuple(estimators.names())
+
+
+def test_names_cover_the_issue() -> None:
+    assert set(ALL) == {"ls", "ekf", "l1", "secekf", "secopt", "recap", "rarse"}
+
+
+@pytest.mark.parametrize("name", SECURE)
+def test_dropped_sensors_with_an_attack(anchors8: AnchorRanges2D, name: str) -> None:
+    """Two links drop out at random each step while one link is attacked: still fine."""
+    rng = np.random.default_rng(4)
+    est = estimators.create(name, anchors8)
+    hits = 0
+    for k in range(60):
+        z = anchors8.h(HOVER_XY_M) + SIGMA_M * rng.standard_normal(8)
+        z[6] += 4.0
+        drop = rng.choice([0, 1, 2, 3, 4, 5, 7], size=2, replace=False)
+        z[drop] = np.nan
+        out = est.step(0.1 * k, z)
+        assert (out.used.isdisjoint(drop.tolist()) and 6 not in out.used) or out.alarm
+        if k >= 10:
+            assert np.linalg.norm(out.position_m - HOVER_XY_M) < 5 * SIGMA_M, (k, out)
+            hits += 6 in out.attacked
+    assert hits >= 0.9 * 50
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_all_missing_does_not_crash_and_recovers(anchors8: AnchorRanges2D, name: str) -> None:
+    rng = np.random.default_rng(5)
+    est = estimators.create(name, anchors8)
+    first = est.step(0.0, np.full(8, np.nan))
+    assert not first.ok and np.all(np.isnan(first.position_m))
+    for k in range(1, 20):
+        z = anchors8.h(HOVER_XY_M) + SIGMA_M * rng.standard_normal(8)
+        if k % 5 == 0:
+            z[:] = np.nan  # a whole frame lost: hold, do not jump
+        out = est.step(0.1 * k, z)
+        assert out.ok and np.linalg.norm(out.position_m - HOVER_XY_M) < 5 * SIGMA_M, (name, k)
+
+
+@pytest.mark.parametrize("name", SECURE)
+def test_wall_group_two_of_five_attacked(wall_group: ScalarGroup, name: str) -> None:
+    """The proxy's secure stage runs these live on the wall group: two of five lie consistently."""
+
+    def attack(k: int, z: np.ndarray) -> np.ndarray:
+        off = np.zeros(5)
+        if k >= 20:
+            off[[0, 1]] = 1.5  # both lasers say the wall is 1.5 m further
+        return off
+
+    run = run_stream(name, wall_group, np.array([2.5]), attack, 60, seed=6)
+    assert np.max(run.err_m[30:]) < 0.15
+    assert all({0, 1} <= a for a in run.attacked[30:])
+    assert not run.alarm[30:].any()
+
+
+@pytest.mark.parametrize("name", ("ls", "ekf"))
+def test_wall_group_baselines_are_dragged(wall_group: ScalarGroup, name: str) -> None:
+    def attack(k: int, z: np.ndarray) -> np.ndarray:
+        return np.array([1.5, 1.5, 0, 0, 0]) if k >= 20 else np.zeros(5)
+
+    run = run_stream(name, wall_group, np.array([2.5]), attack, 60, seed=6)
+    assert np.median(run.err_m[30:]) > 0.5
+
+
+@pytest.mark.parametrize("name", SECURE)
+def test_3d_ranges_one_attacked(name: str) -> None:
+    # Anchors at two heights so the vertical is observable (posts and ceiling).
+    anchors = ANCHORS8_NED_M.copy()
+    anchors[1::2, 2] = -4.0
+    model = AnchorRanges3D.build(anchors, SIGMA_M)
+    assert model.max_correctable == 2
+    truth = np.array([2.0, 3.0, -2.5])
+
+    def attack(k: int, z: np.ndarray) -> np.ndarray:
+        off = np.zeros(8)
+        if k >= 20:
+            off[3] = 3.0
+        return off
+
+    run = run_stream(name, model, truth, attack, 50, seed=8)
+    assert np.max(run.err_m[32:]) < 0.6
+    assert sum(3 in a for a in run.attacked[32:]) >= 0.9 * 18
+
+
+@pytest.mark.parametrize("name", SECURE)
+def test_two_vehicles_inter_range_attacked(name: str) -> None:
+    model = TwoVehicleRanges.build(ANCHORS8_NED_M, SIGMA_M, vehicle_z_ned_m=(-2.5, -2.5))
+    truth = np.array([4.0, 4.0, 1.5, 2.0])
+    assert model.p == 17 and model.max_correctable == 2
+
+    def attack(k: int, z: np.ndarray) -> np.ndarray:
+        off = np.zeros(17)
+        if k >= 20:
+            off[16] = -1.5  # the inter-vehicle range claims they are closer
+            off[2] = 2.0  # and one of vehicle 1's anchor links lies
+        return off
+
+    run = run_stream(name, model, truth, attack, 50, seed=9)
+    assert np.max(run.err_m[32:]) < 0.5
+    assert sum({2, 16} <= a for a in run.attacked[32:]) >= 0.9 * 18
+
+
+@pytest.mark.parametrize("name", SECURE)
+def test_linear_model(name: str) -> None:
+    rng = np.random.default_rng(10)
+    model = LinearModel.build(rng.standard_normal((7, 2)), 0.05)
+    assert model.max_correctable == 2 and model.min_sensors == 2
+    truth = np.array([1.0, -2.0])
+
+    def attack(k: int, z: np.ndarray) -> np.ndarray:
+        off = np.zeros(7)
+        if k >= 20:
+            off[[1, 5]] = [5.0, -3.0]
+        return off
+
+    run = run_stream(name, model, truth, attack, 50, seed=11)
+    assert np.max(run.err_m[32:]) < 0.3
+    assert sum({1, 5} <= a for a in run.attacked[32:]) >= 0.9 * 18
+
+
+def test_model_geometry_and_jacobians() -> None:
+    rng = np.random.default_rng(12)
+    models = [
+        AnchorRanges2D.build(ANCHORS8_NED_M, SIGMA_M),
+        AnchorRanges3D.build(ANCHORS8_NED_M, SIGMA_M),
+        ScalarGroup.build([0.1, 0.2, 0.3]),
+        LinearModel.build(rng.standard_normal((5, 3))),
+        TwoVehicleRanges.build(ANCHORS8_NED_M, SIGMA_M),
+    ]
+    for model in models:
+        pos = model.clip(model.initial_pos() + 0.3 * rng.standard_normal(model.d))
+        jac = model.jac(pos[None, :])[0]
+        step = 1e-6
+        numeric = np.stack(
+            [(model.h(pos + step * e) - model.h(pos - step * e)) / (2 * step) for e in np.eye(model.d)], axis=1
+        )
+        np.testing.assert_allclose(jac, numeric, atol=1e-6, err_msg=type(model).__name__)
+    assert AnchorRanges2D.build(ANCHORS8_NED_M, SIGMA_M).max_correctable == 2  # notes §1.4
+    assert ScalarGroup.build([0.1] * 5).max_correctable == 2
+    assert ScalarGroup.build([0.1] * 4).max_correctable == 1
+
+
+def test_bad_parameters_are_refused(anchors8: AnchorRanges2D) -> None:
+    with pytest.raises(ValueError, match="s=8"):
+        estimators.create("secekf", anchors8, s=8)
+    with pytest.raises(ValueError, match="alpha"):
+        estimators.create("secopt", anchors8, alpha=1.5)
+    with pytest.raises(ValueError, match="expected 8 readings"):
+        estimators.create("ekf", anchors8).step(0.0, np.zeros(7))
+    with pytest.raises(ValueError, match="positive"):
+        ScalarGroup.build([0.1, 0.0])
