@@ -96,17 +96,20 @@ def gauss_newton(
     pos = np.array(np.broadcast_to(start, (n_sub, d)), dtype=float)
     # Tiny Levenberg damping keeps rank-deficient subsets (too few readings) finite.
     damp = 1e-9 * np.eye(d)
-    for _ in range(n_iter):
+    for it in range(n_iter + 1):
         hx, jac = model.h_jac(pos, known)
         r = (zf - hx) * use
         jtw = np.swapaxes(jac * w[..., None], 1, 2)
-        step = solve_small(jtw @ jac + damp, (jtw @ r[..., None])[..., 0])
-        pos = model.clip(pos + step)
-        if float(np.einsum("jd,jd->", step, step)) < tol_m * tol_m:
+        info = jtw @ jac
+        if it == n_iter:
             break
-    hx, jac = model.h_jac(pos, known)
-    r = (zf - hx) * use
-    info = np.swapaxes(jac * w[..., None], 1, 2) @ jac
+        step = solve_small(info + damp, (jtw @ r[..., None])[..., 0])
+        if float(np.einsum("jd,jd->", step, step)) < tol_m * tol_m:
+            # Converged: the cost and information at the last evaluation differ from
+            # those after this sub-tolerance step only to second order; skip a re-evaluation.
+            pos = model.clip(pos + step)
+            break
+        pos = model.clip(pos + step)
     return GnResult(pos=pos, cost=np.einsum("jp,jp->j", w, r * r), info=info, n_used=use.sum(axis=1), resid=r)
 
 
@@ -137,12 +140,19 @@ def solve_small(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.linalg.solve(a, b[..., None])[..., 0]
 
 
+@lru_cache(maxsize=256)
 def cv_matrices(d: int, dt_s: float, q_mps2: float) -> tuple[np.ndarray, np.ndarray]:
-    """Constant-velocity model for state ``[pos(d), vel(d)]``: F and Q = q^2 G G^T (white acceleration)."""
+    """Constant-velocity model for state ``[pos(d), vel(d)]``: F and Q = q^2 G G^T (white acceleration).
+
+    Cached: the step interval repeats (10 Hz streams), so the matrices are built once.
+    """
     eye = np.eye(d)
     f = np.block([[eye, dt_s * eye], [np.zeros((d, d)), eye]])
     g = np.vstack([0.5 * dt_s**2 * eye, dt_s * eye])
-    return f, q_mps2**2 * (g @ g.T)
+    q = q_mps2**2 * (g @ g.T)
+    f.setflags(write=False)
+    q.setflags(write=False)
+    return f, q
 
 
 class EkfBank:

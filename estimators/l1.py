@@ -21,7 +21,7 @@ residuals from dominating). Every sensor counts once in L, not weighted by
 attacked precise sensors outvote three honest coarse ones (on a scalar group
 L's minimiser is then the plain median). Noise weights enter the refit below.
 Start at the previous estimate (cold start: the model's starting point, with
-five times the iterations). Then decode: the
+eight times the iterations). Then decode: the
 (at most s) readings with the largest l1 residuals that fail
 ``chi2.ppf(1 - alpha, 1)`` are set aside, and the rest are refitted by weighted
 least squares (debiasing: the l1 solution alone is noisier than least squares
@@ -31,7 +31,7 @@ that fail the per-sensor test against the refit.
 
 RECON: IRLS instead of an LP/SOCP solver (same minimiser; faster, no extra
 dependency), the per-step snapshot window, the decode threshold and the
-debiasing refit are ours. Defaults: n_irls = 10, eps = 0.5, alpha = 0.01.
+debiasing refit are ours. Defaults: n_irls = 4, eps = 0.5, alpha = 0.01.
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ class L1Decoder(Estimator):
     name = "l1"
     secure = True
 
-    def __init__(self, model: MeasurementModel, *, n_irls: int = 10, eps: float = 0.5, **params) -> None:
+    def __init__(self, model: MeasurementModel, *, n_irls: int = 4, eps: float = 0.5, **params) -> None:
         self.n_irls = int(n_irls)
         self.eps = eps
         super().__init__(model, **params)
@@ -78,8 +78,8 @@ class L1Decoder(Estimator):
         if avail.sum() < model.min_sensors:
             return self._estimate(t_s, self.pos, alarm=self.pos is None)
         start = model.initial_pos() if self.pos is None else self.pos
-        # IRLS converges linearly: a cold start (far from the minimiser) gets five times the budget.
-        pos = self._irls(z, avail, start, known, self.n_irls if self.pos is not None else 5 * self.n_irls)
+        # IRLS converges linearly: a cold start (far from the minimiser) gets eight times the budget.
+        pos = self._irls(z, avail, start, known, self.n_irls if self.pos is not None else 8 * self.n_irls)
         resid = z - model.h(pos, known)
         t = np.nan_to_num(resid * resid / model.sigma_m**2, nan=-1.0)
         # Decode: at most s readings, the largest l1 residuals that fail the gate, are

@@ -72,6 +72,10 @@ class MeasurementModel:
         """``(h(pos), jac(pos))`` in one pass (the hot path of every solver)."""
         return self.h(pos, known), self.jac(pos, known)
 
+    def minimal_fixes(self, z: np.ndarray, masks: np.ndarray, known: Known = None) -> np.ndarray | None:
+        """Closed-form fixes from minimal reading sets, where the model has one (else None: use Gauss-Newton)."""
+        return None
+
     def initial_pos(self) -> np.ndarray:
         """Starting point for Gauss-Newton when nothing better is known."""
         return np.zeros(self.d)
@@ -134,24 +138,50 @@ class AnchorRanges2D(MeasurementModel):
     def default_known(self) -> Known:
         return self.vehicle_z_ned_m
 
-    def _dz2(self, known: Known) -> np.ndarray | float:
+    def _dz2(self, known: Known) -> np.ndarray:
         z = self.vehicle_z_ned_m if known is None else known if isinstance(known, float) else float(np.ravel(known)[0])
+        cached = self.__dict__.get("_dz2_cache")
+        if cached is not None and cached[0] == z:
+            return cached[1]
         dz = z - self.anchors_ned_m[:, 2]
-        return dz * dz
+        # Frozen dataclass: the cache bypasses __setattr__ (the height changes rarely between steps).
+        object.__setattr__(self, "_dz2_cache", (z, dz * dz + 1e-12))
+        return self.__dict__["_dz2_cache"][1]
 
     def h(self, pos: np.ndarray, known: Known = None) -> np.ndarray:
-        return self.h_jac(pos, known)[0]
+        diff = pos[..., None, :] - self.anchors_ned_m[:, :2]
+        return np.sqrt(np.einsum("...i,...i->...", diff, diff) + self._dz2(known))
 
     def jac(self, pos: np.ndarray, known: Known = None) -> np.ndarray:
         return self.h_jac(pos, known)[1]
 
     def h_jac(self, pos: np.ndarray, known: Known = None) -> tuple[np.ndarray, np.ndarray]:
-        # Written out per axis: einsum/sum over a length-2 axis costs more than the arithmetic.
-        dn = pos[..., 0:1] - self.anchors_ned_m[:, 0]
-        de = pos[..., 1:2] - self.anchors_ned_m[:, 1]
-        r = np.sqrt(dn * dn + de * de + self._dz2(known))
-        inv = 1.0 / np.maximum(r, 1e-9)
-        return r, np.stack([dn * inv, de * inv], axis=-1)
+        diff = pos[..., None, :] - self.anchors_ned_m[:, :2]
+        r = np.sqrt(np.einsum("...i,...i->...", diff, diff) + self._dz2(known))
+        return r, diff / r[..., None]
+
+    def minimal_fixes(self, z: np.ndarray, masks: np.ndarray, known: Known = None) -> np.ndarray | None:
+        """Closed-form fix from each 3-anchor mask: difference squared horizontal ranges (linear in pos).
+
+        ``2 (a_l - a_i)^T pos = rho_i^2 - rho_l^2 - |a_i|^2 + |a_l|^2`` for the pairs (i, l), (j, l),
+        with ``rho^2 = r^2 - dz^2`` the horizontal range squared. Collinear triples give garbage that
+        the caller's consensus rejects. None if a mask does not hold exactly three readings.
+        """
+        if masks.shape[1] != self.p or np.any(masks.sum(axis=1) != 3):
+            return None
+        idx = np.nonzero(masks)[1].reshape(-1, 3)
+        rho2 = np.nan_to_num(z * z - self._dz2(known), nan=0.0)
+        a = self.anchors_ned_m[:, :2]
+        ai, aj, al = a[idx[:, 0]], a[idx[:, 1]], a[idx[:, 2]]
+        norm2 = np.einsum("pi,pi->p", a, a)
+        rhs_base = rho2 - norm2
+        mat = 2.0 * np.stack([al - ai, al - aj], axis=1)
+        rhs = np.stack([rhs_base[idx[:, 0]] - rhs_base[idx[:, 2]], rhs_base[idx[:, 1]] - rhs_base[idx[:, 2]]], axis=1)
+        det = mat[:, 0, 0] * mat[:, 1, 1] - mat[:, 0, 1] * mat[:, 1, 0]
+        det = np.where(np.abs(det) < 1e-9, 1e-9, det)
+        x = (mat[:, 1, 1] * rhs[:, 0] - mat[:, 0, 1] * rhs[:, 1]) / det
+        y = (mat[:, 0, 0] * rhs[:, 1] - mat[:, 1, 0] * rhs[:, 0]) / det
+        return self.clip(np.stack([x, y], axis=1))
 
     def initial_pos(self) -> np.ndarray:
         return self.anchors_ned_m[:, :2].mean(axis=0)

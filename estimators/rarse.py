@@ -12,9 +12,11 @@ Attacker: at most ``s`` of p sensors carry arbitrary values (default
 ``model.max_correctable``); Gaussian noise.
 
 Each step:
-1. Hypotheses: a least-squares fit (Gauss-Newton, batched) on every minimal
-   subset, exhaustive when there are at most ``max_hypotheses`` of them, else a
-   seeded random sample of that many; plus the EKF's prediction.
+1. Hypotheses: a fit on every minimal subset (closed form where the model
+   has one: for 2-D anchor ranges, differencing squared horizontal ranges makes
+   the three equations linear; else Gauss-Newton, batched), exhaustive when
+   there are at most ``max_hypotheses`` of them, else a seeded random sample of
+   that many; plus the EKF's prediction.
 2. Consensus of hypothesis h: ``I_h = {i : (z_i - h_i(pos_h))^2 <=
    chi2.ppf(1 - alpha, 1) (sigma_i^2 + tau^2)}``, tau the hypothesis' own
    uncertainty (default 2 sigma). Best: the largest consensus, ties by the
@@ -103,7 +105,9 @@ class Rarse(Estimator):
             self.ekf.predict(dt_s)
         start = self.ekf.x[0, :d] if self.started else model.initial_pos()
         # From the prediction a clean minimal set converges in two or three steps; cold starts get the full budget.
-        hyps = gauss_newton(model, z, self.minimal, start, known, 3 if self.started else self.n_iter).pos
+        hyps = model.minimal_fixes(z, self.minimal, known)
+        if hyps is None:
+            hyps = gauss_newton(model, z, self.minimal, start, known, 3 if self.started else self.n_iter).pos
         hyps = np.vstack([hyps, start[None, :]]) if self.started else hyps
         gate = self.chi(1)
         t = self._consensus(z, hyps, (self.tau_sigmas * model.sigma_m) ** 2, known)

@@ -1,0 +1,217 @@
+"""Estimators: time per step, how it scales, and accuracy on the seed's test case 1.
+
+Three parts, figures only (no assertions; run it on the machine you care about):
+
+1. Time per step at p = 8 anchors, s = 2: median and p99 in microseconds for
+   every estimator (issue 6 targets: median < 500 us for ekf, l1, secekf, recap,
+   rarse; < 10 ms for secopt).
+2. Scaling with p = 8, 12, 16 anchors (evenly spaced on the square's edge) and
+   s = 1, 2, 3: median per step, and where it stops being real time at 50 Hz
+   (20 ms per step).
+3. Accuracy on test case 1 (8 anchors at the corners and edge midpoints of
+   [0, 5]^2 at z = -1 NED, vehicle hovering at (2.5, 2.5, -2.5), sigma 0.1 m,
+   10 Hz): clean, two links attacked with bias steps of 1-10 m, ramps to 10 m,
+   and a coordinated spoof toward a fake position walking away at 0.2 m/s.
+   Per estimator: RMSE, its ratio to the estimator's own clean RMSE (target for
+   the secure ones <= 1.5; the plain EKF should be dragged >= 3x), attacked-link
+   recall on steps where a link's attack exceeds 5 sigma (target >= 0.95) and
+   precision, and the fraction of alarmed steps.
+
+The measurement streams are synthesised here with numpy (geometry + seeded
+noise), so the same seed gives the same figures.
+
+    .venv/bin/python benchmarks/estimators_bench.py [--steps 600] [--seed 0] [--skip-scaling]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+import estimators
+from estimators.models import AnchorRanges2D
+
+SIGMA_M = 0.1
+RATE_HZ = 10.0
+HOVER_XY_M = np.array([2.5, 2.5])
+VEHICLE_Z_NED_M = -2.5
+ATTACKED_LINKS = (2, 5)
+REALTIME_50HZ_US = 20_000.0
+TARGET_MEDIAN_US = {"ekf": 500.0, "l1": 500.0, "secekf": 500.0, "recap": 500.0, "rarse": 500.0, "secopt": 10_000.0}
+
+
+def seed_anchors() -> np.ndarray:
+    """Test case 1: corners and edge midpoints of [0, 5]^2 on 1 m posts (NED z = -1)."""
+    xy = [(0, 0), (2.5, 0), (5, 0), (5, 2.5), (5, 5), (2.5, 5), (0, 5), (0, 2.5)]
+    return np.array([[x, y, -1.0] for x, y in xy])
+
+
+def perimeter_anchors(p: int) -> np.ndarray:
+    """p anchors evenly spaced along the edge of [0, 5]^2 (p = 8 gives the seed layout)."""
+    out = []
+    for k in range(p):
+        u = 20.0 * k / p  # arc length along the 20 m perimeter
+        side, off = divmod(u, 5.0)
+        x, y = [(off, 0.0), (5.0, off), (5.0 - off, 5.0), (0.0, 5.0 - off)][int(side)]
+        out.append([x, y, -1.0])
+    return np.array(out)
+
+
+# attack(t_s, true ranges) -> additive offsets per link
+Attack = Callable[[float, np.ndarray], np.ndarray]
+
+
+def attack_steps(model: AnchorRanges2D) -> Attack:
+    """From 10 s on, the two links get +1 m, +2 m, ... +10 m, one more metre every 4 s (seed Fig. 5.3)."""
+
+    def apply(t_s: float, r: np.ndarray) -> np.ndarray:
+        off = np.zeros(model.p)
+        if t_s >= 10.0:
+            level = min(1.0 + math.floor((t_s - 10.0) / 4.0), 10.0)
+            off[list(ATTACKED_LINKS)] = [level, -0.6 * level]
+        return off
+
+    return apply
+
+
+def attack_ramps(model: AnchorRanges2D) -> Attack:
+    """From 10 s on, both links drift at 0.2 m/s (opposite signs), capped at 10 m."""
+
+    def apply(t_s: float, r: np.ndarray) -> np.ndarray:
+        off = np.zeros(model.p)
+        if t_s >= 10.0:
+            level = min(0.2 * (t_s - 10.0), 10.0)
+            off[list(ATTACKED_LINKS)] = [level, -level]
+        return off
+
+    return apply
+
+
+def attack_spoof(model: AnchorRanges2D) -> Attack:
+    """From 10 s on, both links report ranges of a fake position walking north-east at 0.2 m/s."""
+    heading = np.array([1.0, 1.0]) / math.sqrt(2.0)
+
+    def apply(t_s: float, r: np.ndarray) -> np.ndarray:
+        off = np.zeros(model.p)
+        if t_s >= 10.0:
+            fake = HOVER_XY_M + heading * min(0.2 * (t_s - 10.0), 2.4)
+            off[list(ATTACKED_LINKS)] = (model.h(fake) - r)[list(ATTACKED_LINKS)]
+        return off
+
+    return apply
+
+
+def no_attack(model: AnchorRanges2D) -> Attack:
+    return lambda t_s, r: np.zeros(model.p)
+
+
+def run(name: str, model: AnchorRanges2D, attack: Attack, steps: int, seed: int, **params) -> dict[str, float]:
+    rng = np.random.default_rng(seed)
+    est = estimators.create(name, model, **params)
+    r_true = model.h(HOVER_XY_M)
+    err, times_s, alarms = [], [], []
+    hit = big = named = named_right = 0
+    for k in range(steps):
+        t_s = k / RATE_HZ
+        off = attack(t_s, r_true)
+        z = r_true + SIGMA_M * rng.standard_normal(model.p) + off
+        out = est.step(t_s, z, VEHICLE_Z_NED_M)
+        times_s.append(out.step_time_s)
+        if k < 20:  # the first 2 s are start-up; judge the rest
+            continue
+        err.append(float(np.linalg.norm(out.position_m - HOVER_XY_M)))
+        alarms.append(out.alarm)
+        strong = np.abs(off) > 5 * SIGMA_M
+        big += int(strong.sum())
+        hit += sum(1 for i in np.flatnonzero(strong) if i in out.attacked)
+        named += len(out.attacked)
+        named_right += sum(1 for i in out.attacked if off[i] != 0.0)
+    e = np.array(err)
+    t_us = 1e6 * np.array(times_s)
+    return {
+        "rmse_m": float(np.sqrt(np.mean(e**2))),
+        "max_m": float(e.max()),
+        "median_us": float(np.median(t_us)),
+        "p99_us": float(np.percentile(t_us, 99)),
+        "recall": hit / big if big else float("nan"),
+        "precision": named_right / named if named else float("nan"),
+        "alarm_frac": float(np.mean(alarms)),
+    }
+
+
+def part_timing(steps: int, seed: int) -> None:
+    model = AnchorRanges2D.build(seed_anchors(), SIGMA_M, VEHICLE_Z_NED_M)
+    print(f"\n1. Time per step, p = 8, s = 2 ({steps} steps, two links attacked by bias steps)")
+    print(f"{'estimator':<10}{'median us':>11}{'p99 us':>10}{'target us':>11}  verdict")
+    for name in estimators.names():
+        res = run(name, model, attack_steps(model), steps, seed, **({} if name in ("ls", "ekf") else {"s": 2}))
+        target = TARGET_MEDIAN_US.get(name)
+        verdict = "-" if target is None else ("meets" if res["median_us"] < target else "MISSES")
+        tgt = f"{target:>11.0f}" if target else f"{'-':>11}"
+        print(f"{name:<10}{res['median_us']:>11.0f}{res['p99_us']:>10.0f}{tgt}  {verdict}")
+
+
+def part_scaling(seed: int) -> None:
+    print("\n2. Scaling: median us per step (p anchors on the square's edge, s attacked tolerated)")
+    print("   '*' = over 20 ms, i.e. no longer real time at 50 Hz; subsets C(p, p-s) in brackets")
+    configs = [(p, s) for p in (8, 12, 16) for s in (1, 2, 3)]
+    header = "".join(f"{f'p{p} s{s} [{math.comb(p, p - s)}]':>15}" for p, s in configs)
+    print(f"{'estimator':<10}{header}")
+    for name in estimators.names():
+        row = []
+        for p, s in configs:
+            model = AnchorRanges2D.build(perimeter_anchors(p), SIGMA_M, VEHICLE_Z_NED_M)
+            params = {} if name in ("ls", "ekf") else {"s": s}
+            med = run(name, model, no_attack(model), 80, seed, **params)["median_us"]
+            row.append(f"{med:>14.0f}{'*' if med > REALTIME_50HZ_US else ' '}")
+        print(f"{name:<10}{''.join(row)}")
+
+
+def part_accuracy(steps: int, seed: int) -> None:
+    model = AnchorRanges2D.build(seed_anchors(), SIGMA_M, VEHICLE_Z_NED_M)
+    print(f"\n3. Accuracy, seed test case 1, links {list(ATTACKED_LINKS)} attacked from 10 s ({steps / RATE_HZ:.0f} s)")
+    attacks = {"steps 1-10 m": attack_steps, "ramps": attack_ramps, "coordinated spoof": attack_spoof}
+    print(
+        f"{'estimator':<10}{'clean rmse':>11}  "
+        + "".join(f"{label:>40}" for label in attacks)
+        + "\n"
+        + f"{'':<10}{'m':>11}  "
+        + "".join(f"{'rmse m  ratio  recall  prec  alarm':>40}" for _ in attacks)
+    )
+    for name in estimators.names():
+        params = {} if name in ("ls", "ekf") else {"s": 2}
+        clean = run(name, model, no_attack(model), steps, seed, **params)
+        cells = []
+        for make in attacks.values():
+            res = run(name, model, make(model), steps, seed, **params)
+            ratio = res["rmse_m"] / clean["rmse_m"]
+            cells.append(
+                f"{res['rmse_m']:>14.3f}{ratio:>7.2f}{res['recall']:>8.2f}{res['precision']:>6.2f}{res['alarm_frac']:>7.2f}"
+            )
+        print(f"{name:<10}{clean['rmse_m']:>11.3f}  " + "".join(cells))
+    print(
+        "   targets: secure estimators ratio <= 1.5 and recall >= 0.95; ekf ratio >= 3"
+        " (ls/ekf never name links: recall 0)"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--steps", type=int, default=600, help="steps per run at 10 Hz (default 600 = 60 s)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--skip-scaling", action="store_true")
+    args = parser.parse_args()
+    started = time.perf_counter()
+    part_timing(args.steps, args.seed)
+    if not args.skip_scaling:
+        part_scaling(args.seed)
+    part_accuracy(args.steps, args.seed)
+    print(f"\n(total {time.perf_counter() - started:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()
