@@ -76,6 +76,8 @@ class GnResult:
     info: np.ndarray  # (J, d, d) normal matrix H^T W H (inverse = covariance)
     n_used: np.ndarray  # (J,) readings actually used (subset AND not NaN)
     resid: np.ndarray  # (J, p) z - h(pos) (0 where unused)
+    raw: np.ndarray  # (J, p) z - h(pos) for every reading (NaN where missing), for per-sensor tests
+    jac: np.ndarray  # (J, p, d) Jacobian at pos
 
 
 def gauss_newton(
@@ -88,9 +90,7 @@ def gauss_newton(
     tol_m: float = 1e-4,
 ) -> GnResult:
     """Weighted least squares per subset, all subsets at once (see module docstring)."""
-    avail = ~np.isnan(z)
-    zf = np.where(avail, z, 0.0)
-    use = masks & avail
+    use = masks & ~np.isnan(z)
     w = use / model.sigma_m**2
     n_sub, d = masks.shape[0], model.d
     pos = np.array(np.broadcast_to(start, (n_sub, d)), dtype=float)
@@ -98,7 +98,8 @@ def gauss_newton(
     damp = 1e-9 * np.eye(d)
     for it in range(n_iter + 1):
         hx, jac = model.h_jac(pos, known)
-        r = (zf - hx) * use
+        raw = z - hx
+        r = np.where(use, raw, 0.0)
         jtw = np.swapaxes(jac * w[..., None], 1, 2)
         info = jtw @ jac
         if it == n_iter:
@@ -110,7 +111,8 @@ def gauss_newton(
             pos = model.clip(pos + step)
             break
         pos = model.clip(pos + step)
-    return GnResult(pos=pos, cost=np.einsum("jp,jp->j", w, r * r), info=info, n_used=use.sum(axis=1), resid=r)
+    cost = np.einsum("jp,jp->j", w, r * r)
+    return GnResult(pos=pos, cost=cost, info=info, n_used=use.sum(axis=1), resid=r, raw=raw, jac=jac)
 
 
 _SIGNS2 = np.array([[1.0, -1.0], [-1.0, 1.0]])
@@ -183,6 +185,8 @@ class EkfBank:
 
     def update(self, z: np.ndarray, known: Known = None) -> tuple[np.ndarray, np.ndarray]:
         """Update every filter with its own sensors; returns (NIS, dof) per filter."""
+        if self.x.shape[0] == 1:
+            return self._update_one(z, known)
         model, d = self.model, self.d
         avail = ~np.isnan(z)
         use = self.masks & avail
@@ -202,3 +206,22 @@ class EkfBank:
         self.x = self.x + gain_a
         self.P = p_post
         return np.maximum(nis, 0.0), use.sum(axis=1)
+
+    def _update_one(self, z: np.ndarray, known: Known) -> tuple[np.ndarray, np.ndarray]:
+        """Single filter: the gain form on the used rows only (cheaper than two n x n inverses)."""
+        use = self.masks[0] & ~np.isnan(z)
+        n_used = int(use.sum())
+        if n_used == 0:
+            return np.zeros(1), np.zeros(1, dtype=int)
+        d, x, P = self.d, self.x[0], self.P[0]
+        hx, jac = self.model.h_jac(x[:d], known)
+        nu = (z - hx)[use]
+        h_rows = jac[use]
+        pht = P[:, :d] @ h_rows.T  # (n, m)
+        s_mat = h_rows @ pht[:d] + np.diag(self.model.sigma_m[use] ** 2)
+        gain_t = np.linalg.solve(s_mat, pht.T)  # (m, n) = K^T, S symmetric
+        nis = float(nu @ np.linalg.solve(s_mat, nu))
+        self.x[0] = x + nu @ gain_t
+        p_new = P - pht @ gain_t
+        self.P[0] = 0.5 * (p_new + p_new.T)
+        return np.array([nis]), np.array([n_used])

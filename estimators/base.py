@@ -10,7 +10,7 @@ clock, NaN handling of the input and the timing of each step.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
@@ -44,7 +44,7 @@ class Estimate:
 
 
 def _indices(mask: np.ndarray) -> frozenset[int]:
-    return frozenset(int(i) for i in np.flatnonzero(mask))
+    return frozenset(np.flatnonzero(mask).tolist())
 
 
 class Estimator:
@@ -70,6 +70,7 @@ class Estimator:
             raise ValueError(f"s={self.s} must lie in 0..{model.p - 1}")
         self.alpha = alpha
         self.chi = Chi2Table(alpha, 4 * model.p)
+        self.gate1 = float(self.chi(1))  # per-sensor test threshold, used every step
         self.q_mps2 = q_mps2
         self.p0_pos_m = p0_pos_m
         self.p0_vel_mps = p0_vel_mps
@@ -93,11 +94,14 @@ class Estimator:
         zv = np.asarray(z, dtype=float).reshape(-1)
         if zv.shape[0] != self.model.p:
             raise ValueError(f"{self.name}: expected {self.model.p} readings, got {zv.shape[0]}")
-        zv = np.where(np.isfinite(zv), zv, np.nan)
+        if not np.isfinite(zv).all():
+            zv = np.where(np.isfinite(zv), zv, np.nan)  # +-inf from a garbled frame counts as missing
         dt_s = 0.0 if self.t_s is None else max(0.0, float(t_s) - self.t_s)
         self.t_s = float(t_s)
         est = self._step(float(t_s), dt_s, zv, self.model.default_known if known is None else known)
-        return replace(est, step_time_s=time.perf_counter() - t0)
+        # The Estimate is frozen for its readers; stamping our own fresh instance costs far less than replace().
+        object.__setattr__(est, "step_time_s", time.perf_counter() - t0)
+        return est
 
     # -- for subclasses ---------------------------------------------------
     def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:
@@ -114,20 +118,23 @@ class Estimator:
         return cv_matrices(self.model.d, dt_s, self.q_mps2)
 
     def _snapshot_fix(
-        self, z: np.ndarray, use: np.ndarray, start: np.ndarray | None, known: Known
+        self, z: np.ndarray, use: np.ndarray, start: np.ndarray | None, known: Known, n_iter: int | None = None
     ) -> tuple[np.ndarray, np.ndarray, float]:
         """Weighted LS fix on the sensors in ``use``: (position, covariance, cost)."""
         begin = self.model.initial_pos() if start is None else start
-        res = gauss_newton(self.model, z, use[None, :], begin, known, self.n_iter)
+        res = gauss_newton(self.model, z, use[None, :], begin, known, self.n_iter if n_iter is None else n_iter)
         cov = inv_small(res.info[0])
         return res.pos[0], cov, float(res.cost[0])
 
     def _flag(self, z: np.ndarray, pos: np.ndarray, cov_pos: np.ndarray, known: Known) -> np.ndarray:
         """Per-sensor test: normalised residual against ``pos`` exceeds chi2_{1, 1-alpha}."""
-        jac = self.model.jac(pos, known)
+        hx, jac = self.model.h_jac(pos, known)
+        return self._flag_resid(z - hx, jac, cov_pos)
+
+    def _flag_resid(self, resid: np.ndarray, jac: np.ndarray, cov_pos: np.ndarray) -> np.ndarray:
+        """The same test from residuals and Jacobian already at hand (NaN residual: not flagged)."""
         var = self.model.sigma_m**2 + np.einsum("pd,de,pe->p", jac, cov_pos, jac)
-        t = (z - self.model.h(pos, known)) ** 2 / var
-        return np.where(np.isnan(z), False, t > self.chi(1))
+        return resid * resid / var > self.gate1
 
     def _estimate(
         self,

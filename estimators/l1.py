@@ -31,14 +31,14 @@ that fail the per-sensor test against the refit.
 
 RECON: IRLS instead of an LP/SOCP solver (same minimiser; faster, no extra
 dependency), the per-step snapshot window, the decode threshold and the
-debiasing refit are ours. Defaults: n_irls = 4, eps = 0.5, alpha = 0.01.
+debiasing refit are ours. Defaults: n_irls = 3, eps = 0.5, alpha = 0.01.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from estimators.bank import solve_small
+from estimators.bank import gauss_newton, inv_small, solve_small
 from estimators.base import Estimate, Estimator
 from estimators.models import Known, MeasurementModel
 
@@ -47,7 +47,7 @@ class L1Decoder(Estimator):
     name = "l1"
     secure = True
 
-    def __init__(self, model: MeasurementModel, *, n_irls: int = 4, eps: float = 0.5, **params) -> None:
+    def __init__(self, model: MeasurementModel, *, n_irls: int = 3, eps: float = 0.5, **params) -> None:
         self.n_irls = int(n_irls)
         self.eps = eps
         super().__init__(model, **params)
@@ -86,11 +86,11 @@ class L1Decoder(Estimator):
         # set aside; the rest must then be consistent as a whole, else alarm.
         worst = np.argsort(-t)[: self.s]
         use = avail.copy()
-        use[worst[t[worst] > self.chi(1)]] = False
-        pos, cov, cost = self._snapshot_fix(z, use, pos, known)
+        use[worst[t[worst] > self.gate1]] = False
+        fit = gauss_newton(model, z, use[None, :], pos, known, 2)  # starts at the l1 solution
+        pos, cov, cost = fit.pos[0], inv_small(fit.info[0]), float(fit.cost[0])
         alarm = bool(use.sum() < model.min_sensors or cost > self.chi(int(use.sum()) - model.d))
-        bad = avail & ~use & self._flag(z, pos, cov, known)
-        if alarm:
-            bad = avail & self._flag(z, pos, cov, known)
+        flagged = self._flag_resid(fit.raw[0], fit.jac[0], cov)
+        bad = flagged if alarm else flagged & ~use
         self.pos = pos
         return self._estimate(t_s, pos, cov=cov, attacked=bad, alarm=alarm, used=use)

@@ -167,21 +167,32 @@ class AnchorRanges2D(MeasurementModel):
         with ``rho^2 = r^2 - dz^2`` the horizontal range squared. Collinear triples give garbage that
         the caller's consensus rejects. None if a mask does not hold exactly three readings.
         """
-        if masks.shape[1] != self.p or np.any(masks.sum(axis=1) != 3):
+        geometry = self._triples(masks)
+        if geometry is None:
             return None
-        idx = np.nonzero(masks)[1].reshape(-1, 3)
+        idx, inv = geometry
         rho2 = np.nan_to_num(z * z - self._dz2(known), nan=0.0)
-        a = self.anchors_ned_m[:, :2]
-        ai, aj, al = a[idx[:, 0]], a[idx[:, 1]], a[idx[:, 2]]
-        norm2 = np.einsum("pi,pi->p", a, a)
-        rhs_base = rho2 - norm2
-        mat = 2.0 * np.stack([al - ai, al - aj], axis=1)
-        rhs = np.stack([rhs_base[idx[:, 0]] - rhs_base[idx[:, 2]], rhs_base[idx[:, 1]] - rhs_base[idx[:, 2]]], axis=1)
-        det = mat[:, 0, 0] * mat[:, 1, 1] - mat[:, 0, 1] * mat[:, 1, 0]
-        det = np.where(np.abs(det) < 1e-9, 1e-9, det)
-        x = (mat[:, 1, 1] * rhs[:, 0] - mat[:, 0, 1] * rhs[:, 1]) / det
-        y = (mat[:, 0, 0] * rhs[:, 1] - mat[:, 1, 0] * rhs[:, 0]) / det
-        return self.clip(np.stack([x, y], axis=1))
+        rhs_base = rho2 - self._norm2
+        rhs = rhs_base[idx[:, :2]] - rhs_base[idx[:, 2:3]]
+        return self.clip(np.einsum("jab,jb->ja", inv, rhs))
+
+    def _triples(self, masks: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Anchor indices and inverse 2x2 systems per 3-anchor mask (cached: geometry is fixed)."""
+        key = masks.tobytes()
+        cache = self.__dict__.setdefault("_triples_cache", {})
+        if key not in cache:
+            if masks.shape[1] != self.p or np.any(masks.sum(axis=1) != 3):
+                cache[key] = None
+            else:
+                idx = np.nonzero(masks)[1].reshape(-1, 3)
+                a = self.anchors_ned_m[:, :2]
+                mat = 2.0 * np.stack([a[idx[:, 2]] - a[idx[:, 0]], a[idx[:, 2]] - a[idx[:, 1]]], axis=1)
+                det = mat[:, 0, 0] * mat[:, 1, 1] - mat[:, 0, 1] * mat[:, 1, 0]
+                det = np.where(np.abs(det) < 1e-9, 1e-9, det)  # collinear: garbage the consensus rejects
+                inv = mat[:, ::-1, ::-1] * np.array([[1.0, -1.0], [-1.0, 1.0]]) / det[:, None, None]
+                object.__setattr__(self, "_norm2", np.einsum("pi,pi->p", a, a))
+                cache[key] = (idx, inv)
+        return cache[key]
 
     def initial_pos(self) -> np.ndarray:
         return self.anchors_ned_m[:, :2].mean(axis=0)

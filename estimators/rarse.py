@@ -39,7 +39,7 @@ import math
 
 import numpy as np
 
-from estimators.bank import EkfBank, gauss_newton, inv_small, subset_masks
+from estimators.bank import EkfBank, GnResult, gauss_newton, inv_small, subset_masks
 from estimators.base import Estimate, Estimator
 from estimators.models import Known, MeasurementModel
 
@@ -83,20 +83,37 @@ class Rarse(Estimator):
         t = resid * resid / (self.model.sigma_m**2 + extra_var)
         return np.where(np.isnan(t), np.inf, t)
 
-    def _studentised(
-        self, z: np.ndarray, pos: np.ndarray, cov: np.ndarray, use: np.ndarray, known: Known
-    ) -> np.ndarray:
+    def _studentised(self, fit: GnResult, cov: np.ndarray, use: np.ndarray) -> np.ndarray:
         """Normalised squared residuals against a fit on ``use``; NaN readings get 0.
 
         A reading inside the fit pulled the fit toward itself, so it is judged by
         its deleted residual ``r / (1 - l)`` (leverage ``l = H C H^T / sigma^2``).
         """
         sig2 = self.model.sigma_m**2
-        jac = self.model.jac(pos, known)
+        jac = fit.jac[0]
         lever = np.einsum("pd,de,pe->p", jac, cov, jac) / sig2
         scale = np.where(use, np.maximum(1.0 - lever, 1e-6), 1.0 + lever)
-        resid = z - self.model.h(pos, known)
-        return np.nan_to_num(resid * resid / (sig2 * scale), nan=0.0)
+        resid = fit.raw[0]
+        t = resid * resid / (sig2 * scale)
+        return np.where(np.isnan(t), 0.0, t)
+
+    def _eliminate(
+        self, z: np.ndarray, use0: np.ndarray, pos: np.ndarray, n_iter: int, need: int, known: Known
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """Backward elimination on the consensus; None if the kept set is inconsistent as a whole."""
+        use = use0.copy()
+        for _ in range(self.s + 1):  # one reading per round
+            refit = gauss_newton(self.model, z, use[None, :], pos, known, n_iter)
+            pos, cov = refit.pos[0], inv_small(refit.info[0])
+            t = self._studentised(refit, cov, use)
+            worst = int(np.argmax(np.where(use, t, -np.inf)))
+            if t[worst] <= self.gate1 or use.sum() <= need:
+                break
+            use[worst] = False
+        # The kept set must be consistent as a whole (a loose consensus can gather a fake position).
+        if refit.cost[0] > self.chi(int(use.sum()) - self.model.d):
+            return None
+        return use, pos, cov, t
 
     def _step(self, t_s: float, dt_s: float, z: np.ndarray, known: Known) -> Estimate:
         model, d = self.model, self.model.d
@@ -104,12 +121,12 @@ class Rarse(Estimator):
         if self.started:
             self.ekf.predict(dt_s)
         start = self.ekf.x[0, :d] if self.started else model.initial_pos()
-        # From the prediction a clean minimal set converges in two or three steps; cold starts get the full budget.
         hyps = model.minimal_fixes(z, self.minimal, known)
         if hyps is None:
+            # From the prediction a clean minimal set converges in a few steps; cold starts get the full budget.
             hyps = gauss_newton(model, z, self.minimal, start, known, 3 if self.started else self.n_iter).pos
         hyps = np.vstack([hyps, start[None, :]]) if self.started else hyps
-        gate = self.chi(1)
+        gate = self.gate1
         t = self._consensus(z, hyps, (self.tau_sigmas * model.sigma_m) ** 2, known)
         inlier = t <= gate
         size = inlier.sum(axis=1)
@@ -118,19 +135,14 @@ class Rarse(Estimator):
         need = max(int(avail.sum()) - self.s, model.min_sensors)
         if size[best] < need:
             return self._coast(t_s, z, known)
-        use = inlier[best].copy()
-        pos = hyps[best]
-        for _ in range(self.s + 1):  # backward elimination, one reading per round
-            refit = gauss_newton(model, z, use[None, :], pos, known, 2)
-            pos, cov = refit.pos[0], inv_small(refit.info[0])
-            t = self._studentised(z, pos, cov, use, known)
-            worst = int(np.argmax(np.where(use, t, -np.inf)))
-            if t[worst] <= gate or use.sum() <= need:
-                break
-            use[worst] = False
-        # The kept set must be consistent as a whole (a loose consensus can gather a fake position).
-        if refit.cost[0] > self.chi(int(use.sum()) - d):
+        # Refit from the prediction (one Gauss-Newton step is noise-level exact there); if that
+        # fails, or on a cold start, iterate from the winning hypothesis instead.
+        kept = self._eliminate(z, inlier[best], start, 1, need, known) if self.started else None
+        if kept is None:
+            kept = self._eliminate(z, inlier[best], hyps[best], self.n_iter, need, known)
+        if kept is None:
             return self._coast(t_s, z, known)
+        use, pos, cov, t = kept
         attacked = avail & ~use & (t > gate)
         if not self.started:
             P0 = self.P0.copy()

@@ -31,6 +31,9 @@ Equations, all RECON (notes §3; the paper could not be read):
   the spread around the inverse-variance mean plus that mean's distance from
   the prediction. Clean S: chi-square with |S| dof. Omega = the accepted S with
   the most readings, then smallest D_S, the previous Omega winning ties.
+- The subset fits start at the prediction and take one Gauss-Newton step
+  (near the prediction that is already at noise-level precision); only if
+  nothing is accepted are they iterated to convergence and judged again.
 - Nothing accepted: alarm, coast on the prediction; after ``reinit_after``
   alarmed steps in a row, run the init again (the prediction may be the stale
   part).
@@ -93,7 +96,9 @@ class Recap(Estimator):
         if self.s <= 1 and flagged.sum() <= self.s:
             omega, alarm = avail & ~flagged, False
         else:
-            omega, alarm = self._search(z, known, x_pred[:d], P_pred[:d, :d])
+            omega, alarm = self._search(z, known, x_pred[:d], P_pred[:d, :d], 1)
+            if alarm:  # maybe only unconverged: one Gauss-Newton step suffices near the prediction, not far off
+                omega, alarm = self._search(z, known, x_pred[:d], P_pred[:d, :d], self.n_iter)
         if alarm:
             self.alarms_in_row += 1
             if self.alarms_in_row >= self.reinit_after and self._init(z, known):
@@ -107,9 +112,9 @@ class Recap(Estimator):
         return self._output(t_s, z, known, omega, False)
 
     def _search(
-        self, z: np.ndarray, known: Known, pos_pred: np.ndarray, cov_pred: np.ndarray
+        self, z: np.ndarray, known: Known, pos_pred: np.ndarray, cov_pred: np.ndarray, n_iter: int
     ) -> tuple[np.ndarray, bool]:
-        fits = gauss_newton(self.model, z, self.masks, pos_pred, known, self.n_iter)
+        fits = gauss_newton(self.model, z, self.masks, pos_pred, known, n_iter)
         gap = fits.pos - pos_pred
         # Fit covariance C_S = info^-1; pseudo-inverse keeps rank-deficient subsets finite.
         spread = cov_pred + inv_small(fits.info)

@@ -64,7 +64,8 @@ class SecOpt(Estimator):
             self.x = f @ self.x
             self.P = f @ self.P @ f.T + q
         start = model.initial_pos() if self.x is None else self.x[:d]
-        fits = gauss_newton(model, z, self.masks, start, known, self.n_iter)
+        # Warm start at the prediction: three steps suffice for a clean subset (attacked ones fail anyway).
+        fits = gauss_newton(model, z, self.masks, start, known, self.n_iter if self.x is None else 3)
         slot = self.k % self.window
         self.k += 1
         self.cost_buf[slot] = fits.cost
@@ -77,7 +78,7 @@ class SecOpt(Estimator):
             return self._coast(t_s, choice.alarm)
         pos, cov = fits.pos[j], inv_small(fits.info[j])
         self._fuse(pos, cov)
-        attacked = self._flag(z, pos, cov, known) & (~use | choice.alarm)
+        attacked = self._flag_resid(fits.raw[j], fits.jac[j], cov) & (~use | choice.alarm)
         # Subsets that were inconsistent over the window are judged on fresh data after a change.
         self.cost_buf[:, ~choice.passing & ~choice.alarm] = 0.0
         self.dof_buf[:, ~choice.passing & ~choice.alarm] = 0
