@@ -136,6 +136,19 @@ class Estimator:
         var = self.model.sigma_m**2 + np.einsum("pd,de,pe->p", jac, cov_pos, jac)
         return resid * resid / var > self.gate1
 
+    def _studentised(self, resid: np.ndarray, jac: np.ndarray, cov: np.ndarray, use: np.ndarray) -> np.ndarray:
+        """Normalised squared residuals against a fit on ``use`` (NaN readings: 0).
+
+        A reading inside the fit pulled the fit toward itself, so it is judged by
+        its deleted residual ``r / (1 - l)`` (leverage ``l = H C H^T / sigma^2``);
+        one outside by ``r^2 / (sigma^2 (1 + l))``.
+        """
+        sig2 = self.model.sigma_m**2
+        lever = np.einsum("pd,de,pe->p", jac, cov, jac) / sig2
+        scale = np.where(use, np.maximum(1.0 - lever, 1e-6), 1.0 + lever)
+        t = resid * resid / (sig2 * scale)
+        return np.where(np.isnan(t), 0.0, t)
+
     def _estimate(
         self,
         t_s: float,

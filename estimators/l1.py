@@ -21,17 +21,19 @@ residuals from dominating). Every sensor counts once in L, not weighted by
 attacked precise sensors outvote three honest coarse ones (on a scalar group
 L's minimiser is then the plain median). Noise weights enter the refit below.
 Start at the previous estimate (cold start: the model's starting point, with
-eight times the iterations). Then decode: the
+fifteen times the iterations). Then decode: the
 (at most s) readings with the largest l1 residuals that fail
 ``chi2.ppf(1 - alpha, 1)`` are set aside, and the rest are refitted by weighted
 least squares (debiasing: the l1 solution alone is noisier than least squares
-on clean data). The kept readings must pass ``cost <= chi2.ppf(1 - alpha,
-kept - d)``, else alarm (more than s attacked). Attacked: set-aside readings
-that fail the per-sensor test against the refit.
+on clean data). If fewer than s were set aside and a kept reading fails on its
+deleted residual, it is set aside too and the rest refitted once more. The
+kept readings must pass ``cost <= chi2.ppf(1 - alpha, kept - d)``, else alarm
+(more than s attacked). Attacked: set-aside readings that fail the per-sensor
+test against the refit.
 
 RECON: IRLS instead of an LP/SOCP solver (same minimiser; faster, no extra
 dependency), the per-step snapshot window, the decode threshold and the
-debiasing refit are ours. Defaults: n_irls = 3, eps = 0.5, alpha = 0.01.
+debiasing refit are ours. Defaults: n_irls = 2, eps = 0.5, alpha = 0.01.
 """
 
 from __future__ import annotations
@@ -47,7 +49,7 @@ class L1Decoder(Estimator):
     name = "l1"
     secure = True
 
-    def __init__(self, model: MeasurementModel, *, n_irls: int = 3, eps: float = 0.5, **params) -> None:
+    def __init__(self, model: MeasurementModel, *, n_irls: int = 2, eps: float = 0.5, **params) -> None:
         self.n_irls = int(n_irls)
         self.eps = eps
         super().__init__(model, **params)
@@ -78,8 +80,8 @@ class L1Decoder(Estimator):
         if avail.sum() < model.min_sensors:
             return self._estimate(t_s, self.pos, alarm=self.pos is None)
         start = model.initial_pos() if self.pos is None else self.pos
-        # IRLS converges linearly: a cold start (far from the minimiser) gets eight times the budget.
-        pos = self._irls(z, avail, start, known, self.n_irls if self.pos is not None else 8 * self.n_irls)
+        # IRLS converges linearly: a cold start (far from the minimiser) gets fifteen times the budget.
+        pos = self._irls(z, avail, start, known, self.n_irls if self.pos is not None else 15 * self.n_irls)
         resid = z - model.h(pos, known)
         t = np.nan_to_num(resid * resid / model.sigma_m**2, nan=-1.0)
         # Decode: at most s readings, the largest l1 residuals that fail the gate, are
@@ -88,7 +90,16 @@ class L1Decoder(Estimator):
         use = avail.copy()
         use[worst[t[worst] > self.gate1]] = False
         fit = gauss_newton(model, z, use[None, :], pos, known, 2)  # starts at the l1 solution
-        pos, cov, cost = fit.pos[0], inv_small(fit.info[0]), float(fit.cost[0])
+        cov = inv_small(fit.info[0])
+        # Budget left (fewer than s set aside) and a kept reading fails on its deleted residual:
+        # set it aside too (an attack near the gate can hide in the l1 fit).
+        t = self._studentised(fit.raw[0], fit.jac[0], cov, use)
+        worst = int(np.argmax(np.where(use, t, -np.inf)))
+        if (avail & ~use).sum() < self.s and t[worst] > self.gate1 and use.sum() > model.min_sensors:
+            use[worst] = False
+            fit = gauss_newton(model, z, use[None, :], fit.pos[0], known, 2)
+            cov = inv_small(fit.info[0])
+        pos, cost = fit.pos[0], float(fit.cost[0])
         alarm = bool(use.sum() < model.min_sensors or cost > self.chi(int(use.sum()) - model.d))
         flagged = self._flag_resid(fit.raw[0], fit.jac[0], cov)
         bad = flagged if alarm else flagged & ~use
