@@ -39,7 +39,7 @@ import math
 
 import numpy as np
 
-from estimators.bank import EkfBank, GnResult, gauss_newton, inv_small, subset_masks
+from estimators.bank import EkfBank, gauss_newton, inv_small, subset_masks
 from estimators.base import Estimate, Estimator
 from estimators.models import Known, MeasurementModel
 
@@ -83,20 +83,6 @@ class Rarse(Estimator):
         t = resid * resid / (self.model.sigma_m**2 + extra_var)
         return np.where(np.isnan(t), np.inf, t)
 
-    def _studentised(self, fit: GnResult, cov: np.ndarray, use: np.ndarray) -> np.ndarray:
-        """Normalised squared residuals against a fit on ``use``; NaN readings get 0.
-
-        A reading inside the fit pulled the fit toward itself, so it is judged by
-        its deleted residual ``r / (1 - l)`` (leverage ``l = H C H^T / sigma^2``).
-        """
-        sig2 = self.model.sigma_m**2
-        jac = fit.jac[0]
-        lever = np.einsum("pd,de,pe->p", jac, cov, jac) / sig2
-        scale = np.where(use, np.maximum(1.0 - lever, 1e-6), 1.0 + lever)
-        resid = fit.raw[0]
-        t = resid * resid / (sig2 * scale)
-        return np.where(np.isnan(t), 0.0, t)
-
     def _eliminate(
         self, z: np.ndarray, use0: np.ndarray, pos: np.ndarray, n_iter: int, need: int, known: Known
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
@@ -105,7 +91,7 @@ class Rarse(Estimator):
         for _ in range(self.s + 1):  # one reading per round
             refit = gauss_newton(self.model, z, use[None, :], pos, known, n_iter)
             pos, cov = refit.pos[0], inv_small(refit.info[0])
-            t = self._studentised(refit, cov, use)
+            t = self._studentised(refit.raw[0], refit.jac[0], cov, use)
             worst = int(np.argmax(np.where(use, t, -np.inf)))
             if t[worst] <= self.gate1 or use.sum() <= need:
                 break
