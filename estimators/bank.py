@@ -131,11 +131,13 @@ def inv_small(a: np.ndarray) -> np.ndarray:
 
 
 def solve_small(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Batched ``a[j] x[j] = b[j]``; closed form for 1x1 and 2x2 (LAPACK's call overhead dominates there)."""
+    """Batched ``a[j] x[j] = b[j]`` for SYMMETRIC a; closed form for 1x1 and 2x2 (LAPACK's overhead dominates)."""
     d = a.shape[-1]
     if d == 1:
         return b / a[:, 0, :]
     if d == 2:
+        # Flipping both axes times the sign pattern is the adjugate only for symmetric a
+        # (normal matrices, covariances: every caller); general 2x2 systems go to LAPACK.
         adj = a[:, ::-1, ::-1] * _SIGNS2
         det = a[:, 0, 0] * a[:, 1, 1] - a[:, 0, 1] * a[:, 1, 0]
         return (adj @ b[..., None])[..., 0] / det[:, None]

@@ -189,7 +189,11 @@ class AnchorRanges2D(MeasurementModel):
                 mat = 2.0 * np.stack([a[idx[:, 2]] - a[idx[:, 0]], a[idx[:, 2]] - a[idx[:, 1]]], axis=1)
                 det = mat[:, 0, 0] * mat[:, 1, 1] - mat[:, 0, 1] * mat[:, 1, 0]
                 det = np.where(np.abs(det) < 1e-9, 1e-9, det)  # collinear: garbage the consensus rejects
-                inv = mat[:, ::-1, ::-1] * np.array([[1.0, -1.0], [-1.0, 1.0]]) / det[:, None, None]
+                # Adjugate of [[a, b], [c, d]] is [[d, -b], [-c, a]] (mat is not symmetric).
+                adj = np.empty_like(mat)
+                adj[:, 0, 0], adj[:, 0, 1] = mat[:, 1, 1], -mat[:, 0, 1]
+                adj[:, 1, 0], adj[:, 1, 1] = -mat[:, 1, 0], mat[:, 0, 0]
+                inv = adj / det[:, None, None]
                 object.__setattr__(self, "_norm2", np.einsum("pi,pi->p", a, a))
                 cache[key] = (idx, inv)
         return cache[key]

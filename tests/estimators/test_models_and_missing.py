@@ -161,3 +161,18 @@ def test_bad_parameters_are_refused(anchors8: AnchorRanges2D) -> None:
         estimators.create("ekf", anchors8).step(0.0, np.zeros(7))
     with pytest.raises(ValueError, match="positive"):
         ScalarGroup.build([0.1, 0.0])
+
+
+def test_closed_form_trilateration_is_exact_on_clean_ranges() -> None:
+    from estimators.bank import subset_masks
+
+    model = AnchorRanges2D.build(ANCHORS8_NED_M, SIGMA_M)
+    truth = np.array([2.19, 2.7])
+    masks = subset_masks(8, 3)
+    fixes = model.minimal_fixes(model.h(truth), masks)
+    idx = np.nonzero(masks)[1].reshape(-1, 3)
+    xy = ANCHORS8_NED_M[:, :2]
+    u, v = xy[idx[:, 1]] - xy[idx[:, 0]], xy[idx[:, 2]] - xy[idx[:, 0]]
+    area = np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
+    proper = area > 1e-6  # collinear triples have no unique fix
+    np.testing.assert_allclose(fixes[proper], np.broadcast_to(truth, fixes[proper].shape), atol=1e-9)

@@ -1,0 +1,72 @@
+"""Measurement models built from a scenario file (anchors, rangefinder groups, peers).
+
+The wire ids of DESIGN.md ride along as ``sensor_ids``, so a caller can map
+``Estimate.attacked`` (indices into z) back to DISTANCE_SENSOR ids. Imports only
+the shared scenario schema, never a service.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from estimators.models import AnchorRanges2D, AnchorRanges3D, ScalarGroup, TwoVehicleRanges
+from secuav_common.scenario import Scenario, Vehicle, WallDistanceTarget
+from secuav_common.sensor_ids import anchor_sensor_id, peer_sensor_id
+
+
+def _uwb_anchor_ids(scenario: Scenario, vehicle: Vehicle) -> list[int]:
+    uwb = vehicle.sensors.uwb
+    if uwb is None:
+        raise ValueError(f"vehicle {vehicle.sysid} of scenario {scenario.name!r} has no UWB ranging")
+    return sorted(scenario.anchor_positions(uwb.anchors))
+
+
+def anchor_model(scenario: Scenario, sysid: int = 1, dims: int = 2) -> AnchorRanges2D | AnchorRanges3D:
+    """The vehicle's UWB anchor ranges; 2-D uses the hold altitude as the default known height."""
+    vehicle = scenario.vehicle(sysid)
+    ids = _uwb_anchor_ids(scenario, vehicle)
+    table = scenario.anchor_positions(ids)
+    anchors = np.array([table[k] for k in ids])
+    sigma = vehicle.sensors.uwb.noise_std_m if vehicle.sensors.uwb else 0.1
+    wire = tuple(anchor_sensor_id(k) for k in ids)
+    if dims == 3:
+        return AnchorRanges3D.build(anchors, sigma, sensor_ids=wire)
+    target = vehicle.target
+    z = -2.5
+    if target is not None:
+        z = target.pos_ned_m[2] if hasattr(target, "pos_ned_m") else -target.altitude_m
+    return AnchorRanges2D.build(anchors, sigma, vehicle_z_ned_m=z, sensor_ids=wire)
+
+
+def wall_group_model(scenario: Scenario, sysid: int = 1) -> ScalarGroup:
+    """The redundant rangefinder group of a wall-distance target (ReCaP's setting)."""
+    vehicle = scenario.vehicle(sysid)
+    target = vehicle.target
+    if not isinstance(target, WallDistanceTarget):
+        raise ValueError(f"vehicle {sysid} of scenario {scenario.name!r} has no wall_distance target")
+    by_id = {r.id: r for r in vehicle.sensors.rangefinders}
+    return ScalarGroup.build(
+        [max(by_id[i].noise_std_m, 1e-3) for i in target.sensor_ids], sensor_ids=tuple(target.sensor_ids)
+    )
+
+
+def two_vehicle_model(scenario: Scenario, first: int = 1, second: int = 2) -> TwoVehicleRanges:
+    """Both vehicles' anchor ranges plus the range ``first`` measures to ``second`` (seed test case 2)."""
+    v1, v2 = scenario.vehicle(first), scenario.vehicle(second)
+    ids = _uwb_anchor_ids(scenario, v1)
+    if _uwb_anchor_ids(scenario, v2) != ids:
+        raise ValueError("both vehicles must range to the same anchors")
+    table = scenario.anchor_positions(ids)
+    anchors = np.array([table[k] for k in ids])
+    sig_uwb = v1.sensors.uwb.noise_std_m if v1.sensors.uwb else 0.1
+    sig_peer = v1.sensors.inter_vehicle.noise_std_m if v1.sensors.inter_vehicle else 0.1
+    sigma = np.array([sig_uwb] * (2 * len(ids)) + [sig_peer])
+    wire = tuple(anchor_sensor_id(k) for k in ids) * 2 + (peer_sensor_id(second),)
+
+    def hold_z(v: Vehicle) -> float:
+        t = v.target
+        if t is None:
+            return -2.5
+        return t.pos_ned_m[2] if hasattr(t, "pos_ned_m") else -t.altitude_m
+
+    return TwoVehicleRanges.build(anchors, sigma, (hold_z(v1), hold_z(v2)), sensor_ids=wire)
