@@ -1,0 +1,149 @@
+"""Figures from trials: results.json fields, the Table 5.1 layout, and the plots of Figs. 5.3-5.6."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from evaluation.trial import WARMUP_S, TrialResult
+
+RECALL_SIGMAS = 5.0  # an attack counts for recall once it exceeds five noise deviations (issue 6 target)
+
+
+def _nan_to_none(value: float) -> float | None:
+    return None if value is None or not math.isfinite(value) else float(value)
+
+
+def summarise(trials: list[TrialResult]) -> dict[str, dict[str, Any]]:
+    """Per estimator, pooled over trials (scored after the warm-up)."""
+    out: dict[str, dict[str, Any]] = {}
+    for name in trials[0].traces:
+        errs, rerrs, times = [], [], []
+        hit = strong = named = named_true = alarms = steps = 0
+        for tr in trials:
+            trace = tr.traces[name]
+            keep = tr.t_s > WARMUP_S
+            errs.append(trace.err_m[keep])
+            if trace.range_err_m is not None:
+                rerrs.append(trace.range_err_m[keep])
+            times.append(trace.step_time_s)
+            off = np.nan_to_num(tr.offsets_m[keep], nan=0.0)
+            big = np.abs(off) > RECALL_SIGMAS * tr.sigma_m
+            nm = trace.named[keep]
+            hit += int((big & nm).sum())
+            strong += int(big.sum())
+            named += int(nm.sum())
+            named_true += int((nm & (np.abs(off) > 1e-9)).sum())
+            alarms += int(trace.alarm[keep].sum())
+            steps += int(keep.sum())
+        e = np.concatenate(errs)
+        t_us = 1e6 * np.concatenate(times)
+        row: dict[str, Any] = {
+            "rmse_m": float(np.sqrt(np.nanmean(e**2))),
+            "mean_error_m": float(np.nanmean(e)),
+            "p95_error_m": float(np.nanpercentile(e, 95)),
+            "max_error_m": float(np.nanmax(e)),
+            "step_time_us_median": float(np.median(t_us)),
+            "step_time_us_p99": float(np.percentile(t_us, 99)),
+            "attack_detection_precision": _nan_to_none(named_true / named if named else float("nan")),
+            "attack_detection_recall": _nan_to_none(hit / strong if strong else float("nan")),
+            "alarm_fraction": alarms / steps if steps else 0.0,
+        }
+        if rerrs:
+            r = np.concatenate(rerrs)
+            row["inter_vehicle_range"] = {
+                "rmse_m": float(np.sqrt(np.nanmean(r**2))),
+                "mean_error_m": float(np.nanmean(r)),
+                "p95_error_m": float(np.nanpercentile(r, 95)),
+                "max_error_m": float(np.nanmax(r)),
+            }
+        out[name] = row
+    return out
+
+
+def table(summary: dict[str, dict[str, Any]]) -> str:
+    """Laid out like the seed's Table 5.1: absolute errors and time per step."""
+    two = any("inter_vehicle_range" in row for row in summary.values())
+    head = f"{'Estimator':<10} | {'Mean abs. error [m]':>19} | {'Max abs. error [m]':>18}"
+    if two:
+        head += f" | {'Range mean [m]':>14} | {'Range max [m]':>13}"
+    head += f" | {'Time per step [ms]':>18} | {'p99 [ms]':>8}"
+    lines = [head, "-" * len(head)]
+    for name, row in summary.items():
+        line = f"{name:<10} | {row['mean_error_m']:>19.3f} | {row['max_error_m']:>18.3f}"
+        if two:
+            rng = row["inter_vehicle_range"]
+            line += f" | {rng['mean_error_m']:>14.3f} | {rng['max_error_m']:>13.3f}"
+        line += f" | {row['step_time_us_median'] / 1000:>18.3f} | {row['step_time_us_p99'] / 1000:>8.3f}"
+        lines.append(line)
+    lines.append("Time per step: one step of every estimator (ReCaP: its one sensor group), median over all steps.")
+    return "\n".join(lines)
+
+
+def write_results(out_dir: Path, meta: dict[str, Any], summary: dict[str, dict[str, Any]]) -> Path:
+    path = out_dir / "results.json"
+    path.write_text(json.dumps({**meta, "estimators": summary}, indent=2, sort_keys=False) + "\n")
+    return path
+
+
+def plot(out_dir: Path, trial: TrialResult) -> list[Path]:
+    """Fig. 5.3 (the attack over time), Figs. 5.4-5.6 (error over time), and the trajectory with anchors."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = []
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    attacked = np.flatnonzero(np.nanmax(np.abs(np.nan_to_num(trial.offsets_m)), axis=0) > 1e-9)
+    for i in attacked:
+        ax.plot(trial.t_s, trial.offsets_m[:, i], label=f"sensor id {trial.sensor_ids[i]}")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("attack offset [m]")
+    ax.set_title("Attack over time (cf. seed Fig. 5.3)")
+    if len(attacked):
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    paths.append(out_dir / "attack.png")
+    fig.savefig(paths[-1], dpi=110)
+    plt.close(fig)
+
+    n = len(trial.traces)
+    fig, axes = plt.subplots(n, 1, figsize=(7, 1.8 * n), sharex=True, squeeze=False)
+    for ax, (name, tr) in zip(axes[:, 0], trial.traces.items(), strict=True):
+        ax.plot(trial.t_s, tr.err_m, lw=0.8, label="position")
+        if tr.range_err_m is not None:
+            ax.plot(trial.t_s, tr.range_err_m, lw=0.8, label="inter-vehicle range")
+            ax.legend(fontsize=7, loc="upper right")
+        ax.set_ylabel(f"{name}\n|err| [m]", fontsize=8)
+        ax.set_yscale("symlog", linthresh=0.1)
+    axes[-1, 0].set_xlabel("time [s]")
+    fig.suptitle("Absolute error over time per estimator (cf. seed Figs. 5.4-5.6)")
+    fig.tight_layout()
+    paths.append(out_dir / "errors.png")
+    fig.savefig(paths[-1], dpi=110)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(5.5, 5.5))
+    ax.scatter(trial.anchors_xy_m[:, 1], trial.anchors_xy_m[:, 0], marker="x", c="red", label="anchors")
+    ax.plot(trial.truth_xy_m[:, 1], trial.truth_xy_m[:, 0], "k-", lw=1.5, label="truth")
+    for name, tr in trial.traces.items():
+        ax.plot(tr.est_xy_m[:, 1], tr.est_xy_m[:, 0], lw=0.6, alpha=0.7, label=name)
+    ax.set_xlabel("east [m]")
+    ax.set_ylabel("north [m]")
+    ax.set_aspect("equal")
+    pad = 1.0
+    lo, hi = trial.anchors_xy_m.min(axis=0) - pad, trial.anchors_xy_m.max(axis=0) + pad
+    ax.set_xlim(lo[1], hi[1])
+    ax.set_ylim(lo[0], hi[0])
+    ax.legend(fontsize=7)
+    ax.set_title("Trajectory and estimates (first vehicle)")
+    fig.tight_layout()
+    paths.append(out_dir / "trajectory.png")
+    fig.savefig(paths[-1], dpi=110)
+    plt.close(fig)
+    return paths

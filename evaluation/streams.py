@@ -1,0 +1,89 @@
+"""Measurement streams from a headless flightsim flight, framed at the UWB rate.
+
+The vehicles take off and then either hover (the seed's test cases hold their
+target) or fly a gentle moving leg (a sinusoidal north-east velocity of
+amplitude ``MOVING_SPEED_M_S``, swinging about 1.6 m either side of the hold
+point). Every reading the sensors produce is kept; a frame at time t holds,
+per sensor id, the last reading in (t - period, t], NaN if none
+(dropout, out of range, not due). Truth is sampled at the frame times.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from flightsim.api import FlightMode, OffboardSetpoint
+from flightsim.simulation import Simulation
+from secuav_common.scenario import Scenario
+
+Leg = Literal["hover", "moving"]
+MOVING_SPEED_M_S = 0.5
+MOVING_PERIOD_S = 20.0
+
+
+@dataclass(frozen=True, eq=False)
+class VehicleStream:
+    sysid: int
+    t_s: np.ndarray  # (T,) seconds since the evaluation window began
+    truth_ned_m: np.ndarray  # (T, 3)
+    readings: dict[int, np.ndarray]  # wire sensor id -> (T,) metres, NaN = none in that frame
+    laser_down_m: np.ndarray  # (T,) downward rangefinder (height), NaN if the vehicle has none
+
+
+def _altitude(scenario: Scenario, sysid: int) -> float:
+    target = scenario.vehicle(sysid).target
+    if target is None:
+        return 2.5
+    return -target.pos_ned_m[2] if hasattr(target, "pos_ned_m") else float(target.altitude_m)
+
+
+def fly(
+    scenario: Scenario, seed: int, duration_s: float, rate_hz: float, leg: Leg = "hover"
+) -> dict[int, VehicleStream]:
+    """Fly the scenario headless and return each vehicle's framed stream."""
+    sim = Simulation(scenario, seed=seed)
+    sim.take_off(altitude_m=_altitude(scenario, scenario.vehicles[0].sysid))
+    for v in sim.vehicles.values():
+        v.pop_readings()  # the climb is not part of the evaluation window
+    t0 = sim.t_s
+    period = 1.0 / rate_hz
+    n_frames = round(duration_s * rate_hz)
+    sysids = list(sim.vehicles)
+    down = {
+        s: next((r.id for r in scenario.vehicle(s).sensors.rangefinders if r.orientation == "down"), None)
+        for s in sysids
+    }
+    truth = {s: np.zeros((n_frames, 3)) for s in sysids}
+    frames: dict[int, list[dict[int, float]]] = {s: [] for s in sysids}
+    if leg == "moving":
+        for v in sim.vehicles.values():
+            v.offboard_setpoint(OffboardSetpoint(vel_m_s=(0.0, 0.0, 0.0), yaw_rad=0.0))
+            v.set_mode(FlightMode.OFFBOARD)
+
+    def steer(s: Simulation) -> None:
+        tau = s.t_s - t0
+        # cos: the position swings +-(speed * period / 2 pi) around the hold point instead of drifting off.
+        speed = MOVING_SPEED_M_S * math.cos(2.0 * math.pi * tau / MOVING_PERIOD_S)
+        for v in s.vehicles.values():
+            v.offboard_setpoint(OffboardSetpoint(vel_m_s=(speed, speed, 0.0), yaw_rad=0.0))
+
+    for k in range(n_frames):
+        sim.run_until(t0 + (k + 1) * period, steer if leg == "moving" else None)
+        for s, v in sim.vehicles.items():
+            latest: dict[int, float] = {}
+            for r in v.pop_readings():  # in time order: the last one of the frame wins
+                latest[r.sensor_id] = r.distance_m
+            frames[s].append(latest)
+            truth[s][k] = v.truth.pos_ned_m
+    t_rel = (np.arange(n_frames) + 1) * period
+    out = {}
+    for s in sysids:
+        ids = sorted({i for f in frames[s] for i in f})
+        readings = {i: np.array([f.get(i, np.nan) for f in frames[s]], dtype=float) for i in ids}
+        laser = readings.pop(down[s]) if down[s] is not None and down[s] in readings else np.full(n_frames, np.nan)
+        out[s] = VehicleStream(s, t_rel, truth[s], readings, laser)
+    return out
