@@ -1,0 +1,71 @@
+"""secuav-eval end to end on short flights: outputs, reproducibility, bad input."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from evaluation.cli import main
+
+FIELDS = {
+    "rmse_m",
+    "p95_error_m",
+    "max_error_m",
+    "step_time_us_median",
+    "step_time_us_p99",
+    "attack_detection_precision",
+    "attack_detection_recall",
+}
+
+
+def _run(out: Path, *extra: str) -> int:
+    return main(["--trials", "1", "--duration", "12", "--out", str(out), *extra])
+
+
+def test_test_case_1_outputs_and_same_seed_same_numbers(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    args = ("--scenario", "anchors8", "--attack", "type-a", "--param", "start_s=3", "--estimators", "ekf,secekf,rarse")
+    assert _run(tmp_path / "a", *args) == 0
+    printed = capsys.readouterr().out
+    assert "Mean abs. error [m]" in printed and "Time per step [ms]" in printed
+    res = json.loads((tmp_path / "a" / "results.json").read_text())
+    assert res["test_case"] == 1 and set(res["estimators"]) == {"ekf", "secekf", "rarse"}
+    for row in res["estimators"].values():
+        assert set(row) >= FIELDS
+    sec, ekf = res["estimators"]["secekf"], res["estimators"]["ekf"]
+    assert sec["rmse_m"] < 0.15 and ekf["rmse_m"] > 2 * sec["rmse_m"]
+    assert sec["attack_detection_recall"] >= 0.9 and sec["attack_detection_precision"] >= 0.9
+    assert ekf["attack_detection_recall"] == 0.0 and ekf["attack_detection_precision"] is None
+    for png in ("attack.png", "errors.png", "trajectory.png"):
+        assert (tmp_path / "a" / png).stat().st_size > 1000
+    assert _run(tmp_path / "b", *args) == 0
+    again = json.loads((tmp_path / "b" / "results.json").read_text())
+    for name, row in res["estimators"].items():
+        for key in ("rmse_m", "max_error_m", "p95_error_m", "attack_detection_recall"):
+            assert again["estimators"][name][key] == row[key], (name, key)
+
+
+def test_test_case_2_reports_the_inter_vehicle_range(tmp_path: Path) -> None:
+    assert _run(tmp_path, "--scenario", "formation", "--attack", "none", "--estimators", "ekf,secopt") == 0
+    res = json.loads((tmp_path / "results.json").read_text())
+    assert res["test_case"] == 2
+    rng = res["estimators"]["secopt"]["inter_vehicle_range"]
+    assert rng["rmse_m"] < 0.3
+
+
+def test_bad_scenario_names_file_and_field(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: x\nvehicles:\n  - sysid: 1\n    sensors: {uwb: {noise_std_m: -1}}\n")
+    assert _run(tmp_path / "out", "--scenario", str(bad), "--attack", "none") == 2
+    err = capsys.readouterr().err
+    assert "bad.yaml" in err and "noise_std_m" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_bad_attack_and_estimator_are_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert _run(tmp_path / "o1", "--scenario", "anchors8", "--attack", "no-such-profile") == 2
+    assert "no-such-profile" in capsys.readouterr().err
+    assert _run(tmp_path / "o2", "--scenario", "anchors8", "--attack", "none", "--estimators", "ekf,magic") == 2
+    assert "magic" in capsys.readouterr().err
+    assert not (tmp_path / "o1").exists() and not (tmp_path / "o2").exists()
