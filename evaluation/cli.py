@@ -1,6 +1,7 @@
 """``secuav-eval``: offline, reproducible comparison of estimators on one scenario and one attack.
 
     secuav-eval --scenario anchors8 --attack type-a --estimators ekf,secekf,rarse --trials 3 --seed 0 --out out/tc1
+    secuav-eval --scenario wall_hover --attack wall-spoof-two --out out/wall
 
 ``--attack`` takes a profile file, a library name (``secuav-attack list``) or
 ``none``; ``--param k=v`` fills a library profile's parameters. Each trial flies
@@ -28,7 +29,7 @@ import estimators
 from attack_profiles import Engine, library, load_profile
 from attack_profiles.profile import Profile
 from evaluation.report import plot, summarise, table, write_results
-from evaluation.trial import RATE_HZ, TrialResult, is_formation, run_trial
+from evaluation.trial import RATE_HZ, TrialResult, is_formation, is_wall, run_trial
 from secuav_common.loading import InputError
 from secuav_common.scenario import Scenario, load_scenario, resolve_scenario_path
 
@@ -71,8 +72,11 @@ def _profile(spec: str, params: dict[str, Any]) -> Profile | None:
 
 def _check_scenario(scenario: Scenario, source: str) -> None:
     first = scenario.vehicles[0]
+    if is_wall(scenario):
+        return
     if first.sensors.uwb is None:
-        raise InputError(source, "vehicles[0].sensors.uwb", None, "the evaluation needs UWB anchor ranging")
+        reason = "the evaluation needs UWB anchor ranging (or a wall_distance target)"
+        raise InputError(source, "vehicles[0].sensors.uwb", None, reason)
     if is_formation(scenario) and scenario.vehicles[1].sensors.uwb.anchors != first.sensors.uwb.anchors:
         reason = "both vehicles must range to the same anchors"
         raise InputError(source, "vehicles[1].sensors.uwb.anchors", None, reason)
@@ -128,8 +132,9 @@ def main(argv: list[str] | None = None) -> int:
         "duration_s": duration,
         "leg": args.leg,
         "rate_hz": RATE_HZ,
-        "test_case": 2 if is_formation(scenario) else 1,
-        "note": "errors are the first vehicle's horizontal position; step times are measured, so they vary by machine",
+        "test_case": "wall" if is_wall(scenario) else 2 if is_formation(scenario) else 1,
+        "note": "errors: the first vehicle's horizontal position (wall case: the wall distance); "
+        "step times are measured, so they vary by machine",
     }
     write_results(args.out, meta, summary)
     text = table(summary)

@@ -128,21 +128,32 @@ def plot(out_dir: Path, trial: TrialResult) -> list[Path]:
     fig.savefig(paths[-1], dpi=110)
     plt.close(fig)
 
-    fig, ax = plt.subplots(figsize=(5.5, 5.5))
-    ax.scatter(trial.anchors_xy_m[:, 1], trial.anchors_xy_m[:, 0], marker="x", c="red", label="anchors")
-    ax.plot(trial.truth_xy_m[:, 1], trial.truth_xy_m[:, 0], "k-", lw=1.5, label="truth")
-    for name, tr in trial.traces.items():
-        ax.plot(tr.est_xy_m[:, 1], tr.est_xy_m[:, 0], lw=0.6, alpha=0.7, label=name)
-    ax.set_xlabel("east [m]")
-    ax.set_ylabel("north [m]")
-    ax.set_aspect("equal")
-    pad = 1.0
-    lo, hi = trial.anchors_xy_m.min(axis=0) - pad, trial.anchors_xy_m.max(axis=0) + pad
-    ax.set_xlim(lo[1], hi[1])
-    ax.set_ylim(lo[0], hi[0])
-    ax.legend(fontsize=7)
-    ax.set_title("Trajectory and estimates (first vehicle)")
-    fig.tight_layout()
+    if trial.truth_xy_m.shape[1] == 1:  # wall hover: the distance itself over time
+        fig, ax = plt.subplots(figsize=(7, 3.5))
+        ax.plot(trial.t_s, trial.truth_xy_m[:, 0], "k-", lw=1.5, label="truth")
+        for name, tr in trial.traces.items():
+            ax.plot(trial.t_s, tr.est_xy_m[:, 0], lw=0.6, alpha=0.7, label=name)
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel("distance to the wall [m]")
+        ax.legend(fontsize=7)
+        ax.set_title("Wall distance and estimates")
+        fig.tight_layout()
+    else:
+        fig, ax = plt.subplots(figsize=(5.5, 5.5))
+        ax.scatter(trial.anchors_xy_m[:, 1], trial.anchors_xy_m[:, 0], marker="x", c="red", label="anchors")
+        ax.plot(trial.truth_xy_m[:, 1], trial.truth_xy_m[:, 0], "k-", lw=1.5, label="truth")
+        for name, tr in trial.traces.items():
+            ax.plot(tr.est_xy_m[:, 1], tr.est_xy_m[:, 0], lw=0.6, alpha=0.7, label=name)
+        ax.set_xlabel("east [m]")
+        ax.set_ylabel("north [m]")
+        ax.set_aspect("equal")
+        pad = 1.0
+        lo, hi = trial.anchors_xy_m.min(axis=0) - pad, trial.anchors_xy_m.max(axis=0) + pad
+        ax.set_xlim(lo[1], hi[1])
+        ax.set_ylim(lo[0], hi[0])
+        ax.legend(fontsize=7)
+        ax.set_title("Trajectory and estimates (first vehicle)")
+        fig.tight_layout()
     paths.append(out_dir / "trajectory.png")
     fig.savefig(paths[-1], dpi=110)
     plt.close(fig)

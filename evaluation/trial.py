@@ -3,7 +3,9 @@
 Test case 1 (one vehicle with UWB): the 2-D anchor model, height known from the
 downward laser; error = horizontal position error. Test case 2 (two vehicles
 ranging each other): the two-vehicle model; errors for the first vehicle's
-position and for the inter-vehicle range. Ground truth for detection: a
+position and for the inter-vehicle range. Wall hover (seed Fig. A.5, ReCaP's
+setting; no UWB, a wall_distance target): the redundant rangefinder group as
+one scalar; error = |estimated - true distance to the wall plane|. Ground truth for detection: a
 reading the engine changed by more than ``5 sigma`` counts as attacked
 (recall); any change counts for precision.
 """
@@ -18,9 +20,9 @@ import estimators
 from attack_profiles import Engine
 from attack_profiles.profile import Profile
 from estimators.models import MeasurementModel
-from estimators.scenario_models import anchor_model, two_vehicle_model
+from estimators.scenario_models import anchor_model, two_vehicle_model, wall_group_model
 from evaluation.streams import Leg, VehicleStream, fly
-from secuav_common.scenario import Scenario
+from secuav_common.scenario import Scenario, WallDistanceTarget
 from secuav_common.sensor_ids import anchor_sensor_id, peer_sensor_id
 
 RATE_HZ = 10.0
@@ -31,7 +33,7 @@ WARMUP_S = 1.0  # estimators' first second (start-up transient) is not scored
 class EstimatorTrace:
     err_m: np.ndarray  # (T,) position error (first vehicle)
     range_err_m: np.ndarray | None  # (T,) inter-vehicle range error (test case 2)
-    est_xy_m: np.ndarray  # (T, 2) first vehicle's estimated north, east
+    est_xy_m: np.ndarray  # (T, 2) first vehicle's estimated north, east; (T, 1) wall distance
     step_time_s: np.ndarray  # (T,)
     named: np.ndarray  # (T, p) bool: judged attacked
     alarm: np.ndarray  # (T,) bool
@@ -40,12 +42,17 @@ class EstimatorTrace:
 @dataclass(frozen=True, eq=False)
 class TrialResult:
     t_s: np.ndarray
-    truth_xy_m: np.ndarray  # (T, 2) first vehicle
+    truth_xy_m: np.ndarray  # (T, 2) first vehicle; (T, 1) wall distance in the wall case
     anchors_xy_m: np.ndarray
     offsets_m: np.ndarray  # (T, p) what the attack added (NaN where a reading was missing or dropped)
     sigma_m: np.ndarray  # (p,)
     sensor_ids: tuple[int, ...]
     traces: dict[str, EstimatorTrace]
+
+
+def is_wall(scenario: Scenario) -> bool:
+    first = scenario.vehicles[0]
+    return first.sensors.uwb is None and isinstance(first.target, WallDistanceTarget)
 
 
 def is_formation(scenario: Scenario) -> bool:
@@ -83,6 +90,8 @@ def run_trial(
         z = np.hstack([z1[:, :-1], z2, z1[:, -1:]])
         known = np.column_stack([-s1.laser_down_m, -s2.laser_down_m])
         truth2 = s2.truth_ned_m
+    elif is_wall(scenario):
+        return _wall_trial(scenario, s1, engine, names)
     else:
         model = anchor_model(scenario, first)
         ids = list(model.sensor_ids)
@@ -141,3 +150,35 @@ def _run_estimator(
             true_range = float(np.linalg.norm(s1.truth_ned_m[k] - truth2[k]))
             rerr[k] = abs(est_range - true_range)
     return EstimatorTrace(err, rerr, xy, times, named, alarm)
+
+
+def _wall_trial(scenario: Scenario, s1: VehicleStream, engine: Engine | None, names: list[str]) -> TrialResult:
+    target = scenario.vehicles[0].target
+    assert isinstance(target, WallDistanceTarget)
+    model = wall_group_model(scenario, s1.sysid)
+    ids = list(target.sensor_ids)
+    clean = _matrix(s1, ids)
+    z = _attack(engine, s1, clean, ids)
+    wall = scenario.wall(target.wall)
+    # Distance to the plane along its normal (the group faces the wall while holding).
+    true_d = (s1.truth_ned_m - np.asarray(wall.point_ned_m)) @ np.asarray(wall.normal_ned)
+    traces = {}
+    for name in names:
+        est = estimators.create(name, model)
+        n = z.shape[0]
+        d_est, times = np.full(n, np.nan), np.zeros(n)
+        named, alarm = np.zeros(z.shape, dtype=bool), np.zeros(n, dtype=bool)
+        for k in range(n):
+            out = est.step(float(s1.t_s[k]), z[k])
+            d_est[k], times[k], alarm[k] = out.position_m[0], out.step_time_s, out.alarm
+            named[k, list(out.attacked)] = True
+        traces[name] = EstimatorTrace(np.abs(d_est - true_d), None, d_est[:, None], times, named, alarm)
+    return TrialResult(
+        t_s=s1.t_s,
+        truth_xy_m=true_d[:, None],
+        anchors_xy_m=np.zeros((0, 2)),
+        offsets_m=z - clean,
+        sigma_m=model.sigma_m,
+        sensor_ids=model.ids(),
+        traces=traces,
+    )

@@ -69,3 +69,13 @@ def test_bad_attack_and_estimator_are_refused(tmp_path: Path, capsys: pytest.Cap
     assert _run(tmp_path / "o2", "--scenario", "anchors8", "--attack", "none", "--estimators", "ekf,magic") == 2
     assert "magic" in capsys.readouterr().err
     assert not (tmp_path / "o1").exists() and not (tmp_path / "o2").exists()
+
+
+def test_wall_hover_group(tmp_path: Path) -> None:
+    args = ("--scenario", "wall_hover", "--attack", "wall-spoof-two", "--param", "start_s=2")
+    assert _run(tmp_path, *args, "--estimators", "ekf,recap") == 0
+    res = json.loads((tmp_path / "results.json").read_text())
+    assert res["test_case"] == "wall"
+    recap, ekf = res["estimators"]["recap"], res["estimators"]["ekf"]
+    assert recap["max_error_m"] < 0.1 and ekf["max_error_m"] > 0.5
+    assert recap["attack_detection_recall"] >= 0.9
