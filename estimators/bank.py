@@ -88,6 +88,7 @@ def gauss_newton(
     known: Known = None,
     n_iter: int = 6,
     tol_m: float = 1e-4,
+    at_start: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> GnResult:
     """Weighted least squares per subset, all subsets at once (see module docstring)."""
     use = masks & ~np.isnan(z)
@@ -97,7 +98,12 @@ def gauss_newton(
     # Tiny Levenberg damping keeps rank-deficient subsets (too few readings) finite.
     damp = 1e-9 * np.eye(d)
     for it in range(n_iter + 1):
-        hx, jac = model.h_jac(pos, known)
+        # ``at_start``: h and its Jacobian at ``start``, when the caller already has them.
+        if it == 0 and at_start is not None:
+            hx = np.broadcast_to(at_start[0], (n_sub, model.p))
+            jac = np.broadcast_to(at_start[1], (n_sub, model.p, d))
+        else:
+            hx, jac = model.h_jac(pos, known)
         raw = z - hx
         r = np.where(use, raw, 0.0)
         jtw = np.swapaxes(jac * w[..., None], 1, 2)
@@ -185,10 +191,15 @@ class EkfBank:
         self.x = self.x @ f.T
         self.P = f @ self.P @ f.T + q
 
-    def update(self, z: np.ndarray, known: Known = None) -> tuple[np.ndarray, np.ndarray]:
-        """Update every filter with its own sensors; returns (NIS, dof) per filter."""
+    def update(
+        self, z: np.ndarray, known: Known = None, at_prior: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Update every filter with its own sensors; returns (NIS, dof) per filter.
+
+        ``at_prior``: h and its Jacobian at the (single) filter's predicted position, if already at hand.
+        """
         if self.x.shape[0] == 1:
-            return self._update_one(z, known)
+            return self._update_one(z, known, at_prior)
         model, d = self.model, self.d
         avail = ~np.isnan(z)
         use = self.masks & avail
@@ -209,14 +220,16 @@ class EkfBank:
         self.P = p_post
         return np.maximum(nis, 0.0), use.sum(axis=1)
 
-    def _update_one(self, z: np.ndarray, known: Known) -> tuple[np.ndarray, np.ndarray]:
+    def _update_one(
+        self, z: np.ndarray, known: Known, at_prior: tuple[np.ndarray, np.ndarray] | None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Single filter: the gain form on the used rows only (cheaper than two n x n inverses)."""
         use = self.masks[0] & ~np.isnan(z)
         n_used = int(use.sum())
         if n_used == 0:
             return np.zeros(1), np.zeros(1, dtype=int)
         d, x, P = self.d, self.x[0], self.P[0]
-        hx, jac = self.model.h_jac(x[:d], known)
+        hx, jac = self.model.h_jac(x[:d], known) if at_prior is None else at_prior
         nu = (z - hx)[use]
         h_rows = jac[use]
         pht = P[:, :d] @ h_rows.T  # (n, m)

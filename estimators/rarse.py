@@ -30,7 +30,12 @@ Each step:
    available - s readings (at most s + 1 rounds). The kept set must pass
    ``cost <= chi2.ppf(1 - alpha, |I| - d)`` as a whole, else alarm; then update a constant-velocity EKF with the
    readings of I only. Attacked: readings outside I that fail the test.
-Defaults: alpha = 0.01, tau = 2 sigma, max_hypotheses = 128, q = 0.5 m/s^2.
+5. Persistent small attacks (RECON, our addition): each sensor's innovation
+   against the EKF prediction, normalised, goes into a window of T steps; a
+   sensor whose window mean m over n readings fails ``n m^2 > chi2.ppf(1 - alpha, 1)``
+   is left out of every consensus (if at most s sensors fail) and reported.
+   A single step cannot see a 3-sigma bias; the window can.
+Defaults: alpha = 0.01, T = 10, tau = 2 sigma, max_hypotheses = 128, q = 0.5 m/s^2.
 """
 
 from __future__ import annotations
@@ -55,9 +60,11 @@ class Rarse(Estimator):
         tau_sigmas: float = 2.0,
         max_hypotheses: int = 128,
         seed: int = 0,
+        window: int = 10,
         **params,
     ) -> None:
         self.tau_sigmas = tau_sigmas
+        self.window = int(window)
         self.max_hypotheses = int(max_hypotheses)
         self.seed = seed
         super().__init__(model, **params)
@@ -74,6 +81,13 @@ class Rarse(Estimator):
         self.ekf = EkfBank(self.model, np.ones((1, self.model.p), dtype=bool), self.q_mps2)
         self.P0 = P0
         self.started = x0 is not None
+        # Ring buffer of signed normalised innovations (0 = missing) with running sums, so the
+        # window mean costs O(p) per step.
+        self.innov = np.zeros((self.window, self.model.p))
+        self.seen = np.zeros((self.window, self.model.p), dtype=bool)
+        self.innov_sum = np.zeros(self.model.p)
+        self.seen_sum = np.zeros(self.model.p, dtype=int)
+        self.k = 0
         if x0 is not None:
             self.ekf.seed(x0, P0)
 
@@ -83,13 +97,42 @@ class Rarse(Estimator):
         t = resid * resid / (self.model.sigma_m**2 + extra_var)
         return np.where(np.isnan(t), np.inf, t)
 
+    def _drifting(self, z: np.ndarray, at_pred: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        """Sensors whose innovations against the prediction keep one sign over the window.
+
+        A bias of a few sigma hides inside one step's consensus gate but not in the
+        window mean of normalised innovations, ~N(0, 1/n) for an honest sensor.
+        """
+        d = self.model.d
+        P = self.ekf.P[0]
+        hx, jac = at_pred
+        var = self.model.sigma_m**2 + np.einsum("pd,de,pe->p", jac, P[:d, :d], jac)
+        slot = self.k % self.window
+        self.k += 1
+        seen = ~np.isnan(z)
+        value = np.where(seen, z - hx, 0.0) / np.sqrt(var)
+        self.innov_sum += value - self.innov[slot]
+        self.seen_sum += seen.astype(int) - self.seen[slot]
+        self.innov[slot], self.seen[slot] = value, seen
+        n = self.seen_sum
+        # n m^2 with m = sum / n is sum^2 / n.
+        return (n >= 3) & (self.innov_sum * self.innov_sum > self.gate1 * n)
+
     def _eliminate(
-        self, z: np.ndarray, use0: np.ndarray, pos: np.ndarray, n_iter: int, need: int, known: Known
+        self,
+        z: np.ndarray,
+        use0: np.ndarray,
+        pos: np.ndarray,
+        n_iter: int,
+        need: int,
+        known: Known,
+        at_pos: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
         """Backward elimination on the consensus; None if the kept set is inconsistent as a whole."""
         use = use0.copy()
-        for _ in range(self.s + 1):  # one reading per round
-            refit = gauss_newton(self.model, z, use[None, :], pos, known, n_iter)
+        for round_ in range(self.s + 1):  # one reading per round
+            first = at_pos if round_ == 0 else None
+            refit = gauss_newton(self.model, z, use[None, :], pos, known, n_iter, at_start=first)
             pos, cov = refit.pos[0], inv_small(refit.info[0])
             t = self._studentised(refit.raw[0], refit.jac[0], cov, use)
             worst = int(np.argmax(np.where(use, t, -np.inf)))
@@ -115,6 +158,10 @@ class Rarse(Estimator):
         gate = self.gate1
         t = self._consensus(z, hyps, (self.tau_sigmas * model.sigma_m) ** 2, known)
         inlier = t <= gate
+        at_pred = model.h_jac(start, known) if self.started else None  # shared by three users below
+        drifting = self._drifting(z, at_pred) if at_pred is not None else np.zeros(model.p, dtype=bool)
+        if 0 < drifting.sum() <= self.s:
+            inlier &= ~drifting
         size = inlier.sum(axis=1)
         score = np.where(inlier, t, 0.0).sum(axis=1) - 1e12 * size
         best = int(np.argmin(score))
@@ -123,13 +170,13 @@ class Rarse(Estimator):
             return self._coast(t_s, z, known)
         # Refit from the prediction (one Gauss-Newton step is noise-level exact there); if that
         # fails, or on a cold start, iterate from the winning hypothesis instead.
-        kept = self._eliminate(z, inlier[best], start, 1, need, known) if self.started else None
+        kept = self._eliminate(z, inlier[best], start, 1, need, known, at_pred) if self.started else None
         if kept is None:
             kept = self._eliminate(z, inlier[best], hyps[best], self.n_iter, need, known)
         if kept is None:
             return self._coast(t_s, z, known)
         use, pos, cov, t = kept
-        attacked = avail & ~use & (t > gate)
+        attacked = avail & ~use & ((t > gate) | drifting)
         if not self.started:
             P0 = self.P0.copy()
             P0[:d, :d] = cov + 1e-6 * np.eye(d)
@@ -137,7 +184,7 @@ class Rarse(Estimator):
             self.started = True
         else:
             self.ekf.masks = use[None, :]
-            self.ekf.update(z, known)
+            self.ekf.update(z, known, at_pred)
         x, P = self.ekf.x[0], self.ekf.P[0]
         return self._estimate(t_s, x[:d], x[d:], P, attacked, False, use)
 
