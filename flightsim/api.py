@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import IntEnum, StrEnum
-from typing import Literal, Protocol
+from typing import Literal, Protocol, runtime_checkable
 
 from secuav_common.scenario import Home
 from secuav_common.scenario import Vehicle as VehicleConfig
@@ -213,3 +213,14 @@ class VehicleModel(Protocol):
     def pop_status_texts(self) -> list[tuple[int, str]]:
         """(MAV_SEVERITY, text) events: crash, failsafe, mode refusals."""
         ...
+
+
+@runtime_checkable
+class Repositionable(Protocol):
+    """Optional for a VehicleModel: MAV_CMD_DO_REPOSITION (MAVSDK ``goto_location``).
+
+    Fly to ``pos_ned_m`` and hold there in HOLD mode, as PX4 does; the MAVLink
+    layer answers UNSUPPORTED for vehicles without it.
+    """
+
+    def reposition(self, pos_ned_m: Vec3, yaw_rad: float | None = None) -> Outcome: ...

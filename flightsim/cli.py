@@ -1,0 +1,169 @@
+"""``secuav-sim [SCENARIO] [--speed X] [--mavlink URL]... [--broker URL] [--truth-csv F] [--duration S] [--seed N]``.
+
+Runs every vehicle of a scenario with a PX4 personality on MAVLink 2.
+Vehicle i (sysid i+1) sends to the proxy at ``udpout://127.0.0.1:(14560+i)``
+by default; one ``--mavlink URL`` moves vehicle i to URL's port + i, or give
+one ``--mavlink`` per vehicle. Bad input is one line on stderr and exit 2;
+nothing starts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import logging
+import signal
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from secuav_common.broker import parse_broker_url
+from secuav_common.loading import InputError
+from secuav_common.ports import proxy_vehicle_url
+from secuav_common.scenario import DEFAULT_SCENARIO, Scenario, load_scenario
+from secuav_common.urls import Endpoint, parse_endpoint
+
+PROG = "secuav-sim"
+_STD_ATTRS = set(logging.LogRecord("", 0, "", 0, "", None, None).__dict__) | {"message", "asctime"}
+
+
+class KeyValueFormatter(logging.Formatter):
+    """``12:00:01.234 INFO vehicle.ready sysid=1 mavlink=udpout://...``: greppable, one event per line."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        stamp = time.strftime("%H:%M:%S", time.localtime(record.created)) + f".{int(record.msecs):03d}"
+        extras = " ".join(f"{k}={v}" for k, v in record.__dict__.items() if k not in _STD_ATTRS)
+        line = f"{stamp} {record.levelname} {record.getMessage()}" + (f" {extras}" if extras else "")
+        if record.exc_info:
+            line += "\n" + self.formatException(record.exc_info)
+        return line
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=PROG, description="Run the vehicles of a scenario, PX4-like over MAVLink 2.")
+    p.add_argument(
+        "scenario",
+        nargs="?",
+        default=str(DEFAULT_SCENARIO),
+        help="scenario file or bundled name (wall_hover, anchors8, formation); default wall_hover",
+    )
+    p.add_argument(
+        "--speed",
+        type=float,
+        default=1.0,
+        help="clock factor: 1 = wall clock (default, needed with MAVSDK), 0 = as fast as possible",
+    )
+    p.add_argument("--fast", action="store_true", help="as fast as possible (same as --speed 0)")
+    p.add_argument(
+        "--mavlink",
+        action="append",
+        metavar="URL",
+        default=[],
+        help="udpout://HOST:PORT or udpin://HOST:PORT; once (vehicle i uses PORT+i) or once per vehicle; "
+        "default udpout://127.0.0.1:14560+i (the proxy)",
+    )
+    p.add_argument("--broker", metavar="URL", help="publish ground truth to mqtt://HOST[:PORT] (secuav/v<sysid>/truth)")
+    p.add_argument("--truth-csv", metavar="FILE", type=Path, help="write ground truth to a CSV file")
+    p.add_argument("--truth-hz", type=float, default=20.0, help="ground-truth sample rate (default 20 Hz)")
+    p.add_argument(
+        "--duration",
+        type=float,
+        metavar="S",
+        help="stop after S simulated seconds (default: run until stopped; with --speed 0 the scenario's duration_s)",
+    )
+    p.add_argument("--seed", type=int, help="noise seed (default: the scenario's seed)")
+    p.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
+    p.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
+    return p  # fmt: skip
+
+
+def endpoints_for(urls: Sequence[str], scenario: Scenario) -> list[Endpoint]:
+    """One endpoint per vehicle: the default plan, one URL offset by the vehicle index, or one URL each."""
+    n = len(scenario.vehicles)
+    if not urls:
+        return [parse_endpoint(proxy_vehicle_url(i)) for i in range(n)]
+    parsed = [parse_endpoint(u) for u in urls]
+    if len(parsed) == n:
+        return parsed
+    if len(parsed) == 1:
+        base = parsed[0]
+        if base.port + n - 1 > 65535:
+            raise ValueError(f"--mavlink {urls[0]}: port {base.port} + {n - 1} vehicles exceeds 65535")
+        return [Endpoint(base.mode, base.host, base.port + i) for i in range(n)]
+    raise ValueError(f"--mavlink given {len(parsed)} times; give it once or once per vehicle ({n})")
+
+
+def _setup_logging(verbose: int, quiet: bool) -> None:
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(KeyValueFormatter())
+    root = logging.getLogger()
+    root.handlers[:] = [handler]
+    root.setLevel(logging.WARNING if quiet else logging.DEBUG if verbose else logging.INFO)
+    if verbose < 2:
+        for noisy in ("aiomqtt", "asyncio", "jsbsim"):
+            logging.getLogger(noisy).setLevel(logging.WARNING)
+
+
+def _fail(message: str, code: int = 2) -> int:
+    print(f"{PROG}: error: {message}", file=sys.stderr)
+    return code
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        scenario = load_scenario(args.scenario)
+        endpoints = endpoints_for(args.mavlink, scenario)
+        broker = parse_broker_url(args.broker) if args.broker else None
+    except (InputError, ValueError) as exc:
+        return _fail(str(exc))
+    speed = 0.0 if args.fast else args.speed
+    if not speed >= 0:
+        return _fail(f"--speed {args.speed}: must be 0 (as fast as possible) or positive")
+    if args.duration is not None and not args.duration > 0:
+        return _fail(f"--duration {args.duration}: must be positive")
+    if not args.truth_hz > 0:
+        return _fail(f"--truth-hz {args.truth_hz}: must be positive")
+    duration = args.duration if args.duration is not None else (scenario.duration_s if speed == 0 else None)
+    _setup_logging(args.verbose, args.quiet)
+
+    from flightsim.runner import RunConfig  # after validation: bad input never pays for JSBSim
+
+    config = RunConfig(scenario, endpoints, args.seed, speed, duration, broker, args.truth_csv, args.truth_hz)
+    try:
+        return asyncio.run(_serve(config))
+    except OSError as exc:
+        return _fail(f"cannot open MAVLink socket: {exc.strerror or exc}", 1)
+    except KeyboardInterrupt:
+        return 130
+
+
+async def _serve(config: object) -> int:
+    from flightsim.runner import RunConfig, SimRunner
+
+    assert isinstance(config, RunConfig)
+    log = logging.getLogger(PROG)
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError):
+            loop.add_signal_handler(sig, stop.set)
+    mode = "as fast as possible" if config.speed == 0 else f"{config.speed:g}x wall clock"
+    log.info("sim.start", extra={"scenario": config.scenario.name, "vehicles": len(config.scenario.vehicles),
+                                 "clock": mode, "seed": config.seed if config.seed is not None
+                                 else config.scenario.seed})  # fmt: skip
+    async with SimRunner(config) as runner:
+        summary = await runner.run(stop)
+    log.info("sim.stop", extra={
+        "sim_t_s": round(summary.sim_t_s, 2), "wall_s": round(summary.wall_s, 2),
+        "rtf": round(summary.real_time_factor, 2), "frames_sent": sum(summary.frames_sent.values()),
+        "frames_received": sum(summary.frames_received.values()), "malformed": sum(summary.malformed.values()),
+        "crashed": ",".join(f"v{s}" for s in summary.crashed) or "none",
+    })  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
