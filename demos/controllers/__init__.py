@@ -1,0 +1,1 @@
+"""MAVSDK controllers the demos fly; each is a plain script (also linked from examples/)."""

@@ -1,0 +1,84 @@
+"""Score a demo flight from ground truth (the simulator's, never the controller's belief)."""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from secuav_common.scenario import Scenario
+
+
+@dataclass(frozen=True, slots=True)
+class Window:
+    """Wall-clock times (epoch s): when the hold began, and the scored part of it."""
+
+    start_s: float
+    end_s: float
+    hold_s: float
+
+
+def wall_distance_m(scenario: Scenario, pos_ned_m: list[float], sysid: int = 1) -> float:
+    """Signed distance from the vehicle to the wall its target names (positive on the free side)."""
+    vehicle = next(v for v in scenario.vehicles if v.sysid == sysid)
+    wall_name = getattr(vehicle.target, "wall", None)
+    wall = next(w for w in scenario.world.walls if wall_name in (None, w.name))
+    p, n = np.asarray(pos_ned_m, float), np.asarray(wall.normal_ned, float)
+    return float(np.dot(p - np.asarray(wall.point_ned_m, float), n / np.linalg.norm(n)))
+
+
+def _rms_max(errors: list[float]) -> dict[str, float]:
+    if not errors:
+        return {"rms": math.nan, "max": math.nan, "samples": 0}
+    a = np.abs(np.asarray(errors))
+    return {"rms": round(float(np.sqrt(np.mean(a**2))), 4), "max": round(float(a.max()), 4), "samples": len(errors)}
+
+
+def distance_metrics(
+    scenario: Scenario,
+    truth: list[tuple[float, dict[str, Any]]],
+    steps: list[dict[str, Any]],
+    estimates: list[tuple[float, dict[str, Any]]],
+    window: Window,
+    sysid: int = 1,
+) -> dict[str, Any]:
+    """Figures of one wall-hover flight; series are kept (relative to the hold) for the plots."""
+    vehicle = next(v for v in scenario.vehicles if v.sysid == sysid)
+    target_m = float(getattr(vehicle.target, "distance_m", 2.5))
+    true_series = [(t, wall_distance_m(scenario, d["pos_ned_m"], sysid)) for t, d in truth]
+    scored = [(t, d) for t, d in true_series if window.start_s <= t <= window.end_s]
+    seen = [(float(s["wall_s"]), s["distance_m"]) for s in steps if s.get("distance_m") is not None]
+    seen_scored = [d for t, d in seen if window.start_s <= t <= window.end_s]
+    flagged_by_controller: Counter[int] = Counter(i for s in steps for i in s.get("flagged", []))
+    flagged_by_proxy: Counter[int] = Counter()
+    step_us: list[float] = []
+    for t, e in estimates:
+        if window.start_s <= t <= window.end_s:
+            flagged_by_proxy.update(int(i) for i in e.get("attacked", []))
+        if e.get("step_time_s") is not None:
+            step_us.append(1e6 * float(e["step_time_s"]))
+    n_est = sum(1 for t, _ in estimates if window.start_s <= t <= window.end_s)
+    return {
+        "target_distance_m": target_m,
+        "distance_error_m": _rms_max([d - target_m for _, d in scored]),
+        "min_distance_m": round(min((d for _, d in scored), default=math.nan), 4),
+        "collided": any(bool(d.get("collided")) for _, d in truth),
+        "seen_error_m": _rms_max([d - target_m for d in seen_scored]),
+        "flagged_by_proxy": {str(k): round(v / n_est, 3) for k, v in sorted(flagged_by_proxy.items())} if n_est else {},
+        "flagged_by_controller_steps": {str(k): v for k, v in sorted(flagged_by_controller.items())},
+        "secure_step_time_us": {
+            "median": round(float(np.median(step_us)), 1) if step_us else None,
+            "p99": round(float(np.percentile(step_us, 99)), 1) if step_us else None,
+        },
+        "window_s": {
+            "hold_to_scored": round(window.start_s - window.hold_s, 2),
+            "scored": round(window.end_s - window.start_s, 2),
+        },
+        "series": {
+            "truth": [(round(t - window.start_s, 3), round(d, 4)) for t, d in true_series],
+            "seen": [(round(t - window.start_s, 3), round(d, 4)) for t, d in seen],
+        },
+    }

@@ -1,0 +1,1 @@
+../demos/controllers/wall_hover.py
