@@ -97,7 +97,7 @@ def _set_mode(p: Px4Personality, c: Command) -> Outcome:
     if not base & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
         return Outcome(Result.DENIED, "Mode change denied: only PX4 custom modes are supported")
     mode = modes.decode(_whole(c.params[1]), _whole(c.params[2]))
-    if isinstance(mode, str):
+    if not isinstance(mode, FlightMode):  # FlightMode is a StrEnum: test for it, not for str
         return Outcome(Result.DENIED, f"Mode change denied: {mode}")
     return p.vehicle.set_mode(mode)
 

@@ -179,7 +179,8 @@ class Px4Personality:
             self.missions.handle(msg, now_wall_s)
         elif kind == "SET_MODE":
             mode = modes.decode_custom_mode(msg.custom_mode)
-            outcome = self.vehicle.set_mode(mode) if not isinstance(mode, str) else Outcome(Result.DENIED, mode)
+            # FlightMode is a StrEnum, so the refusal reason is told apart by type, not by str.
+            outcome = self.vehicle.set_mode(mode) if isinstance(mode, FlightMode) else Outcome(Result.DENIED, mode)
             self._report(outcome)
         elif kind == "TIMESYNC" and msg.tc1 == 0:
             self.send(self.encoder.mav.timesync_encode(round(self.now_s * 1e9), msg.ts1))
