@@ -11,33 +11,34 @@ import signal
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
-from demos import wall_hover
-from demos.report import plot_wall_hover, write_report
+from demos import formation, localise, wall_hover
+from demos.flight import Case, Options
+from demos.report import plot, write_report
 from demos.stack import Ports
 
-DEMOS = ("wall-hover",)
+DEMOS: dict[str, ModuleType] = {"wall-hover": wall_hover, "localise": localise, "formation": formation}
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="secuav-demo", description=__doc__.splitlines()[0])
-    p.add_argument("demo", choices=DEMOS)
-    p.add_argument("--attack", default=None, help="library profile name or profile file; 'none' for no attack "
-                   f"(default: {wall_hover.DEFAULT_ATTACK})")  # fmt: skip
+    p.add_argument("demo", choices=list(DEMOS))
+    p.add_argument("--attack", default=None,
+                   help="library profile name or profile file; 'none' for no attack (default: the demo's)")  # fmt: skip
     p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
                    help="parameter of a library attack profile (JSON value), repeatable")  # fmt: skip
-    p.add_argument("--secure", default=None,
-                   help=f"estimator of the secure stage, or 'off' (default: {wall_hover.DEFAULT_SECURE})")  # fmt: skip
+    p.add_argument("--secure", default=None, help="estimator of the secure stage, or 'off' (default: the demo's)")
     p.add_argument("--matrix", action="store_true", help="all four combinations of attack on/off and secure on/off "
                    "(the default when neither --attack nor --secure is given)")  # fmt: skip
     p.add_argument("--seconds", type=float, default=40.0, help="hold time per flight (default 40)")
     p.add_argument("--settle", type=float, default=5.0, help="seconds of hold before the attack and the scoring start")
     p.add_argument("--seed", type=int, default=None, help="simulator noise seed (default: the scenario's)")
-    p.add_argument("--out", type=Path, default=Path("out/demo"), help="output directory (default out/demo)")
+    p.add_argument("--out", type=Path, default=None, help="output directory (default out/<demo>)")
     p.add_argument("--base-port", type=int, default=None,
-                   help="ports BASE (proxy), BASE+1 (MAVSDK), BASE+2 (GCS), BASE+3 (MQTT) "
-                   "instead of the port plan")  # fmt: skip
+                   help="ports BASE+i (proxy), BASE+10+i (MAVSDK), BASE+20 (GCS), BASE+21 (MQTT) "
+                   "instead of DESIGN.md's port plan")  # fmt: skip
     p.add_argument("-v", "--verbose", action="store_true")
     return p
 
@@ -47,7 +48,7 @@ def _params(pairs: Sequence[str]) -> dict[str, Any]:
     for pair in pairs:
         key, sep, text = pair.partition("=")
         if not sep or not key:
-            raise SystemExit(f"secuav-demo: --param {pair!r}: expected KEY=VALUE")
+            raise ValueError(f"--param {pair!r}: expected KEY=VALUE")
         try:
             out[key] = json.loads(text)
         except ValueError:
@@ -55,23 +56,35 @@ def _params(pairs: Sequence[str]) -> dict[str, Any]:
     return out
 
 
+def cases(demo: ModuleType, attack: str | None, secure: str | None, matrix: bool) -> list[Case]:
+    hit = None if attack == "none" else (attack or demo.DEFAULT_ATTACK)
+    if not matrix:
+        return [Case(hit, secure or demo.DEFAULT_SECURE)]
+    on = secure if secure not in (None, "off") else demo.DEFAULT_SECURE
+    hit = hit or demo.DEFAULT_ATTACK
+    return [Case(None, "off"), Case(hit, "off"), Case(None, on), Case(hit, on)]
+
+
 async def _main(args: argparse.Namespace) -> int:
+    demo = DEMOS[args.demo]
+    out = args.out or Path("out") / args.demo
     matrix = args.matrix or (args.attack is None and args.secure is None)
-    attack = None if args.attack == "none" else (args.attack or wall_hover.DEFAULT_ATTACK)
-    secure = args.secure or wall_hover.DEFAULT_SECURE
     base = args.base_port
-    ports = Ports() if base is None else Ports(base, base + 1, base + 2, base + 3)
-    opts = wall_hover.Options(
-        out=args.out, seconds=args.seconds, settle_s=args.settle, seed=args.seed, ports=ports,
-        attack_params=_params(args.param),
-    )  # fmt: skip
-    selected = wall_hover.cases(attack, secure, matrix)
-    results = await wall_hover.run(selected, opts, progress=lambda line: print(line, flush=True))
-    settings = {"attack": attack, "secure": secure, "matrix": matrix, "seconds": args.seconds, "settle_s": args.settle,
-                "seed": args.seed, "attack_params": opts.attack_params}  # fmt: skip
-    report = write_report(args.out, "wall-hover", settings, results)
-    figure = plot_wall_hover(args.out, results)
-    print(f"report: {report}\nplot:   {figure}")
+    ports = Ports() if base is None else Ports(base, base + 10, base + 20, base + 21)
+    params = {**getattr(demo, "DEFAULT_PARAMS", {}), **_params(args.param)}
+    opts = Options(out=out, seconds=args.seconds, settle_s=args.settle, seed=args.seed, ports=ports,
+                   attack_params=params)  # fmt: skip
+    selected = cases(demo, args.attack, args.secure, matrix)
+    results = []
+    for i, case in enumerate(selected, 1):
+        print(f"[{i}/{len(selected)}] {args.demo} {case.slug} (attack {case.attack or 'none'}, secure {case.secure})",
+              flush=True)  # fmt: skip
+        figures = await demo.run_case(case, opts)
+        print(f"    {demo.summary(figures)}", flush=True)
+        results.append(figures)
+    settings = {"matrix": matrix, "seconds": args.seconds, "settle_s": args.settle, "seed": args.seed,
+                "attack_params": params, "cases": [[c.attack, c.secure] for c in selected]}  # fmt: skip
+    print(f"report: {write_report(out, args.demo, settings, results)}\nplot:   {plot(out, args.demo, results)}")
     return 0
 
 
@@ -89,7 +102,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except asyncio.CancelledError:
         print("secuav-demo: interrupted; every process was stopped", file=sys.stderr)
         return 130
-    except (RuntimeError, TimeoutError, ValueError) as exc:
+    except (RuntimeError, TimeoutError, ValueError, OSError) as exc:
         print(f"secuav-demo: {exc}", file=sys.stderr)
         return 1
     finally:

@@ -24,29 +24,36 @@ def write_report(out: Path, demo: str, settings: dict[str, Any], results: list[d
     return path
 
 
-def plot_wall_hover(out: Path, results: list[dict[str, Any]]) -> Path:
-    """True distance to the wall and what the controller saw, every case on one figure."""
-    fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
-    for r in results:
-        label = r["case"].replace("_", ", ")
-        t, d = zip(*r["series"]["truth"], strict=True) if r["series"]["truth"] else ((), ())
-        top.plot(t, d, label=label, linewidth=1.2)
-        if r["series"]["seen"]:
-            ts, ds = zip(*r["series"]["seen"], strict=True)
-            bottom.plot(ts, ds, label=label, linewidth=1.0)
-    target = results[0]["target_distance_m"] if results else 2.5
-    for ax in (top, bottom):
-        ax.axhline(target, color="k", linestyle="--", linewidth=0.8, label="target")
+# demo -> panels: (series key, y label, reference line or None)
+PANELS: dict[str, list[tuple[str, str, float | None]]] = {
+    "wall-hover": [("truth", "true distance to wall [m]", 2.5), ("seen", "distance the controller used [m]", 2.5)],
+    "localise": [("error", "true distance from (2.5, 2.5) [m]", 0.0)],
+    "formation": [("range", "true distance uav1-uav2 [m]", 3.0)],
+}
+
+
+def plot(out: Path, demo: str, results: list[dict[str, Any]]) -> Path:
+    """Every case of the run on one figure, time from the attack onset (start of scoring)."""
+    panels = PANELS[demo]
+    fig, axes = plt.subplots(len(panels), 1, figsize=(9, 3.5 * len(panels)), sharex=True, squeeze=False)
+    for ax, (key, label, ref) in zip(axes[:, 0], panels, strict=True):
+        for r in results:
+            series = r["series"].get(key) or []
+            if series:
+                t, v = zip(*((p[0], p[1]) for p in series), strict=True)
+                ax.plot(t, v, label=r["case"].replace("_", ", "), linewidth=1.1)
+        if ref is not None:
+            ax.axhline(ref, color="k", linestyle="--", linewidth=0.8, label="target")
+        if demo == "wall-hover" and key == "truth":
+            ax.axhline(0.0, color="firebrick", linewidth=1.5, label="wall")
         ax.axvline(0.0, color="grey", linestyle=":", linewidth=0.8)
+        ax.set_ylabel(label)
         ax.grid(True, alpha=0.3)
-    top.axhline(0.0, color="firebrick", linewidth=1.5, label="wall")
-    top.set_ylabel("true distance to wall [m]")
-    bottom.set_ylabel("distance the controller used [m]")
-    bottom.set_xlabel("time from attack onset (start of scoring) [s]")
-    top.legend(fontsize=8, loc="best")
-    top.set_title("SecUAV wall hover (seed Fig. A.5): attack and secure stage on/off")
+    axes[0, 0].legend(fontsize=8, loc="best")
+    axes[0, 0].set_title(f"SecUAV {demo}: attack and secure stage on/off")
+    axes[-1, 0].set_xlabel("time from attack onset (start of scoring) [s]")
     fig.tight_layout()
-    path = out / "wall_hover.png"
+    path = out / f"{demo.replace('-', '_')}.png"
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

@@ -82,3 +82,73 @@ def distance_metrics(
             "seen": [(round(t - window.start_s, 3), round(d, 4)) for t, d in seen],
         },
     }
+
+
+def _in(window: Window, t: float) -> bool:
+    return window.start_s <= t <= window.end_s
+
+
+def detection(estimates: list[tuple[float, dict[str, Any]]], window: Window) -> dict[str, float]:
+    """Share of the secure stage's estimates in the window that judged each sensor id attacked."""
+    counts: Counter[int] = Counter()
+    n = 0
+    for t, e in estimates:
+        if _in(window, t):
+            n += 1
+            counts.update(int(i) for i in e.get("attacked", []))
+    return {str(k): round(v / n, 3) for k, v in sorted(counts.items())} if n else {}
+
+
+def position_metrics(
+    truth: list[tuple[float, dict[str, Any]]],
+    target_ne_m: tuple[float, float] | None,
+    steps: list[dict[str, Any]],
+    estimates: list[tuple[float, dict[str, Any]]],
+    window: Window,
+) -> dict[str, Any]:
+    """Horizontal error of the true position from the hold target, and of the controller's fix from truth."""
+    scored = [(t, d["pos_ned_m"]) for t, d in truth if _in(window, t)]
+    figures: dict[str, Any] = {"collided": any(bool(d.get("collided")) for _, d in truth)}
+    if target_ne_m is not None:
+        figures["position_error_m"] = _rms_max(
+            [math.hypot(p[0] - target_ne_m[0], p[1] - target_ne_m[1]) for _, p in scored]
+        )
+    if scored:
+        times = np.array([t for t, _ in scored])
+        fix_err = []
+        for s in steps:
+            t = float(s["wall_s"])
+            if _in(window, t) and s.get("fix_ned_m"):
+                p = scored[int(np.clip(np.searchsorted(times, t), 0, len(scored) - 1))][1]
+                fix_err.append(math.hypot(s["fix_ned_m"][0] - p[0], s["fix_ned_m"][1] - p[1]))
+        figures["fix_error_m"] = _rms_max(fix_err)
+    figures["flagged_by_proxy"] = detection(estimates, window)
+    figures["series"] = {
+        "truth_ne": [
+            (round(t - window.start_s, 3), round(d["pos_ned_m"][0], 4), round(d["pos_ned_m"][1], 4)) for t, d in truth
+        ],
+    }
+    if target_ne_m is not None:
+        tn, te = target_ne_m
+        track = figures["series"]["truth_ne"]
+        figures["series"]["error"] = [(t, round(math.hypot(n - tn, e - te), 4)) for t, n, e in track]
+    return figures
+
+
+Samples = list[tuple[float, dict[str, Any]]]
+
+
+def range_metrics(truth_a: Samples, truth_b: Samples, keep_m: float, window: Window) -> dict[str, Any]:
+    """Error of the true distance between two vehicles from the one to keep (joined on arrival time)."""
+    if not truth_a or not truth_b:
+        return {"range_error_m": _rms_max([]), "series": []}
+    times_b = np.array([t for t, _ in truth_b])
+    pairs = []
+    for t, d in truth_a:
+        j = int(np.clip(np.searchsorted(times_b, t), 0, len(truth_b) - 1))
+        pa, pb = np.asarray(d["pos_ned_m"]), np.asarray(truth_b[j][1]["pos_ned_m"])
+        pairs.append((t, float(np.linalg.norm(pa - pb))))
+    return {
+        "range_error_m": _rms_max([r - keep_m for t, r in pairs if _in(window, t)]),
+        "series": [(round(t - window.start_s, 3), round(r, 4)) for t, r in pairs],
+    }

@@ -1,0 +1,144 @@
+"""What every demo controller does the same way: connect, take off, log, land.
+
+Plain MAVSDK 4.x asyncio calls, nothing SecUAV-specific, so a controller built
+on it flies PX4 SITL as well as ``secuav-sim``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import math
+import time
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
+from typing import IO, Any
+
+from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
+from mavsdk.asyncio.plugins.action import ActionAsync
+from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync
+from mavsdk.asyncio.plugins.offboard import OffboardAsync
+from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
+
+INVALID_QUALITY = 1  # DISTANCE_SENSOR.signal_quality 1 = invalid (what secuav-proxy --secure sets on attacked sensors)
+STALE_S = 0.5
+RATE_HZ = 20.0
+
+
+class Log:
+    """JSON lines to a file (or nowhere), flushed so a caller can follow the flight."""
+
+    def __init__(self, out: IO[str] | None) -> None:
+        self.out = out
+        self.t0 = time.monotonic()
+
+    def write(self, kind: str, **data: Any) -> None:
+        if self.out is None:
+            return
+        stamp = {"t_s": round(time.monotonic() - self.t0, 3), "wall_s": round(time.time(), 3)}
+        self.out.write(json.dumps({**stamp, "kind": kind, **data}) + "\n")
+        self.out.flush()
+
+
+class Ranges:
+    """Newest DISTANCE_SENSOR reading per sensor id: (arrival time, metres, marked invalid)."""
+
+    def __init__(self) -> None:
+        self.by_id: dict[int, tuple[float, float, bool]] = {}
+
+    def add(self, fields: dict[str, Any], now: float) -> None:
+        cm = int(fields["current_distance"])
+        if cm <= int(fields["min_distance"]) or cm >= int(fields["max_distance"]):
+            return  # out of range: the sensor sees nothing
+        self.by_id[int(fields["id"])] = (now, cm / 100.0, int(fields["signal_quality"]) == INVALID_QUALITY)
+
+    def fresh(self, now: float, ids: range | set[int]) -> tuple[dict[int, float], list[int]]:
+        """Readings of ``ids`` under STALE_S old and not marked invalid; and the ids marked invalid."""
+        good, flagged = {}, []
+        for i, (t, m, bad) in self.by_id.items():
+            if i in ids and now - t <= STALE_S:
+                if bad:
+                    flagged.append(i)
+                else:
+                    good[i] = m
+        return good, sorted(flagged)
+
+
+@dataclass
+class Vehicle:
+    """The plugins a controller uses, and what the background watchers keep current."""
+
+    telemetry: TelemetryAsync
+    action: ActionAsync
+    offboard: OffboardAsync
+    ranges: Ranges
+    pos_ned_m: list[float]
+
+
+def arguments(description: str) -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(description=description)
+    p.add_argument("--url", default="udpin://0.0.0.0:14540", help="MAVSDK connection URL")
+    p.add_argument("--seconds", type=float, default=40.0, help="how long to hold before landing")
+    p.add_argument("--altitude", type=float, default=2.5, help="hover altitude, metres")
+    p.add_argument("--gain", type=float, default=0.8, help="metres per second per metre of error")
+    p.add_argument("--connect-timeout", type=float, default=20.0)
+    p.add_argument("--log", help="write JSON lines (events and control steps) to this file")
+    return p
+
+
+def clip(value: float, limit: float) -> float:
+    return max(-limit, min(limit, value))
+
+
+async def _run(args: argparse.Namespace, log: Log, hold: Callable[[Vehicle, Log], Awaitable[None]]) -> None:
+    mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+    await mavsdk.add_any_connection(args.url)
+    system = await mavsdk.first_autopilot(timeout_s=args.connect_timeout)
+    if system is None:
+        raise SystemExit(f"no autopilot answered on {args.url}")
+    v = Vehicle(TelemetryAsync(system), ActionAsync(system), OffboardAsync(system), Ranges(), [math.nan] * 3)
+    direct = MavlinkDirectAsync(system)  # DISTANCE_SENSOR with its id: MAVSDK's telemetry drops the id
+
+    async def watch_ranges() -> None:
+        async for msg in direct.subscribe_message("DISTANCE_SENSOR"):
+            v.ranges.add(json.loads(msg.fields_json), time.monotonic())
+
+    async def watch_position() -> None:
+        async for pv in v.telemetry.subscribe_position_velocity_ned():
+            v.pos_ned_m[:] = [pv.position.north_m, pv.position.east_m, pv.position.down_m]
+
+    async for ok in v.telemetry.subscribe_health_all_ok():
+        if ok:
+            break
+    watchers = [asyncio.create_task(watch_ranges()), asyncio.create_task(watch_position())]
+    try:
+        await v.action.set_takeoff_altitude(args.altitude)
+        await v.action.arm()
+        log.write("event", event="armed")
+        await v.action.takeoff()
+        while not v.pos_ned_m[2] <= -(args.altitude - 0.2):
+            await asyncio.sleep(0.1)
+        await hold(v, log)
+        log.write("event", event="landing")
+        await v.offboard.stop()
+        await v.action.land()
+        async for in_air in v.telemetry.subscribe_in_air():
+            if not in_air:
+                break
+        log.write("event", event="done")
+    finally:
+        for task in watchers:
+            task.cancel()
+
+
+def run(args: argparse.Namespace, hold: Callable[[Vehicle, Log], Awaitable[None]]) -> None:
+    """Connect, take off to ``--altitude``, ``hold`` (which starts offboard), land; log to ``--log``."""
+    out = open(args.log, "w", encoding="utf-8") if args.log else None  # noqa: SIM115 - closed below
+    try:
+        asyncio.run(_run(args, Log(out), hold))
+    except KeyboardInterrupt:
+        print("controller: interrupted")
+    finally:
+        if out is not None:
+            out.close()

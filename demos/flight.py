@@ -1,0 +1,153 @@
+"""One demo flight: broker, simulator, proxy and one MAVSDK controller per vehicle.
+
+Each demo says which scenario, which controller script per vehicle and how to
+score; this module does the rest the same way for all of them. Controllers
+write JSON lines (events "holding", "landing", "done" and control steps, each
+with ``wall_s``) so the flight can be followed and joined with ground truth,
+which arrives on ``secuav/v<sysid>/truth`` and is stamped on arrival.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from demos.mqtt_tap import Tap
+from demos.scoring import Window
+from demos.stack import Ports, Processes, tool
+from secuav_common.broker import EmbeddedBroker
+
+
+@dataclass(frozen=True, slots=True)
+class Case:
+    attack: str | None  # library name or profile file; None = no attack
+    secure: str  # estimator name, or "off"
+
+    @property
+    def slug(self) -> str:
+        return f"attack-{'on' if self.attack else 'off'}_secure-{'off' if self.secure == 'off' else 'on'}"
+
+
+@dataclass(frozen=True, slots=True)
+class Controller:
+    sysid: int
+    module: str  # run as ``python -m module``
+    args: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
+class Options:
+    out: Path
+    seconds: float = 40.0  # hold time; the first settle_s of it is not scored
+    settle_s: float = 5.0
+    seed: int | None = None
+    ports: Ports = field(default_factory=Ports)
+    attack_params: dict[str, Any] | None = None
+
+
+@dataclass
+class Record:
+    """What one flight left behind, by sysid."""
+
+    window: Window
+    truth: dict[int, list[tuple[float, dict[str, Any]]]]
+    estimates: dict[int, list[tuple[float, dict[str, Any]]]]
+    steps: dict[int, list[dict[str, Any]]]
+    attack_ack: dict[int, dict[str, Any]]
+
+
+def attack_payload(attack: str, params: dict[str, Any] | None) -> dict[str, Any]:
+    """What goes on ``secuav/v<sysid>/attack/set``: a library name, or the content of a profile file."""
+    path = Path(attack)
+    if path.suffix in (".yaml", ".yml", ".json") or path.exists():
+        import yaml
+
+        return dict(yaml.safe_load(path.read_text(encoding="utf-8")))
+    # The demo applies the profile when the scored window opens, so it starts at once.
+    return {"library": attack, "parameters": {"start_s": 0.0, **(params or {})}}
+
+
+def read_jsonl(path: Path) -> list[dict[str, Any]]:
+    if not path.exists():
+        return []
+    return [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
+
+
+async def wait_for_event(path: Path, event: str, procs: Processes, name: str, timeout_s: float) -> float:
+    """Wall time at which the controller logged ``event``; fails early if a process died."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        procs.check_alive()
+        for entry in read_jsonl(path):
+            if entry.get("kind") == "event" and entry.get("event") == event:
+                return float(entry["wall_s"])
+        proc = procs.running.get(name)
+        if proc is not None and proc.returncode is not None:
+            raise RuntimeError(f"{name} exited ({proc.returncode}) before {event!r}: see {path.parent}/{name}.log")
+        await asyncio.sleep(0.2)
+    raise TimeoutError(f"{name} did not reach {event!r} within {timeout_s:.0f} s: see {path.parent}/{name}.log")
+
+
+def _dump(path: Path, rows: list[tuple[float, dict[str, Any]]]) -> None:
+    path.write_text("".join(json.dumps({"wall_s": t, **d}) + "\n" for t, d in rows), encoding="utf-8")
+
+
+async def fly(
+    scenario: str, controllers: list[Controller], case: Case, opts: Options, attack_sysids: list[int]
+) -> Record:
+    """Fly ``case``; raw material (logs, truth, estimates, recordings) stays in ``out/<slug>/``."""
+    out = opts.out / case.slug
+    out.mkdir(parents=True, exist_ok=True)
+    p = opts.ports
+    n = len(controllers)
+    sysids = [c.sysid for c in controllers]
+    topics = [f"secuav/v{s}/{t}" for s in sysids for t in ("truth", "estimate", "attack/state", "secure/state")]
+    seed = [] if opts.seed is None else ["--seed", str(opts.seed)]
+    logs = {c.sysid: out / f"controller{c.sysid}.jsonl" for c in controllers}
+    for path in logs.values():
+        path.unlink(missing_ok=True)
+    acks: dict[int, dict[str, Any]] = {}
+    async with EmbeddedBroker(port=p.mqtt), Tap("127.0.0.1", p.mqtt, topics) as tap, Processes(out) as procs:
+        proxy = [tool("secuav-proxy"), "--scenario", scenario, "--secure", case.secure, "--broker", p.broker_url,
+                 "--record", str(out / "record")]  # fmt: skip
+        for i in range(n):
+            proxy += ["--link", f"udpin://127.0.0.1:{p.proxy_vehicle + i}",
+                      f"udpout://127.0.0.1:{p.api + i}", f"udpout://127.0.0.1:{p.gcs}"]  # fmt: skip
+        await procs.start("proxy", proxy)
+        await procs.start("sim", [
+            tool("secuav-sim"), scenario, "--mavlink", f"udpout://127.0.0.1:{p.proxy_vehicle}",
+            "--broker", p.broker_url, "--truth-csv", str(out / "truth.csv"), *seed,
+        ])  # fmt: skip
+        for i, c in enumerate(controllers):
+            await procs.start(f"controller{c.sysid}", [
+                sys.executable, "-m", c.module, "--url", f"udpin://127.0.0.1:{p.api + i}",
+                "--seconds", str(opts.seconds), "--log", str(logs[c.sysid]), *c.args,
+            ])  # fmt: skip
+        holds = [await wait_for_event(logs[s], "holding", procs, f"controller{s}", 120.0) for s in sysids]
+        await asyncio.sleep(opts.settle_s)
+        t_scored = time.time()
+        if case.attack is not None:
+            payload = attack_payload(case.attack, opts.attack_params)
+            for s in attack_sysids:
+                ack = await tap.request(f"secuav/v{s}/attack/set", payload, f"secuav/v{s}/attack/state")
+                if not ack.get("ok"):
+                    raise RuntimeError(f"the proxy rejected attack {case.attack!r} on vehicle {s}: {ack.get('error')}")
+                acks[s] = ack
+        landings = [
+            await wait_for_event(logs[s], "landing", procs, f"controller{s}", opts.seconds + 60.0) for s in sysids
+        ]
+        for s in sysids:
+            await wait_for_event(logs[s], "done", procs, f"controller{s}", 60.0)
+        truth = {s: [(x.wall_s, x.payload) for x in tap.on(f"secuav/v{s}/truth")] for s in sysids}
+        estimates = {s: [(x.wall_s, x.payload) for x in tap.on(f"secuav/v{s}/estimate")] for s in sysids}
+    for s in sysids:
+        _dump(out / f"truth{s}.jsonl", truth[s])
+        _dump(out / f"estimates{s}.jsonl", estimates[s])
+    window = Window(start_s=t_scored, end_s=min(landings), hold_s=max(holds))
+    steps = {s: [e for e in read_jsonl(logs[s]) if e.get("kind") == "step"] for s in sysids}
+    return Record(window, truth, estimates, steps, acks)

@@ -1,0 +1,49 @@
+"""The formation demo (seed test case 2, live): uav2 keeps 3 m from uav1 among eight anchors.
+
+uav1 holds (4, 4) by trilateration; uav2 fixes itself the same way and keeps
+its distance using the inter-vehicle range (id 51). The default attack ramps two
+anchor links and the inter-vehicle range of uav2. Scored from truth: the error
+of the true distance between the two from 3 m, and each vehicle's position error.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from demos.flight import Case, Controller, Options, fly
+from demos.scoring import position_metrics, range_metrics
+
+SCENARIO = "formation"
+CONTROLLER = "demos.controllers.localise"
+LEADER = (4.0, 4.0)
+KEEP_M = 3.0
+DEFAULT_ATTACK = "anchors-ramp"
+DEFAULT_PARAMS: dict[str, Any] = {"links": [11, 14, 51]}
+DEFAULT_SECURE = "rarse"
+
+
+async def run_case(case: Case, opts: Options) -> dict[str, Any]:
+    where = f"{LEADER[0]},{LEADER[1]}"
+    follow = ("--peer-range", "51", "--peer-at", where, "--keep", str(KEEP_M), "--target", "1.0,1.0")
+    controllers = [
+        Controller(1, CONTROLLER, ("--scenario", SCENARIO, "--target", where)),
+        Controller(2, CONTROLLER, ("--scenario", SCENARIO, *follow)),
+    ]
+    record = await fly(SCENARIO, controllers, case, opts, attack_sysids=[2])
+    leader = position_metrics(record.truth[1], LEADER, record.steps[1], record.estimates[1], record.window)
+    follower = position_metrics(record.truth[2], None, record.steps[2], record.estimates[2], record.window)
+    ranges = range_metrics(record.truth[1], record.truth[2], KEEP_M, record.window)
+    return {
+        "case": case.slug, "attack": case.attack, "secure": case.secure, "attack_ack": record.attack_ack.get(2),
+        "range_error_m": ranges["range_error_m"],
+        "collided": leader["collided"] or follower["collided"],
+        "uav1": {k: v for k, v in leader.items() if k != "series"},
+        "uav2": {k: v for k, v in follower.items() if k != "series"},
+        "series": {"range": ranges["series"], "uav1": leader["series"], "uav2": follower["series"]},
+    }  # fmt: skip
+
+
+def summary(figures: dict[str, Any]) -> str:
+    err = figures["range_error_m"]
+    flagged = ", ".join(figures["uav2"]["flagged_by_proxy"]) or "none"
+    return f"range error rms {err['rms']:.2f} m, max {err['max']:.2f} m; uav2 flagged {flagged}"

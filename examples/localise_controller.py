@@ -1,0 +1,1 @@
+../demos/controllers/localise.py
