@@ -1,0 +1,242 @@
+"""The proxy process: links, control plane and the periodic stats line.
+
+``async with Proxy(config) as proxy: await stop.wait()`` is the whole daemon
+(:func:`serve` adds the signal handling). Entering opens every socket first, so
+a port that is taken fails before anything else starts; leaving closes the
+sockets, cancels held-back frames, closes the recordings and says goodbye on
+the control plane, within a second.
+
+The control plane is optional and never on the forwarding path: if the broker
+is down or restarts, frames keep flowing and the control plane reconnects on
+its own (``ControlPlane.run``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import signal
+from collections.abc import Callable
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+from attack_profiles import library
+from attack_profiles.profile import Profile, load_profile
+from mitm_proxy.attack import AttackStage
+from mitm_proxy.config import SECURE_OFF, ProxyConfig
+from mitm_proxy.endpoints import UdpEndpoint
+from mitm_proxy.link import GroundRouter, Link
+from mitm_proxy.pipeline import Pipeline
+from mitm_proxy.recording import Recorder
+from mitm_proxy.signing import Signer
+from mitm_proxy.slots import AttackSlot
+from mitm_proxy.stats import LinkStats
+from secuav_common.loading import InputError
+from secuav_common.scenario import Scenario, load_scenario
+from secuav_common.urls import Endpoint
+
+log = logging.getLogger("secuav-proxy")
+STOP_BUDGET_S = 0.8  # what the control plane may take to say goodbye
+
+
+def resolve_profile(name_or_path: str | Path) -> Profile:
+    """``--profile``: a file, or the name of a library profile (``wall-spoof``)."""
+    path = Path(name_or_path)
+    if not path.exists() and str(name_or_path) in library.names():
+        return library.load(str(name_or_path))
+    return load_profile(path)
+
+
+class Proxy:
+    """The daemon as an async context manager; ``slots`` and ``links`` are keyed/ordered by vehicle."""
+
+    def __init__(self, config: ProxyConfig) -> None:
+        self.config = config
+        self.scenario: Scenario | None = load_scenario(config.scenario) if config.scenario else None
+        self.signer: Signer | None = Signer.from_file(config.signing_key) if config.signing_key else None
+        initial = resolve_profile(config.profile) if config.profile else None
+        self.slots: dict[int, AttackSlot] = {}
+        self.stages: dict[int, AttackStage] = {}
+        self.stats: dict[int, LinkStats] = {}
+        for link in config.links:
+            slot = AttackSlot(link.sysid, self.scenario, config.seed)
+            if initial is not None:
+                state = slot.offer(initial, request_id="--profile")
+                if not state.ok:
+                    raise InputError(str(config.profile), "", None, state.error or "rejected")
+            self.slots[link.sysid] = slot
+            stage = AttackStage(slot)
+            stage.active = config.attack == "on"
+            self.stages[link.sysid] = stage
+            self.stats[link.sysid] = LinkStats(link.sysid)
+        self.endpoints: dict[Endpoint, UdpEndpoint] = {}
+        self.links: list[Link] = []
+        self.routers: list[GroundRouter] = []
+        self.recorders: list[Recorder] = []
+        self._stack = contextlib.AsyncExitStack()
+        self._tasks: list[asyncio.Task[Any]] = []
+
+    # -- life cycle --------------------------------------------------------------
+    async def __aenter__(self) -> Proxy:
+        try:
+            await self._open_links()
+            self._tasks.append(asyncio.create_task(self._print_stats(), name="stats"))
+            self._start_reload()
+            await self._start_control()
+        except BaseException:
+            await self._close()
+            raise
+        log.info("proxy.ready", extra={
+            "links": " ".join(f"v{ln.sysid}:{ln.vehicle.endpoint}->{','.join(str(g.endpoint) for g in ln.grounds)}"
+                              for ln in self.links),
+            "attack": self.config.attack, "profile": self.slots[self.links[0].sysid].state.profile or "none",
+            "broker": self.config.broker, "record": self.config.record or "off",
+            "signing": "on" if self.signer else "off",
+        })  # fmt: skip
+        return self
+
+    async def __aexit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        await self._close()
+
+    async def _open_links(self) -> None:
+        for link_cfg in self.config.links:
+            for ep in (link_cfg.vehicle_endpoint, *link_cfg.ground_endpoints):
+                if ep not in self.endpoints:
+                    role = "vehicle" if ep == link_cfg.vehicle_endpoint else "ground"
+                    udp = UdpEndpoint(ep, f"{role}:{ep.port}")
+                    self.endpoints[ep] = udp
+                    await udp.open()
+        users: dict[Endpoint, list[Link]] = {}
+        for i, link_cfg in enumerate(self.config.links):
+            sysid = link_cfg.sysid
+            recorder = None
+            if self.config.record is not None:
+                recorder = Recorder(Path(self.config.record) / f"v{sysid}", i)
+                self.recorders.append(recorder)
+            pipeline = Pipeline(i, [self.stages[sysid]], stats=self.stats[sysid], recorder=recorder,
+                                signer=self.signer)  # fmt: skip
+            grounds = [self.endpoints[ep] for ep in link_cfg.ground_endpoints]
+            link = Link(i, sysid, pipeline, self.stats[sysid], self.endpoints[link_cfg.vehicle_endpoint], grounds)
+            self.links.append(link)
+            for ep in link_cfg.ground_endpoints:
+                users.setdefault(ep, []).append(link)
+        self.routers = [GroundRouter(self.endpoints[ep], links) for ep, links in users.items()]
+
+    async def _start_control(self) -> None:
+        cfg = self.config
+        if cfg.broker == "none":
+            return
+        from mitm_proxy.control import ControlPlane
+        from secuav_common.broker import EmbeddedBroker, parse_broker_url
+
+        if cfg.broker == "embedded":
+            broker = await self._stack.enter_async_context(EmbeddedBroker())
+            url = broker.address.url
+        else:
+            url = cfg.broker
+        parse_broker_url(url)
+        ca = str(cfg.broker_tls_ca) if cfg.broker_tls_ca else None
+        plane = ControlPlane(url, self.slots, stats=self.stats_snapshot, secure=None, username=cfg.broker_username,
+                             password=cfg.broker_password, tls_ca=ca)  # fmt: skip
+        await self._stack.enter_async_context(plane)  # it connects, reconnects and publishes in its own task
+
+    def _start_reload(self) -> None:
+        """A ``--profile`` file is watched and re-offered when it changes (a library name is not)."""
+        profile = self.config.profile
+        if profile is None or not Path(profile).exists():
+            return
+        from mitm_proxy.reload import ProfileWatcher
+
+        watcher = ProfileWatcher(Path(profile), self.slots)
+        self._tasks.append(asyncio.create_task(_run_watcher(watcher), name="reload"))
+
+    async def _close(self) -> None:
+        for task in self._tasks:
+            task.cancel()
+        if self._tasks:
+            await asyncio.wait(self._tasks, timeout=STOP_BUDGET_S)
+        self._tasks.clear()
+        try:
+            await asyncio.wait_for(self._stack.aclose(), timeout=STOP_BUDGET_S)
+        except (TimeoutError, Exception) as exc:  # the broker may be gone; never hang the shutdown on it
+            log.warning("proxy.control_close", extra={"error": repr(exc)})
+        for link in self.links:
+            link.close()
+        for ep in self.endpoints.values():
+            ep.close()
+        for rec in self.recorders:
+            rec.close()
+        self.recorders.clear()
+
+    # -- what the control plane and the log show ------------------------------------
+    def stats_snapshot(self) -> dict[int, dict[str, Any]]:
+        out: dict[int, dict[str, Any]] = {}
+        for link in self.links:
+            snap = link.stats.snapshot()
+            snap["attack"] = "on" if self.stages[link.sysid].active else "bypass"
+            snap["pending_delayed"] = link.pending
+            snap["pipeline_errors"] = link.pipeline_errors
+            snap["endpoints"] = {ep.name: ep.snapshot() for ep in (link.vehicle, *link.grounds)}
+            out[link.sysid] = snap
+        return out
+
+    async def _print_stats(self) -> None:
+        while True:
+            await asyncio.sleep(self.config.stats_interval_s)
+            for sysid, snap in self.stats_snapshot().items():
+                log.info("proxy.stats", extra=stats_line(sysid, snap))
+
+
+def stats_line(sysid: int, snap: dict[str, Any]) -> dict[str, Any]:
+    """The fields of one link's periodic log line."""
+    down, up, lat = snap["downlink"], snap["uplink"], snap["latency_ms"]
+    faults: dict[str, int] = {}
+    for ep in snap["endpoints"].values():
+        for kind, n in ep["faults"].items():
+            faults[kind] = faults.get(kind, 0) + n
+    return {
+        "sysid": sysid,
+        "down": f"{down['frames_in']}/{down['frames_out']}",
+        "up": f"{up['frames_in']}/{up['frames_out']}",
+        "rewritten": down["rewritten"] + up["rewritten"],
+        "dropped": down["dropped"] + up["dropped"],
+        "injected": down["injected"] + up["injected"],
+        "bad": down["bad_total"] + up["bad_total"],
+        "p50_ms": _ms(lat["p50"]),
+        "p99_ms": _ms(lat["p99"]),
+        "faults": ",".join(f"{k}={v}" for k, v in sorted(faults.items())) or "none",
+    }
+
+
+def _ms(value: float | None) -> str:
+    return "-" if value is None else f"{value:.3f}"
+
+
+async def _run_watcher(watcher: Any) -> None:
+    async with watcher:
+        await watcher.run()
+
+
+async def serve(proxy: Proxy, stop: asyncio.Event | None = None,
+                on_ready: Callable[[Proxy], None] | None = None) -> int:  # fmt: skip
+    """Run ``proxy`` until SIGINT/SIGTERM (or ``stop``); returns the exit code."""
+    config = proxy.config
+    stop = stop or asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            loop.add_signal_handler(sig, stop.set)
+    if config.secure != SECURE_OFF:
+        log.warning("proxy.secure_unavailable",
+                    extra={"secure": config.secure, "detail": "the secure stage is not in the pipeline yet; off"})
+    async with proxy:
+        if on_ready is not None:
+            on_ready(proxy)
+        await stop.wait()
+        log.info("proxy.stop", extra={"frames": sum(s["downlink"]["frames_in"] + s["uplink"]["frames_in"]
+                                                    for s in proxy.stats_snapshot().values())})  # fmt: skip
+    return 0

@@ -1,0 +1,171 @@
+"""``secuav-proxy``: the MAVLink man-in-the-middle daemon.
+
+With no flags it serves one vehicle on DESIGN.md's port plan: listens on
+``udpin://127.0.0.1:14560`` and forwards to ``udpout://127.0.0.1:14540``
+(MAVSDK) and ``udpout://127.0.0.1:14550`` (QGroundControl, MAVProxy).
+``--vehicles N`` or ``--scenario F`` gives one link per vehicle (vehicle i on
+14560+i -> 14540+i and the shared 14550). A config file (``--config F``, YAML,
+same keys as :class:`mitm_proxy.config.ProxyConfig`) sets anything; flags win.
+Bad input is one line on stderr and exit 2; nothing starts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from mitm_proxy.config import ProxyConfig, build_config, load_config, override_endpoints
+from secuav_common.loading import InputError
+from secuav_common.urls import parse_endpoint
+
+PROG = "secuav-proxy"
+_STD_ATTRS = set(logging.LogRecord("", 0, "", 0, "", None, None).__dict__) | {"message", "asctime"}
+
+
+class KeyValueFormatter(logging.Formatter):
+    """``12:00:01.234 INFO proxy.stats sysid=1 down=120/120 ...``: one greppable event per line."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        stamp = time.strftime("%H:%M:%S", time.localtime(record.created)) + f".{int(record.msecs):03d}"
+        extras = " ".join(f"{k}={v}" for k, v in record.__dict__.items() if k not in _STD_ATTRS)
+        line = f"{stamp} {record.levelname} {record.getMessage()}" + (f" {extras}" if extras else "")
+        if record.exc_info:
+            line += "\n" + self.formatException(record.exc_info)
+        return line
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=PROG, description="MAVLink man-in-the-middle: forward, record, attack.")
+    p.add_argument("--config", metavar="F", type=Path, help="YAML config file (flags win over it)")
+    p.add_argument("--scenario", metavar="F", type=Path, help="one link per vehicle of this scenario (sysids from it)")
+    p.add_argument("--vehicles", metavar="N", type=int, help="one link per vehicle, sysids 1..N (default 1)")
+    p.add_argument("--vehicle", metavar="URL", action="append", default=[],
+                   help="vehicle side: udpin://HOST:PORT (default udpin://127.0.0.1:14560+i); "
+                        "once (link i uses PORT+i) or once per link")
+    p.add_argument("--ground", metavar="URL", action="append", default=[],
+                   help="ground side, repeatable (default udpout://127.0.0.1:14540+i and :14550); "
+                        "with several links each URL is one endpoint shared by all")
+    p.add_argument("--link", metavar="URL", nargs="+", action="append", default=[],
+                   help="VEHICLE_URL GROUND_URL...: one link, repeat once per vehicle in order")
+    p.add_argument("--profile", metavar="F", help="initial attack profile: a file (reloaded on change) "
+                                                  "or a library name (secuav-attack list)")
+    p.add_argument("--attack", choices=("on", "bypass"), help="attack stage active or bypassed (default on)")
+    p.add_argument("--secure", metavar="NAME", help="secure estimator, or off (default off)")
+    p.add_argument("--broker", metavar="URL",
+                   help="embedded (default: amqtt on 127.0.0.1:1883, or the broker already there), "
+                        "mqtt://[user:pass@]HOST[:PORT], mqtts://..., or none")
+    p.add_argument("--broker-username", metavar="NAME")
+    p.add_argument("--broker-password", metavar="PASS")
+    p.add_argument("--broker-tls-ca", metavar="F", type=Path, help="CA file for mqtts://")
+    p.add_argument("--record", metavar="DIR", type=Path,
+                   help="write DIR/v<sysid>/original.tlog, forwarded.tlog and index.json")
+    p.add_argument("--signing-key", metavar="F", type=Path, help="MAVLink 2 signing key: verify, re-sign changes")
+    p.add_argument("--seed", type=int, help="seed of the attack engine's random primitives (default 0)")
+    p.add_argument("--stats-interval", metavar="S", type=float, dest="stats_interval_s",
+                   help="seconds between stats lines (default 5)")
+    p.add_argument("--loop", choices=("auto", "uvloop", "asyncio"), default="auto",
+                   help="event loop (auto: uvloop when installed)")
+    p.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
+    p.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
+    return p  # fmt: skip
+
+
+FLAG_KEYS = ("scenario", "vehicles", "profile", "attack", "secure", "broker", "broker_username", "broker_password",
+             "broker_tls_ca", "record", "signing_key", "seed", "stats_interval_s")  # fmt: skip
+
+
+def config_from_args(args: argparse.Namespace) -> ProxyConfig:
+    """File, then flags, then the endpoint flags; ``InputError``/``ValueError`` on bad input."""
+    file_values: dict[str, Any] = load_config(args.config) if args.config else {}
+    source = str(args.config) if args.config else "<flags>"
+    flags = {k: getattr(args, k) for k in FLAG_KEYS}
+    if args.link:
+        if args.vehicle or args.ground:
+            raise ValueError("--link cannot be combined with --vehicle/--ground")
+        flags["links"] = _links_from_flag(args.link, args, file_values)
+    cfg = build_config(file_values, flags, source)
+    if args.vehicle or args.ground:
+        cfg = override_endpoints(cfg, args.vehicle, args.ground, "<flags>")
+    return cfg
+
+
+def _links_from_flag(groups: list[list[str]], args: argparse.Namespace, file_values: dict[str, Any]) -> list[dict]:
+    for group in groups:
+        for url in group:
+            parse_endpoint(url)
+        if len(group) < 2:
+            raise ValueError(f"--link {' '.join(group)}: give the vehicle URL and at least one ground URL")
+    scenario = args.scenario or file_values.get("scenario")
+    if scenario is not None:
+        from secuav_common.scenario import load_scenario
+
+        sysids = [v.sysid for v in load_scenario(scenario).vehicles]
+        if len(sysids) != len(groups):
+            raise ValueError(f"--link given {len(groups)} times; the scenario {scenario} has {len(sysids)} vehicles")
+    else:
+        sysids = list(range(1, len(groups) + 1))
+    return [{"sysid": s, "vehicle": g[0], "ground": g[1:]} for s, g in zip(sysids, groups, strict=True)]
+
+
+def _setup_logging(verbose: int, quiet: bool) -> None:
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(KeyValueFormatter())
+    root = logging.getLogger()
+    root.handlers[:] = [handler]
+    root.setLevel(logging.WARNING if quiet else logging.DEBUG if verbose else logging.INFO)
+    if verbose < 2:
+        for noisy in ("aiomqtt", "asyncio", "amqtt", "transitions"):
+            logging.getLogger(noisy).setLevel(logging.WARNING)
+
+
+def _fail(message: str, code: int = 2) -> int:
+    print(f"{PROG}: error: {message}", file=sys.stderr)
+    return code
+
+
+def new_event_loop(choice: str) -> asyncio.AbstractEventLoop:
+    """uvloop when asked for or (``auto``) installed; the standard loop otherwise."""
+    if choice != "asyncio":
+        try:
+            import uvloop
+        except ImportError:
+            if choice == "uvloop":
+                raise
+        else:
+            return uvloop.new_event_loop()
+    return asyncio.new_event_loop()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        cfg = config_from_args(args)
+        from mitm_proxy.app import Proxy, serve  # after the config: bad flags never pay for the imports
+
+        proxy = Proxy(cfg)  # reads the scenario, profile and key: their errors come before any socket
+    except (InputError, ValueError) as exc:
+        return _fail(str(exc))
+    _setup_logging(args.verbose, args.quiet)
+    try:
+        loop = new_event_loop(args.loop)
+    except ImportError:
+        return _fail("--loop uvloop: uvloop is not installed")
+    try:
+        with asyncio.Runner(loop_factory=lambda: loop) as runner:
+            return runner.run(serve(proxy))
+    except OSError as exc:
+        return _fail(f"cannot open a socket: {exc.strerror or exc}", 1)
+    except InputError as exc:
+        return _fail(str(exc))
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

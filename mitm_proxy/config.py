@@ -1,0 +1,189 @@
+"""The proxy's settings: a YAML file validated by pydantic, then flags on top.
+
+One :class:`ProxyConfig` describes the whole process: its links (one per
+vehicle: a vehicle endpoint and any number of ground endpoints), the attack
+stage's start state, recording, signing and the control plane. Everything a
+user can get wrong is checked here, once, before a socket opens, and reported
+as one line naming the file, the field and the value (``InputError``).
+
+Defaults follow DESIGN.md's port plan: link i (the vehicle with sysid i+1, or
+the i-th vehicle of ``--scenario``) listens on ``udpin://127.0.0.1:(14560+i)``
+and forwards to ``udpout://127.0.0.1:(14540+i)`` (MAVSDK) and
+``udpout://127.0.0.1:14550`` (QGroundControl / MAVProxy). An endpoint URL that
+several links name is one shared socket (the GCS port carries all vehicles).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from secuav_common.loading import InputError, load_model, validate
+from secuav_common.ports import GCS_PORT, GROUND_API_BASE, LOOPBACK, PROXY_VEHICLE_BASE
+from secuav_common.urls import Endpoint, parse_endpoint
+
+MAX_LINKS = 64
+SECURE_OFF = "off"
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def _check_url(url: str) -> str:
+    parse_endpoint(url)  # ValueError names the bad part; pydantic turns it into a field error
+    return url
+
+
+class LinkConfig(_Strict):
+    """One vehicle: where its frames come from and which ground endpoints get them."""
+
+    sysid: int = Field(ge=1, le=255)
+    vehicle: str = Field(description="udpin://HOST:PORT (listen) or udpout://HOST:PORT (fixed peer)")
+    ground: list[str] = Field(min_length=1)
+
+    @field_validator("vehicle")
+    @classmethod
+    def _vehicle_url(cls, v: str) -> str:
+        return _check_url(v)
+
+    @field_validator("ground")
+    @classmethod
+    def _ground_urls(cls, v: list[str]) -> list[str]:
+        for url in v:
+            _check_url(url)
+        if len(set(v)) != len(v):
+            raise ValueError("the same ground endpoint is listed twice")
+        return v
+
+    @property
+    def vehicle_endpoint(self) -> Endpoint:
+        return parse_endpoint(self.vehicle)
+
+    @property
+    def ground_endpoints(self) -> list[Endpoint]:
+        return [parse_endpoint(u) for u in self.ground]
+
+
+class ProxyConfig(_Strict):
+    """Everything ``secuav-proxy`` needs; the YAML file has the same keys (flags win)."""
+
+    links: list[LinkConfig] = Field(default_factory=list, max_length=MAX_LINKS)
+    vehicles: int | None = Field(None, ge=1, le=MAX_LINKS, description="links by the port plan when links is empty")
+    scenario: Path | None = None
+    attack: Literal["on", "bypass"] = "on"
+    profile: Path | None = None
+    record: Path | None = None
+    signing_key: Path | None = None
+    secure: str = SECURE_OFF
+    broker: str = "embedded"  # embedded | none | mqtt://[user:pass@]host[:port] | mqtts://...
+    broker_username: str | None = None
+    broker_password: str | None = None
+    broker_tls_ca: Path | None = None
+    stats_interval_s: float = Field(5.0, gt=0.0)
+    seed: int = 0
+
+    @field_validator("attack", mode="before")
+    @classmethod
+    def _yaml_on_off(cls, v: Any) -> Any:
+        """YAML 1.1 reads a bare ``on``/``off`` as a boolean."""
+        return {True: "on", False: "bypass"}.get(v, v) if isinstance(v, bool) else v
+
+    @field_validator("broker")
+    @classmethod
+    def _broker(cls, v: str) -> str:
+        if v in ("embedded", "none"):
+            return v
+        from secuav_common.broker import parse_broker_url
+
+        parse_broker_url(v)
+        return v
+
+    @model_validator(mode="after")
+    def _links_consistent(self) -> ProxyConfig:
+        sysids = [ln.sysid for ln in self.links]
+        if len(set(sysids)) != len(sysids):
+            dup = next(s for s in sysids if sysids.count(s) > 1)
+            raise ValueError(f"links: sysid {dup} is used by two links")
+        vehicles = [ln.vehicle_endpoint for ln in self.links]
+        for i, ep in enumerate(vehicles):
+            if ep in vehicles[:i]:
+                raise ValueError(f"links[{i}].vehicle: {ep} is already the vehicle endpoint of another link")
+            for j, other in enumerate(self.links):
+                if ep in other.ground_endpoints:
+                    raise ValueError(f"links[{i}].vehicle: {ep} is also a ground endpoint of links[{j}]")
+        return self
+
+
+def plan_links(sysids: list[int]) -> list[LinkConfig]:
+    """DESIGN.md's port plan for vehicles with these sysids, in order (vehicle i at index i)."""
+    return [
+        LinkConfig(
+            sysid=sysid,
+            vehicle=f"udpin://{LOOPBACK}:{PROXY_VEHICLE_BASE + i}",
+            ground=[f"udpout://{LOOPBACK}:{GROUND_API_BASE + i}", f"udpout://{LOOPBACK}:{GCS_PORT}"],
+        )
+        for i, sysid in enumerate(sysids)
+    ]
+
+
+def load_config(path: str | Path) -> dict[str, Any]:
+    """Read and check a config file; returns its validated keys as a dict so flags can be laid on top."""
+    cfg = load_model(ProxyConfig, path)
+    return cfg.model_dump(exclude_unset=True)
+
+
+def build_config(file_values: dict[str, Any], flags: dict[str, Any], source: str) -> ProxyConfig:
+    """File values, then the flags that were given (None = not given); then fill in the links.
+
+    ``source`` names where the values came from in errors (the file, or ``<flags>``).
+    """
+    merged = {**file_values, **{k: v for k, v in flags.items() if v is not None}}
+    cfg = validate(ProxyConfig, merged, source)
+    if cfg.links:
+        return cfg
+    sysids = _sysids(cfg, source)
+    return cfg.model_copy(update={"links": plan_links(sysids)})
+
+
+def override_endpoints(cfg: ProxyConfig, vehicle: list[str], ground: list[str], source: str) -> ProxyConfig:
+    """Apply ``--vehicle`` / ``--ground`` flags to the links.
+
+    ``--vehicle`` once: link i listens on that URL's port + i (as ``secuav-sim --mavlink`` numbers its vehicles);
+    or once per link. ``--ground`` URLs replace every link's ground endpoints; with several links each URL is
+    one endpoint shared by all of them (uplink routed by ``target_system``).
+    """
+    links = list(cfg.links)
+    n = len(links)
+    if vehicle:
+        try:
+            eps = [parse_endpoint(u) for u in vehicle]
+        except ValueError as exc:
+            raise InputError(source, "vehicle", vehicle, str(exc)) from None
+        if len(eps) == 1 and n > 1:
+            base = eps[0]
+            if base.port + n - 1 > 65535:
+                raise InputError(source, "vehicle", vehicle[0], f"port + {n - 1} links exceeds 65535")
+            eps = [Endpoint(base.mode, base.host, base.port + i) for i in range(n)]
+        if len(eps) != n:
+            raise InputError(source, "vehicle", vehicle, f"give it once or once per link ({n})")
+        links = [ln.model_copy(update={"vehicle": str(ep)}) for ln, ep in zip(links, eps, strict=True)]
+    if ground:
+        links = [ln.model_copy(update={"ground": list(ground)}) for ln in links]
+    data = cfg.model_dump()
+    data["links"] = [ln.model_dump() for ln in links]
+    return validate(ProxyConfig, data, source)
+
+
+def _sysids(cfg: ProxyConfig, source: str) -> list[int]:
+    if cfg.scenario is not None:
+        from secuav_common.scenario import load_scenario
+
+        scenario = load_scenario(cfg.scenario)
+        if cfg.vehicles is not None and cfg.vehicles != len(scenario.vehicles):
+            raise InputError(source, "vehicles", cfg.vehicles,
+                             f"the scenario {cfg.scenario} has {len(scenario.vehicles)} vehicles")  # fmt: skip
+        return [v.sysid for v in scenario.vehicles]
+    return list(range(1, (cfg.vehicles or 1) + 1))

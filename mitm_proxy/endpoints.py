@@ -1,0 +1,155 @@
+"""asyncio UDP endpoints as MAVSDK and mavlink-router write them.
+
+``udpin://HOST:PORT`` binds HOST:PORT and answers whoever sent to it last (a
+vehicle that restarts from a new source port is followed, and said so once);
+``udpout://HOST:PORT`` sends to a fixed peer from an ephemeral port and takes
+replies on that port (how MAVSDK, QGroundControl and MAVProxy answer).
+
+An endpoint only moves datagrams: the link above it decides what they mean.
+Faults of the network never close it: an ICMP "port unreachable" from a ground
+client that went away, a send buffer that fills, a datagram before anyone has
+sent to a ``udpin`` endpoint. Each is counted and logged once per kind (and
+again only after the endpoint saw it clear), never per datagram.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import socket
+import time
+from collections import Counter
+from collections.abc import Callable
+from typing import Any
+
+from secuav_common.urls import Endpoint
+
+log = logging.getLogger(__name__)
+
+Receiver = Callable[[bytes, float], None]  # datagram, monotonic arrival time
+RCVBUF_BYTES = 4 * 1024 * 1024  # ride out bursts (the kernel may cap it at net.core.rmem_max)
+MAX_PENDING_SEND_BYTES = 1024 * 1024  # beyond this, drop rather than queue without bound
+_LOOPBACK_HOSTS = {"127.0.0.1", "localhost"}
+
+
+class UdpEndpoint(asyncio.DatagramProtocol):
+    """One UDP socket of the proxy.
+
+    ``receivers`` are called with each datagram and its arrival time; there is
+    one per link that uses the endpoint (the GCS endpoint is shared).
+    ``faults`` counts what went wrong by kind; ``rx``/``tx`` count datagrams.
+    """
+
+    def __init__(self, endpoint: Endpoint, name: str) -> None:
+        self.endpoint = endpoint
+        self.name = name
+        self.receiver: Receiver | None = None
+        self.peer: tuple[str, int] | None = endpoint.address if endpoint.mode == "udpout" else None
+        self.local: tuple[str, int] | None = None
+        self.rx = 0
+        self.tx = 0
+        self.faults: Counter[str] = Counter()
+        self._reported: set[str] = set()
+        self._transport: asyncio.DatagramTransport | None = None
+
+    async def open(self) -> UdpEndpoint:
+        """Bind the socket (``udpin``: HOST:PORT; ``udpout``: an ephemeral port). ``OSError`` if taken."""
+        loop = asyncio.get_running_loop()
+        ep = self.endpoint
+        if ep.mode == "udpin":
+            local: tuple[str, int] = (ep.host, ep.port)
+        else:  # reply port on the interface that reaches the peer; loopback peers get a loopback socket
+            local = ("127.0.0.1" if ep.host in _LOOPBACK_HOSTS else "", 0)
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            with contextlib.suppress(OSError):
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF_BYTES)
+            sock.bind(local)
+            sock.setblocking(False)
+            transport, _ = await loop.create_datagram_endpoint(lambda: self, sock=sock)
+        except BaseException:
+            sock.close()
+            raise
+        self._transport = transport
+        self.local = sock.getsockname()[:2]
+        log.debug("endpoint.open", extra={"endpoint": self.name, "url": str(ep), "local": _fmt(self.local)})
+        return self
+
+    def close(self) -> None:
+        if self._transport is not None:
+            self._transport.close()
+            self._transport = None
+
+    # -- receiving ---------------------------------------------------------------
+    def datagram_received(self, data: bytes, addr: tuple[str, int] | Any) -> None:
+        rx_s = time.monotonic()
+        self.rx += 1
+        if self.endpoint.mode == "udpin":
+            peer = (addr[0], addr[1])
+            if peer != self.peer:
+                if self.peer is not None:
+                    self.faults["peer_changed"] += 1
+                    log.info("endpoint.peer_changed",
+                             extra={"endpoint": self.name, "old": _fmt(self.peer), "new": _fmt(peer)})  # fmt: skip
+                self.peer = peer
+        elif addr[:2] != self.peer and not _same_host_port(addr, self.endpoint):
+            # A udpout socket is not connected (so a vanished peer cannot make it unusable); anything
+            # from a stranger is not ours to forward.
+            self._fault("foreign_sender", f"datagram from {_fmt(addr)}, expected {_fmt(self.peer)}")
+            return
+        self._clear("unreachable")
+        if self.receiver is not None:
+            self.receiver(data, rx_s)
+
+    def error_received(self, exc: Exception) -> None:
+        """ICMP errors (a ground client that closed its port): count, keep the socket."""
+        kind = "unreachable" if isinstance(exc, ConnectionRefusedError) else "socket_error"
+        self._fault(kind, str(exc))
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if exc is not None:
+            log.warning("endpoint.lost", extra={"endpoint": self.name, "error": str(exc)})
+
+    # -- sending -----------------------------------------------------------------
+    def send(self, data: bytes) -> bool:
+        """Send one datagram to the peer; False (counted) when there is none yet or the socket is backed up."""
+        transport = self._transport
+        if transport is None or self.peer is None:
+            self._fault("no_peer", "nobody has sent to this udpin endpoint yet; dropping until someone does")
+            return False
+        if transport.get_write_buffer_size() > MAX_PENDING_SEND_BYTES:
+            self._fault("send_overflow", f"more than {MAX_PENDING_SEND_BYTES} bytes waiting to be sent")
+            return False
+        try:
+            transport.sendto(data, self.peer)
+        except OSError as exc:  # pragma: no cover - asyncio reports most send errors via error_received
+            self._fault("socket_error", str(exc))
+            return False
+        self.tx += 1
+        self._clear("no_peer")
+        return True
+
+    # -- fault bookkeeping ---------------------------------------------------------
+    def _fault(self, kind: str, detail: str) -> None:
+        self.faults[kind] += 1
+        if kind not in self._reported:
+            self._reported.add(kind)
+            log.warning(f"endpoint.{kind}", extra={"endpoint": self.name, "url": str(self.endpoint), "detail": detail})
+
+    def _clear(self, kind: str) -> None:
+        """The condition ended: log it again if it comes back."""
+        self._reported.discard(kind)
+
+    def snapshot(self) -> dict[str, Any]:
+        return {"url": str(self.endpoint), "peer": _fmt(self.peer), "rx": self.rx, "tx": self.tx,
+                "faults": dict(self.faults)}  # fmt: skip
+
+
+def _same_host_port(addr: Any, ep: Endpoint) -> bool:
+    """``localhost`` in the URL still matches replies from 127.0.0.1."""
+    return bool(addr[1] == ep.port and ep.host in _LOOPBACK_HOSTS and addr[0] in _LOOPBACK_HOSTS)
+
+
+def _fmt(addr: Any) -> str:
+    return "-" if addr is None else f"{addr[0]}:{addr[1]}"

@@ -1,0 +1,169 @@
+"""One vehicle's link: its vehicle endpoint, its ground endpoints and its pipeline.
+
+The link is the thin asyncio edge around the sans-I/O :class:`Pipeline`: it
+feeds each datagram in with its arrival time and direction, and sends what
+comes out, now or (for frames a stage delayed) at ``release_s`` with
+``loop.call_at``. Added latency is recorded when a frame actually leaves
+(:meth:`LinkStats.latency`), for frames sent at once (a delay a profile asked
+for is the attack, not the proxy's cost).
+
+Routing (decided here, following MAVLink's routing rules as mavlink-router and
+the autopilots apply them):
+
+- downlink: every frame of vehicle i goes to every ground endpoint of link i;
+- uplink from an endpoint that only link i uses goes to vehicle i, untouched;
+- uplink from an endpoint shared by several links (the GCS port 14550 carries
+  all vehicles) goes, frame by frame, to the link whose sysid is the frame's
+  ``target_system``; a frame without one, with ``target_system`` 0 (broadcast)
+  or with a system no link has goes to every link. A datagram whose frames all
+  go everywhere is passed on whole, byte for byte.
+- ground endpoints do not hear each other (a GCS never sees MAVSDK's commands).
+
+If the pipeline raises (a bug, never bad input: bad input is counted inside),
+the datagram is forwarded as it came and the error logged once: the proxy
+fails open, so a vehicle never loses its link because of us.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import re
+import struct
+import time
+from collections.abc import Sequence
+from typing import Any
+
+from pymavlink.dialects.v20 import ardupilotmega as dialect
+
+from attack_profiles.action import Direction
+from mitm_proxy import frames
+from mitm_proxy.endpoints import UdpEndpoint
+from mitm_proxy.pipeline import Outgoing, Pipeline
+from mitm_proxy.stats import LinkStats
+
+log = logging.getLogger(__name__)
+
+
+def _target_offsets() -> dict[int, int]:
+    """Payload offset of ``target_system`` for every message that has one (MAVLink orders fields by size)."""
+    out: dict[int, int] = {}
+    for msgid, cls in dialect.mavlink_map.items():
+        names = list(cls.ordered_fieldnames)
+        if "target_system" not in names:
+            continue
+        tokens = re.findall(r"\d*[a-zA-Z]", cls.unpacker.format.lstrip("<"))
+        out[msgid] = struct.calcsize("<" + "".join(tokens[: names.index("target_system")]))
+    return out
+
+
+TARGET_OFFSETS = _target_offsets()
+
+
+def target_system(header: Any, frame: bytes) -> int:
+    """The frame's ``target_system``, 0 (broadcast) when it has none; v2 payloads may be zero-truncated."""
+    offset = TARGET_OFFSETS.get(header.msgid)
+    if offset is None:
+        return 0
+    start = (10 if header.version == 2 else 6) + offset
+    return frame[start] if offset < header.payload_len else 0
+
+
+class Link:
+    """Vehicle i of the process: ``from_vehicle`` / ``from_ground`` are the endpoints' receivers."""
+
+    def __init__(
+        self,
+        index: int,
+        sysid: int,
+        pipeline: Pipeline,
+        stats: LinkStats,
+        vehicle: UdpEndpoint,
+        grounds: Sequence[UdpEndpoint],
+    ) -> None:
+        self.index = index
+        self.sysid = sysid
+        self.pipeline = pipeline
+        self.stats = stats
+        self.vehicle = vehicle
+        self.grounds = list(grounds)
+        self.pipeline_errors = 0
+        self.pending = 0  # delayed frames not yet sent
+        self._loop = asyncio.get_running_loop()
+        self._handles: set[asyncio.TimerHandle] = set()
+        vehicle.receiver = self.from_vehicle
+
+    def from_vehicle(self, data: bytes, rx_s: float) -> None:
+        self._feed(data, Direction.DOWNLINK, rx_s, self.grounds)
+
+    def from_ground(self, data: bytes, rx_s: float) -> None:
+        self._feed(data, Direction.UPLINK, rx_s, (self.vehicle,))
+
+    def _feed(self, data: bytes, direction: Direction, rx_s: float, targets: Sequence[UdpEndpoint]) -> None:
+        try:
+            outs = self.pipeline.feed(data, direction, rx_s)
+        except Exception:
+            self.pipeline_errors += 1
+            if self.pipeline_errors == 1:
+                log.exception("link.pipeline_error", extra={"sysid": self.sysid, "direction": str(direction)})
+            outs = [Outgoing(data, 0.0, rx_s)]
+        now = time.monotonic()
+        for out in outs:
+            if out.release_s > now:
+                self._schedule(out, targets, now)
+                continue
+            for ep in targets:
+                ep.send(out.data)
+            self.stats.latency(time.monotonic() - (out.rx_s or rx_s))
+
+    def _schedule(self, out: Outgoing, targets: Sequence[UdpEndpoint], now: float) -> None:
+        handle: asyncio.TimerHandle | None = None
+
+        def fire() -> None:
+            self.pending -= 1
+            if handle is not None:
+                self._handles.discard(handle)
+            for ep in targets:
+                ep.send(out.data)
+
+        handle = self._loop.call_at(self._loop.time() + (out.release_s - now), fire)
+        self._handles.add(handle)
+        self.pending += 1
+
+    def close(self) -> None:
+        """Cancel frames still held back (they are counted as delayed, never sent)."""
+        for handle in self._handles:
+            handle.cancel()
+        self._handles.clear()
+        self.pending = 0
+
+
+class GroundRouter:
+    """The receiver of one ground endpoint: hands uplink to the link(s) it belongs to (see module doc)."""
+
+    def __init__(self, endpoint: UdpEndpoint, links: Sequence[Link]) -> None:
+        self.endpoint = endpoint
+        self.links = list(links)
+        self._by_sysid = {ln.sysid: ln for ln in self.links}
+        endpoint.receiver = self.links[0].from_ground if len(self.links) == 1 else self.route
+
+    def route(self, data: bytes, rx_s: float) -> None:
+        split = frames.split(data)
+        per_link: dict[int, list[bytes]] = {}
+        everywhere = True
+        for header, frame in split.frames:
+            link = self._by_sysid.get(target_system(header, frame))
+            if link is None:
+                for ln in self.links:
+                    per_link.setdefault(ln.sysid, []).append(frame)
+            else:
+                everywhere = False
+                per_link.setdefault(link.sysid, []).append(frame)
+        if everywhere:  # nothing addressed to one vehicle: the datagram as it came (bad bytes included)
+            for ln in self.links:
+                ln.from_ground(data, rx_s)
+            return
+        for ln in self.links:
+            chunk = per_link.get(ln.sysid)
+            if chunk:
+                ln.from_ground(b"".join(chunk), rx_s)

@@ -1,0 +1,101 @@
+"""UDP endpoints on 127.0.0.1: udpin follows its last sender, udpout keeps its peer, faults never close them."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import socket
+from collections.abc import Callable
+
+import pytest
+
+from mitm_proxy.endpoints import UdpEndpoint
+from secuav_common.urls import parse_endpoint
+
+pytestmark = pytest.mark.timeout(20)
+
+
+def client(port: int | None = None) -> socket.socket:
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", port or 0))
+    sock.settimeout(2.0)
+    return sock
+
+
+async def recv(sock: socket.socket) -> tuple[bytes, tuple[str, int]]:
+    return await asyncio.to_thread(sock.recvfrom, 65535)
+
+
+async def until(cond: Callable[[], bool], timeout_s: float = 2.0) -> None:
+    for _ in range(int(timeout_s / 0.01)):
+        if cond():
+            return
+        await asyncio.sleep(0.01)
+    raise AssertionError("condition not met")
+
+
+async def test_udpin_answers_whoever_sent_last(udp_port: Callable[[], int], caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level(logging.INFO, "mitm_proxy.endpoints")
+    port = udp_port()
+    got: list[bytes] = []
+    ep = await UdpEndpoint(parse_endpoint(f"udpin://127.0.0.1:{port}"), "vehicle").open()
+    ep.receiver = lambda data, rx_s: got.append(data)
+    a, b = client(), client()
+    try:
+        assert not ep.send(b"early") and not ep.send(b"early again")  # nobody to answer yet: counted, logged once
+        assert ep.faults["no_peer"] == 2
+        a.sendto(b"from a", ("127.0.0.1", port))
+        await until(lambda: got == [b"from a"])
+        assert ep.send(b"to a")
+        assert (await recv(a))[0] == b"to a"
+        b.sendto(b"from b", ("127.0.0.1", port))  # the vehicle restarted on a new source port
+        await until(lambda: len(got) == 2)
+        assert ep.send(b"to b")
+        data, _ = await recv(b)
+        assert data == b"to b" and ep.peer == b.getsockname() and ep.faults["peer_changed"] == 1
+    finally:
+        ep.close()
+        a.close()
+        b.close()
+    assert sum("endpoint.no_peer" in r.message for r in caplog.records) == 1
+    assert sum("endpoint.peer_changed" in r.message for r in caplog.records) == 1
+
+
+async def test_udpout_survives_a_vanished_peer(udp_port: Callable[[], int], caplog: pytest.LogCaptureFixture) -> None:
+    """ICMP port unreachable from a closed ground client is counted and logged once; the socket stays usable."""
+    port = udp_port()
+    ep = await UdpEndpoint(parse_endpoint(f"udpout://127.0.0.1:{port}"), "ground").open()
+    got: list[bytes] = []
+    ep.receiver = lambda data, rx_s: got.append(data)
+    try:
+        for _ in range(50):  # nobody listens on port: the kernel answers with ICMP port unreachable
+            ep.send(b"x")
+            await asyncio.sleep(0.002)
+        peer = client(port)  # the ground client comes back
+        try:
+            assert ep.send(b"hello")
+            assert (await recv(peer))[0] == b"hello"
+            assert ep.local is not None
+            peer.sendto(b"reply", ep.local)
+            await until(lambda: got == [b"reply"])
+            stranger = client()
+            stranger.sendto(b"not ours", ep.local)  # only the fixed peer speaks for this endpoint
+            await asyncio.sleep(0.05)
+            stranger.close()
+            assert got == [b"reply"] and ep.faults["foreign_sender"] == 1
+        finally:
+            peer.close()
+    finally:
+        ep.close()
+    assert ep.tx == 51
+    assert sum("endpoint.unreachable" in r.message for r in caplog.records) <= 1
+
+
+async def test_udpin_port_taken_is_an_oserror(udp_port: Callable[[], int]) -> None:
+    port = udp_port()
+    first = await UdpEndpoint(parse_endpoint(f"udpin://127.0.0.1:{port}"), "a").open()
+    try:
+        with pytest.raises(OSError):
+            await UdpEndpoint(parse_endpoint(f"udpin://127.0.0.1:{port}"), "b").open()
+    finally:
+        first.close()
