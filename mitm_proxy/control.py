@@ -1,0 +1,455 @@
+"""The proxy's MQTT control plane (DESIGN.md "Control plane").
+
+One background task keeps one MQTT session: it subscribes to
+``secuav/+/attack/set`` and ``secuav/+/secure/set``, hands each request to the
+vehicle's :class:`~mitm_proxy.slots.AttackSlot` (or to the secure stage's
+callable), and publishes what came of it on the retained ``.../state`` topic.
+It also publishes each link's stats at 1 Hz, the retained
+``secuav/proxy/online`` flag (with a last will of ``false``), and whatever other
+producers hand to :meth:`ControlPlane.publish_nowait`.
+
+The data path never waits for MQTT: requests run between two frames on the
+event loop (installing a profile is one attribute assignment in the slot), and
+every outgoing message goes through an outbox that drops rather than blocks.
+When the broker goes away the plane logs it once, retries with a growing
+backoff, and on reconnect republishes every state, so a client that subscribes
+later still reads the truth.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import hashlib
+import json
+import logging
+import os
+import re
+import time
+import uuid
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Any
+
+import aiomqtt
+
+from mitm_proxy.slots import AttackSlot
+from secuav_common.broker import parse_broker_url
+
+log = logging.getLogger(__name__)
+
+PREFIX = "secuav"
+ONLINE_TOPIC = f"{PREFIX}/proxy/online"
+MAX_PAYLOAD_BYTES = 64 * 1024
+SecureHandler = Callable[[int, Any, "str | None"], dict[str, Any]]
+SecureState = Callable[[int], "dict[str, Any] | None"]
+
+# A request id the CLI puts first in its JSON, so an oversized or broken payload can still be answered.
+_REQUEST_ID_PREFIX = re.compile(rb'\A\s*\{\s*"request_id"\s*:\s*"([A-Za-z0-9_.:@/-]{1,100})"')
+_TOPIC = re.compile(rf"\A{PREFIX}/([^/]+)/(attack|secure)/set\Z")
+_VEHICLE_KEY = re.compile(r"\Av(\d{1,3})\Z")
+
+
+def vehicle_topic(sysid: int, leaf: str) -> str:
+    """``secuav/v<sysid>/<leaf>`` (leaf: ``attack/state``, ``stats``, ``estimate``...)."""
+    return f"{PREFIX}/v{sysid}/{leaf}"
+
+
+class RequestError(ValueError):
+    """A set request that never became a payload (too large, not UTF-8, not JSON)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Request:
+    """A decoded ``secuav/v<sysid>/<kind>/set`` message."""
+
+    sysid: int
+    kind: str  # "attack" or "secure"
+    payload: Any  # decoded JSON, request_id left in (the slot ignores it)
+    request_id: str | None
+
+
+def parse_topic(topic: str) -> tuple[str, str] | None:
+    """``("v1", "attack")`` for ``secuav/v1/attack/set``; ``None`` for anything else."""
+    m = _TOPIC.match(topic)
+    return (m.group(1), m.group(2)) if m else None
+
+
+def parse_vehicle_key(key: str) -> int | None:
+    m = _VEHICLE_KEY.match(key)
+    return int(m.group(1)) if m and int(m.group(1)) <= 255 else None
+
+
+def decode_payload(raw: bytes) -> tuple[Any, str | None]:
+    """JSON payload and its ``request_id``; :class:`RequestError` says why a payload is refused.
+
+    The size is checked before anything is decoded, so a flood of huge
+    messages costs a length comparison each.
+    """
+    if len(raw) > MAX_PAYLOAD_BYTES:
+        raise RequestError(f"payload of {len(raw)} bytes is larger than {MAX_PAYLOAD_BYTES} bytes")
+    if not raw.strip():
+        raise RequestError("empty payload; send JSON null to clear")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise RequestError(f"payload is not UTF-8 text (byte {exc.start})") from None
+    try:
+        payload = json.loads(text)
+    except (ValueError, RecursionError) as exc:
+        where = f" at line {exc.lineno} column {exc.colno}" if isinstance(exc, json.JSONDecodeError) else ""
+        reason = exc.msg if isinstance(exc, json.JSONDecodeError) else "nested too deeply"
+        raise RequestError(f"payload is not JSON: {reason}{where}") from None
+    request_id = payload.get("request_id") if isinstance(payload, dict) else None
+    if request_id is not None and not isinstance(request_id, str):
+        request_id = json.dumps(request_id)[:100]
+    return payload, request_id
+
+
+def salvage_request_id(raw: bytes) -> str | None:
+    """The request id of a refused payload, when it leads the JSON object (as ``secuav-attack`` writes it)."""
+    m = _REQUEST_ID_PREFIX.match(raw[:200])
+    return m.group(1).decode() if m else None
+
+
+class Outbox:
+    """Messages waiting for the broker; appending never blocks and never grows without bound.
+
+    Retained topics keep only their latest value (that is all a subscriber
+    would read anyway) and are never dropped; other messages sit in a bounded
+    queue that drops its oldest entry when full and counts it.
+    """
+
+    def __init__(self, maxlen: int) -> None:
+        self.retained: dict[str, bytes] = {}
+        self.queue: deque[tuple[str, bytes]] = deque(maxlen=maxlen)
+        self.dropped = 0
+        self.wakeup = asyncio.Event()
+
+    def put(self, topic: str, payload: bytes, retain: bool) -> None:
+        if retain:
+            self.retained.pop(topic, None)  # re-insert: retained states go out in the order they changed
+            self.retained[topic] = payload
+        else:
+            if len(self.queue) == self.queue.maxlen:
+                self.dropped += 1
+            self.queue.append((topic, payload))
+        self.wakeup.set()
+
+    def take(self) -> tuple[str, bytes, bool] | None:
+        if self.retained:
+            topic = next(iter(self.retained))
+            return topic, self.retained.pop(topic), True
+        if self.queue:
+            topic, payload = self.queue.popleft()
+            return topic, payload, False
+        self.wakeup.clear()
+        return None
+
+    def put_back(self, topic: str, payload: bytes, retain: bool) -> None:
+        """A message the broker did not take (connection lost): it goes out first after the reconnect."""
+        if retain:
+            self.retained.setdefault(topic, payload)
+        elif len(self.queue) < (self.queue.maxlen or 0):
+            self.queue.appendleft((topic, payload))
+        else:
+            self.dropped += 1
+
+
+def _json_bytes(payload: Any) -> bytes:
+    if isinstance(payload, bytes):
+        return payload
+    return json.dumps(payload, separators=(",", ":"), allow_nan=False, default=str).encode()
+
+
+class ControlPlane:
+    """``async with ControlPlane(url, slots, stats=...) as plane:`` runs the MQTT side in the background.
+
+    ``broker_url`` None disables MQTT (``--broker none``): the plane then does
+    nothing and :meth:`publish_nowait` discards. ``secure(sysid, payload,
+    request_id)`` handles ``secure/set`` and returns the state to publish;
+    ``secure_state(sysid)`` gives the initial one. Username/password given here
+    win over those in the URL; ``tls_ca`` (a CA file) or an ``mqtts://`` URL
+    turns TLS on, ``tls_insecure`` skips the host name check.
+    """
+
+    def __init__(
+        self,
+        broker_url: str | None,
+        slots: Mapping[int, AttackSlot],
+        *,
+        stats: Callable[[], dict[int, dict[str, Any]]],
+        secure: SecureHandler | None = None,
+        secure_state: SecureState | None = None,
+        username: str | None = None,
+        password: str | None = None,
+        tls_ca: str | None = None,
+        tls_insecure: bool = False,
+        stats_interval_s: float = 1.0,
+        outbox_size: int = 1000,
+        backoff_s: tuple[float, float] = (0.2, 5.0),
+        keepalive_s: int = 10,
+    ) -> None:
+        self.address = parse_broker_url(broker_url) if broker_url is not None else None
+        self.slots = slots
+        self._stats = stats
+        self._secure = secure
+        self._secure_state = secure_state
+        self._username = username if username is not None else (self.address.username if self.address else None)
+        self._password = password if password is not None else (self.address.password if self.address else None)
+        self._tls = self.address is not None and (self.address.tls or tls_ca is not None)
+        self._tls_ca = tls_ca
+        self._tls_insecure = tls_insecure
+        self.stats_interval_s = stats_interval_s
+        self._backoff_s = backoff_s
+        self._keepalive_s = keepalive_s
+        self.outbox = Outbox(outbox_size)
+        self.connected = asyncio.Event()
+        self.connections = 0  # successful connects, for tests and the log
+        self._task: asyncio.Task[None] | None = None
+        self._client: aiomqtt.Client | None = None
+        self._unknown: set[str] = set()  # vehicle keys already logged
+        self._handled: dict[str, deque[bytes]] = {}  # topic -> digests of recent requests (retained replays)
+        self._stats_failing = False
+        self.identifier = f"secuav-proxy-{os.getpid()}-{uuid.uuid4().hex[:6]}"
+
+    # -- lifecycle ------------------------------------------------------------------------------------
+
+    async def __aenter__(self) -> ControlPlane:
+        if self.address is not None:
+            self._task = asyncio.create_task(self.run(), name="control-plane")
+        return self
+
+    async def __aexit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        await self.aclose()
+
+    async def aclose(self) -> None:
+        """Say ``online false`` while we still can (a clean disconnect does not fire the will), then stop."""
+        client = self._client
+        if client is not None and self.connected.is_set():
+            with contextlib.suppress(aiomqtt.MqttError, asyncio.TimeoutError):
+                await asyncio.wait_for(client.publish(ONLINE_TOPIC, b"false", qos=1, retain=True), 1.0)
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+            self._task = None
+
+    async def wait_connected(self, timeout_s: float) -> None:
+        await asyncio.wait_for(self.connected.wait(), timeout_s)
+
+    # -- for other producers --------------------------------------------------------------------------
+
+    def publish_nowait(self, topic: str, payload: Any, retain: bool = False) -> None:
+        """Queue ``payload`` (bytes, or anything JSON) for ``topic``; never waits, drops the oldest when full."""
+        if self.address is None:
+            return
+        self.outbox.put(topic, _json_bytes(payload), retain)
+
+    def publish_state(self, sysid: int) -> None:
+        """Queue the retained ``attack/state`` of ``sysid`` (after a change made outside MQTT: file reload)."""
+        slot = self.slots.get(sysid)
+        if slot is not None:
+            self.publish_nowait(vehicle_topic(sysid, "attack/state"), slot.state.to_json(), retain=True)
+
+    @property
+    def dropped(self) -> int:
+        return self.outbox.dropped
+
+    # -- the session ----------------------------------------------------------------------------------
+
+    def _client_for_attempt(self) -> aiomqtt.Client:
+        assert self.address is not None
+        tls_params = aiomqtt.TLSParameters(ca_certs=self._tls_ca) if self._tls else None
+        return aiomqtt.Client(
+            self.address.host,
+            self.address.port,
+            username=self._username,
+            password=self._password,
+            identifier=self.identifier,
+            will=aiomqtt.Will(ONLINE_TOPIC, b"false", qos=1, retain=True),
+            keepalive=self._keepalive_s,
+            timeout=5.0,
+            tls_params=tls_params,
+            tls_insecure=self._tls_insecure if self._tls else None,
+            logger=logging.getLogger(f"{__name__}.client"),
+        )
+
+    async def run(self) -> None:
+        """Connect, serve, and on any broker failure reconnect with backoff, until cancelled."""
+        assert self.address is not None
+        url = self.address.url
+        delay_s = self._backoff_s[0]
+        down_since: float | None = None
+        attempts = 0
+        while True:
+            try:
+                async with self._client_for_attempt() as client:
+                    self._client = client
+                    if down_since is not None:
+                        log.info(
+                            "mqtt.reconnected",
+                            extra={"url": url, "down_s": round(time.monotonic() - down_since, 2), "attempts": attempts},
+                        )
+                    down_since, attempts, delay_s = None, 0, self._backoff_s[0]
+                    await self._serve(client)
+            except Exception as exc:  # MqttError is the broker; anything else is our bug: logged, retried
+                if not isinstance(exc, aiomqtt.MqttError):
+                    log.exception("control.failed", extra={"url": url})
+                attempts += 1
+                if down_since is None:
+                    down_since = time.monotonic()
+                    log.warning("mqtt.unavailable", extra={"url": url, "error": str(exc)})
+                else:
+                    log.debug("mqtt.retry", extra={"url": url, "error": str(exc), "attempt": attempts})
+            finally:
+                self._client = None
+                self.connected.clear()
+            await asyncio.sleep(delay_s)
+            delay_s = min(delay_s * 2, self._backoff_s[1])
+
+    async def _serve(self, client: aiomqtt.Client) -> None:
+        await client.publish(ONLINE_TOPIC, b"true", qos=1, retain=True)
+        await client.subscribe([(f"{PREFIX}/+/attack/set", 1), (f"{PREFIX}/+/secure/set", 1)])
+        for sysid in self.slots:
+            self.publish_state(sysid)
+            self._publish_initial_secure(sysid)
+        self.connections += 1
+        self.connected.set()
+        log.info("mqtt.connected", extra={"url": self.address.url if self.address else None})
+        tasks = [
+            asyncio.create_task(self._receive(client), name="control-receive"),
+            asyncio.create_task(self._drain(client), name="control-drain"),
+            asyncio.create_task(self._stats_loop(), name="control-stats"),
+        ]
+        try:
+            done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_EXCEPTION)
+            for task in done:
+                task.result()  # re-raise the MqttError that ended the session
+        finally:
+            for task in tasks:
+                task.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+
+    async def _drain(self, client: aiomqtt.Client) -> None:
+        while True:
+            item = self.outbox.take()
+            if item is None:
+                await self.outbox.wakeup.wait()
+                continue
+            topic, payload, retain = item
+            try:
+                await client.publish(topic, payload, qos=1 if retain else 0, retain=retain)
+            except BaseException:
+                self.outbox.put_back(topic, payload, retain)
+                raise
+
+    async def _stats_loop(self) -> None:
+        while True:
+            await asyncio.sleep(self.stats_interval_s)
+            try:
+                snapshot = self._stats()
+            except Exception as exc:  # a stats bug must not end the control plane
+                if not self._stats_failing:
+                    log.error("stats.failed", extra={"error": repr(exc)})
+                self._stats_failing = True
+                continue
+            self._stats_failing = False
+            for sysid, body in snapshot.items():
+                self.publish_nowait(vehicle_topic(sysid, "stats"), body)
+
+    async def _receive(self, client: aiomqtt.Client) -> None:
+        async for message in client.messages:
+            body = message.payload
+            raw = bytes(body) if isinstance(body, bytes | bytearray) else ("" if body is None else str(body)).encode()
+            self.handle(str(message.topic), raw, retained=message.retain)
+
+    # -- requests (sans-I/O: tests call handle() directly) ---------------------------------------------
+
+    def handle(self, topic: str, raw: bytes, retained: bool = False) -> None:
+        """Apply one ``.../set`` message and queue the resulting state."""
+        parsed = parse_topic(topic)
+        if parsed is None:
+            return
+        key, kind = parsed
+        digest = hashlib.sha256(raw).digest()
+        seen = self._handled.setdefault(topic, deque(maxlen=64))
+        if retained and digest in seen:
+            # Someone published this request retained; we applied it when it arrived and the
+            # broker hands it to us again after every reconnect. Re-applying it would undo
+            # whatever came later, so only a retained request we never saw counts.
+            return
+        seen.append(digest)
+        sysid = parse_vehicle_key(key)
+        if sysid is None or sysid not in self.slots:
+            if key not in self._unknown:
+                self._unknown.add(key)
+                log.warning("control.unknown_vehicle", extra={"topic": topic, "known": sorted(self.slots)})
+            return
+        try:
+            payload, request_id = decode_payload(raw)
+        except RequestError as exc:
+            request_id = salvage_request_id(raw)
+            log.warning("control.refused", extra={"topic": topic, "error": str(exc), "request_id": request_id})
+            self._refuse(sysid, kind, str(exc), request_id)
+            return
+        if kind == "attack":
+            self._apply_attack(sysid, payload, request_id)
+        else:
+            self._apply_secure(sysid, payload, request_id)
+
+    def _apply_attack(self, sysid: int, payload: Any, request_id: str | None) -> None:
+        slot = self.slots[sysid]
+        try:
+            state = slot.offer_payload(payload, request_id, source=vehicle_topic(sysid, "attack/set"))
+        except Exception as exc:  # a library bug must not end the control plane; the old profile stays
+            log.exception("attack.failed", extra={"sysid": sysid, "request_id": request_id})
+            state = slot.reject(f"internal error while loading the profile: {exc!r}", request_id)
+        if state.ok:
+            log.info("attack.applied", extra={"sysid": sysid, "profile": state.profile, "request_id": request_id})
+        else:
+            log.warning("attack.rejected", extra={"sysid": sysid, "error": state.error, "request_id": request_id})
+        self.publish_state(sysid)
+
+    def _apply_secure(self, sysid: int, payload: Any, request_id: str | None) -> None:
+        if self._secure is None:
+            self._publish_secure(sysid, self._secure_unavailable(sysid, request_id))
+            return
+        try:
+            state = self._secure(sysid, payload, request_id)
+        except Exception as exc:  # the secure stage's bug is reported on its topic, not fatal here
+            log.error("secure.failed", extra={"sysid": sysid, "error": repr(exc)})
+            state = {"sysid": sysid, "ok": False, "error": f"secure stage failed: {exc!r}", "request_id": request_id}
+        self._publish_secure(sysid, state)
+
+    def _refuse(self, sysid: int, kind: str, error: str, request_id: str | None) -> None:
+        if kind == "attack":
+            self.slots[sysid].reject(error, request_id)
+            self.publish_state(sysid)
+        else:
+            self._publish_secure(sysid, {"sysid": sysid, "ok": False, "error": error, "request_id": request_id})
+
+    def _secure_unavailable(self, sysid: int, request_id: str | None) -> dict[str, Any]:
+        return {
+            "sysid": sysid,
+            "available": False,
+            "estimator": None,
+            "ok": request_id is None,  # nothing was asked: nothing failed
+            "error": "the secure stage is not available in this proxy",
+            "request_id": request_id,
+        }
+
+    def _publish_initial_secure(self, sysid: int) -> None:
+        if self._secure is None:
+            self._publish_secure(sysid, self._secure_unavailable(sysid, None))
+        elif self._secure_state is not None:
+            state = self._secure_state(sysid)
+            if state is not None:
+                self._publish_secure(sysid, state)
+
+    def _publish_secure(self, sysid: int, state: dict[str, Any]) -> None:
+        self.publish_nowait(vehicle_topic(sysid, "secure/state"), state, retain=True)

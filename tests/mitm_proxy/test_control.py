@@ -1,0 +1,230 @@
+"""The MQTT control plane against real brokers: the embedded amqtt and mosquitto, on loopback."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+from collections.abc import AsyncIterator, Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+from test_control_support import MOSQUITTO, Mosquitto, Observer
+
+from attack_profiles import library
+from mitm_proxy.control import MAX_PAYLOAD_BYTES, ONLINE_TOPIC, ControlPlane
+from mitm_proxy.slots import AttackSlot
+from secuav_common.broker import EmbeddedBroker
+
+pytestmark = pytest.mark.timeout(60)
+
+BROKERS = ["amqtt", pytest.param("mosquitto", marks=pytest.mark.mosquitto)]
+SET1, STATE1 = "secuav/v1/attack/set", "secuav/v1/attack/state"
+
+
+@pytest.fixture(params=BROKERS)
+async def broker_port(
+    request: pytest.FixtureRequest, tcp_port: Callable[[], int], tmp_path: Path
+) -> AsyncIterator[int]:
+    port = tcp_port()
+    if request.param == "amqtt":
+        async with EmbeddedBroker(port=port) as broker:
+            assert broker.started
+            yield port
+    else:
+        if MOSQUITTO is None:
+            pytest.skip("the mosquitto binary is not installed")
+        with Mosquitto(port, tmp_path):
+            yield port
+
+
+def fake_stats() -> dict[int, dict[str, Any]]:
+    return {1: {"downlink": {"frames_in": 5}}, 2: {"downlink": {"frames_in": 7}}}
+
+
+@pytest.fixture
+def slots() -> dict[int, AttackSlot]:
+    return {1: AttackSlot(1), 2: AttackSlot(2)}
+
+
+async def test_library_profile_is_applied_acknowledged_and_retained(
+    broker_port: int, slots: dict[int, AttackSlot]
+) -> None:
+    plane = ControlPlane(f"mqtt://127.0.0.1:{broker_port}", slots, stats=fake_stats)
+    async with plane, Observer(broker_port, ["secuav/#"]) as obs:
+        await plane.wait_connected(10)
+        initial = await obs.wait_for(STATE1)
+        assert initial["ok"] and initial["profile"] is None and initial["sysid"] == 1
+        assert await obs.wait_for(ONLINE_TOPIC) is True
+
+        state = await obs.request(SET1, {"library": "wall-spoof", "parameters": {"start_s": 0}})
+        expected = library.load("wall-spoof", start_s=0)
+        assert state["ok"] and state["error"] is None
+        assert state["profile"] == "wall-spoof" and state["hash"] == expected.content_hash()
+        assert slots[1].engine is not None and slots[1].engine.profile == expected
+        assert slots[2].engine is None  # only the addressed vehicle
+
+        # A client that subscribes later reads the same state, retained.
+        async with Observer(broker_port, [STATE1]) as late:
+            body = await late.wait_for(STATE1)
+            assert body["request_id"] == state["request_id"]
+            assert late.messages[0][2] is True  # delivered as a retained message
+
+
+async def test_rejected_profile_keeps_the_old_engine(broker_port: int, slots: dict[int, AttackSlot]) -> None:
+    async with ControlPlane(f"mqtt://127.0.0.1:{broker_port}", slots, stats=fake_stats) as plane:
+        await plane.wait_connected(10)
+        async with Observer(broker_port, ["secuav/v1/#"]) as obs:
+            good = await obs.request(SET1, {"library": "distance-stuck"})
+            assert good["ok"]
+            engine = slots[1].engine
+            bad_profile = {"name": "bad", "rules": [{"target": {"message": "DISTANCE_SENSOR"}, "kind": "warp"}]}
+            bad = await obs.request(SET1, bad_profile)
+            assert not bad["ok"]
+            assert "rules[0].kind" in bad["error"] and "warp" in bad["error"]
+            assert bad["profile"] == "distance-stuck" and bad["hash"] == good["hash"]  # still the old one
+            assert slots[1].engine is engine
+
+            unknown = await obs.request(SET1, {"library": "no-such-profile"})
+            assert not unknown["ok"] and "no-such-profile" in unknown["error"]
+            assert slots[1].engine is engine
+
+
+async def test_null_and_an_empty_request_clear(broker_port: int, slots: dict[int, AttackSlot]) -> None:
+    async with ControlPlane(f"mqtt://127.0.0.1:{broker_port}", slots, stats=fake_stats) as plane:
+        await plane.wait_connected(10)
+        async with Observer(broker_port, ["secuav/v1/#"]) as obs:
+            assert (await obs.request(SET1, {"library": "drift"}))["ok"]
+            assert slots[1].engine is not None
+            start = len(obs.messages)
+            await obs.publish(SET1, None)  # the JSON literal null
+            state = await obs.wait_for(STATE1, lambda b: b["profile"] is None, start=start)
+            assert state["ok"] and state["hash"] is None and slots[1].engine is None
+
+            assert (await obs.request(SET1, {"library": "drift"}))["ok"]
+            cleared = await obs.request(SET1, None)  # {"request_id": ...} alone clears too
+            assert cleared["ok"] and cleared["profile"] is None and slots[1].engine is None
+
+
+async def test_oversized_binary_and_broken_payloads_are_refused(broker_port: int, slots: dict[int, AttackSlot]) -> None:
+    async with ControlPlane(f"mqtt://127.0.0.1:{broker_port}", slots, stats=fake_stats) as plane:
+        await plane.wait_connected(10)
+        async with Observer(broker_port, ["secuav/v1/#"]) as obs:
+            assert (await obs.request(SET1, {"library": "drift"}))["ok"]
+            engine = slots[1].engine
+
+            # Oversized: refused before decoding, yet answered (the request id leads the JSON).
+            big = {"request_id": "big-1", "name": "x", "description": "y" * MAX_PAYLOAD_BYTES, "rules": []}
+            start = len(obs.messages)
+            await obs.publish(SET1, json.dumps(big).encode())
+            state = await obs.wait_for(STATE1, lambda b: b["request_id"] == "big-1", start=start)
+            assert not state["ok"] and "larger than 65536 bytes" in state["error"]
+
+            cases = {
+                b"\xff\xfe\x00binary": "not UTF-8",
+                b'{"request_id": "nj-1", "library": ': "not JSON",
+                b"   ": "empty payload",
+            }
+            for raw, reason in cases.items():
+                start = len(obs.messages)
+                await obs.publish(SET1, raw)
+                state = await obs.wait_for(STATE1, lambda b, why=reason: why in (b["error"] or ""), start=start)
+                assert not state["ok"]
+            assert state["profile"] == "drift" and slots[1].engine is engine
+            assert (await obs.wait_for(STATE1, lambda b: b["request_id"] == "nj-1"))["ok"] is False
+
+
+async def test_unknown_vehicle_is_logged_once(
+    broker_port: int, slots: dict[int, AttackSlot], caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.WARNING, logger="mitm_proxy.control")
+    async with ControlPlane(f"mqtt://127.0.0.1:{broker_port}", slots, stats=fake_stats) as plane:
+        await plane.wait_connected(10)
+        async with Observer(broker_port, ["secuav/#"]) as obs:
+            for _ in range(3):
+                await obs.publish("secuav/v9/attack/set", {"library": "drift"})
+                await obs.publish("secuav/drone/attack/set", {"library": "drift"})
+            # A request to a known vehicle after them proves the unknown ones were handled (in order).
+            assert (await obs.request(SET1, {"library": "drift"}))["ok"]
+            assert obs.on("secuav/v9/attack/state") == []
+    unknown = [r for r in caplog.records if r.getMessage() == "control.unknown_vehicle"]
+    assert len(unknown) == 2
+
+
+async def test_stats_are_published_about_once_a_second(broker_port: int, slots: dict[int, AttackSlot]) -> None:
+    plane = ControlPlane(f"mqtt://127.0.0.1:{broker_port}", slots, stats=fake_stats)
+    async with plane, Observer(broker_port, ["secuav/+/stats"]) as obs:
+        await plane.wait_connected(10)
+        await asyncio.sleep(3.3)
+    v1 = obs.on("secuav/v1/stats")
+    assert v1[0] == {"downlink": {"frames_in": 5}}
+    assert obs.on("secuav/v2/stats")[0] == {"downlink": {"frames_in": 7}}
+    assert 2 <= len(v1) <= 4  # 1 Hz over ~3.3 s, whatever the connect took
+
+
+async def test_secure_set_without_and_with_a_secure_stage(broker_port: int, slots: dict[int, AttackSlot]) -> None:
+    url = f"mqtt://127.0.0.1:{broker_port}"
+    async with ControlPlane(url, slots, stats=fake_stats) as plane:
+        await plane.wait_connected(10)
+        async with Observer(broker_port, ["secuav/v1/secure/#"]) as obs:
+            initial = await obs.wait_for("secuav/v1/secure/state")
+            assert initial["available"] is False and initial["request_id"] is None
+            state = await obs.request("secuav/v1/secure/set", {"estimator": "secekf"})
+            assert not state["ok"] and "not available" in state["error"]
+
+    calls: list[tuple[int, Any, str | None]] = []
+
+    def secure(sysid: int, payload: Any, request_id: str | None) -> dict[str, Any]:
+        calls.append((sysid, payload, request_id))
+        if payload.get("estimator") == "broken":
+            raise RuntimeError("boom")
+        return {"sysid": sysid, "estimator": payload.get("estimator"), "ok": True, "request_id": request_id}
+
+    async with ControlPlane(url, slots, stats=fake_stats, secure=secure) as plane:
+        await plane.wait_connected(10)
+        async with Observer(broker_port, ["secuav/v2/secure/#"]) as obs:
+            state = await obs.request("secuav/v2/secure/set", {"estimator": "rarse"})
+            assert state["ok"] and state["estimator"] == "rarse"
+            assert calls[-1][0] == 2 and calls[-1][1]["estimator"] == "rarse"
+            failed = await obs.request("secuav/v2/secure/set", {"estimator": "broken"})
+            assert not failed["ok"] and "boom" in failed["error"]
+
+
+async def test_clean_stop_says_offline(broker_port: int, slots: dict[int, AttackSlot]) -> None:
+    async with Observer(broker_port, [ONLINE_TOPIC]) as obs:
+        async with ControlPlane(f"mqtt://127.0.0.1:{broker_port}", slots, stats=fake_stats) as plane:
+            await plane.wait_connected(10)
+            await obs.wait_for(ONLINE_TOPIC, lambda b: b is True)
+        await obs.wait_for(ONLINE_TOPIC, lambda b: b is False)
+
+
+async def test_last_will_fires_when_the_connection_dies(broker_port: int, slots: dict[int, AttackSlot]) -> None:
+    async with Observer(broker_port, [ONLINE_TOPIC]) as obs:
+        plane = ControlPlane(f"mqtt://127.0.0.1:{broker_port}", slots, stats=fake_stats, backoff_s=(30.0, 30.0))
+        async with plane:
+            await plane.wait_connected(10)
+            await obs.wait_for(ONLINE_TOPIC, lambda b: b is True)
+            start = len(obs.messages)
+            # Cut the TCP connection under the client, as a crash or a pulled cable would:
+            # the broker, not the plane, must announce that the proxy is gone.
+            assert plane._client is not None
+            sock = plane._client._client.socket()
+            sock.shutdown(2)
+            await obs.wait_for(ONLINE_TOPIC, lambda b: b is False, start=start)
+            assert not plane.connected.is_set() or await _cleared(plane)
+
+
+async def _cleared(plane: ControlPlane) -> bool:
+    for _ in range(50):
+        if not plane.connected.is_set():
+            return True
+        await asyncio.sleep(0.1)
+    return False
+
+
+async def test_no_broker_means_no_mqtt_and_publish_is_a_no_op(slots: dict[int, AttackSlot]) -> None:
+    async with ControlPlane(None, slots, stats=fake_stats) as plane:
+        plane.publish_nowait("secuav/v1/estimate", {"x": 1})
+        assert not plane.connected.is_set() and plane.dropped == 0
+        assert len(plane.outbox.queue) == 0

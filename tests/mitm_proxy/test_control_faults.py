@@ -1,0 +1,126 @@
+"""The control plane when the broker is slow, absent or restarts: it never blocks its callers and comes back."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+from test_control_support import Mosquitto, Observer, needs_mosquitto
+
+from mitm_proxy.control import ControlPlane, Outbox
+from mitm_proxy.slots import AttackSlot
+
+pytestmark = pytest.mark.timeout(60)
+SET1, STATE1 = "secuav/v1/attack/set", "secuav/v1/attack/state"
+
+
+def no_stats() -> dict[int, dict[str, Any]]:
+    return {}
+
+
+def test_outbox_keeps_the_latest_retained_value_and_bounds_the_rest() -> None:
+    box = Outbox(maxlen=3)
+    for i in range(5):
+        box.put("secuav/v1/estimate", str(i).encode(), retain=False)
+    box.put("secuav/v1/attack/state", b"old", retain=True)
+    box.put("secuav/v1/attack/state", b"new", retain=True)
+    assert box.dropped == 2
+    taken = [box.take() for _ in range(5)]
+    assert taken == [
+        ("secuav/v1/attack/state", b"new", True),
+        ("secuav/v1/estimate", b"2", False),
+        ("secuav/v1/estimate", b"3", False),
+        ("secuav/v1/estimate", b"4", False),
+        None,
+    ]
+    assert not box.wakeup.is_set()
+
+
+@needs_mosquitto
+@pytest.mark.mosquitto
+async def test_publish_never_blocks_while_the_broker_is_down_and_delivers_after(
+    tcp_port: Callable[[], int], tmp_path: Path
+) -> None:
+    port = tcp_port()
+    slots = {1: AttackSlot(1)}
+    plane = ControlPlane(f"mqtt://127.0.0.1:{port}", slots, stats=no_stats, outbox_size=100, backoff_s=(0.1, 0.3))
+    async with plane:
+        started = time.perf_counter()
+        for i in range(5000):
+            plane.publish_nowait("secuav/v1/estimate", {"i": i})
+        elapsed_s = time.perf_counter() - started
+        assert plane.dropped == 4900 and len(plane.outbox.queue) == 100
+        print(f"publish_nowait with no broker: {elapsed_s / 5000 * 1e6:.1f} us per call")
+        with Mosquitto(port, tmp_path):
+            async with Observer(port, ["secuav/v1/#"]) as obs:
+                await plane.wait_connected(10)
+                last = await obs.wait_for("secuav/v1/estimate", lambda b: b == {"i": 4999})
+                assert last == {"i": 4999}
+                assert (await obs.wait_for(STATE1))["sysid"] == 1
+
+
+@needs_mosquitto
+@pytest.mark.mosquitto
+async def test_broker_restart_reconnects_republishes_and_keeps_serving(
+    tcp_port: Callable[[], int], tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.INFO, logger="mitm_proxy.control")
+    port = tcp_port()
+    broker = Mosquitto(port, tmp_path)
+    slots = {1: AttackSlot(1)}
+    plane = ControlPlane(f"mqtt://127.0.0.1:{port}", slots, stats=no_stats, backoff_s=(0.1, 0.5))
+    broker.start()
+    try:
+        async with plane:
+            await plane.wait_connected(10)
+            async with Observer(port, ["secuav/v1/#"]) as obs:
+                assert (await obs.request(SET1, {"library": "distance-stuck"}))["ok"]
+
+            broker.stop()  # persistence is off: the restarted broker has forgotten every retained state
+            await asyncio.sleep(1.5)  # several reconnect attempts while it is down
+            assert not plane.connected.is_set()
+            broker.start()
+            await plane.wait_connected(10)
+            assert plane.connections == 2
+
+            async with Observer(port, ["secuav/v1/#", "secuav/proxy/online"]) as obs:
+                state = await obs.wait_for(STATE1)  # republished by the plane after the reconnect
+                assert state["profile"] == "distance-stuck"
+                assert await obs.wait_for("secuav/proxy/online") is True
+                again = await obs.request(SET1, {"library": "drift"})
+                assert again["ok"] and slots[1].engine is not None and slots[1].engine.profile.name == "drift"
+    finally:
+        broker.stop()
+    messages = [r.getMessage() for r in caplog.records]
+    assert messages.count("mqtt.unavailable") == 1  # one line per outage, not per attempt
+    assert messages.count("mqtt.reconnected") == 1
+
+
+@needs_mosquitto
+@pytest.mark.mosquitto
+async def test_a_retained_request_is_applied_once_not_on_every_reconnect(
+    tcp_port: Callable[[], int], tmp_path: Path
+) -> None:
+    port = tcp_port()
+    slots = {1: AttackSlot(1)}
+    plane = ControlPlane(f"mqtt://127.0.0.1:{port}", slots, stats=no_stats, backoff_s=(0.1, 0.3))
+    with Mosquitto(port, tmp_path):
+        async with plane:
+            await plane.wait_connected(10)
+            async with Observer(port, ["secuav/v1/#"]) as obs:
+                await obs.publish(SET1, {"library": "drift", "request_id": "kept"}, retain=True)
+                assert (await obs.wait_for(STATE1, lambda b: b["request_id"] == "kept"))["ok"]
+                assert (await obs.request(SET1, {"library": "distance-stuck"}))["ok"]
+            # Drop the session without restarting the broker: the retained request comes back.
+            assert plane._client is not None
+            plane._client._client.socket().shutdown(2)
+            await asyncio.sleep(0.2)
+            await plane.wait_connected(10)
+            await asyncio.sleep(0.5)
+            assert plane.connections == 2
+            assert slots[1].engine is not None and slots[1].engine.profile.name == "distance-stuck"

@@ -1,0 +1,149 @@
+"""Real brokers and an MQTT observer for the control-plane tests (no tests here).
+
+``Mosquitto`` runs the real binary on a loopback port from a two-line config
+and can be stopped and started again on the same port (the broker-restart
+test); ``Observer`` is a plain aiomqtt client that records every message on
+its topics and waits for the one a test expects.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import shutil
+import socket
+import subprocess
+import time
+import uuid
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import aiomqtt
+import pytest
+
+MOSQUITTO = shutil.which("mosquitto") or ("/usr/sbin/mosquitto" if Path("/usr/sbin/mosquitto").exists() else None)
+needs_mosquitto = pytest.mark.skipif(MOSQUITTO is None, reason="the mosquitto binary is not installed")
+
+
+def wait_port(port: int, up: bool, timeout_s: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+            sock.settimeout(0.2)
+            if (sock.connect_ex(("127.0.0.1", port)) == 0) == up:
+                return
+        time.sleep(0.05)
+    raise TimeoutError(f"port {port} still {'closed' if up else 'open'} after {timeout_s} s")
+
+
+class Mosquitto:
+    """The real mosquitto on ``127.0.0.1:port``; ``stop()``/``start()`` for the restart test."""
+
+    def __init__(self, port: int, workdir: Path) -> None:
+        assert MOSQUITTO is not None
+        self.port = port
+        self.url = f"mqtt://127.0.0.1:{port}"
+        self.config = workdir / "mosquitto.conf"
+        self.config.write_text(f"listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n")
+        self.log = workdir / "mosquitto.log"
+        self.proc: subprocess.Popen[bytes] | None = None
+
+    def start(self) -> None:
+        with self.log.open("ab") as out:
+            self.proc = subprocess.Popen([MOSQUITTO, "-c", str(self.config)], stdout=out, stderr=subprocess.STDOUT)
+        wait_port(self.port, up=True)
+
+    def stop(self) -> None:
+        if self.proc is not None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+            self.proc = None
+        wait_port(self.port, up=False)
+
+    def __enter__(self) -> Mosquitto:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+@dataclass
+class Observer:
+    """Subscribes to ``topics``; ``messages`` keeps (topic, decoded JSON or raw bytes, retain flag)."""
+
+    port: int
+    topics: list[str]
+    messages: list[tuple[str, Any, bool]] = field(default_factory=list)
+    client: aiomqtt.Client | None = None
+    _task: asyncio.Task[None] | None = None
+    _ready: asyncio.Event = field(default_factory=asyncio.Event)
+    _new: asyncio.Event = field(default_factory=asyncio.Event)
+
+    async def __aenter__(self) -> Observer:
+        self._task = asyncio.create_task(self._run())
+        await asyncio.wait_for(self._ready.wait(), 10.0)
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        assert self._task is not None
+        self._task.cancel()
+        with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
+            await self._task
+
+    async def _run(self) -> None:
+        async with aiomqtt.Client("127.0.0.1", self.port, identifier=f"test-{uuid.uuid4().hex[:8]}") as client:
+            self.client = client
+            for topic in self.topics:
+                await client.subscribe(topic, qos=1)
+            self._ready.set()
+            async for message in client.messages:
+                raw = bytes(message.payload) if isinstance(message.payload, bytes | bytearray) else b""
+                try:
+                    body: Any = json.loads(raw)
+                except ValueError:
+                    body = raw
+                self.messages.append((str(message.topic), body, bool(message.retain)))
+                self._new.set()
+
+    async def publish(self, topic: str, payload: Any, retain: bool = False) -> None:
+        assert self.client is not None
+        data = payload if isinstance(payload, bytes) else json.dumps(payload).encode()
+        await self.client.publish(topic, data, qos=1, retain=retain)
+
+    def on(self, topic: str) -> list[Any]:
+        return [body for t, body, _ in self.messages if t == topic]
+
+    async def wait_for(
+        self, topic: str, match: Callable[[Any], bool] = lambda _: True, timeout_s: float = 10.0, start: int = 0
+    ) -> Any:
+        """The first message on ``topic`` (from index ``start``) that ``match`` accepts."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            for t, body, _ in self.messages[start:]:
+                if t == topic and match(body):
+                    return body
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise TimeoutError(f"nothing on {topic} matched within {timeout_s} s; got {self.on(topic)[-3:]}")
+            self._new.clear()
+            with contextlib.suppress(asyncio.TimeoutError):
+                await asyncio.wait_for(self._new.wait(), min(remaining, 0.2))
+
+    async def request(self, topic: str, payload: Any, timeout_s: float = 10.0) -> dict[str, Any]:
+        """Publish a set request with a fresh request_id; the state that answers it."""
+        request_id = uuid.uuid4().hex
+        body = {"request_id": request_id, **payload} if isinstance(payload, dict) else {"request_id": request_id}
+        start = len(self.messages)
+        await self.publish(topic, body)
+        state_topic = topic.rsplit("/", 1)[0] + "/state"
+        return await self.wait_for(
+            state_topic, lambda b: isinstance(b, dict) and b.get("request_id") == request_id, timeout_s, start
+        )
