@@ -1,0 +1,89 @@
+"""The attack stage: runs the slot's attack_profiles engine on the frames it targets.
+
+The pipeline hands this stage only frames whose message id the active profile
+targets (``message_ids`` comes from the engine), so only those are decoded. The
+engine's :class:`~attack_profiles.action.Action` maps onto the packet:
+
+- ``drop`` -> ``[]``;
+- ``fields`` -> merged into ``pkt.fields``, ``changed`` set (the pipeline re-packs
+  with the original sysid, compid, seq and a fresh CRC);
+- ``delay_s`` -> ``release_s = now + delay_s``;
+- ``inject`` -> extra MAVLink 2 frames after this one, built with the sysid and
+  compid of the frame that triggered them (they join its stream) and its
+  sequence number (a copy of the frame, so a receiver counting sequence gaps
+  sees no loss it would not otherwise see).
+
+Every acting rule is noted on the packet as ``attack:<profile>:rules[<i>]`` for the
+recording index. ``active = False`` is the seed's bypass; with no profile in
+the slot the stage is inactive too, so the pipeline skips it for free.
+"""
+
+from __future__ import annotations
+
+from mitm_proxy import codec
+from mitm_proxy.packet import Packet
+from mitm_proxy.slots import AttackSlot
+
+__all__ = ["AttackStage"]
+
+
+class AttackStage:
+    """Stage ``attack`` of one link, reading its profile from ``slot`` at every frame."""
+
+    name = "attack"
+
+    def __init__(self, slot: AttackSlot, *, active: bool = True) -> None:
+        self.slot = slot
+        self.enabled = active
+
+    @property
+    def active(self) -> bool:
+        """False when bypassed or when no profile is installed."""
+        return self.enabled and self.slot.engine is not None
+
+    @active.setter
+    def active(self, value: bool) -> None:
+        self.enabled = value
+
+    @property
+    def message_ids(self) -> frozenset[int]:
+        return self.slot.message_ids
+
+    def process(self, pkt: Packet, now_s: float) -> list[Packet]:
+        engine = self.slot.engine
+        if engine is None:  # cleared between the pipeline's check and now
+            return [pkt]
+        h = pkt.header
+        fields = codec.decode(pkt)
+        action = engine.process(now_s, h.msgid, fields, pkt.direction, h.sysid, h.compid)
+        if action.untouched:
+            return [pkt]
+        notes = [f"attack:{engine.profile.name}:rules[{i}]" for i in action.rules]
+        if action.drop:
+            pkt.notes.extend(notes)
+            return []
+        if action.fields:
+            fields.update(action.fields)
+            pkt.changed = True
+        if action.clamped:
+            notes.append("clamped:" + ",".join(action.clamped))
+        if action.delay_s > 0.0:
+            pkt.release_s = max(pkt.release_s, now_s + action.delay_s)
+        pkt.notes.extend(notes)
+        out = [pkt]
+        for inj in action.inject:
+            extra = codec.build(
+                inj.message,
+                dict(inj.fields),
+                sysid=h.sysid,
+                compid=h.compid,
+                seq=h.seq,
+                direction=pkt.direction,
+                link=pkt.link,
+                now_s=pkt.rx_s,
+            )
+            if inj.delay_s > 0.0:
+                extra.release_s = now_s + inj.delay_s
+            extra.notes.extend(notes)
+            out.append(extra)
+        return out

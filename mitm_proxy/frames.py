@@ -1,0 +1,176 @@
+"""Split a UDP datagram into MAVLink frames without decoding them.
+
+The proxy must forward every valid frame byte for byte and must not pay for
+decoding frames nobody targets, so this module only *peeks*: one ``struct``
+unpack of the header, one CRC over the frame (with the message's CRC_EXTRA,
+the per-message seed byte that MAVLink adds so that a frame of the wrong
+dialect fails its check). Nothing here allocates a pymavlink message.
+
+Resynchronisation follows what autopilots do: a candidate that fails its CRC
+is skipped by *one byte*, not by its claimed length, so garbage whose bytes
+happen to look like a header can never swallow the next real frame. Frames of
+message ids our dialect does not know cannot be CRC-checked; they are kept
+(and counted) unless a CRC-valid known frame starts inside them, in which case
+the "unknown frame" was garbage that only looked like a header.
+
+The dialect is pymavlink's ``ardupilotmega`` (a superset of ``common`` with the
+same CRC_EXTRA for every common message), so traffic from PX4 and ArduPilot
+is checked alike.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass, field
+from typing import Final
+
+from fastcrc import crc16
+from pymavlink.dialects.v20 import ardupilotmega as dialect
+
+from mitm_proxy.packet import Header
+
+__all__ = [
+    "BAD_CRC",
+    "CRC_EXTRA",
+    "GARBAGE",
+    "SIGNATURE_LEN",
+    "TRUNCATED",
+    "SplitResult",
+    "crc_of",
+    "split",
+]
+
+STX_V1: Final = 0xFE
+STX_V2: Final = 0xFD
+IFLAG_SIGNED: Final = 0x01
+SIGNATURE_LEN: Final = 13  # link id (1) + timestamp (6) + signature (6)
+V1_HEADER_LEN: Final = 6
+V2_HEADER_LEN: Final = 10
+CRC_LEN: Final = 2
+
+# Reasons for skipped bytes, as they appear in ``SplitResult.bad`` and in the stats.
+GARBAGE: Final = "garbage"  # bytes that do not start with a MAVLink magic byte
+TRUNCATED: Final = "truncated"  # a header whose frame runs past the end of the datagram
+BAD_CRC: Final = "bad_crc"  # a complete frame of a known message whose CRC does not match
+BAD_FLAGS: Final = "bad_flags"  # a v2 header with incompatibility flags we cannot honour
+
+CRC_EXTRA: Final[dict[int, int]] = {msgid: cls.crc_extra for msgid, cls in dialect.mavlink_map.items()}
+
+_mcrf4xx = crc16.mcrf4xx
+_V1 = struct.Struct("<BBBBBB").unpack_from  # stx len seq sysid compid msgid
+_V2 = struct.Struct("<BBBBBBBHB").unpack_from  # stx len incompat compat seq sysid compid msgid_lo msgid_hi
+_CRC = struct.Struct("<H").unpack_from
+
+
+@dataclass(slots=True)
+class SplitResult:
+    """What one datagram held: its valid frames in order and why bytes were skipped.
+
+    ``bad`` has one reason per skipped run of bytes; ``unknown`` counts the kept
+    frames whose message id the dialect does not know (not CRC-checked).
+    """
+
+    frames: list[tuple[Header, bytes]] = field(default_factory=list)
+    bad: list[str] = field(default_factory=list)
+    unknown: int = 0
+
+    @property
+    def clean(self) -> bool:
+        """True when the datagram was nothing but valid frames."""
+        return not self.bad
+
+
+def crc_of(frame: bytes | bytearray | memoryview, end: int, crc_extra: int) -> int:
+    """MAVLink's X.25 CRC of ``frame[1:end]`` followed by ``crc_extra`` (``end`` = start of the CRC field)."""
+    return _mcrf4xx(bytes((crc_extra,)), _mcrf4xx(bytes(frame[1:end]), 0xFFFF))
+
+
+def _candidate(data: bytes, i: int, n: int) -> tuple[Header, int, str | None]:
+    """Peek the frame starting at ``data[i]`` (a magic byte).
+
+    Returns the header, the frame's end and ``None`` if it is a valid frame, or a
+    reason why it is not (then header and end are meaningless).
+    """
+    if data[i] == STX_V2:
+        if n - i < V2_HEADER_LEN:
+            return _NO_HEADER, 0, TRUNCATED
+        _, plen, incompat, _compat, seq, sysid, compid, lo, hi = _V2(data, i)
+        if incompat & ~IFLAG_SIGNED:
+            return _NO_HEADER, 0, BAD_FLAGS
+        signed = bool(incompat & IFLAG_SIGNED)
+        crc_at = i + V2_HEADER_LEN + plen
+        end = crc_at + CRC_LEN + (SIGNATURE_LEN if signed else 0)
+        header = Header(2, lo | hi << 16, sysid, compid, seq, plen, incompat, signed)
+    else:
+        if n - i < V1_HEADER_LEN:
+            return _NO_HEADER, 0, TRUNCATED
+        _, plen, seq, sysid, compid, msgid = _V1(data, i)
+        crc_at = i + V1_HEADER_LEN + plen
+        end = crc_at + CRC_LEN
+        header = Header(1, msgid, sysid, compid, seq, plen)
+    if end > n:
+        return header, end, TRUNCATED
+    extra = CRC_EXTRA.get(header.msgid)
+    if extra is None:
+        return header, end, None
+    crc = _mcrf4xx(bytes((extra,)), _mcrf4xx(data[i + 1 : crc_at], 0xFFFF))
+    if crc != _CRC(data, crc_at)[0]:
+        return header, end, BAD_CRC
+    return header, end, None
+
+
+_NO_HEADER: Final = Header(0, -1, 0, 0, 0, 0)
+
+
+def _known_frame_inside(data: bytes, start: int, end: int, n: int) -> bool:
+    """Whether a CRC-valid frame of a known message starts in ``data[start:end]``."""
+    j = start
+    while True:
+        a = data.find(b"\xfd", j, end)
+        b = data.find(b"\xfe", j, end)
+        k = min(x for x in (a, b, end) if x >= 0)
+        if k >= end:
+            return False
+        header, _, reason = _candidate(data, k, n)
+        if reason is None and header.msgid in CRC_EXTRA:
+            return True
+        j = k + 1
+
+
+def split(datagram: bytes) -> SplitResult:
+    """Find every valid MAVLink v1/v2 frame in ``datagram``, in order; see the module doc."""
+    data = bytes(datagram)
+    n = len(data)
+    out = SplitResult()
+    frames = out.frames
+    i = 0
+    skip_start = -1  # start of the current run of skipped bytes
+    skip_reason = ""
+    while i < n:
+        c = data[i]
+        if c in (STX_V2, STX_V1):
+            header, end, reason = _candidate(data, i, n)
+            if reason is None and header.msgid not in CRC_EXTRA and _known_frame_inside(data, i + 1, end, n):
+                reason = GARBAGE
+            if reason is None:
+                if skip_start >= 0:
+                    out.bad.append(skip_reason)
+                    skip_start = -1
+                if header.msgid not in CRC_EXTRA:
+                    out.unknown += 1
+                frames.append((header, data if (i == 0 and end == n) else data[i:end]))
+                i = end
+                continue
+            if skip_start < 0:
+                skip_start, skip_reason = i, reason
+            i += 1
+            continue
+        # Jump to the next magic byte in one C-level search.
+        if skip_start < 0:
+            skip_start, skip_reason = i, GARBAGE
+        a = data.find(b"\xfd", i)
+        b = data.find(b"\xfe", i)
+        i = n if a < 0 and b < 0 else (a if b < 0 else b if a < 0 else min(a, b))
+    if skip_start >= 0:
+        out.bad.append(skip_reason)
+    return out

@@ -1,0 +1,214 @@
+"""One link's pipeline, sans I/O: datagram in, datagrams to send out.
+
+    tap (split, count, record) -> stages in order (attack, secure; each may be
+    bypassed) -> forward (re-pack what changed, keep the rest byte for byte)
+
+The edge calls :meth:`Pipeline.feed` with each datagram and sends what comes
+back: items whose ``release_s`` is not in the future at once, the others when
+their time comes. A datagram none of whose frames a stage took and that held no
+garbage comes back as the very same ``bytes`` object (the fast path: one split,
+a set lookup per frame, nothing copied). Otherwise the frames that go out now
+are joined, in their original order, into one datagram, and each delayed frame
+is its own item.
+
+A stage sees a frame only when it is active, the frame's message id is in its
+``message_ids``, and the frame is not signed, unless the pipeline has the link's
+signing key. A stage that raises does not stop forwarding: the frame leaves as it
+came, the error is counted under ``bad["stage_error"]`` and logged once.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from mitm_proxy import codec
+from mitm_proxy.frames import split
+from mitm_proxy.packet import Direction, Header, Packet, Stage
+from mitm_proxy.recording import Recorder
+from mitm_proxy.signing import Signer
+from mitm_proxy.stats import DirectionStats, LinkStats
+
+__all__ = ["Outgoing", "Pipeline"]
+
+log = logging.getLogger(__name__)
+
+STAGE_ERROR = "stage_error"
+ENCODE_ERROR = "encode_error"
+
+
+@dataclass(frozen=True, slots=True)
+class Outgoing:
+    """Bytes for the other side; not to be sent before ``release_s`` (monotonic).
+
+    ``rx_s`` is when the (first) frame in it arrived, for the latency figure;
+    ``frames`` how many frames it holds.
+    """
+
+    data: bytes
+    release_s: float
+    rx_s: float = 0.0
+    frames: int = 1
+
+
+class Pipeline:
+    """Frames of one link (one vehicle) through ``stages``; see the module doc."""
+
+    def __init__(
+        self,
+        link: int,
+        stages: Sequence[Stage],
+        *,
+        stats: LinkStats,
+        recorder: Recorder | None = None,
+        signer: Signer | None = None,
+    ) -> None:
+        self.link = link
+        self.stages: list[Stage] = list(stages)
+        self.stats = stats
+        self.recorder = recorder
+        self.signer = signer
+        self._logged: set[str] = set()
+
+    def _wanted(self) -> tuple[list[Stage], frozenset[int]]:
+        active = [s for s in self.stages if s.active]
+        ids: frozenset[int] = frozenset()
+        for s in active:
+            ids = ids | s.message_ids
+        return active, ids
+
+    def _log_once(self, key: str, msg: str, *args: object) -> None:
+        if key not in self._logged:
+            self._logged.add(key)
+            log.warning(msg, *args)
+
+    def feed(self, datagram: bytes, direction: Direction, now_s: float) -> list[Outgoing]:
+        """Process one received datagram; return what to send to the other side."""
+        st = self.stats.directions[direction]
+        res = split(datagram)
+        frames = res.frames
+        st.datagrams_in += 1
+        st.frames_in += len(frames)
+        st.bytes_in += len(datagram)
+        if res.unknown:
+            st.unknown += res.unknown
+        for reason in res.bad:
+            st.add_bad(reason)
+        rec = self.recorder
+        if rec is not None:
+            rec.original(frames)
+        active, wanted = self._wanted()
+        signer = self.signer
+        slow = bool(res.bad)
+        for header, _raw in frames:
+            if header.signed:
+                st.signed += 1
+                if signer is not None:
+                    slow = True
+                elif header.msgid in wanted:
+                    st.signed_untouched += 1
+            elif header.msgid in wanted:
+                slow = True
+        if not slow:
+            if not frames:
+                return []
+            st.frames_out += len(frames)
+            st.bytes_out += len(datagram)
+            if rec is not None:
+                rec.forwarded_frames(frames)
+            return [Outgoing(datagram, now_s, now_s, len(frames))]
+        return self._slow(frames, direction, now_s, st, active, wanted)
+
+    def _slow(
+        self,
+        frames: list[tuple[Header, bytes]],
+        direction: Direction,
+        now_s: float,
+        st: DirectionStats,
+        active: list[Stage],
+        wanted: frozenset[int],
+    ) -> list[Outgoing]:
+        signer = self.signer
+        rec = self.recorder
+        now_parts: list[bytes] = []
+        later: list[Outgoing] = []
+        for header, raw in frames:
+            if header.signed and signer is not None:
+                reason = signer.verify(raw)
+                if reason is not None:
+                    st.add_bad(reason)
+                    continue
+            if header.msgid not in wanted or (header.signed and signer is None):
+                now_parts.append(raw)
+                if rec is not None:
+                    rec.forwarded(raw, header.msgid)
+                continue
+            pkt = Packet(raw, header, direction, self.link, now_s)
+            try:
+                pkts = self._run_stages(pkt, active, now_s)
+            except Exception as exc:  # a stage bug must not stop forwarding
+                st.add_bad(STAGE_ERROR)
+                self._log_once(f"stage:{type(exc).__name__}", "stage failed on msgid %d: %r", header.msgid, exc)
+                pkts = [Packet(raw, header, direction, self.link, now_s)]
+            if not any(p is pkt for p in pkts):
+                st.dropped += 1
+            for p in pkts:
+                data = self._wire(p, st)
+                if p.release_s > now_s:
+                    st.delayed += 1
+                    st.frames_out += 1
+                    st.bytes_out += len(data)
+                    later.append(Outgoing(data, p.release_s, p.rx_s, 1))
+                    if rec is not None:
+                        rec.forwarded(data, p.header.msgid, p, p.release_s - now_s)
+                else:
+                    now_parts.append(data)
+                    if rec is not None:
+                        rec.forwarded(data, p.header.msgid, p)
+        out: list[Outgoing] = []
+        if now_parts:
+            joined = b"".join(now_parts)
+            st.frames_out += len(now_parts)
+            st.bytes_out += len(joined)
+            out.append(Outgoing(joined, now_s, now_s, len(now_parts)))
+        out.extend(later)
+        return out
+
+    def _run_stages(self, pkt: Packet, active: list[Stage], now_s: float) -> list[Packet]:
+        signer = self.signer
+        pkts = [pkt]
+        for stage in active:
+            ids = stage.message_ids
+            nxt: list[Packet] = []
+            for p in pkts:
+                if p.header.msgid in ids and (signer is not None or not p.header.signed):
+                    nxt.extend(stage.process(p, now_s))
+                else:
+                    nxt.append(p)
+            pkts = nxt
+        return pkts
+
+    def _wire(self, p: Packet, st: DirectionStats) -> bytes:
+        """Bytes of one packet leaving the pipeline; counts rewrites and injections."""
+        data = p.raw
+        if p.changed:
+            try:
+                data = codec.encode(p, self.signer if p.header.signed else None)
+            except codec.EncodeError as exc:
+                st.add_bad(ENCODE_ERROR)
+                self._log_once(
+                    f"encode:{p.header.msgid}", "could not re-pack msgid %d, sent as it was: %s", p.header.msgid, exc
+                )
+                data = p.raw
+            else:
+                if not p.injected:
+                    st.rewritten += 1
+                if p.header.signed:
+                    st.resigned += 1
+        if p.injected:
+            st.injected += 1
+            if self.signer is not None and not p.header.signed:
+                st.resigned += 1
+                data = codec.sign_injected(data, self.signer)
+        return data

@@ -1,0 +1,206 @@
+"""The pipeline: byte-exact forwarding by default, stages only on what they target, everything counted."""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import pytest
+from test_frames_support import (
+    DISTANCE_SENSOR,
+    HEARTBEAT,
+    distance,
+    heartbeat,
+    local_position,
+    mav,
+    pack,
+    parse_all,
+    unknown_frame,
+)
+
+from attack_profiles.profile import parse_profile
+from mitm_proxy import codec
+from mitm_proxy.attack import AttackStage
+from mitm_proxy.packet import Direction, Packet
+from mitm_proxy.pipeline import Outgoing, Pipeline
+from mitm_proxy.slots import AttackSlot
+from mitm_proxy.stats import LinkStats
+
+DOWN = Direction.DOWNLINK
+UP = Direction.UPLINK
+
+
+def profile(*rules: dict[str, Any]) -> Any:
+    return parse_profile({"name": "t", "rules": list(rules)}, "t.yaml")
+
+
+def bias(sensor_id: int = 0, offset_m: float = 2.0, **kw: Any) -> dict[str, Any]:
+    return {
+        "target": {"message": "DISTANCE_SENSOR", "sensor_id": sensor_id, **kw},
+        "kind": "bias",
+        "offset_m": offset_m,
+    }
+
+
+def make(*rules: dict[str, Any], extra: list[Any] | None = None) -> tuple[Pipeline, LinkStats, AttackStage]:
+    slot = AttackSlot(1)
+    if rules:
+        slot.offer(profile(*rules))
+    stage = AttackStage(slot)
+    stats = LinkStats(1)
+    return Pipeline(0, [stage, *(extra or [])], stats=stats), stats, stage
+
+
+def test_untargeted_datagram_leaves_as_the_same_object() -> None:
+    pipe, stats, _ = make(bias())
+    m = mav()
+    dgram = pack(heartbeat(), m) + pack(local_position(), m)
+    out = pipe.feed(dgram, DOWN, 5.0)
+    assert len(out) == 1 and out[0].data is dgram and out[0].release_s == 5.0 and out[0].frames == 2
+    s = stats[DOWN]
+    assert (s.frames_in, s.frames_out, s.bytes_in, s.bytes_out, s.datagrams_in) == (2, 2, len(dgram), len(dgram), 1)
+
+
+def test_no_profile_means_the_stage_is_inactive_and_targeted_ids_pass_too() -> None:
+    pipe, _, stage = make()
+    dgram = pack(distance())
+    assert not stage.active
+    assert pipe.feed(dgram, DOWN, time.monotonic())[0].data is dgram
+
+
+def test_bias_rewrites_only_the_targeted_sensor_and_keeps_order_and_headers() -> None:
+    pipe, stats, _ = make(bias(sensor_id=0, offset_m=2.0))
+    m = mav(sysid=1, compid=1, seq=10)
+    hb, d0, d1 = pack(heartbeat(), m), pack(distance(cm=500, sensor_id=0), m), pack(distance(cm=500, sensor_id=1), m)
+    (out,) = pipe.feed(hb + d0 + d1, DOWN, time.monotonic())
+    msgs = parse_all(out.data)
+    assert [x.get_msgId() for x in msgs] == [HEARTBEAT, DISTANCE_SENSOR, DISTANCE_SENSOR]
+    assert [x.get_seq() for x in msgs] == [10, 11, 12]
+    assert msgs[1].current_distance == 700 and msgs[2].current_distance == 500
+    assert out.data.startswith(hb) and out.data.endswith(d1)  # untouched frames byte for byte
+    assert stats[DOWN].rewritten == 1 and stats[DOWN].frames_out == 3
+
+
+def test_direction_matters() -> None:
+    pipe, stats, _ = make(bias(sensor_id=0, direction="downlink"))
+    dgram = pack(distance(cm=500))
+    assert pipe.feed(dgram, UP, time.monotonic())[0].data == dgram
+    assert stats[UP].rewritten == 0
+
+
+def test_drop_is_counted_and_nothing_is_sent() -> None:
+    pipe, stats, _ = make({"target": {"message": "DISTANCE_SENSOR", "sensor_id": 0}, "kind": "drop"})
+    hb = pack(heartbeat())
+    assert pipe.feed(pack(distance()), DOWN, time.monotonic()) == []
+    (out,) = pipe.feed(pack(distance()) + hb, DOWN, time.monotonic())
+    assert out.data == hb
+    assert stats[DOWN].dropped == 2 and stats[DOWN].frames_out == 1
+
+
+def test_delay_becomes_a_separate_item_with_a_future_release() -> None:
+    pipe, stats, _ = make({"target": {"message": "DISTANCE_SENSOR", "sensor_id": 0}, "kind": "delay", "delay_s": 0.5})
+    hb, d = pack(heartbeat()), pack(distance())
+    now = time.monotonic()
+    out = pipe.feed(hb + d, DOWN, now)
+    assert out == [Outgoing(hb, now, now, 1), Outgoing(d, now + 0.5, now, 1)]
+    assert stats[DOWN].delayed == 1
+
+
+def test_bypass_switch() -> None:
+    pipe, _, stage = make(bias())
+    dgram = pack(distance(cm=500))
+    stage.active = False
+    assert pipe.feed(dgram, DOWN, time.monotonic())[0].data is dgram
+    stage.active = True
+    assert parse_all(pipe.feed(dgram, DOWN, time.monotonic())[0].data)[0].current_distance == 700
+
+
+def test_profile_swap_takes_effect_between_two_datagrams() -> None:
+    pipe, _, stage = make(bias(offset_m=1.0))
+    dgram = pack(distance(cm=500))
+    assert parse_all(pipe.feed(dgram, DOWN, time.monotonic())[0].data)[0].current_distance == 600
+    stage.slot.offer(profile(bias(offset_m=3.0)))
+    assert parse_all(pipe.feed(dgram, DOWN, time.monotonic())[0].data)[0].current_distance == 800
+    stage.slot.offer(None)
+    assert pipe.feed(dgram, DOWN, time.monotonic())[0].data is dgram
+
+
+def test_garbage_is_stripped_counted_and_valid_frames_survive() -> None:
+    pipe, stats, _ = make()
+    a, b = pack(heartbeat()), pack(distance())
+    (out,) = pipe.feed(b"xx" + a + b"\xfd\x01" + b, DOWN, time.monotonic())
+    assert out.data == a + b
+    assert stats[DOWN].bad == {"garbage": 1, "bad_flags": 1}
+    assert pipe.feed(b"just garbage", DOWN, time.monotonic()) == []
+
+
+def test_unknown_ids_are_forwarded_and_counted() -> None:
+    pipe, stats, _ = make(bias())
+    u = unknown_frame()
+    assert pipe.feed(u, DOWN, time.monotonic())[0].data is u
+    assert stats[DOWN].unknown == 1
+
+
+class Beacon:
+    """A real stage: after every HEARTBEAT it injects a DISTANCE_SENSOR reading (id 99)."""
+
+    name = "beacon"
+    active = True
+    message_ids = frozenset({HEARTBEAT})
+
+    def process(self, pkt: Packet, now_s: float) -> list[Packet]:
+        fields = {"time_boot_ms": 1, "min_distance": 1, "max_distance": 100, "current_distance": 42, "type": 0,
+                  "id": 99, "orientation": 0, "covariance": 0}  # fmt: skip
+        h = pkt.header
+        extra = codec.build("DISTANCE_SENSOR", fields, sysid=h.sysid, compid=h.compid, seq=h.seq,
+                            direction=pkt.direction, link=pkt.link, now_s=now_s)  # fmt: skip
+        return [pkt, extra]
+
+
+class Broken:
+    """A stage with a bug: the pipeline must keep forwarding."""
+
+    name = "broken"
+    active = True
+    message_ids = frozenset({DISTANCE_SENSOR})
+
+    def process(self, pkt: Packet, now_s: float) -> list[Packet]:
+        raise RuntimeError("bug")
+
+
+def test_injected_frames_follow_their_trigger_and_pass_later_stages() -> None:
+    pipe, stats, _ = make(bias(sensor_id=99, offset_m=1.0))
+    pipe.stages.insert(0, Beacon())  # before the attack stage: the attack sees the injected reading
+    hb = pack(heartbeat())
+    (out,) = pipe.feed(hb, DOWN, time.monotonic())
+    msgs = parse_all(out.data)
+    assert out.data.startswith(hb) and [x.get_msgId() for x in msgs] == [HEARTBEAT, DISTANCE_SENSOR]
+    assert msgs[1].current_distance == 142 and msgs[1].id == 99
+    assert stats[DOWN].injected == 1 and stats[DOWN].rewritten == 0 and stats[DOWN].frames_out == 2
+
+
+def test_a_failing_stage_forwards_the_frame_as_it_came(caplog: pytest.LogCaptureFixture) -> None:
+    pipe, stats, _ = make(extra=[Broken()])
+    d = pack(distance())
+    for _ in range(3):
+        assert pipe.feed(d, DOWN, time.monotonic())[0].data == d
+    assert stats[DOWN].bad == {"stage_error": 3}
+    assert sum("stage failed" in r.message for r in caplog.records) == 1  # logged once, not per frame
+
+
+def test_encode_error_forwards_the_original() -> None:
+    # A scale so large that current_distance leaves uint16: the engine clamps it, so force a bad value by hand.
+    class Overflow:
+        name = "overflow"
+        active = True
+        message_ids = frozenset({DISTANCE_SENSOR})
+
+        def process(self, pkt: Packet, now_s: float) -> list[Packet]:
+            codec.decode(pkt)["current_distance"] = 1 << 20
+            pkt.changed = True
+            return [pkt]
+
+    pipe, stats, _ = make(extra=[Overflow()])
+    d = pack(distance())
+    assert pipe.feed(d, DOWN, time.monotonic())[0].data == d
+    assert stats[DOWN].bad == {"encode_error": 1} and stats[DOWN].rewritten == 0
