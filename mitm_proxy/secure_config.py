@@ -1,0 +1,88 @@
+"""What the secure stage runs: estimator, parameters, sensor group, stepping rule.
+
+One pydantic model serves every way of configuring it (the proxy config file,
+``--secure NAME``, MQTT ``secuav/v<sysid>/secure/set``), so a bad request is
+refused the same way everywhere: one line naming the source, the field and the
+value (:class:`secuav_common.loading.InputError`). ``estimator`` None is the
+seed's bypass ("off").
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from secuav_common.loading import InputError, validate
+
+Group = Literal["auto", "wall", "anchors"]
+ParamValue = bool | int | float | str
+OFF_WORDS = frozenset({"off", "none", "bypass", ""})
+
+
+class SecureConfig(BaseModel):
+    """The secure stage of one link (one vehicle)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    estimator: str | None = Field(None, description="estimators.names() entry; None or 'off' = bypass")
+    params: dict[str, ParamValue] = Field(
+        default_factory=dict, description="keyword parameters of the estimator (s, alpha, q_mps2, window, ...)"
+    )
+    group: Group = Field(
+        "auto", description="sensor group: the wall rangefinder group (ids 0-9) or the UWB anchors (10-49)"
+    )
+    noise_std_m: Annotated[float, Field(gt=0.0)] | None = Field(
+        None, description="override the scenario's range noise std for the model"
+    )
+    dims: Literal[2, 3] = Field(2, description="anchors: 2 = (north, east) with the height known, 3 = full NED")
+    rate_hz: Annotated[float, Field(gt=0.0, le=1000.0)] | None = Field(
+        None, description="step at this rate on the latest readings; None = step when a set is complete"
+    )
+    max_wait_s: Annotated[float, Field(gt=0.0, le=10.0)] = Field(
+        0.25, description="step an incomplete set this long after its first reading (a dropped sensor is NaN)"
+    )
+    max_age_s: Annotated[float, Field(gt=0.0, le=10.0)] = Field(
+        0.5, description="a reading older than this counts as missing (NaN)"
+    )
+    executor: Literal["thread", "inline"] = Field(
+        "thread", description="thread: step off the forwarding path, latest estimate wins; inline: step in place"
+    )
+
+    @field_validator("estimator", mode="before")
+    @classmethod
+    def _off(cls, value: Any) -> Any:
+        if isinstance(value, str) and value.strip().lower() in OFF_WORDS:
+            return None
+        return value
+
+    @property
+    def enabled(self) -> bool:
+        return self.estimator is not None
+
+
+OFF = SecureConfig()
+
+
+def config_from_payload(payload: Any, source: str = "<mqtt>", base: SecureConfig | None = None) -> SecureConfig:
+    """Decode a ``secure/set`` payload: ``null``/``"off"``, a name, or an object of :class:`SecureConfig` fields.
+
+    Fields the payload leaves out keep the values of ``base`` (the configured
+    stage), except ``params``, which a new estimator name resets: parameters of
+    one estimator rarely mean the same for another. ``request_id`` is the
+    transport's business and ignored here.
+    """
+    if payload is None:
+        return (base or OFF).model_copy(update={"estimator": None})
+    if isinstance(payload, str):
+        payload = {"estimator": payload}
+    if not isinstance(payload, dict):
+        raise InputError(source, "", payload, "expected null, 'off', an estimator name or an object")
+    data = {k: v for k, v in payload.items() if k != "request_id"}
+    if base is not None:
+        merged = base.model_dump()
+        if "estimator" in data and data["estimator"] != base.estimator and "params" not in data:
+            merged["params"] = {}
+        merged.update(data)
+        data = merged
+    return validate(SecureConfig, data, source)

@@ -1,0 +1,125 @@
+"""Which readings feed the estimator, and what its output replaces, for one vehicle.
+
+Built once per configuration from the scenario the simulator flies, so the
+stage's per-frame work is dictionary lookups. The measurement model comes from
+``estimators.scenario_models`` (the same one ``secuav-eval`` uses), which keeps
+the proxy's numbers comparable with the offline evaluation:
+
+- ``wall``: the vehicle's redundant rangefinder group (ReCaP's setting); the
+  estimate is one distance, and every sensor of the group is replaced by it.
+- ``anchors``: UWB ranges to the scenario's anchors (seed test case 1); the
+  estimate is a position, each anchor range is replaced by the 3-D distance
+  from it to that anchor (``model.h``), and the position messages carry it.
+  In 2-D the height is known: the downward rangefinder if the vehicle has one,
+  else LOCAL_POSITION_NED's z, else the scenario's hold height.
+
+Substitution uses ``model.h(position, known)`` for every reading, so a reading
+becomes exactly what the secure position implies.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+import estimators
+from estimators.models import MeasurementModel
+from estimators.scenario_models import anchor_model, wall_group_model
+from mitm_proxy.secure_config import SecureConfig
+from secuav_common.loading import InputError
+from secuav_common.scenario import Home, Scenario, Vehicle, WallDistanceTarget
+
+DISTANCE_SENSOR = 132
+LOCAL_POSITION_NED = 32
+GLOBAL_POSITION_INT = 33
+HOME_POSITION = 242
+
+
+@dataclass(frozen=True, slots=True)
+class Layout:
+    """Index maps between wire sensor ids and the model's reading vector."""
+
+    sysid: int
+    group: str  # "wall" or "anchors"
+    model: MeasurementModel
+    index_of: dict[int, int]  # DISTANCE_SENSOR id -> index into z (and into model.h)
+    sensor_ids: tuple[int, ...]  # index -> wire id
+    height_sensor_id: int | None  # downward rangefinder giving the known height (2-D anchors)
+    position_dims: int  # 0: no position output (wall); 2: north, east; 3: north, east, down
+    home: Home
+    message_ids: frozenset[int]
+
+    @property
+    def p(self) -> int:
+        return len(self.sensor_ids)
+
+
+def resolve_group(config: SecureConfig, scenario: Scenario, sysid: int, source: str) -> str:
+    """``auto`` picks the wall group for a wall-distance vehicle, else its UWB anchors."""
+    vehicle = _vehicle(scenario, sysid, source)
+    if config.group != "auto":
+        return config.group
+    if isinstance(vehicle.target, WallDistanceTarget):
+        return "wall"
+    if vehicle.sensors.uwb is not None:
+        return "anchors"
+    raise InputError(
+        source, "group", "auto", f"vehicle {sysid} of scenario {scenario.name!r} has neither a wall group nor UWB"
+    )
+
+
+def build_layout(config: SecureConfig, scenario: Scenario, sysid: int, source: str = "<secure>") -> Layout:
+    """Raise ``InputError`` naming the field when the scenario cannot support the request."""
+    group = resolve_group(config, scenario, sysid, source)
+    vehicle = _vehicle(scenario, sysid, source)
+    try:
+        model: MeasurementModel = (
+            wall_group_model(scenario, sysid) if group == "wall" else anchor_model(scenario, sysid, config.dims)
+        )
+    except ValueError as exc:
+        raise InputError(source, "group", group, str(exc)) from None
+    if config.noise_std_m is not None:
+        model = dataclasses.replace(model, sigma_m=np.full(model.p, config.noise_std_m))
+    ids = tuple(int(i) for i in model.ids())
+    height_id = None
+    position_dims = 0
+    wanted = {DISTANCE_SENSOR}
+    if group == "anchors":
+        position_dims = config.dims
+        wanted |= {LOCAL_POSITION_NED, GLOBAL_POSITION_INT, HOME_POSITION}
+        if config.dims == 2:
+            down = [r.id for r in vehicle.sensors.rangefinders if r.orientation == "down"]
+            height_id = down[0] if down else None
+    return Layout(
+        sysid=sysid,
+        group=group,
+        model=model,
+        index_of={sid: i for i, sid in enumerate(ids)},
+        sensor_ids=ids,
+        height_sensor_id=height_id,
+        position_dims=position_dims,
+        home=scenario.world.home,
+        message_ids=frozenset(wanted),
+    )
+
+
+def build_estimator(config: SecureConfig, layout: Layout, source: str = "<secure>") -> estimators.Estimator:
+    """The configured estimator on the layout's model; bad name or parameter -> ``InputError``."""
+    name = config.estimator
+    if name not in estimators.names():
+        raise InputError(source, "estimator", name, f"unknown estimator; choose one of {', '.join(estimators.names())}")
+    try:
+        return estimators.create(name, layout.model, **config.params)
+    except TypeError as exc:
+        raise InputError(source, "params", config.params, f"not accepted by {name}: {exc}") from None
+    except ValueError as exc:
+        raise InputError(source, "params", config.params, str(exc)) from None
+
+
+def _vehicle(scenario: Scenario, sysid: int, source: str) -> Vehicle:
+    try:
+        return scenario.vehicle(sysid)
+    except KeyError as exc:
+        raise InputError(source, "sysid", sysid, str(exc.args[0])) from None

@@ -1,0 +1,253 @@
+"""The secure stage on attacked MAVLink streams: real estimators, real attack engine, real frames.
+
+Each test feeds a synthetic hover (test_secure_support.StreamMaker: pymavlink
+frames, attacked by an attack_profiles Engine the way the attack stage does) through
+SecureStage and reads back what the ground side would decode from the re-packed
+bytes. Accuracy tests use the inline executor, so every frame sees the estimate
+of the set before it, deterministically; the thread executor has its own tests.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pytest
+from test_secure_support import Frame, StreamMaker, packet_of, wire_fields
+
+from attack_profiles import library
+from attack_profiles.action import Direction
+from attack_profiles.engine import Engine
+from mitm_proxy.secure import FLAGGED_QUALITY, SecureConfig, SecureStage
+from secuav_common.geo import geodetic_to_ned
+from secuav_common.scenario import Scenario, load_scenario
+
+DS, LPN, GPI, HOME = 132, 32, 33, 242
+
+
+@pytest.fixture(scope="module")
+def wall() -> Scenario:
+    return load_scenario("wall_hover")
+
+
+@pytest.fixture(scope="module")
+def anchors8() -> Scenario:
+    return load_scenario("anchors8")
+
+
+@dataclass
+class Out:
+    frame: Frame
+    msgid: int
+    fields: dict[str, Any]  # as the ground side decodes them
+    changed: bool
+    raw_out: bytes
+
+
+def run(stage: SecureStage, maker: StreamMaker, duration_s: float) -> list[Out]:
+    outs = []
+    for fr in maker.frames(duration_s):
+        pkt = packet_of(fr.raw, fr.t_s)
+        if stage.active and pkt.header.msgid in stage.message_ids:
+            res = stage.process(pkt, fr.t_s)
+            assert len(res) == 1 and res[0] is pkt
+        outs.append(Out(fr, pkt.header.msgid, wire_fields(pkt), pkt.changed, fr.raw if not pkt.changed else b""))
+    return outs
+
+
+def _engine(name: str, scenario: Scenario, **params: Any) -> Engine:
+    return Engine(library.load(name, **params), seed=0, scenario=scenario)
+
+
+def _wall_series(outs: list[Out], t0: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(truth, attacked-sensor mean, substituted) for wall-group frames after t0."""
+    truth, raw, sub = [], [], []
+    for o in outs:
+        if o.msgid == DS and o.fields["id"] in range(5) and o.frame.t_s >= t0:
+            truth.append(o.frame.truth["range_m"])
+            raw.append(o.frame.attacked["current_distance"] / 100)
+            sub.append(o.fields["current_distance"] / 100)
+    return np.array(truth), np.array(raw), np.array(sub)
+
+
+@pytest.mark.timeout(60)
+def test_wall_group_two_ramped_sensors_substituted_distance_stays_at_truth(wall: Scenario) -> None:
+    maker = StreamMaker(wall, engine=_engine("wall-spoof-two", wall, start_s=5.0, rate_per_s=0.2), seed=1)
+    stage = SecureStage(SecureConfig(estimator="secekf", executor="inline"), wall, 1)
+    outs = run(stage, maker, 25.0)
+    # From 15 s on, sensors 0 and 2 are 2 m .. 4 m long.
+    truth, _raw, sub = _wall_series(outs, 15.0)
+    raw_by_tick = {}
+    for o in outs:
+        if o.msgid == DS and o.fields["id"] in range(5) and o.frame.t_s >= 15.0:
+            raw_by_tick.setdefault(o.frame.t_s, []).append(o.frame.attacked["current_distance"] / 100)
+    true_d = maker.wall_distance(maker.truth(20.0))
+    group_mean = np.array([np.mean(v) for v in raw_by_tick.values() if len(v) == 5])
+    assert np.mean(np.abs(group_mean - 2.5)) > 0.8, "the attack must drag the undefended mean"
+    err = np.abs(sub - truth)
+    assert np.sqrt(np.mean(err**2)) < 0.05 and err.max() < 0.15, (np.sqrt(np.mean(err**2)), err.max(), true_d)
+    # The attacked sensors carry signal_quality 1 once flagged; the honest ones do not.
+    late = [o for o in outs if o.msgid == DS and o.fields["id"] in range(5) and o.frame.t_s >= 15.0]
+    flagged = {
+        i: np.mean([o.fields["signal_quality"] == FLAGGED_QUALITY for o in late if o.fields["id"] == i])
+        for i in range(5)
+    }
+    assert flagged[0] > 0.95 and flagged[2] > 0.95, flagged
+    assert max(flagged[1], flagged[3], flagged[4]) < 0.05, flagged
+    st = stage.stats()
+    assert st["steps"] > 200 and st["dropped_steps"] == 0 and st["flagged_sensors"] == [0, 2]
+    assert st["substituted_frames"] > 0 and st["flagged_frames"] > 0
+
+
+@pytest.mark.timeout(60)
+def test_wall_group_undefended_estimator_is_dragged_by_the_same_attack(wall: Scenario) -> None:
+    """Control for the test above: the stage's substitution is only as good as its estimator."""
+    maker = StreamMaker(wall, engine=_engine("wall-spoof-two", wall, start_s=5.0, rate_per_s=0.2), seed=1)
+    stage = SecureStage(SecureConfig(estimator="ekf", executor="inline"), wall, 1)
+    truth, _raw, sub = _wall_series(run(stage, maker, 25.0), 15.0)
+    assert np.mean(np.abs(sub - truth)) > 0.8
+
+
+@pytest.mark.timeout(60)
+def test_wall_group_without_attack_costs_no_accuracy(wall: Scenario) -> None:
+    maker = StreamMaker(wall, seed=2)
+    stage = SecureStage(SecureConfig(estimator="secekf", executor="inline"), wall, 1)
+    outs = run(stage, maker, 12.0)
+    truth, raw, sub = _wall_series(outs, 2.0)
+    rms_sub = np.sqrt(np.mean((sub - truth) ** 2))
+    rms_raw = np.sqrt(np.mean((raw - truth) ** 2))
+    # The fused distance is better than the sensors it replaces (lag of one set included).
+    assert rms_sub < rms_raw, (rms_sub, rms_raw)
+    assert rms_sub < 0.03
+    group = [o for o in outs if o.msgid == DS and o.fields["id"] in range(5)]
+    flagged = sum(o.fields["signal_quality"] == FLAGGED_QUALITY for o in group)
+    assert flagged < 0.02 * len(group), f"false alarms stay rare: {flagged} of {len(group)}"
+
+
+def _position_errors(outs: list[Out], t0: float, home: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    lpn, gpi, own = [], [], []
+    for o in outs:
+        if o.frame.t_s < t0:
+            continue
+        tn, te = o.frame.truth.get("n"), o.frame.truth.get("e")
+        if o.msgid == LPN:
+            lpn.append(math.hypot(o.fields["x"] - tn, o.fields["y"] - te))
+            own.append(math.hypot(o.frame.clean["x"] - tn, o.frame.clean["y"] - te))
+        elif o.msgid == GPI:
+            n, e, _ = geodetic_to_ned(home, o.fields["lat"] / 1e7, o.fields["lon"] / 1e7, 0.0)
+            gpi.append(math.hypot(n - tn, e - te))
+    return np.array(lpn), np.array(gpi), np.array(own)
+
+
+@pytest.mark.timeout(90)
+@pytest.mark.parametrize("profile", ["anchors-ramp", "anchors-coordinated"])
+def test_anchors8_two_attacked_links_position_near_truth_and_links_flagged(anchors8: Scenario, profile: str) -> None:
+    maker = StreamMaker(anchors8, engine=_engine(profile, anchors8, start_s=3.0), seed=4)
+    published: list[dict[str, Any]] = []
+    stage = SecureStage(
+        SecureConfig(estimator="secekf", executor="inline"), anchors8, 1, publish=lambda s, p: published.append(p)
+    )
+    outs = run(stage, maker, 25.0)
+    # By 15 s the attacked links are off by about a metre (0.1 m/s for 12 s).
+    offsets = [
+        abs(o.frame.attacked["current_distance"] - o.frame.clean["current_distance"]) / 100
+        for o in outs
+        if o.msgid == DS and o.fields["id"] in (11, 14) and o.frame.t_s >= 15.0
+    ]
+    assert np.mean(offsets) > 0.8
+    lpn, gpi, _own = _position_errors(outs, 15.0, anchors8.world.home)
+    assert np.sqrt(np.mean(lpn**2)) < 0.15 and lpn.max() < 0.4, (np.sqrt(np.mean(lpn**2)), lpn.max())
+    assert np.sqrt(np.mean(gpi**2)) < 0.15, np.sqrt(np.mean(gpi**2))
+    # Anchor ranges become the ranges implied by the secure position: near the true ones.
+    rng_err = np.array(
+        [
+            o.fields["current_distance"] / 100 - o.frame.truth["range_m"]
+            for o in outs
+            if o.msgid == DS and o.fields["id"] >= 10 and o.frame.t_s >= 15.0
+        ]
+    )
+    assert np.sqrt(np.mean(rng_err**2)) < 0.15
+    late = [o for o in outs if o.msgid == DS and o.fields["id"] >= 10 and o.frame.t_s >= 15.0]
+    rate = {
+        sid: np.mean([o.fields["signal_quality"] == FLAGGED_QUALITY for o in late if o.fields["id"] == sid])
+        for sid in range(10, 18)
+    }
+    assert rate[11] > 0.9 and rate[14] > 0.9, rate
+    assert max(v for k, v in rate.items() if k not in (11, 14)) < 0.1, rate
+    # The downward laser (id 0) is not in the group: it passes byte for byte.
+    assert all(o.raw_out == o.frame.raw for o in outs if o.msgid == DS and o.fields["id"] == 0)
+    # Published estimates: wire ids judged attacked, the position, the step time.
+    last = published[-1]
+    assert last["attacked"] == [11, 14] and last["group"] == "anchors" and last["estimator"] == "secekf"
+    assert abs(last["position_ned_m"][0] - maker.truth(25.0)[0]) < 0.3
+    assert last["step_time_s"] > 0 and last["sim_t_s"] is not None and len(published) == stage.stats()["steps"]
+
+
+@pytest.mark.timeout(60)
+def test_anchors8_without_attack_costs_no_accuracy(anchors8: Scenario) -> None:
+    maker = StreamMaker(anchors8, seed=5)
+    stage = SecureStage(SecureConfig(estimator="secekf", executor="inline"), anchors8, 1)
+    outs = run(stage, maker, 12.0)
+    rng_sub = np.array(
+        [
+            o.fields["current_distance"] / 100 - o.frame.truth["range_m"]
+            for o in outs
+            if o.msgid == DS and o.fields["id"] >= 10 and o.frame.t_s >= 3.0
+        ]
+    )
+    rng_raw = np.array(
+        [
+            o.frame.clean["current_distance"] / 100 - o.frame.truth["range_m"]
+            for o in outs
+            if o.msgid == DS and o.fields["id"] >= 10 and o.frame.t_s >= 3.0
+        ]
+    )
+    assert np.sqrt(np.mean(rng_sub**2)) < np.sqrt(np.mean(rng_raw**2))
+    lpn, _gpi, _own = _position_errors(outs, 3.0, anchors8.world.home)
+    assert np.sqrt(np.mean(lpn**2)) < 0.1
+    flagged = [o for o in outs if o.msgid == DS and o.fields["signal_quality"] == FLAGGED_QUALITY]
+    assert len(flagged) < 0.02 * sum(1 for o in outs if o.msgid == DS), "false alarms stay rare"
+
+
+@pytest.mark.timeout(30)
+def test_untargeted_frames_and_other_vehicles_pass_untouched(wall: Scenario, anchors8: Scenario) -> None:
+    stage = SecureStage(SecureConfig(estimator="secekf", executor="inline"), wall, 1)
+    assert stage.message_ids == frozenset({DS}), "the wall group needs nothing but DISTANCE_SENSOR"
+    outs = run(stage, StreamMaker(wall, seed=6), 3.0)
+    assert stage.stats()["steps"] > 0
+    for o in outs:
+        if o.msgid != DS or o.fields["id"] not in range(5):
+            assert not o.changed and o.raw_out == o.frame.raw, (o.msgid, o.fields)
+    # Another vehicle's frames and uplink frames are not this stage's business.
+    other = StreamMaker(wall, sysid=1, seed=7)
+    other.mav.srcSystem = 9
+    for fr in other.frames(0.5):
+        pkt = packet_of(fr.raw, fr.t_s)
+        assert stage.process(pkt, fr.t_s) == [pkt] and not pkt.changed
+    for fr in StreamMaker(wall, seed=8).frames(0.5):
+        pkt = packet_of(fr.raw, fr.t_s, Direction.UPLINK)
+        assert stage.process(pkt, fr.t_s) == [pkt] and not pkt.changed
+
+
+@pytest.mark.timeout(30)
+def test_off_is_bypass(anchors8: Scenario) -> None:
+    stage = SecureStage(SecureConfig(estimator="off"), anchors8, 1)
+    assert not stage.active and stage.message_ids == frozenset()
+    outs = run(stage, StreamMaker(anchors8, seed=9), 2.0)
+    assert all(not o.changed and o.raw_out == o.frame.raw for o in outs)
+
+
+@pytest.mark.timeout(30)
+def test_dropped_sensor_does_not_stall_the_estimator(wall: Scenario) -> None:
+    """A sensor the attacker silences leaves sets incomplete: stepped after max_wait_s, then not waited for."""
+    engine = Engine(library.load("distance-off", sensors=[1], start_s=2.0), seed=0, scenario=wall)
+    stage = SecureStage(SecureConfig(estimator="secekf", executor="inline", max_wait_s=0.12), wall, 1)
+    outs = run(stage, StreamMaker(wall, engine=engine, seed=10), 8.0)
+    st = stage.stats()
+    assert not any(o.msgid == DS and o.fields["id"] == 1 and o.frame.t_s >= 2.0 for o in outs)
+    assert 0 < st["sets_timed_out"] <= 5, st  # only until the silent sensor is older than max_age_s
+    assert st["steps"] >= 75, st  # 10 Hz sets (the sonar's rate) all along
+    truth, _raw, sub = _wall_series(outs, 2.0)
+    assert np.sqrt(np.mean((sub - truth) ** 2)) < 0.05
