@@ -35,7 +35,7 @@ from typing import Any
 
 import aiomqtt
 
-from mitm_proxy.slots import AttackSlot
+from mitm_proxy.slots import AttackSlot, SlotState
 from secuav_common.broker import parse_broker_url
 
 log = logging.getLogger(__name__)
@@ -213,6 +213,8 @@ class ControlPlane:
         self._unknown: set[str] = set()  # vehicle keys already logged
         self._handled: dict[str, deque[bytes]] = {}  # topic -> digests of recent requests (retained replays)
         self._stats_failing = False
+        self._published: dict[int, SlotState] = {}  # the state last queued per vehicle
+        self.state_poll_s = 0.2
         self.identifier = f"secuav-proxy-{os.getpid()}-{uuid.uuid4().hex[:6]}"
 
     # -- lifecycle ------------------------------------------------------------------------------------
@@ -254,6 +256,7 @@ class ControlPlane:
         """Queue the retained ``attack/state`` of ``sysid`` (after a change made outside MQTT: file reload)."""
         slot = self.slots.get(sysid)
         if slot is not None:
+            self._published[sysid] = slot.state
             self.publish_nowait(vehicle_topic(sysid, "attack/state"), slot.state.to_json(), retain=True)
 
     @property
@@ -325,6 +328,7 @@ class ControlPlane:
             asyncio.create_task(self._receive(client), name="control-receive"),
             asyncio.create_task(self._drain(client), name="control-drain"),
             asyncio.create_task(self._stats_loop(), name="control-stats"),
+            asyncio.create_task(self._state_loop(), name="control-states"),
         ]
         try:
             done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_EXCEPTION)
@@ -361,6 +365,15 @@ class ControlPlane:
             self._stats_failing = False
             for sysid, body in snapshot.items():
                 self.publish_nowait(vehicle_topic(sysid, "stats"), body)
+
+    async def _state_loop(self) -> None:
+        """Publish states changed outside MQTT (the ``--profile`` file reload, the app) without any wiring:
+        a slot replaces its frozen state on every change, so an identity check finds them."""
+        while True:
+            await asyncio.sleep(self.state_poll_s)
+            for sysid, slot in self.slots.items():
+                if slot.state is not self._published.get(sysid):
+                    self.publish_state(sysid)
 
     async def _receive(self, client: aiomqtt.Client) -> None:
         async for message in client.messages:
