@@ -18,66 +18,98 @@ def _nan_to_none(value: float) -> float | None:
     return None if value is None or not math.isfinite(value) else float(value)
 
 
+def _errors(e: np.ndarray) -> dict[str, float | None]:
+    e = e[np.isfinite(e)]
+    if e.size == 0:
+        return {"rmse_m": None, "mean_error_m": None, "p95_error_m": None, "max_error_m": None}
+    return {
+        "rmse_m": float(np.sqrt(np.mean(e**2))),
+        "mean_error_m": float(np.mean(e)),
+        "p95_error_m": float(np.percentile(e, 95)),
+        "max_error_m": float(np.max(e)),
+    }
+
+
 def summarise(trials: list[TrialResult]) -> dict[str, dict[str, Any]]:
-    """Per estimator, pooled over trials (scored after the warm-up)."""
+    """Per estimator, pooled over trials (scored after the warm-up).
+
+    Errors are None where no trial has ground truth (a log without ``--truth``);
+    detection precision/recall are None where nothing says which readings were
+    attacked. Alarms, the readings named per sensor id and step times are
+    always reported.
+    """
     out: dict[str, dict[str, Any]] = {}
+    scored_errors = any(tr.scored_errors for tr in trials)
+    scored_detection = any(tr.scored_detection for tr in trials)
     for name in trials[0].traces:
-        errs, rerrs, times = [], [], []
+        errs, rerrs, devs, times = [], [], [], []
         hit = strong = named = named_true = alarms = steps = 0
+        named_by_id = np.zeros(len(trials[0].sensor_ids))
         for tr in trials:
             trace = tr.traces[name]
             keep = tr.t_s > WARMUP_S
             errs.append(trace.err_m[keep])
             if trace.range_err_m is not None:
                 rerrs.append(trace.range_err_m[keep])
+            if trace.local_dev_m is not None:
+                devs.append(trace.local_dev_m[keep])
             times.append(trace.step_time_s)
-            off = np.nan_to_num(tr.offsets_m[keep], nan=0.0)
-            big = np.abs(off) > RECALL_SIGMAS * tr.sigma_m
             nm = trace.named[keep]
+            named_by_id += nm.sum(axis=0)
+            alarms += int(trace.alarm[keep].sum())
+            steps += int(keep.sum())
+            if not tr.scored_detection:
+                continue
+            off = np.abs(np.nan_to_num(tr.offsets_m[keep], nan=0.0))
+            big = off > RECALL_SIGMAS * tr.sigma_m
+            floor = 1e-9 if tr.named_floor_m is None else tr.named_floor_m
             hit += int((big & nm).sum())
             strong += int(big.sum())
             named += int(nm.sum())
-            named_true += int((nm & (np.abs(off) > 1e-9)).sum())
-            alarms += int(trace.alarm[keep].sum())
-            steps += int(keep.sum())
-        e = np.concatenate(errs)
+            named_true += int((nm & (off > floor)).sum())
         t_us = 1e6 * np.concatenate(times)
-        row: dict[str, Any] = {
-            "rmse_m": float(np.sqrt(np.nanmean(e**2))),
-            "mean_error_m": float(np.nanmean(e)),
-            "p95_error_m": float(np.nanpercentile(e, 95)),
-            "max_error_m": float(np.nanmax(e)),
+        row: dict[str, Any] = _errors(np.concatenate(errs))
+        row.update({
             "step_time_us_median": float(np.median(t_us)),
             "step_time_us_p99": float(np.percentile(t_us, 99)),
             "attack_detection_precision": _nan_to_none(named_true / named if named else float("nan")),
             "attack_detection_recall": _nan_to_none(hit / strong if strong else float("nan")),
             "alarm_fraction": alarms / steps if steps else 0.0,
-        }
+            "named_fraction_by_sensor_id": {
+                str(sid): round(float(n) / steps, 4) if steps else 0.0
+                for sid, n in zip(trials[0].sensor_ids, named_by_id, strict=True)
+            },
+        })  # fmt: skip
+        if not scored_detection:
+            row["attack_detection_precision"] = row["attack_detection_recall"] = None
+        if devs:
+            dev = _errors(np.concatenate(devs))
+            row["deviation_from_local_position_ned"] = dev
         if rerrs:
-            r = np.concatenate(rerrs)
-            row["inter_vehicle_range"] = {
-                "rmse_m": float(np.sqrt(np.nanmean(r**2))),
-                "mean_error_m": float(np.nanmean(r)),
-                "p95_error_m": float(np.nanpercentile(r, 95)),
-                "max_error_m": float(np.nanmax(r)),
-            }
+            row["inter_vehicle_range"] = _errors(np.concatenate(rerrs))
+        if not scored_errors and "inter_vehicle_range" in row:
+            row["inter_vehicle_range"] = None
         out[name] = row
     return out
 
 
+def _cell(value: float | None, width: int, scale: float = 1.0) -> str:
+    return f"{'n/a':>{width}}" if value is None else f"{value * scale:>{width}.3f}"
+
+
 def table(summary: dict[str, dict[str, Any]]) -> str:
     """Laid out like the seed's Table 5.1: absolute errors and time per step."""
-    two = any("inter_vehicle_range" in row for row in summary.values())
+    two = any(row.get("inter_vehicle_range") for row in summary.values())
     head = f"{'Estimator':<10} | {'Mean abs. error [m]':>19} | {'Max abs. error [m]':>18}"
     if two:
         head += f" | {'Range mean [m]':>14} | {'Range max [m]':>13}"
     head += f" | {'Time per step [ms]':>18} | {'p99 [ms]':>8}"
     lines = [head, "-" * len(head)]
     for name, row in summary.items():
-        line = f"{name:<10} | {row['mean_error_m']:>19.3f} | {row['max_error_m']:>18.3f}"
+        line = f"{name:<10} | {_cell(row['mean_error_m'], 19)} | {_cell(row['max_error_m'], 18)}"
         if two:
             rng = row["inter_vehicle_range"]
-            line += f" | {rng['mean_error_m']:>14.3f} | {rng['max_error_m']:>13.3f}"
+            line += f" | {_cell(rng['mean_error_m'], 14)} | {_cell(rng['max_error_m'], 13)}"
         line += f" | {row['step_time_us_median'] / 1000:>18.3f} | {row['step_time_us_p99'] / 1000:>8.3f}"
         lines.append(line)
     lines.append("Time per step: one step of every estimator (ReCaP: its one sensor group), median over all steps.")
@@ -99,11 +131,13 @@ def plot(out_dir: Path, trial: TrialResult) -> list[Path]:
 
     paths = []
     fig, ax = plt.subplots(figsize=(7, 3.5))
-    attacked = np.flatnonzero(np.nanmax(np.abs(np.nan_to_num(trial.offsets_m)), axis=0) > 1e-9)
+    floor = 1e-9 if trial.named_floor_m is None else RECALL_SIGMAS * trial.sigma_m
+    attacked = np.flatnonzero(np.nanmax(np.abs(np.nan_to_num(trial.offsets_m)), axis=0) > floor)
     for i in attacked:
         ax.plot(trial.t_s, trial.offsets_m[:, i], label=f"sensor id {trial.sensor_ids[i]}")
     ax.set_xlabel("time [s]")
-    ax.set_ylabel("attack offset [m]")
+    # From a log with truth the offset is the reading minus the range the true position implies.
+    ax.set_ylabel("attack offset [m]" if trial.named_floor_m is None else "reading - true range [m]")
     ax.set_title("Attack over time (cf. seed Fig. 5.3)")
     if len(attacked):
         ax.legend(fontsize=8)
@@ -115,8 +149,12 @@ def plot(out_dir: Path, trial: TrialResult) -> list[Path]:
     n = len(trial.traces)
     fig, axes = plt.subplots(n, 1, figsize=(7, 1.8 * n), sharex=True, squeeze=False)
     for ax, (name, tr) in zip(axes[:, 0], trial.traces.items(), strict=True):
-        ax.plot(trial.t_s, tr.err_m, lw=0.8, label="position")
-        if tr.range_err_m is not None:
+        if trial.scored_errors or tr.local_dev_m is None:
+            ax.plot(trial.t_s, tr.err_m, lw=0.8, label="position")
+        else:  # a log without truth: the distance from the autopilot's own estimate instead
+            ax.plot(trial.t_s, tr.local_dev_m, lw=0.8, label="vs LOCAL_POSITION_NED (not truth)")
+            ax.legend(fontsize=7, loc="upper right")
+        if tr.range_err_m is not None and trial.scored_errors:
             ax.plot(trial.t_s, tr.range_err_m, lw=0.8, label="inter-vehicle range")
             ax.legend(fontsize=7, loc="upper right")
         ax.set_ylabel(f"{name}\n|err| [m]", fontsize=8)
@@ -141,7 +179,10 @@ def plot(out_dir: Path, trial: TrialResult) -> list[Path]:
     else:
         fig, ax = plt.subplots(figsize=(5.5, 5.5))
         ax.scatter(trial.anchors_xy_m[:, 1], trial.anchors_xy_m[:, 0], marker="x", c="red", label="anchors")
-        ax.plot(trial.truth_xy_m[:, 1], trial.truth_xy_m[:, 0], "k-", lw=1.5, label="truth")
+        if trial.scored_errors:
+            ax.plot(trial.truth_xy_m[:, 1], trial.truth_xy_m[:, 0], "k-", lw=1.5, label="truth")
+        if trial.local_xy_m is not None:
+            ax.plot(trial.local_xy_m[:, 1], trial.local_xy_m[:, 0], "k:", lw=1.0, label="LOCAL_POSITION_NED")
         for name, tr in trial.traces.items():
             ax.plot(tr.est_xy_m[:, 1], tr.est_xy_m[:, 0], lw=0.6, alpha=0.7, label=name)
         ax.set_xlabel("east [m]")

@@ -29,9 +29,10 @@ MOVING_PERIOD_S = 20.0
 class VehicleStream:
     sysid: int
     t_s: np.ndarray  # (T,) seconds since the evaluation window began
-    truth_ned_m: np.ndarray  # (T, 3)
+    truth_ned_m: np.ndarray  # (T, 3); NaN where unknown (a log without a truth file)
     readings: dict[int, np.ndarray]  # wire sensor id -> (T,) metres, NaN = none in that frame
     laser_down_m: np.ndarray  # (T,) downward rangefinder (height), NaN if the vehicle has none
+    local_ned_m: np.ndarray | None = None  # (T, 3) the autopilot's LOCAL_POSITION_NED (logs only), not truth
 
 
 def _altitude(scenario: Scenario, sysid: int) -> float:

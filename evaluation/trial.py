@@ -7,7 +7,9 @@ position and for the inter-vehicle range. Wall hover (seed Fig. A.5, ReCaP's
 setting; no UWB, a wall_distance target): the redundant rangefinder group as
 one scalar; error = |estimated - true distance to the wall plane|. Ground truth for detection: a
 reading the engine changed by more than ``5 sigma`` counts as attacked
-(recall); any change counts for precision.
+(recall); any change counts for precision. The same estimators run on a
+recorded log (:func:`evaluate` with ``from_log``, streams from
+:mod:`evaluation.tlog`); see there how a log is scored.
 """
 
 from __future__ import annotations
@@ -31,23 +33,30 @@ WARMUP_S = 1.0  # estimators' first second (start-up transient) is not scored
 
 @dataclass(frozen=True, eq=False)
 class EstimatorTrace:
-    err_m: np.ndarray  # (T,) position error (first vehicle)
+    err_m: np.ndarray  # (T,) position error (first vehicle); NaN where there is no truth
     range_err_m: np.ndarray | None  # (T,) inter-vehicle range error (test case 2)
     est_xy_m: np.ndarray  # (T, 2) first vehicle's estimated north, east; (T, 1) wall distance
     step_time_s: np.ndarray  # (T,)
     named: np.ndarray  # (T, p) bool: judged attacked
     alarm: np.ndarray  # (T,) bool
+    local_dev_m: np.ndarray | None = None  # (T,) distance from the autopilot's LOCAL_POSITION_NED (logs)
 
 
 @dataclass(frozen=True, eq=False)
 class TrialResult:
     t_s: np.ndarray
-    truth_xy_m: np.ndarray  # (T, 2) first vehicle; (T, 1) wall distance in the wall case
+    truth_xy_m: np.ndarray  # (T, 2) first vehicle; (T, 1) wall distance in the wall case; NaN if unknown
     anchors_xy_m: np.ndarray
     offsets_m: np.ndarray  # (T, p) what the attack added (NaN where a reading was missing or dropped)
     sigma_m: np.ndarray  # (p,)
     sensor_ids: tuple[int, ...]
     traces: dict[str, EstimatorTrace]
+    # A reading named attacked counts as rightly named (precision) when its offset exceeds this:
+    # 0 when the offsets are exactly what an attack added; 3 sigma when they are deviations from truth.
+    named_floor_m: np.ndarray | None = None
+    scored_errors: bool = True  # False: no ground truth (a log without --truth)
+    scored_detection: bool = True  # False: neither truth nor a known added attack
+    local_xy_m: np.ndarray | None = None  # (T, 2) LOCAL_POSITION_NED of the first vehicle (logs)
 
 
 def is_wall(scenario: Scenario) -> bool:
@@ -74,10 +83,32 @@ def _attack(engine: Engine | None, stream: VehicleStream, z: np.ndarray, ids: li
 def run_trial(
     scenario: Scenario, profile: Profile | None, names: list[str], seed: int, duration_s: float, leg: Leg
 ) -> TrialResult:
+    """Fly the scenario headless (seeded), attack its streams offline, run the estimators."""
     streams = fly(scenario, seed, duration_s, RATE_HZ, leg)
     engine = None if profile is None else Engine(profile, seed=seed, scenario=scenario)
+    return evaluate(scenario, streams, engine, names)
+
+
+def evaluate(
+    scenario: Scenario,
+    streams: dict[int, VehicleStream],
+    engine: Engine | None,
+    names: list[str],
+    *,
+    from_log: bool = False,
+) -> TrialResult:
+    """Run the estimators on framed streams (a headless flight, or a recorded log).
+
+    From a flight the attack is the only thing that changes readings, so the
+    offsets it added are known exactly. From a log the readings may already be
+    attacked (recorded behind an attack): with truth, a reading's offset is its
+    deviation from the range the true position implies; without truth, only an
+    attack added here (``engine``) is known, and errors cannot be scored at all.
+    """
     first = scenario.vehicles[0].sysid
     s1 = streams[first]
+    if is_wall(scenario):
+        return _wall_trial(scenario, s1, engine, names, from_log)
     if is_formation(scenario):
         second = scenario.vehicles[1].sysid
         model: MeasurementModel = two_vehicle_model(scenario, first, second)
@@ -88,31 +119,68 @@ def run_trial(
         z2 = _attack(engine, s2, _matrix(s2, ids), ids)
         clean = np.hstack([_matrix(s1, ids), _matrix(s2, ids), _matrix(s1, [peer_sensor_id(second)])])
         z = np.hstack([z1[:, :-1], z2, z1[:, -1:]])
-        known = np.column_stack([-s1.laser_down_m, -s2.laser_down_m])
+        known = np.column_stack([_height(s1), _height(s2)])
         truth2 = s2.truth_ned_m
-    elif is_wall(scenario):
-        return _wall_trial(scenario, s1, engine, names)
+        truth_state = np.hstack([s1.truth_ned_m[:, :2], truth2[:, :2]])
+        truth_known = np.column_stack([s1.truth_ned_m[:, 2], truth2[:, 2]])
     else:
         model = anchor_model(scenario, first)
         ids = list(model.sensor_ids)
         clean = _matrix(s1, ids)
         z = _attack(engine, s1, clean, ids)
-        known = -s1.laser_down_m[:, None]
+        known = _height(s1)[:, None]
         truth2 = None
+        truth_state, truth_known = s1.truth_ned_m[:, :2], s1.truth_ned_m[:, 2:3]
     # A missing laser reading: keep the last height (the model's default before the first one).
     known = _hold_last(known, np.asarray(model.default_known, dtype=float).reshape(-1))
-    traces = {name: _run_estimator(name, model, s1, z, known, truth2) for name in names}
+    local = None if s1.local_ned_m is None else s1.local_ned_m[:, :2]
+    traces = {name: _run_estimator(name, model, s1, z, known, truth2, local) for name in names}
     n_anchor = len(scenario.anchor_positions())
     anchors = np.array([scenario.anchor_positions()[k] for k in sorted(scenario.anchor_positions())])[:n_anchor, :2]
+    offsets, floor, scored_err, scored_det = _offsets(model, z, clean, engine, truth_state, truth_known, from_log)
     return TrialResult(
         t_s=s1.t_s,
         truth_xy_m=s1.truth_ned_m[:, :2],
         anchors_xy_m=anchors,
-        offsets_m=z - clean,
+        offsets_m=offsets,
         sigma_m=model.sigma_m,
         sensor_ids=model.ids(),
         traces=traces,
+        named_floor_m=floor,
+        scored_errors=scored_err,
+        scored_detection=scored_det,
+        local_xy_m=local,
     )
+
+
+def _height(stream: VehicleStream) -> np.ndarray:
+    """NED down of the vehicle: minus the downward laser; from a log, LOCAL_POSITION_NED's where the laser is silent."""
+    z = -stream.laser_down_m
+    if stream.local_ned_m is not None:
+        z = np.where(np.isnan(z), stream.local_ned_m[:, 2], z)
+    return z
+
+
+def _offsets(
+    model: MeasurementModel,
+    z: np.ndarray,
+    clean: np.ndarray,
+    engine: Engine | None,
+    truth_state: np.ndarray,
+    truth_known: np.ndarray,
+    from_log: bool,
+) -> tuple[np.ndarray, np.ndarray | None, bool, bool]:
+    """(offsets, named floor, errors scored, detection scored); see :func:`evaluate`."""
+    has_truth = bool(np.isfinite(truth_state).all(axis=1).any())
+    if not from_log:
+        return z - clean, None, True, True
+    if has_truth:
+        expected = np.full(z.shape, np.nan)
+        for k in np.flatnonzero(np.isfinite(truth_state).all(axis=1) & np.isfinite(truth_known).all(axis=1)):
+            kn = float(truth_known[k, 0]) if truth_known.shape[1] == 1 else truth_known[k]
+            expected[k] = model.h(truth_state[k], kn)
+        return z - expected, 3.0 * model.sigma_m, True, True
+    return z - clean, None, False, engine is not None
 
 
 def _hold_last(values: np.ndarray, default: np.ndarray) -> np.ndarray:
@@ -126,7 +194,13 @@ def _hold_last(values: np.ndarray, default: np.ndarray) -> np.ndarray:
 
 
 def _run_estimator(
-    name: str, model: MeasurementModel, s1: VehicleStream, z: np.ndarray, known: np.ndarray, truth2: np.ndarray | None
+    name: str,
+    model: MeasurementModel,
+    s1: VehicleStream,
+    z: np.ndarray,
+    known: np.ndarray,
+    truth2: np.ndarray | None,
+    local: np.ndarray | None = None,
 ) -> EstimatorTrace:
     est = estimators.create(name, model)
     n = z.shape[0]
@@ -149,10 +223,13 @@ def _run_estimator(
             est_range = np.sqrt(np.sum((pos[0:2] - pos[2:4]) ** 2) + (kn[0] - kn[1]) ** 2)
             true_range = float(np.linalg.norm(s1.truth_ned_m[k] - truth2[k]))
             rerr[k] = abs(est_range - true_range)
-    return EstimatorTrace(err, rerr, xy, times, named, alarm)
+    dev = None if local is None else np.linalg.norm(xy - local, axis=1)
+    return EstimatorTrace(err, rerr, xy, times, named, alarm, dev)
 
 
-def _wall_trial(scenario: Scenario, s1: VehicleStream, engine: Engine | None, names: list[str]) -> TrialResult:
+def _wall_trial(
+    scenario: Scenario, s1: VehicleStream, engine: Engine | None, names: list[str], from_log: bool
+) -> TrialResult:
     target = scenario.vehicles[0].target
     assert isinstance(target, WallDistanceTarget)
     model = wall_group_model(scenario, s1.sysid)
@@ -173,12 +250,18 @@ def _wall_trial(scenario: Scenario, s1: VehicleStream, engine: Engine | None, na
             d_est[k], times[k], alarm[k] = out.position_m[0], out.step_time_s, out.alarm
             named[k, list(out.attacked)] = True
         traces[name] = EstimatorTrace(np.abs(d_est - true_d), None, d_est[:, None], times, named, alarm)
+    offsets, floor, scored_err, scored_det = _offsets(
+        model, z, clean, engine, true_d[:, None], np.zeros((z.shape[0], 1)), from_log
+    )
     return TrialResult(
         t_s=s1.t_s,
         truth_xy_m=true_d[:, None],
         anchors_xy_m=np.zeros((0, 2)),
-        offsets_m=z - clean,
+        offsets_m=offsets,
         sigma_m=model.sigma_m,
         sensor_ids=model.ids(),
         traces=traces,
+        named_floor_m=floor,
+        scored_errors=scored_err,
+        scored_detection=scored_det,
     )

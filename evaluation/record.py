@@ -1,0 +1,258 @@
+"""Record a MAVLink stream to a .tlog, optionally through an attack, so ``secuav-eval --tlog`` has logs to read.
+
+    python -m evaluation.record --listen udpin://127.0.0.1:14560 --out flight.tlog \\
+        [--attack type-a --scenario anchors8 [--param K=V] [--seed S]] [--duration S] [--idle-stop S]
+
+Listens where a vehicle sends (``secuav-sim --mavlink udpout://127.0.0.1:PORT``
+sends vehicle i to PORT + i: give one ``--listen`` per vehicle) and writes
+every frame as QGroundControl and MAVProxy do: an 8-byte big-endian wall-clock
+timestamp in microseconds, then the frame's bytes. With ``--attack`` the
+frames a profile targets are rewritten by the same attack_profiles engine the
+proxy uses (re-packed with their original sysid, compid and sequence number),
+dropped, held back or joined by injected ones, so a log can carry an attack the
+way a proxy recording would. The profile's activation clock runs on the
+vehicle's boot time (``time_boot_ms``), not the wall clock, so a simulator run
+faster than real time is attacked at the same sim seconds as at 1x.
+
+Stops on SIGINT/SIGTERM, after ``--duration`` seconds, or ``--idle-stop``
+seconds after the last datagram (the simulator finished). Prints one summary
+line (frames in, written, rewritten, dropped, delayed, injected).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import heapq
+import json
+import signal
+import struct
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from attack_profiles import Engine
+from attack_profiles.action import Direction
+from attack_profiles.profile import Profile
+from evaluation.cli import parse_params, resolve_profile
+from secuav_common.loading import InputError
+from secuav_common.scenario import load_scenario, resolve_scenario_path
+from secuav_common.urls import Endpoint, parse_endpoint
+
+TIME_FIELDS = ("time_boot_ms",)
+
+
+@dataclass
+class Counts:
+    frames_in: int = 0
+    written: int = 0
+    rewritten: int = 0
+    dropped: int = 0
+    delayed: int = 0
+    injected: int = 0
+    bad: int = 0
+
+
+@dataclass
+class TlogWriter:
+    """Frames to a .tlog, the attack (if any) applied on the way; delayed frames wait on the vehicle clock."""
+
+    out: IO[bytes]
+    engine: Engine | None = None
+    counts: Counts = field(default_factory=Counts)
+    _vehicle_s: dict[int, float] = field(default_factory=dict)
+    _held: list[tuple[float, int, bytes]] = field(default_factory=list)
+    _order: int = 0
+
+    def _write(self, frame: bytes) -> None:
+        self.out.write(struct.pack(">Q", int(time.time() * 1e6)) + frame)
+        self.counts.written += 1
+
+    def feed(self, msg: mavlink.MAVLink_message) -> None:
+        """One decoded message (with its original bytes in ``get_msgbuf()``)."""
+        self.counts.frames_in += 1
+        sysid = msg.get_srcSystem()
+        boot_ms = getattr(msg, "time_boot_ms", None)
+        if boot_ms is not None:
+            self._vehicle_s[sysid] = boot_ms * 1e-3
+        now_s = self._vehicle_s.get(sysid, 0.0)
+        self._release(now_s)
+        raw = bytes(msg.get_msgbuf())
+        if self.engine is None or msg.get_msgId() not in self.engine.message_ids:
+            self._write(raw)
+            return
+        compid = msg.get_srcComponent()
+        action = self.engine.process(now_s, msg.get_msgId(), msg.to_dict(), Direction.DOWNLINK, sysid, compid)
+        for extra in action.inject:
+            frame = _pack_new(extra.message, extra.fields, msg)
+            if frame is not None:
+                self.counts.injected += 1
+                self._hold_or_write(now_s + extra.delay_s, frame, extra.delay_s > 0.0)
+        if action.drop:
+            self.counts.dropped += 1
+            return
+        if action.fields:
+            for name, value in action.fields.items():
+                setattr(msg, name, value)
+            raw = _repack(msg)
+            self.counts.rewritten += 1
+        self._hold_or_write(now_s + action.delay_s, raw, action.delay_s > 0.0)
+
+    def _hold_or_write(self, release_s: float, frame: bytes, hold: bool) -> None:
+        if not hold:
+            self._write(frame)
+            return
+        self.counts.delayed += 1
+        self._order += 1
+        heapq.heappush(self._held, (release_s, self._order, frame))
+
+    def _release(self, now_s: float) -> None:
+        while self._held and self._held[0][0] <= now_s:
+            self._write(heapq.heappop(self._held)[2])
+
+    def close(self) -> None:
+        """Frames still held back leave at the end, in release order."""
+        self._release(float("inf"))
+        self.out.flush()
+
+
+def _repack(msg: mavlink.MAVLink_message) -> bytes:
+    """Re-pack with the original sysid, compid and sequence number (CRC recomputed)."""
+    mav = mavlink.MAVLink(None, srcSystem=msg.get_srcSystem(), srcComponent=msg.get_srcComponent())
+    mav.seq = msg.get_seq()
+    return bytes(msg.pack(mav))
+
+
+def _pack_new(name: str, fields: dict[str, Any], like: mavlink.MAVLink_message) -> bytes | None:
+    cls = getattr(mavlink, f"MAVLink_{name.lower()}_message", None)
+    if cls is None:
+        return None
+    msg = cls(**{f: fields.get(f, 0) for f in cls.fieldnames})
+    mav = mavlink.MAVLink(None, srcSystem=like.get_srcSystem(), srcComponent=like.get_srcComponent())
+    mav.seq = like.get_seq()
+    return bytes(msg.pack(mav))
+
+
+class _Listener(asyncio.DatagramProtocol):
+    """One bound UDP port; its own parser so frames of different links never interleave."""
+
+    def __init__(self, writer: TlogWriter, seen: asyncio.Event) -> None:
+        self.writer = writer
+        self.seen = seen
+        self.parser = mavlink.MAVLink(None)
+        self.parser.robust_parsing = True
+        self.last_rx = time.monotonic()
+
+    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+        self.last_rx = time.monotonic()
+        self.seen.set()
+        for msg in self.parser.parse_buffer(data) or []:
+            if msg.get_type() == "BAD_DATA":
+                self.writer.counts.bad += 1
+                continue
+            self.writer.feed(msg)
+
+
+async def record(
+    listen: list[Endpoint],
+    out: Path,
+    engine: Engine | None = None,
+    duration_s: float | None = None,
+    idle_stop_s: float | None = None,
+    on_bound: Callable[[list[tuple[str, int]]], None] | None = None,
+) -> Counts:
+    """Record until stopped (signal, duration, or idle after the first datagram).
+
+    ``on_bound`` receives the bound addresses (port 0 in a URL picks a free port).
+    """
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    seen = asyncio.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            loop.add_signal_handler(sig, stop.set)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    transports = []
+    with out.open("wb") as fh:
+        writer = TlogWriter(fh, engine)
+        listeners = []
+        try:
+            for ep in listen:
+                if ep.mode != "udpin":
+                    raise InputError("--listen", "", str(ep), "the recorder listens: use udpin://HOST:PORT")
+                lis = _Listener(writer, seen)
+                transport, _ = await loop.create_datagram_endpoint(lambda lis=lis: lis, local_addr=ep.address)
+                transports.append(transport)
+                listeners.append(lis)
+            if on_bound is not None:
+                on_bound([t.get_extra_info("sockname")[:2] for t in transports])
+            started = time.monotonic()
+            while not stop.is_set():
+                await asyncio.sleep(0.05)
+                now = time.monotonic()
+                if duration_s is not None and now - started >= duration_s:
+                    break
+                if idle_stop_s is not None and seen.is_set() and now - max(x.last_rx for x in listeners) >= idle_stop_s:
+                    break
+        finally:
+            for t in transports:
+                t.close()
+            writer.close()
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                with contextlib.suppress(NotImplementedError, RuntimeError):
+                    loop.remove_signal_handler(sig)
+    return writer.counts
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m evaluation.record", description=__doc__.split("\n")[0])
+    p.add_argument("--listen", action="append", required=True, metavar="URL", help="udpin://HOST:PORT (repeatable)")
+    p.add_argument("--out", required=True, type=Path, help=".tlog file to write")
+    p.add_argument("--attack", default="none", help="profile file, library name, or 'none' (default)")
+    p.add_argument("--param", action="append", default=[], metavar="K=V", help="library profile parameter")
+    p.add_argument("--scenario", default=None, help="scenario (checks the profile's sensor ids; coordinated spoof)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the attack's random primitives")
+    p.add_argument("--duration", type=float, default=None, help="stop after S seconds (wall clock)")
+    p.add_argument("--idle-stop", type=float, default=None, help="stop S seconds after the last datagram")
+    p.add_argument("-q", "--quiet", action="store_true", help="no summary line")
+    return p
+
+
+def _engine(args: argparse.Namespace) -> Engine | None:
+    profile: Profile | None = resolve_profile(args.attack, parse_params(args.param))
+    if profile is None:
+        return None
+    scenario = None if args.scenario is None else load_scenario(resolve_scenario_path(args.scenario))
+    return Engine(profile, seed=args.seed, scenario=scenario)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        listen = []
+        for url in args.listen:
+            try:
+                listen.append(parse_endpoint(url))
+            except ValueError as err:
+                raise InputError("--listen", "", url, str(err)) from None
+        engine = _engine(args)
+        counts = asyncio.run(record(listen, args.out, engine, args.duration, args.idle_stop))
+    except InputError as err:
+        print(f"record: {err}", file=sys.stderr)
+        return 2
+    except OSError as err:
+        print(f"record: {err}", file=sys.stderr)
+        return 1
+    if not args.quiet:
+        print(json.dumps({"out": str(args.out), **counts.__dict__}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
