@@ -74,6 +74,7 @@ class Proxy:
         self.links: list[Link] = []
         self.routers: list[GroundRouter] = []
         self.recorders: list[Recorder] = []
+        self.control: Any = None  # the ControlPlane when a broker is configured
         self._stack = contextlib.AsyncExitStack()
         self._tasks: list[asyncio.Task[Any]] = []
 
@@ -141,6 +142,7 @@ class Proxy:
         ca = str(cfg.broker_tls_ca) if cfg.broker_tls_ca else None
         plane = ControlPlane(url, self.slots, stats=self.stats_snapshot, secure=None, username=cfg.broker_username,
                              password=cfg.broker_password, tls_ca=ca)  # fmt: skip
+        self.control = plane
         await self._stack.enter_async_context(plane)  # it connects, reconnects and publishes in its own task
 
     def _start_reload(self) -> None:

@@ -1,0 +1,211 @@
+"""Bad input and faults: forwarding never stops and no valid frame of the other direction is lost.
+
+Real proxy in-process, real sockets on 127.0.0.1, real MAVLink frames (pymavlink),
+a real broker (amqtt) that goes away and comes back.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import threading
+from collections.abc import AsyncIterator, Callable
+
+import pytest
+from test_link import Peer, command, heartbeat, packer
+
+from mitm_proxy.app import Proxy
+from mitm_proxy.config import LinkConfig, ProxyConfig
+from mitm_proxy.frames import split
+from secuav_common.broker import EmbeddedBroker
+
+pytestmark = pytest.mark.timeout(40)
+
+
+@contextlib.asynccontextmanager
+async def one_link(udp_port: Callable[[], int], grounds: int = 1, **extra: object
+                   ) -> AsyncIterator[tuple[Proxy, int, list[Peer]]]:  # fmt: skip
+    gcs = [Peer() for _ in range(grounds)]
+    veh = udp_port()
+    link = LinkConfig(sysid=1, vehicle=f"udpin://127.0.0.1:{veh}", ground=[f"udpout://127.0.0.1:{g.port}" for g in gcs])
+    try:
+        async with Proxy(ProxyConfig(links=[link], **{"broker": "none", **extra})) as proxy:  # type: ignore[arg-type]
+            yield proxy, veh, gcs
+    finally:
+        for g in gcs:
+            g.close()
+
+
+async def test_malformed_datagrams_lose_no_valid_frame(udp_port: Callable[[], int]) -> None:
+    async with one_link(udp_port) as (proxy, veh, (gcs,)):
+        vehicle = Peer()
+        try:
+            mav = packer(1)
+            good = [heartbeat(mav) for _ in range(6)]
+            bad_crc = bytearray(heartbeat(mav))
+            bad_crc[-1] ^= 0xFF
+            datagrams = [
+                good[0],
+                b"\x00garbage\xff\x13" * 5,
+                b"junk" + good[1] + b"\xfd\x09" + good[2],  # garbage before, and a torn header between frames
+                good[3][:-4],  # truncated
+                bytes(bad_crc) + good[4],
+                b"",
+                good[5],
+            ]
+            for d in datagrams:
+                vehicle.send(d, veh)
+            got, proxy_addr = await gcs.frames()
+            assert got == [good[0], good[1], good[2], good[4], good[5]]
+            assert proxy_addr is not None
+            cmds = [command(packer(255, 190), 1) for _ in range(3)]
+            gcs.reply(b"\xfe\xfe\xfe" + cmds[0], proxy_addr)
+            gcs.reply(cmds[1] + cmds[2], proxy_addr)
+            up, _ = await vehicle.frames()
+            assert up == cmds
+            snap = proxy.stats_snapshot()[1]
+            assert snap["downlink"]["bad_total"] >= 4 and snap["uplink"]["bad_total"] >= 1
+            assert snap["downlink"]["frames_out"] == 5 and snap["uplink"]["frames_out"] == 3
+        finally:
+            vehicle.close()
+
+
+def _flood(peer: Peer, addr: tuple[str, int], stop: threading.Event, junk: bytes) -> int:
+    sent = 0
+    while not stop.is_set():
+        for _ in range(200):
+            with contextlib.suppress(BlockingIOError):
+                peer.reply(junk, addr)
+                sent += 1
+    return sent
+
+
+async def test_a_flood_from_the_ground_does_not_starve_the_vehicle(udp_port: Callable[[], int]) -> None:
+    """A ground client floods the proxy (valid frames and garbage); every vehicle frame still reaches the GCS."""
+    async with one_link(udp_port, grounds=2) as (proxy, veh, (gcs, flooder_ep)):
+        vehicle = Peer()
+        try:
+            vehicle.send(heartbeat(packer(1)), veh)  # the proxy learns the vehicle and tells the ground side
+            await gcs.frames(0.2)
+            _, flood_port_addr = await flooder_ep.frames(0.2)
+            assert flood_port_addr is not None
+            stop = threading.Event()
+            junk = command(packer(255, 190), 1) + b"\x00" * 40
+            flood = asyncio.create_task(asyncio.to_thread(_flood, flooder_ep, flood_port_addr, stop, junk))
+            drain = asyncio.create_task(vehicle.frames(1.0))  # the vehicle side reads its uplink
+            collect = asyncio.create_task(gcs.frames(0.5))
+            mav = packer(1)
+            sent = []
+            for _ in range(300):
+                frame = heartbeat(mav)
+                sent.append(frame)
+                vehicle.send(frame, veh)
+                await asyncio.sleep(0.002)
+            got, _ = await collect
+            stop.set()
+            flooded = await flood
+            await drain
+            assert flooded > 2000
+            assert got == sent
+            snap = proxy.stats_snapshot()[1]
+            assert snap["uplink"]["frames_in"] > 1000  # the flood was really processed, not just dropped by the kernel
+        finally:
+            vehicle.close()
+
+
+async def test_vehicle_comes_back_from_a_new_port(udp_port: Callable[[], int],
+                                                  caplog: pytest.LogCaptureFixture) -> None:  # fmt: skip
+    caplog.set_level(logging.INFO)
+    async with one_link(udp_port) as (proxy, veh, (gcs,)):
+        first, second = Peer(), Peer()
+        try:
+            first.send(heartbeat(packer(1)), veh)
+            _, proxy_addr = await gcs.frames(0.2)
+            assert proxy_addr is not None
+            cmd = command(packer(255, 190), 1)
+            gcs.reply(cmd, proxy_addr)
+            assert (await first.frames(0.2))[0] == [cmd]
+            first.close()  # the autopilot restarts: new socket, new source port
+            for _ in range(3):
+                second.send(heartbeat(packer(1)), veh)
+            assert len((await gcs.frames(0.2))[0]) == 3
+            gcs.reply(cmd, proxy_addr)
+            assert (await second.frames(0.2))[0] == [cmd]
+            assert proxy.stats_snapshot()[1]["endpoints"][f"vehicle:{veh}"]["faults"] == {"peer_changed": 1}
+        finally:
+            second.close()
+    assert sum(r.getMessage() == "endpoint.peer_changed" for r in caplog.records) == 1
+
+
+async def test_a_vanished_ground_client_does_not_stop_the_others(udp_port: Callable[[], int]) -> None:
+    async with one_link(udp_port, grounds=2) as (proxy, veh, (gone, stays)):
+        vehicle = Peer()
+        try:
+            gone_port = gone.port
+            gone.close()  # its port now answers with ICMP port unreachable
+            mav = packer(1)
+            sent = [heartbeat(mav) for _ in range(100)]
+            for frame in sent:
+                vehicle.send(frame, veh)
+                await asyncio.sleep(0.001)
+            assert (await stays.frames())[0] == sent
+            back = Peer(gone_port)  # the client restarts on its port
+            try:
+                later = [heartbeat(mav) for _ in range(5)]
+                for frame in later:
+                    vehicle.send(frame, veh)
+                assert (await back.frames())[0] == later
+                assert (await stays.frames())[0] == later
+                assert proxy.stats_snapshot()[1]["downlink"]["frames_out"] == 105
+            finally:
+                back.close()
+        finally:
+            vehicle.close()
+
+
+async def test_broker_restart_keeps_forwarding_and_reconnects(udp_port: Callable[[], int],
+                                                              tcp_port: Callable[[], int]) -> None:  # fmt: skip
+    mqtt = tcp_port()
+    broker = EmbeddedBroker(port=mqtt)
+    await broker.__aenter__()
+    async with one_link(udp_port, broker=f"mqtt://127.0.0.1:{mqtt}") as (proxy, veh, (gcs,)):
+        vehicle = Peer()
+        try:
+            await proxy.control.wait_connected(10)
+            mav = packer(1)
+            sent: list[bytes] = []
+            received: list[bytes] = []
+
+            async def stream() -> None:
+                while True:
+                    frame = heartbeat(mav)
+                    sent.append(frame)
+                    vehicle.send(frame, veh)
+                    await asyncio.sleep(0.01)
+
+            async def collect() -> None:
+                loop = asyncio.get_running_loop()
+                while True:
+                    data, _ = await loop.sock_recvfrom(gcs.sock, 65535)
+                    received.extend(f for _h, f in split(data).frames)
+
+            tasks = [asyncio.create_task(stream()), asyncio.create_task(collect())]
+            await asyncio.sleep(0.5)
+            await broker.__aexit__(None, None, None)  # the broker goes away
+            await asyncio.sleep(1.0)
+            assert len(received) > 100
+            broker = EmbeddedBroker(port=mqtt)
+            await broker.__aenter__()  # and comes back
+            for _ in range(200):
+                if proxy.control.connections >= 2:
+                    break
+                await asyncio.sleep(0.05)
+            assert proxy.control.connections >= 2
+            tasks[0].cancel()
+            await asyncio.sleep(0.2)
+            tasks[1].cancel()
+            assert received == sent
+        finally:
+            vehicle.close()
+    await broker.__aexit__(None, None, None)
