@@ -58,6 +58,14 @@ class _Plan:
     nav_seqs: list[int]  # wire seq of each NavItem, in order
 
 
+@dataclass(frozen=True, slots=True)
+class _Refusal:
+    """Why an uploaded mission cannot be flown (a type of its own: a tuple would look like success)."""
+
+    result: int  # MAV_MISSION_RESULT
+    reason: str
+
+
 def _is_nav(command: int) -> bool:
     return command < 112
 
@@ -224,10 +232,9 @@ class MissionServer:
             self._ack(up.partner, mavlink.MAV_MISSION_ACCEPTED, up.mission_type)
             return
         converted = self._to_nav(up.items)
-        if isinstance(converted, tuple):
-            result, reason = converted
-            self.say(mavlink.MAV_SEVERITY_WARNING, reason)
-            self._ack(up.partner, result, up.mission_type)
+        if isinstance(converted, _Refusal):
+            self.say(mavlink.MAV_SEVERITY_WARNING, converted.reason)
+            self._ack(up.partner, converted.result, up.mission_type)
             return
         nav, seqs = converted
         outcome = self.v.set_mission(nav)
@@ -288,8 +295,8 @@ class MissionServer:
             self.send(self.mav.mission_item_encode(*common, it.x / scale, it.y / scale, it.z, mtype))
 
     # -- conversion ------------------------------------------------------------------------
-    def _to_nav(self, items: list[ItemInt]) -> tuple[list[NavItem], list[int]] | tuple[int, str]:
-        """NavItems and their wire seqs, or (MAV_MISSION_RESULT, reason)."""
+    def _to_nav(self, items: list[ItemInt]) -> tuple[list[NavItem], list[int]] | _Refusal:
+        """NavItems and their wire seqs, or why not."""
         nav: list[NavItem] = []
         seqs: list[int] = []
         here = self.v.estimate.pos_ned_m
@@ -297,10 +304,12 @@ class MissionServer:
             if not _is_nav(it.command):
                 continue  # DO_/CONDITION_ items (speed, camera...) are accepted and not flown
             if it.command not in _NAV_COMMANDS:
-                return mavlink.MAV_MISSION_UNSUPPORTED, f"Mission item {it.seq}: command {it.command} not supported"
+                return _Refusal(
+                    mavlink.MAV_MISSION_UNSUPPORTED, f"Mission item {it.seq}: command {it.command} not supported"
+                )
             pos = self._position(it, nav[-1].pos_ned_m if nav else here)
             if isinstance(pos, str):
-                return mavlink.MAV_MISSION_UNSUPPORTED_FRAME, f"Mission item {it.seq}: {pos}"
+                return _Refusal(mavlink.MAV_MISSION_UNSUPPORTED_FRAME, f"Mission item {it.seq}: {pos}")
             cmd = NavCommand(it.command)
             hold = it.param1 if cmd in (NavCommand.WAYPOINT, NavCommand.LOITER_TIME) else 0.0
             radius = it.param2 if cmd == NavCommand.WAYPOINT and it.param2 > 0 else 0.5
