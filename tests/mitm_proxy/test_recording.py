@@ -1,0 +1,103 @@
+"""Recordings: both .tlog files read back by pymavlink's own tlog reader; the index names changed frames."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+from pymavlink import mavutil
+from test_frames_support import HEARTBEAT, distance, heartbeat, local_position, mav, pack
+
+from attack_profiles.profile import parse_profile
+from mitm_proxy.attack import AttackStage
+from mitm_proxy.packet import Direction
+from mitm_proxy.pipeline import Pipeline
+from mitm_proxy.recording import Recorder
+from mitm_proxy.slots import AttackSlot
+from mitm_proxy.stats import LinkStats
+
+
+def read_tlog(path: Path) -> list[Any]:
+    conn = mavutil.mavlink_connection(str(path), dialect="common")
+    out = []
+    while True:
+        msg = conn.recv_match()
+        if msg is None:
+            break
+        if msg.get_type() != "BAD_DATA":
+            out.append(msg)
+    conn.close()
+    return out
+
+
+def test_original_and_forwarded_read_back_with_the_attack_visible(tmp_path: Path) -> None:
+    slot = AttackSlot(1)
+    slot.offer(parse_profile({"name": "wall", "rules": [
+        {"target": {"message": "DISTANCE_SENSOR", "sensor_id": 0}, "kind": "bias", "offset_m": 1.5},
+        {"target": {"message": "DISTANCE_SENSOR", "sensor_id": 1}, "kind": "drop"},
+        {"target": {"message": "DISTANCE_SENSOR", "sensor_id": 2}, "kind": "delay", "delay_s": 0.25},
+    ]}, "wall.yaml"))  # fmt: skip
+    rec = Recorder(tmp_path / "rec", link=0)
+    pipe = Pipeline(0, [AttackStage(slot)], stats=LinkStats(1), recorder=rec)
+    m = mav()
+    sent = [
+        pack(heartbeat(), m) + pack(local_position(), m),
+        pack(distance(cm=400, sensor_id=0), m) + pack(distance(cm=400, sensor_id=1), m),
+        b"garbage" + pack(distance(cm=400, sensor_id=2), m),
+        pack(heartbeat(), m, v1=True),
+    ]
+    t0 = time.time()
+    for d in sent:
+        pipe.feed(d, Direction.DOWNLINK, time.monotonic())
+    rec.close()
+    rec.close()  # idempotent
+
+    original = read_tlog(tmp_path / "rec" / "original.tlog")
+    forwarded = read_tlog(tmp_path / "rec" / "forwarded.tlog")
+    assert [x.get_type() for x in original] == [
+        "HEARTBEAT", "LOCAL_POSITION_NED", "DISTANCE_SENSOR", "DISTANCE_SENSOR", "DISTANCE_SENSOR", "HEARTBEAT",
+    ]  # fmt: skip
+    assert [x.current_distance for x in original if x.get_type() == "DISTANCE_SENSOR"] == [400, 400, 400]
+    assert [(x.get_type(), x.id if x.get_type() == "DISTANCE_SENSOR" else None) for x in forwarded] == [
+        ("HEARTBEAT", None), ("LOCAL_POSITION_NED", None), ("DISTANCE_SENSOR", 0), ("DISTANCE_SENSOR", 2),
+        ("HEARTBEAT", None),
+    ]  # fmt: skip
+    assert forwarded[2].current_distance == 550 and forwarded[3].current_distance == 400
+    # tlog timestamps are wall-clock seconds; the delayed frame is stamped with its release time.
+    assert all(t0 - 1 < x._timestamp < t0 + 5 for x in original)
+    assert forwarded[3]._timestamp - forwarded[2]._timestamp > 0.2
+
+    index = json.loads((tmp_path / "rec" / "index.json").read_text())
+    assert index == [
+        {"index": 2, "msgid": 132, "direction": "downlink", "changed": True, "injected": False, "delay_s": 0.0,
+         "notes": ["attack:wall:rules[0]"]},
+        {"index": 3, "msgid": 132, "direction": "downlink", "changed": False, "injected": False, "delay_s": 0.25,
+         "notes": ["attack:wall:rules[2]"]},
+    ]  # fmt: skip
+
+
+def test_forwarded_untouched_stream_is_byte_identical_to_the_original(tmp_path: Path) -> None:
+    with Recorder(tmp_path) as rec:
+        pipe = Pipeline(0, [], stats=LinkStats(), recorder=rec)
+        m = mav()
+        for i in range(50):
+            pipe.feed(pack(distance(cm=i, sensor_id=i % 5), m) + pack(heartbeat(), m), Direction.DOWNLINK, 0.0)
+        pipe.feed(pack(heartbeat(), mav(sysid=255, compid=190)), Direction.UPLINK, 0.0)
+    orig = (tmp_path / "original.tlog").read_bytes()
+    fwd = (tmp_path / "forwarded.tlog").read_bytes()
+
+    def frames_only(blob: bytes) -> list[bytes]:
+        out, i = [], 0
+        while i < len(blob):
+            i += 8
+            n = blob[i + 1] + 12
+            out.append(blob[i : i + n])
+            i += n
+        return out
+
+    assert frames_only(orig) == frames_only(fwd) and len(frames_only(orig)) == 101
+    assert json.loads((tmp_path / "index.json").read_text()) == []
+    msgs = read_tlog(tmp_path / "forwarded.tlog")
+    assert sum(x.get_msgId() == HEARTBEAT for x in msgs) == 51
