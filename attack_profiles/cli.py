@@ -25,6 +25,7 @@ from secuav_common.loading import InputError, parse_document
 from secuav_common.scenario import load_scenario
 
 Handler = Callable[[argparse.Namespace], int]
+OptionsHook = Callable[[str, argparse.ArgumentParser], None]  # (subcommand, its parser): add transport options
 LIVE_COMMANDS = ("apply", "clear", "status")
 
 
@@ -94,8 +95,11 @@ def needs_proxy(args: argparse.Namespace) -> int:
     return 2
 
 
-def build_parser(live_handlers: Mapping[str, Handler] | None = None) -> argparse.ArgumentParser:
-    """The full command line; ``live_handlers`` maps apply/clear/status to real implementations."""
+def build_parser(
+    live_handlers: Mapping[str, Handler] | None = None, live_options: OptionsHook | None = None
+) -> argparse.ArgumentParser:
+    """The full command line; ``live_handlers`` maps apply/clear/status to real implementations
+    and ``live_options`` adds the options they need (broker, timeout) to those subcommands."""
     live = dict.fromkeys(LIVE_COMMANDS, needs_proxy)
     live.update(live_handlers or {})
     parser = argparse.ArgumentParser(prog="secuav-attack", description="Check, list and apply SecUAV attack profiles.")
@@ -131,11 +135,19 @@ def build_parser(live_handlers: Mapping[str, Handler] | None = None) -> argparse
     p = sub.add_parser("status", help="show the active profile of a running proxy")
     p.add_argument("--vehicle", type=int, metavar="N", help="only this vehicle's sysid")
     p.set_defaults(func=live["status"])
+
+    if live_options is not None:
+        for name in LIVE_COMMANDS:
+            live_options(name, sub.choices[name])
     return parser
 
 
-def main(argv: Sequence[str] | None = None, live_handlers: Mapping[str, Handler] | None = None) -> int:
-    args = build_parser(live_handlers).parse_args(argv)
+def main(
+    argv: Sequence[str] | None = None,
+    live_handlers: Mapping[str, Handler] | None = None,
+    live_options: OptionsHook | None = None,
+) -> int:
+    args = build_parser(live_handlers, live_options).parse_args(argv)
     try:
         return int(args.func(args))
     except InputError as err:
