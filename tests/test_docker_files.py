@@ -1,0 +1,137 @@
+"""docker/: what can be checked without a Docker engine (none exists on the CI machines).
+
+The compose file parses and wires the services the way the bench needs; every
+command it runs is a console script of pyproject.toml whose entry point imports,
+and its arguments are accepted by that command's real argument parser and
+config builder (so a renamed flag or a bad URL fails here, not in a container);
+the image installs the project the way the README's setup does.
+"""
+
+from __future__ import annotations
+
+import importlib
+import ipaddress
+import re
+import shlex
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+from packaging.specifiers import SpecifierSet
+
+ROOT = Path(__file__).resolve().parent.parent
+DOCKER = ROOT / "docker"
+IMAGE_ROOT = "/app"  # where the Dockerfile copies the repository
+_VAR = re.compile(r"\$\{(\w+)(?::?-([^}]*))?\}|\$\$")
+
+
+def interpolate(value: Any) -> Any:
+    """Compose's variable syntax with nothing set in the environment: defaults, and ``$$`` -> ``$``."""
+    if isinstance(value, str):
+        return _VAR.sub(lambda m: "$" if m.group(0) == "$$" else (m.group(2) or ""), value)
+    if isinstance(value, list):
+        return [interpolate(v) for v in value]
+    if isinstance(value, dict):
+        return {k: interpolate(v) for k, v in value.items()}
+    return value
+
+
+@pytest.fixture(scope="module")
+def compose() -> dict[str, Any]:
+    return interpolate(yaml.safe_load((DOCKER / "compose.yaml").read_text()))
+
+
+@pytest.fixture(scope="module")
+def scripts() -> dict[str, str]:
+    return tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
+
+
+def _flag(cmd: list[str], name: str) -> list[str]:
+    return [cmd[i + 1] for i, part in enumerate(cmd) if part == name]
+
+
+def _host_path(path: str) -> Path:
+    assert path.startswith(IMAGE_ROOT + "/"), path
+    return ROOT / path[len(IMAGE_ROOT) + 1 :]
+
+
+def test_compose_has_the_bench_services_ports_and_network(compose: dict[str, Any]) -> None:
+    services = compose["services"]
+    assert {"mosquitto", "proxy", "sim"} <= set(services)
+    proxy, sim = services["proxy"], services["sim"]
+    assert {"14540:14540/udp", "14550:14550/udp"} <= set(proxy["ports"])
+    assert services["mosquitto"]["image"].startswith("eclipse-mosquitto:")
+    for name in ("proxy", "sim"):
+        assert services[name]["build"] == {"context": "..", "dockerfile": "docker/Dockerfile"}
+        assert (DOCKER / services[name]["build"]["context"] / services[name]["build"]["dockerfile"]).is_file()
+    subnet = ipaddress.ip_network(compose["networks"]["bench"]["ipam"]["config"][0]["subnet"])
+    ips = {n: ipaddress.ip_address(s["networks"]["bench"]["ipv4_address"]) for n, s in services.items()}
+    assert all(ip in subnet for ip in ips.values()) and len(set(ips.values())) == len(ips)
+    # The simulator sends to the address the proxy listens on; the proxy's ground side is what is published.
+    vehicle = _flag(proxy["command"], "--vehicle")
+    assert vehicle == [f"udpin://{ips['proxy']}:14560"]
+    assert _flag(sim["command"], "--mavlink") == [f"udpout://{ips['proxy']}:14560"]
+    assert _flag(proxy["command"], "--ground") == [f"udpin://{ips['proxy']}:14540", f"udpin://{ips['proxy']}:14550"]
+    assert _flag(proxy["command"], "--broker") == ["mqtt://mosquitto:1883"]
+    assert proxy["depends_on"]["mosquitto"]["condition"] == "service_healthy"
+    assert services["mosquitto"]["healthcheck"]["test"][3] == "$SYS/broker/uptime"  # "$$" escaped in the file
+    conf = (DOCKER / "mosquitto.conf").read_text()
+    assert re.search(r"^listener 1883$", conf, re.M) and re.search(r"^allow_anonymous true$", conf, re.M)
+    mount = services["mosquitto"]["volumes"][0].split(":")
+    assert (DOCKER / mount[0]).resolve() == DOCKER / "mosquitto.conf" and mount[1] == "/mosquitto/config/mosquitto.conf"
+
+
+def test_every_command_is_a_console_script_whose_parser_accepts_its_arguments(
+    compose: dict[str, Any], scripts: dict[str, str]
+) -> None:
+    ran = {}
+    for name, svc in compose["services"].items():
+        if "build" not in svc:
+            continue
+        cmd = svc["command"]
+        assert cmd[0] in scripts, f"service {name}: {cmd[0]} is not in pyproject.toml [project.scripts]"
+        module, func = scripts[cmd[0]].split(":")
+        assert callable(getattr(importlib.import_module(module), func))
+        ran[cmd[0]] = cmd[1:]
+    assert set(ran) == {"secuav-proxy", "secuav-sim"}
+
+    from flightsim.cli import build_parser as sim_parser
+    from flightsim.cli import endpoints_for
+    from mitm_proxy.cli import build_parser as proxy_parser
+    from mitm_proxy.cli import config_from_args
+    from secuav_common.scenario import load_scenario
+
+    sim_args = sim_parser().parse_args(ran["secuav-sim"])
+    scenario = load_scenario(_host_path(sim_args.scenario))
+    assert [str(e) for e in endpoints_for(sim_args.mavlink, scenario)] == ["udpout://172.28.0.11:14560"]
+    proxy_args = proxy_parser().parse_args(ran["secuav-proxy"])
+    proxy_args.scenario = _host_path(str(proxy_args.scenario))
+    cfg = config_from_args(proxy_args)
+    assert cfg.broker == "mqtt://mosquitto:1883" and cfg.secure == "off"
+    assert [ln.sysid for ln in cfg.links] == [v.sysid for v in scenario.vehicles]
+
+
+def test_readme_commands_name_real_scripts(scripts: dict[str, str]) -> None:
+    text = (DOCKER / "README.md").read_text()
+    named = set(re.findall(r"\b(secuav-[a-z]+)\b", text))
+    assert {"secuav-proxy", "secuav-sim", "secuav-attack"} <= named
+    assert named <= set(scripts), named - set(scripts)
+
+
+def test_image_installs_the_project_like_the_readme_setup() -> None:
+    lines = [ln.strip() for ln in (DOCKER / "Dockerfile").read_text().splitlines()]
+    assert next(ln for ln in lines if ln and not ln.startswith("#")) == "FROM python:3.11-slim"
+    assert "COPY . /app" in lines and "WORKDIR /app" in lines
+    installs = [shlex.split(ln[len("RUN ") :]) for ln in lines if ln.startswith("RUN pip install")]
+    assert installs == [["pip", "install", "."]]
+    # scripts/setup.sh (what the README runs) installs the same source tree, editable and with test tools.
+    setup = (ROOT / "scripts" / "setup.sh").read_text()
+    m = re.search(r"pip install -q -e \"\.\[test\]\"", setup)
+    assert m, "the README's setup no longer installs the project from the repository root"
+    assert "`pip install .`" in (DOCKER / "README.md").read_text()
+    requires = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["requires-python"]
+    assert SpecifierSet(requires).contains("3.11.0"), f"python:3.11 does not satisfy requires-python {requires}"
+    ignore = (DOCKER / "Dockerfile.dockerignore").read_text().split()
+    assert ".venv" in ignore and ".git" in ignore
