@@ -29,7 +29,6 @@ import time
 import uuid
 from collections import deque
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
 from types import TracebackType
 from typing import Any
 
@@ -39,10 +38,15 @@ from mitm_proxy.slots import AttackSlot, SlotState
 from secuav_common.broker import parse_broker_url
 
 log = logging.getLogger(__name__)
+# paho logs every packet at DEBUG; keep that out of ``-v`` unless someone asks for this logger by name.
+_CLIENT_LOG = logging.getLogger(f"{__name__}.mqtt")
+if _CLIENT_LOG.level == logging.NOTSET:
+    _CLIENT_LOG.setLevel(logging.INFO)
 
 PREFIX = "secuav"
 ONLINE_TOPIC = f"{PREFIX}/proxy/online"
 MAX_PAYLOAD_BYTES = 64 * 1024
+MAX_UNKNOWN_LOGGED = 100  # unknown vehicle keys logged (once each); junk topics cannot grow the set
 SecureHandler = Callable[[int, Any, "str | None"], dict[str, Any]]
 SecureState = Callable[[int], "dict[str, Any] | None"]
 
@@ -59,16 +63,6 @@ def vehicle_topic(sysid: int, leaf: str) -> str:
 
 class RequestError(ValueError):
     """A set request that never became a payload (too large, not UTF-8, not JSON)."""
-
-
-@dataclass(frozen=True, slots=True)
-class Request:
-    """A decoded ``secuav/v<sysid>/<kind>/set`` message."""
-
-    sysid: int
-    kind: str  # "attack" or "secure"
-    payload: Any  # decoded JSON, request_id left in (the slot ignores it)
-    request_id: str | None
 
 
 def parse_topic(topic: str) -> tuple[str, str] | None:
@@ -213,7 +207,8 @@ class ControlPlane:
         self._unknown: set[str] = set()  # vehicle keys already logged
         self._handled: dict[str, deque[bytes]] = {}  # topic -> digests of recent requests (retained replays)
         self._stats_failing = False
-        self._published: dict[int, SlotState] = {}  # the state last queued per vehicle
+        self._published: dict[int, SlotState] = {}  # the attack state last queued per vehicle
+        self._published_secure: dict[int, dict[str, Any]] = {}  # the secure state last queued per vehicle
         self.state_poll_s = 0.2
         self.identifier = f"secuav-proxy-{os.getpid()}-{uuid.uuid4().hex[:6]}"
 
@@ -234,7 +229,7 @@ class ControlPlane:
         client = self._client
         if client is not None and self.connected.is_set():
             with contextlib.suppress(aiomqtt.MqttError, asyncio.TimeoutError):
-                await asyncio.wait_for(client.publish(ONLINE_TOPIC, b"false", qos=1, retain=True), 1.0)
+                await asyncio.wait_for(client.publish(ONLINE_TOPIC, b"false", qos=1, retain=True), 0.5)
         if self._task is not None:
             self._task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
@@ -259,6 +254,10 @@ class ControlPlane:
             self._published[sysid] = slot.state
             self.publish_nowait(vehicle_topic(sysid, "attack/state"), slot.state.to_json(), retain=True)
 
+    def publish_estimate(self, sysid: int, payload: dict[str, Any]) -> None:
+        """``secuav/v<sysid>/estimate``, in the shape of the secure stage's ``publish`` callback."""
+        self.publish_nowait(vehicle_topic(sysid, "estimate"), payload)
+
     @property
     def dropped(self) -> int:
         return self.outbox.dropped
@@ -279,7 +278,7 @@ class ControlPlane:
             timeout=5.0,
             tls_params=tls_params,
             tls_insecure=self._tls_insecure if self._tls else None,
-            logger=logging.getLogger(f"{__name__}.client"),
+            logger=_CLIENT_LOG,
         )
 
     async def run(self) -> None:
@@ -374,6 +373,15 @@ class ControlPlane:
             for sysid, slot in self.slots.items():
                 if slot.state is not self._published.get(sysid):
                     self.publish_state(sysid)
+            if self._secure_state is not None:
+                for sysid in self.slots:
+                    try:
+                        state = self._secure_state(sysid)
+                    except Exception:  # the secure stage's bug; its set requests still get answers
+                        log.debug("secure.state_failed", exc_info=True)
+                        continue
+                    if state is not None and state != self._published_secure.get(sysid):
+                        self._publish_secure(sysid, state)
 
     async def _receive(self, client: aiomqtt.Client) -> None:
         async for message in client.messages:
@@ -389,6 +397,12 @@ class ControlPlane:
         if parsed is None:
             return
         key, kind = parsed
+        sysid = parse_vehicle_key(key)
+        if sysid is None or sysid not in self.slots:
+            if key not in self._unknown and len(self._unknown) < MAX_UNKNOWN_LOGGED:
+                self._unknown.add(key)
+                log.warning("control.unknown_vehicle", extra={"topic": topic, "known": sorted(self.slots)})
+            return
         digest = hashlib.sha256(raw).digest()
         seen = self._handled.setdefault(topic, deque(maxlen=64))
         if retained and digest in seen:
@@ -397,12 +411,6 @@ class ControlPlane:
             # whatever came later, so only a retained request we never saw counts.
             return
         seen.append(digest)
-        sysid = parse_vehicle_key(key)
-        if sysid is None or sysid not in self.slots:
-            if key not in self._unknown:
-                self._unknown.add(key)
-                log.warning("control.unknown_vehicle", extra={"topic": topic, "known": sorted(self.slots)})
-            return
         try:
             payload, request_id = decode_payload(raw)
         except RequestError as exc:
@@ -465,4 +473,5 @@ class ControlPlane:
                 self._publish_secure(sysid, state)
 
     def _publish_secure(self, sysid: int, state: dict[str, Any]) -> None:
+        self._published_secure[sysid] = state
         self.publish_nowait(vehicle_topic(sysid, "secure/state"), state, retain=True)

@@ -228,3 +228,30 @@ async def test_no_broker_means_no_mqtt_and_publish_is_a_no_op(slots: dict[int, A
         plane.publish_nowait("secuav/v1/estimate", {"x": 1})
         assert not plane.connected.is_set() and plane.dropped == 0
         assert len(plane.outbox.queue) == 0
+
+
+async def test_the_real_secure_slot_through_the_plane(broker_port: int) -> None:
+    from mitm_proxy.secure import SecureSlot
+    from secuav_common.scenario import load_scenario
+
+    scenario = load_scenario("scenarios/wall_hover.yaml")
+    secure_slots = {1: SecureSlot(1, scenario)}
+    plane = ControlPlane(
+        f"mqtt://127.0.0.1:{broker_port}",
+        {1: AttackSlot(1, scenario)},
+        stats=fake_stats,
+        secure=lambda sysid, payload, rid: secure_slots[sysid].offer_payload(payload, rid),
+        secure_state=lambda sysid: secure_slots[sysid].state,
+    )
+    topic = "secuav/v1/secure/state"
+    async with plane, Observer(broker_port, ["secuav/v1/secure/#"]) as obs:
+        await plane.wait_connected(10)
+        assert (await obs.wait_for(topic))["estimator"] is None
+        state = await obs.request("secuav/v1/secure/set", {"estimator": "recap"})
+        assert state["ok"] and state["estimator"] == "recap" and state["group"] == "wall"
+        bad = await obs.request("secuav/v1/secure/set", {"estimator": "nope"})
+        assert not bad["ok"] and "unknown estimator" in bad["error"] and bad["estimator"] == "recap"
+        # A change made outside MQTT (the app, a config reload) is published too.
+        secure_slots[1].offer_payload("secekf", "local-1")
+        local = await obs.wait_for(topic, lambda b: b["request_id"] == "local-1")
+        assert local["estimator"] == "secekf"
