@@ -1,0 +1,71 @@
+"""DISTANCE_SENSOR on the wire agrees with the geometry: ids, types, orientations, values (DESIGN.md).
+
+Both formation vehicles stand on their start points, so the true anchor and
+peer distances are fixed and every reading can be checked against them.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import statistics
+import time
+from collections.abc import Callable
+
+import pytest
+from gcs import Gcs
+from live_sim import live_sim
+from pymavlink import mavutil
+
+from secuav_common.scenario import load_scenario
+
+mav = mavutil.mavlink
+CUSTOM = 100  # MAV_SENSOR_ROTATION_CUSTOM
+DOWN = mav.MAV_SENSOR_ROTATION_PITCH_270
+
+
+def _collect(gcs: Gcs, seconds: float) -> list[object]:
+    out = []
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        m = gcs.conn.recv_match(type="DISTANCE_SENSOR", blocking=True, timeout=0.1)
+        if m is not None and m.get_srcSystem() == gcs.target:
+            out.append(m)
+    return out
+
+
+@pytest.mark.timeout(30)
+async def test_formation_ranges_on_the_wire_match_ids_and_geometry(udp_port: Callable[[], int]) -> None:
+    scenario = load_scenario("formation")
+    ports = [udp_port(), udp_port()]
+    gcss = [Gcs(ports[0], 1), Gcs(ports[1], 2)]
+    try:
+        async with live_sim(scenario, ports) as runner:
+            got = await asyncio.gather(*(asyncio.to_thread(_collect, g, 1.5) for g in gcss))
+            truth = {s: v.truth.pos_ned_m for s, v in runner.sim.vehicles.items()}
+    finally:
+        for g in gcss:
+            g.close()
+    anchors = scenario.anchor_positions("all")
+    for sysid, readings in zip((1, 2), got, strict=True):
+        peer = 3 - sysid
+        ids = {m.id for m in readings}
+        assert ids == {0} | {10 + k for k in range(8)} | {50 + peer}, (sysid, sorted(ids))
+        pos = truth[sysid]
+        z: list[float] = []
+        for m in readings:
+            if m.id == 0:  # downward laser on the ground: below min_m, PX4's "no target" = max + 1 cm
+                assert (m.type, m.orientation) == (mav.MAV_DISTANCE_SENSOR_LASER, DOWN)
+                assert m.current_distance == m.max_distance + 1 == 4001
+                assert m.signal_quality == 0
+                continue
+            assert (m.type, m.orientation) == (mav.MAV_DISTANCE_SENSOR_UNKNOWN, CUSTOM)
+            assert m.covariance == 100  # (10 cm)^2
+            assert m.signal_quality == 100
+            target = anchors[m.id - 10] if m.id < 50 else truth[m.id - 50]
+            z.append((m.current_distance / 100.0 - math.dist(pos, target)) / 0.10)
+        per_anchor = len(z) / 9
+        assert per_anchor >= 12, per_anchor  # 10 Hz over 1.5 s
+        assert max(abs(x) for x in z) < 4.5
+        assert abs(statistics.fmean(z)) < 0.35
+        assert 0.7 < statistics.pstdev(z) < 1.3
