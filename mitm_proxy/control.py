@@ -403,14 +403,15 @@ class ControlPlane:
                 self._unknown.add(key)
                 log.warning("control.unknown_vehicle", extra={"topic": topic, "known": sorted(self.slots)})
             return
-        digest = hashlib.sha256(raw).digest()
-        seen = self._handled.setdefault(topic, deque(maxlen=64))
-        if retained and digest in seen:
-            # Someone published this request retained; we applied it when it arrived and the
-            # broker hands it to us again after every reconnect. Re-applying it would undo
-            # whatever came later, so only a retained request we never saw counts.
-            return
-        seen.append(digest)
+        if len(raw) <= MAX_PAYLOAD_BYTES:  # an oversized one is refused below without reading it
+            digest = hashlib.sha256(raw).digest()
+            seen = self._handled.setdefault(topic, deque(maxlen=64))
+            if retained and digest in seen:
+                # Someone published this request retained; we applied it when it arrived and the
+                # broker hands it to us again after every reconnect. Re-applying it would undo
+                # whatever came later, so only a retained request we never saw counts.
+                return
+            seen.append(digest)
         try:
             payload, request_id = decode_payload(raw)
         except RequestError as exc:

@@ -124,3 +124,75 @@ async def test_a_retained_request_is_applied_once_not_on_every_reconnect(
             await asyncio.sleep(0.5)
             assert plane.connections == 2
             assert slots[1].engine is not None and slots[1].engine.profile.name == "distance-stuck"
+
+
+async def test_in_the_real_proxy_a_flood_of_bad_requests_loses_no_frame_and_a_swap_lands_between_frames(
+    udp_port: Callable[[], int], tcp_port: Callable[[], int]
+) -> None:
+    import socket
+
+    from pymavlink.dialects.v20 import common as mavlink2
+
+    from mitm_proxy.app import Proxy
+    from mitm_proxy.config import LinkConfig, ProxyConfig
+    from mitm_proxy.frames import split
+    from secuav_common.broker import EmbeddedBroker
+
+    mqtt, veh = tcp_port(), udp_port()
+    ground = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    ground.bind(("127.0.0.1", 0))
+    ground.setblocking(False)
+    vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    vehicle.bind(("127.0.0.1", 0))
+    mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    link = LinkConfig(
+        sysid=1, vehicle=f"udpin://127.0.0.1:{veh}", ground=[f"udpout://127.0.0.1:{ground.getsockname()[1]}"]
+    )
+    sent: list[tuple[float, bytes]] = []
+    received: list[bytes] = []
+    loop = asyncio.get_running_loop()
+
+    async def stream() -> None:
+        for i in range(400):  # 2 s at 200 Hz
+            frame = mav.distance_sensor_encode(i, 20, 1000, 250, 0, 0, 0, 0).pack(mav)
+            sent.append((time.monotonic(), frame))
+            vehicle.sendto(frame, ("127.0.0.1", veh))
+            await asyncio.sleep(0.005)
+
+    async def collect() -> None:
+        while True:
+            data, _ = await loop.sock_recvfrom(ground, 65535)
+            received.extend(f for _h, f in split(data).frames)
+
+    try:
+        async with (
+            EmbeddedBroker(port=mqtt),
+            Proxy(ProxyConfig(links=[link], broker=f"mqtt://127.0.0.1:{mqtt}")) as proxy,
+        ):
+            await proxy.control.wait_connected(10)
+            async with Observer(mqtt, ["secuav/v1/attack/state"]) as obs:
+                collector = asyncio.create_task(collect())
+                streamer = asyncio.create_task(stream())
+                await asyncio.sleep(0.3)
+                for i in range(40):
+                    await obs.publish(SET1, b"\xff\x00" * 100 + bytes([i]))
+                    await obs.publish(SET1, b'{"request_id": "big", "x": "' + b"y" * 70_000 + b'"}')
+                bias = {"name": "plus-1m", "rules": [{"target": {"message": "DISTANCE_SENSOR", "sensor_id": 0,
+                        "field": "current_distance"}, "kind": "bias", "offset_m": 1.0}]}  # fmt: skip
+                state = await obs.request(SET1, bias)
+                acked_s = time.monotonic()
+                assert state["ok"] and state["profile"] == "plus-1m"
+                await streamer
+                await asyncio.sleep(0.3)
+                collector.cancel()
+    finally:
+        ground.close()
+        vehicle.close()
+
+    assert len(received) == len(sent) == 400  # nothing lost, nothing added
+    parser = mavlink2.MAVLink(None)
+    values = [parser.decode(bytearray(f)).current_distance for f in received]
+    swapped = next(i for i, v in enumerate(values) if v != 250)
+    assert values[swapped:] == [350] * (400 - swapped)  # every frame after the swap, none half-way
+    assert received[:swapped] == [f for _t, f in sent[:swapped]]  # before it: byte for byte
+    assert sent[swapped - 1][0] < acked_s  # the swap happened before the acknowledgement went out
