@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import inspect
 import struct
+from dataclasses import dataclass
 from typing import Any, Final
 
 from pymavlink.dialects.v20 import ardupilotmega as dialect
@@ -46,10 +47,6 @@ _INT_TYPES: Final = frozenset(
 _CRC = struct.Struct("<H")
 _V2_HEADER = struct.Struct("<BBBBBBBHB")
 
-# One scratch pymavlink instance: decode() needs it, pack() reads seq/sysid/compid from it.
-_MAV: Final = dialect.MAVLink(None, srcSystem=0, srcComponent=0)
-_MAV.robust_parsing = True
-
 
 class DecodeError(ValueError):
     """A frame could not be decoded into fields (unknown id, malformed payload)."""
@@ -74,65 +71,137 @@ def message_id(name: str) -> int:
     return int(cls.id)
 
 
+@dataclass(frozen=True, slots=True)
+class _Layout:
+    """How one message's payload maps to pymavlink's field dict, compiled once per message id.
+
+    ``fields`` in pymavlink's field order: (name, index in the unpacked tuple,
+    element count, kind); ``wire`` the same in wire order, for packing.
+    """
+
+    name: str
+    unpacker: struct.Struct
+    size: int
+    fields: tuple[tuple[str, int, int, int], ...]
+    wire: tuple[tuple[str, int, int], ...]
+    has_char: bool
+
+
+_SCALAR, _ARRAY, _CHAR = 0, 1, 2
+_LAYOUTS: dict[int, _Layout] = {}
+
+
+def _layout(cls: type[dialect.MAVLink_message]) -> _Layout:
+    lay = _LAYOUTS.get(cls.id)
+    if lay is not None:
+        return lay
+    # pymavlink: fieldnames[i] is ordered (wire) field orders[i]; lengths[k] is how many
+    # tuple elements wire field k unpacks to (char arrays unpack to one bytes object).
+    tips = [sum(cls.lengths[:k]) for k in range(len(cls.lengths))]
+    kinds: dict[str, int] = {}
+    fields = []
+    for i, name in enumerate(cls.fieldnames):
+        k = cls.orders[i]
+        kind = _CHAR if cls.fieldtypes[i] == "char" else (_ARRAY if cls.lengths[k] > 1 else _SCALAR)
+        kinds[name] = kind
+        fields.append((name, tips[k], cls.lengths[k], kind))
+    wire = tuple((name, cls.lengths[k], kinds[name]) for k, name in enumerate(cls.ordered_fieldnames))
+    lay = _Layout(cls.msgname, cls.unpacker, cls.unpacker.size, tuple(fields), wire, _CHAR in kinds.values())
+    _LAYOUTS[cls.id] = lay
+    return lay
+
+
+def _char(b: bytes) -> str:
+    return b.split(b"\0", 1)[0].decode("ascii", errors="replace")  # as pymavlink's constructors do
+
+
+def _unpack(lay: _Layout, payload: bytes) -> tuple[Any, ...]:
+    n = len(payload)
+    buf = payload + bytes(lay.size - n) if n < lay.size else payload[: lay.size]  # v2 trailing-zero truncation
+    return lay.unpacker.unpack(buf)
+
+
+def _payload_of(pkt: Packet) -> bytes:
+    h = pkt.header
+    start = V1_HEADER_LEN if h.version == 1 else V2_HEADER_LEN
+    return pkt.raw[start : start + h.payload_len]
+
+
 def decode(pkt: Packet) -> dict[str, Any]:
-    """Fill ``pkt.fields`` from ``pkt.raw`` (once) and return it."""
+    """Fill ``pkt.fields`` from ``pkt.raw`` (once) and return it: the dict pymavlink would give."""
     if pkt.fields is not None:
         return pkt.fields
-    cls = message_class(pkt.header.msgid)
+    lay = _layout(message_class(pkt.header.msgid))
     try:
-        msg = _MAV.decode(bytearray(pkt.raw))
-    except Exception as exc:  # pymavlink raises MAVError, struct.error, TypeError...
-        raise DecodeError(f"{cls.msgname}: {exc}") from exc
-    pkt.fields = {name: getattr(msg, name) for name in cls.fieldnames}
-    return pkt.fields
-
-
-def _coerce(cls: type[dialect.MAVLink_message], fields: dict[str, Any], raw: bytes | None) -> dict[str, Any]:
-    """Field values as pymavlink's ``pack`` wants them (ints for integer fields, bytes for chars).
-
-    pymavlink hands char arrays out as ASCII ``str`` with undecodable bytes
-    replaced; an unchanged string is therefore taken back from the original
-    frame ``raw`` so that bytes outside ASCII survive a re-pack.
-    """
+        t = _unpack(lay, _payload_of(pkt))
+    except struct.error as exc:
+        raise DecodeError(f"{lay.name}: {exc}") from exc
     out: dict[str, Any] = {}
-    original: Any = None
-    for name, ftype in zip(cls.fieldnames, cls.fieldtypes, strict=True):
-        if name not in fields:
-            continue
-        v = fields[name]
-        if ftype == "char" and isinstance(v, str):
-            if raw is not None and original is None:
-                original = _MAV.decode(bytearray(raw))
-            if original is not None and getattr(original, name, None) == v:
-                v = getattr(original, f"_{name}_raw", v.encode())
-            else:
-                v = v.encode()
-        elif ftype in _INT_TYPES:
-            if isinstance(v, float):
-                if v != v:
-                    raise EncodeError(f"{cls.msgname}.{name}: NaN for an integer field")
-                v = round(v)
-            elif isinstance(v, list):
-                v = [round(x) if isinstance(x, float) else x for x in v]
-        out[name] = v
+    for name, tip, length, kind in lay.fields:
+        if kind == _SCALAR:
+            out[name] = t[tip]
+        elif kind == _CHAR:
+            out[name] = _char(t[tip])
+        else:
+            out[name] = list(t[tip : tip + length])
+    pkt.fields = out
     return out
 
 
-def _payload(cls: type[dialect.MAVLink_message], fields: dict[str, Any], raw: bytes | None = None) -> bytes:
-    """The full (untruncated) payload of ``cls`` packed from ``fields`` (``raw``: the frame they came from)."""
+def _values(lay: _Layout, fields: dict[str, Any], original: tuple[Any, ...] | None, coerce: bool) -> list[Any]:
+    """Payload values in wire order; ``original``: the unpacked tuple the fields came from (keeps raw chars)."""
+    vals: list[Any] = []
+    tip = 0
+    for name, length, kind in lay.wire:
+        try:
+            v = fields[name]
+        except KeyError:
+            raise EncodeError(f"{lay.name}: missing field {name!r}") from None
+        if kind == _CHAR:
+            if isinstance(v, str):
+                # pymavlink hands chars out as ASCII with bytes outside it replaced: an unchanged
+                # string goes back as the bytes it came from, so a re-pack never alters it.
+                v = original[tip] if original is not None and _char(original[tip]) == v else v.encode()
+            vals.append(v)
+        elif kind == _ARRAY:
+            if len(v) != length:
+                raise EncodeError(f"{lay.name}.{name}: need {length} values, got {len(v)}")
+            vals.extend(_int_list(lay, name, v) if coerce else v)
+        else:
+            vals.append(_int(lay, name, v) if coerce else v)
+        tip += length
+    return vals
+
+
+def _int(lay: _Layout, name: str, v: Any) -> Any:
+    if isinstance(v, float) and _is_int_field(lay, name):
+        if v != v:
+            raise EncodeError(f"{lay.name}.{name}: NaN for an integer field")
+        return round(v)
+    return v
+
+
+def _int_list(lay: _Layout, name: str, v: list[Any]) -> list[Any]:
+    return [_int(lay, name, x) for x in v]
+
+
+def _is_int_field(lay: _Layout, name: str) -> bool:
+    cls = BY_NAME[lay.name]
+    return cls.fieldtypes[cls.fieldnames.index(name)] in _INT_TYPES
+
+
+def _payload(cls: type[dialect.MAVLink_message], fields: dict[str, Any], raw_payload: bytes | None = None) -> bytes:
+    """The full (untruncated) payload of ``cls`` packed from ``fields`` (``raw_payload``: where they came from)."""
+    lay = _layout(cls)
+    original = _unpack(lay, raw_payload) if raw_payload is not None and lay.has_char else None
     try:
-        msg = cls(**_coerce(cls, fields, raw))
-        _MAV.seq = 0
-        _MAV.srcSystem = 0
-        _MAV.srcComponent = 0
-        buf = msg.pack(_MAV)
-    except EncodeError:
-        raise
-    except (TypeError, struct.error, ValueError, AttributeError, IndexError) as exc:
-        raise EncodeError(f"{cls.msgname}: {exc}") from exc
-    payload = buf[V2_HEADER_LEN:-2]
-    size = cls.unpacker.size
-    return payload + bytes(size - len(payload))
+        return lay.unpacker.pack(*_values(lay, fields, original, coerce=False))
+    except struct.error:
+        pass  # a float in an integer field (engines compute in floats): round, then retry once
+    try:
+        return lay.unpacker.pack(*_values(lay, fields, original, coerce=True))
+    except (struct.error, TypeError) as exc:
+        raise EncodeError(f"{lay.name}: {exc}") from exc
 
 
 def _frame(header_bytes: bytes, payload: bytes, crc_extra: int) -> bytes:
@@ -159,7 +228,7 @@ def encode(pkt: Packet, signer: Signer | None = None) -> bytes:
     cls = MAVLINK_MAP.get(h.msgid)
     if cls is None:
         raise EncodeError(f"message id {h.msgid} is not in the dialect")
-    full = _payload(cls, pkt.fields, pkt.raw)
+    full = _payload(cls, pkt.fields, _payload_of(pkt))
     raw = pkt.raw
     if h.version == 1:
         old = raw[V1_HEADER_LEN : V1_HEADER_LEN + h.payload_len]
@@ -206,7 +275,10 @@ def build(
     missing = [n for n in cls.fieldnames if n not in fields and n not in _extensions(cls)]
     if missing:
         raise EncodeError(f"{message_name}: missing fields {missing}")
-    payload = _v2_payload(_payload(cls, fields))
+    lay = _layout(cls)
+    zeros = {n: ("" if k == _CHAR else [0] * ln if k == _ARRAY else 0) for n, _, ln, k in lay.fields}
+    complete = {n: zeros[n] for n in _extensions(cls)} | fields
+    payload = _v2_payload(_payload(cls, complete))
     msgid = int(cls.id)
     flags = IFLAG_SIGNED if signer is not None else 0
     hdr = _V2_HEADER.pack(0xFD, len(payload), flags, 0, seq & 0xFF, sysid, compid, msgid & 0xFFFF, msgid >> 16)
@@ -214,7 +286,7 @@ def build(
     if signer is not None:
         frame = signer.sign_new(frame)
     header = Header(2, msgid, sysid, compid, seq & 0xFF, len(payload), flags, signer is not None)
-    full = {n: fields[n] for n in cls.fieldnames if n in fields}
+    full = {n: complete[n] for n in cls.fieldnames}
     return Packet(frame, header, direction, link, now_s, fields=full, injected=True)
 
 

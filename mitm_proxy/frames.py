@@ -56,6 +56,7 @@ BAD_FLAGS: Final = "bad_flags"  # a v2 header with incompatibility flags we cann
 
 CRC_EXTRA: Final[dict[int, int]] = {msgid: cls.crc_extra for msgid, cls in dialect.mavlink_map.items()}
 
+_EXTRA_BYTES: Final[dict[int, bytes]] = {msgid: bytes((extra,)) for msgid, extra in CRC_EXTRA.items()}
 _mcrf4xx = crc16.mcrf4xx
 _V1 = struct.Struct("<BBBBBB").unpack_from  # stx len seq sysid compid msgid
 _V2 = struct.Struct("<BBBBBBBHB").unpack_from  # stx len incompat compat seq sysid compid msgid_lo msgid_hi
@@ -110,10 +111,10 @@ def _candidate(data: bytes, i: int, n: int) -> tuple[Header, int, str | None]:
         header = Header(1, msgid, sysid, compid, seq, plen)
     if end > n:
         return header, end, TRUNCATED
-    extra = CRC_EXTRA.get(header.msgid)
+    extra = _EXTRA_BYTES.get(header.msgid)
     if extra is None:
         return header, end, None
-    crc = _mcrf4xx(bytes((extra,)), _mcrf4xx(data[i + 1 : crc_at], 0xFFFF))
+    crc = _mcrf4xx(extra, _mcrf4xx(data[i + 1 : crc_at], 0xFFFF))
     if crc != _CRC(data, crc_at)[0]:
         return header, end, BAD_CRC
     return header, end, None
@@ -143,11 +144,32 @@ def split(datagram: bytes) -> SplitResult:
     n = len(data)
     out = SplitResult()
     frames = out.frames
+    extras = _EXTRA_BYTES
     i = 0
     skip_start = -1  # start of the current run of skipped bytes
     skip_reason = ""
     while i < n:
         c = data[i]
+        if c == STX_V2 and n - i >= V2_HEADER_LEN:
+            # The common case inline (unsigned or signed v2 of a known id); anything odd goes to _candidate.
+            _, plen, incompat, _compat, seq, sysid, compid, lo, hi = _V2(data, i)
+            msgid = lo | hi << 16
+            crc_at = i + V2_HEADER_LEN + plen
+            end = crc_at + CRC_LEN + (SIGNATURE_LEN if incompat == IFLAG_SIGNED else 0)
+            extra = extras.get(msgid)
+            if (
+                extra is not None
+                and incompat <= IFLAG_SIGNED
+                and end <= n
+                and _mcrf4xx(extra, _mcrf4xx(data[i + 1 : crc_at], 0xFFFF)) == data[crc_at] | data[crc_at + 1] << 8
+            ):
+                if skip_start >= 0:
+                    out.bad.append(skip_reason)
+                    skip_start = -1
+                header = Header(2, msgid, sysid, compid, seq, plen, incompat, incompat == IFLAG_SIGNED)
+                frames.append((header, data if (i == 0 and end == n) else data[i:end]))
+                i = end
+                continue
         if c in (STX_V2, STX_V1):
             header, end, reason = _candidate(data, i, n)
             if reason is None and header.msgid not in CRC_EXTRA and _known_frame_inside(data, i + 1, end, n):
