@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import getpass
 import json
 import shutil
 import socket
@@ -40,14 +41,23 @@ def wait_port(port: int, up: bool, timeout_s: float = 10.0) -> None:
 
 
 class Mosquitto:
-    """The real mosquitto on ``127.0.0.1:port``; ``stop()``/``start()`` for the restart test."""
+    """The real mosquitto on ``127.0.0.1:port``; ``stop()``/``start()`` for the restart test.
 
-    def __init__(self, port: int, workdir: Path) -> None:
+    ``extra`` lines go into its config (TLS files, a password file). It runs as
+    the current user: started as root, mosquitto would otherwise switch to its
+    own user, which cannot read pytest's private temporary directories.
+    """
+
+    def __init__(self, port: int, workdir: Path, extra: str = "") -> None:
         assert MOSQUITTO is not None
         self.port = port
         self.url = f"mqtt://127.0.0.1:{port}"
         self.config = workdir / "mosquitto.conf"
-        self.config.write_text(f"listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n")
+        anonymous = "false" if "password_file" in extra else "true"
+        self.config.write_text(
+            f"user {getpass.getuser()}\nlistener {port} 127.0.0.1\nallow_anonymous {anonymous}\n"
+            f"persistence false\n{extra}"
+        )
         self.log = workdir / "mosquitto.log"
         self.proc: subprocess.Popen[bytes] | None = None
 
@@ -147,3 +157,32 @@ class Observer:
         return await self.wait_for(
             state_topic, lambda b: isinstance(b, dict) and b.get("request_id") == request_id, timeout_s, start
         )
+
+
+OPENSSL = shutil.which("openssl")
+MOSQUITTO_PASSWD = shutil.which("mosquitto_passwd")
+
+
+def make_tls_files(workdir: Path) -> tuple[Path, Path, Path]:
+    """A throwaway CA and a server certificate for 127.0.0.1 (CA file, server cert, server key), via openssl."""
+    assert OPENSSL is not None
+    ca_key, ca, key, csr, cert = (workdir / n for n in ("ca.key", "ca.crt", "server.key", "server.csr", "server.crt"))
+    ext = workdir / "san.ext"
+    ext.write_text("subjectAltName = IP:127.0.0.1\n")
+
+    def run(*args: str) -> None:
+        subprocess.run([OPENSSL, *args], check=True, capture_output=True, timeout=60)
+
+    run("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", str(ca_key), "-out", str(ca), "-days", "2",
+        "-subj", "/CN=secuav-test-ca")  # fmt: skip
+    run("req", "-newkey", "rsa:2048", "-nodes", "-keyout", str(key), "-out", str(csr), "-subj", "/CN=127.0.0.1")
+    run("x509", "-req", "-in", str(csr), "-CA", str(ca), "-CAkey", str(ca_key), "-CAcreateserial", "-out", str(cert),
+        "-days", "2", "-extfile", str(ext))  # fmt: skip
+    return ca, cert, key
+
+
+def make_password_file(workdir: Path, user: str, password: str) -> Path:
+    assert MOSQUITTO_PASSWD is not None
+    path = workdir / "passwd"
+    subprocess.run([MOSQUITTO_PASSWD, "-b", "-c", str(path), user, password], check=True, capture_output=True)
+    return path
