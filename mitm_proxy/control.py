@@ -23,6 +23,7 @@ import contextlib
 import hashlib
 import json
 import logging
+import math
 import os
 import re
 import time
@@ -152,10 +153,38 @@ class Outbox:
             self.dropped += 1
 
 
+def _finite(node: Any) -> Any:
+    """NaN and infinities as JSON null: estimates mark missing readings with NaN, and JSON has no NaN."""
+    if isinstance(node, float) and not math.isfinite(node):
+        return None
+    if isinstance(node, dict):
+        return {k: _finite(v) for k, v in node.items()}
+    if isinstance(node, list | tuple):
+        return [_finite(v) for v in node]
+    return node
+
+
 def _json_bytes(payload: Any) -> bytes:
+    """Compact, strict JSON; numpy scalars and other odd values fall back to ``str``."""
     if isinstance(payload, bytes):
         return payload
-    return json.dumps(payload, separators=(",", ":"), allow_nan=False, default=str).encode()
+    try:
+        return json.dumps(payload, separators=(",", ":"), allow_nan=False, default=_plain).encode()
+    except ValueError:  # a NaN somewhere: the slow path only then
+        return json.dumps(_finite(payload), separators=(",", ":"), allow_nan=False, default=_plain).encode()
+
+
+def _plain(value: Any) -> Any:
+    item = getattr(value, "item", None)  # numpy scalar -> Python number
+    if callable(item):
+        with contextlib.suppress(Exception):
+            plain = item()
+            return None if isinstance(plain, float) and not math.isfinite(plain) else plain
+    tolist = getattr(value, "tolist", None)  # numpy array -> list
+    if callable(tolist):
+        with contextlib.suppress(Exception):
+            return _finite(tolist())
+    return str(value)
 
 
 class ControlPlane:
@@ -205,6 +234,7 @@ class ControlPlane:
         self._task: asyncio.Task[None] | None = None
         self._client: aiomqtt.Client | None = None
         self._unknown: set[str] = set()  # vehicle keys already logged
+        self._unencodable: set[str] = set()  # topics whose payload could not be made JSON (logged once)
         self._handled: dict[str, deque[bytes]] = {}  # topic -> digests of recent requests (retained replays)
         self._stats_failing = False
         self._published: dict[int, SlotState] = {}  # the attack state last queued per vehicle
@@ -245,7 +275,14 @@ class ControlPlane:
         """Queue ``payload`` (bytes, or anything JSON) for ``topic``; never waits, drops the oldest when full."""
         if self.address is None:
             return
-        self.outbox.put(topic, _json_bytes(payload), retain)
+        try:
+            data = _json_bytes(payload)
+        except Exception as exc:  # a producer's odd payload must not raise into the data path
+            if topic not in self._unencodable:
+                self._unencodable.add(topic)
+                log.error("control.unencodable", extra={"topic": topic, "error": repr(exc)})
+            return
+        self.outbox.put(topic, data, retain)
 
     def publish_state(self, sysid: int) -> None:
         """Queue the retained ``attack/state`` of ``sysid`` (after a change made outside MQTT: file reload)."""

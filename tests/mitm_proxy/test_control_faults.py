@@ -196,3 +196,24 @@ async def test_in_the_real_proxy_a_flood_of_bad_requests_loses_no_frame_and_a_sw
     assert values[swapped:] == [350] * (400 - swapped)  # every frame after the swap, none half-way
     assert received[:swapped] == [f for _t, f in sent[:swapped]]  # before it: byte for byte
     assert sent[swapped - 1][0] < acked_s  # the swap happened before the acknowledgement went out
+
+
+def test_publish_nowait_turns_nan_and_numpy_into_json_and_never_raises(caplog: pytest.LogCaptureFixture) -> None:
+    import json
+
+    import numpy as np
+
+    plane = ControlPlane("mqtt://127.0.0.1:1", {1: AttackSlot(1)}, stats=no_stats)  # not started: queue only
+    estimate = {"pos_ned_m": np.array([1.0, np.nan, -2.0]), "t_s": np.float64(3.5), "attacked": [np.int64(12)]}
+    plane.publish_nowait("secuav/v1/estimate", estimate)
+    plane.publish_nowait("secuav/v1/estimate", {"range_m": float("nan"), "ok": True})
+    assert [json.loads(p) for _t, p in plane.outbox.queue] == [
+        {"pos_ned_m": [1.0, None, -2.0], "t_s": 3.5, "attacked": [12]},
+        {"range_m": None, "ok": True},
+    ]
+    loop: dict[str, Any] = {}
+    loop["self"] = loop
+    for _ in range(3):
+        plane.publish_nowait("secuav/v1/estimate", loop)  # unencodable: dropped, logged once
+    assert len(plane.outbox.queue) == 2
+    assert [r.getMessage() for r in caplog.records].count("control.unencodable") == 1
