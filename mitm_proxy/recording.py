@@ -44,9 +44,16 @@ class Recorder:
         self._n_index = 0
         self.forwarded_count = 0
         self.closed = False
+        self._flushed_at = self._clock()
+
+    FLUSH_EVERY_S = 1.0  # a crash or SIGKILL loses at most about this much of the recording
 
     def _stamp(self, delay_s: float = 0.0) -> bytes:
-        return _STAMP.pack(int((self._clock() + delay_s) * 1e6))
+        now = self._clock()
+        if now - self._flushed_at >= self.FLUSH_EVERY_S:
+            self._flushed_at = now
+            self.flush()
+        return _STAMP.pack(int((now + delay_s) * 1e6))
 
     def original(self, frames: Iterable[tuple[Header, bytes]]) -> None:
         """Frames as received (one datagram's worth)."""

@@ -101,3 +101,18 @@ def test_forwarded_untouched_stream_is_byte_identical_to_the_original(tmp_path: 
     assert json.loads((tmp_path / "index.json").read_text()) == []
     msgs = read_tlog(tmp_path / "forwarded.tlog")
     assert sum(x.get_msgId() == HEARTBEAT for x in msgs) == 51
+
+
+def test_recording_is_flushed_while_running_so_a_crash_keeps_it(tmp_path: Path) -> None:
+    clock = [1_700_000_000.0]
+    rec = Recorder(tmp_path, wall_clock=lambda: clock[0])
+    pipe = Pipeline(0, [], stats=LinkStats(), recorder=rec)
+    frame = pack(heartbeat())
+    pipe.feed(frame, Direction.DOWNLINK, 0.0)
+    assert (tmp_path / "original.tlog").stat().st_size == 0  # buffered
+    clock[0] += 1.5
+    pipe.feed(frame, Direction.DOWNLINK, 0.0)
+    assert (tmp_path / "original.tlog").stat().st_size == 8 + len(frame)  # the first second reached the disk
+    assert (tmp_path / "forwarded.tlog").read_bytes()[:8] == int(1_700_000_000.0 * 1e6).to_bytes(8, "big")
+    rec.close()
+    assert (tmp_path / "original.tlog").stat().st_size == 2 * (8 + len(frame))
