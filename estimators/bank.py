@@ -63,6 +63,8 @@ class Chi2Table:
         return table
 
     def __call__(self, dof: np.ndarray | int) -> np.ndarray:
+        if type(dof) is int and 0 <= dof < self._table.shape[0]:  # the per-step case: one plain lookup
+            return self._table[dof]
         idx = np.asarray(dof, dtype=int)
         if np.any(idx >= self._table.shape[0]):
             self._table = self._build(2 * int(np.max(idx)))
@@ -80,6 +82,22 @@ class GnResult:
     jac: np.ndarray  # (J, p, d) Jacobian at pos
 
 
+@lru_cache(maxsize=8)
+def _damping(d: int) -> np.ndarray:
+    out = 1e-9 * np.eye(d)
+    out.setflags(write=False)
+    return out
+
+
+def _inv_var(model: MeasurementModel) -> np.ndarray:
+    """``1 / sigma^2`` per sensor, computed once per model (the model is frozen; the cache bypasses that)."""
+    cached = model.__dict__.get("_inv_var_cache")
+    if cached is None:
+        cached = 1.0 / model.sigma_m**2
+        object.__setattr__(model, "_inv_var_cache", cached)
+    return cached
+
+
 def gauss_newton(
     model: MeasurementModel,
     z: np.ndarray,
@@ -90,33 +108,37 @@ def gauss_newton(
     tol_m: float = 1e-4,
     at_start: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> GnResult:
-    """Weighted least squares per subset, all subsets at once (see module docstring)."""
+    """Weighted least squares per subset, all subsets at once (see module docstring).
+
+    The arrays are tiny (p ~ 8, d ~ 2), so numpy's per-call overhead, not
+    arithmetic, is the cost: the loop keeps the number of calls low.
+    """
     use = masks & ~np.isnan(z)
-    w = use / model.sigma_m**2
+    w = use * _inv_var(model)
     n_sub, d = masks.shape[0], model.d
-    pos = np.array(np.broadcast_to(start, (n_sub, d)), dtype=float)
+    pos = np.empty((n_sub, d))
+    pos[...] = start
     # Tiny Levenberg damping keeps rank-deficient subsets (too few readings) finite.
-    damp = 1e-9 * np.eye(d)
+    damp = _damping(d)
+    tol2 = tol_m * tol_m
     for it in range(n_iter + 1):
-        # ``at_start``: h and its Jacobian at ``start``, when the caller already has them.
-        if it == 0 and at_start is not None:
-            hx = np.broadcast_to(at_start[0], (n_sub, model.p))
-            jac = np.broadcast_to(at_start[1], (n_sub, model.p, d))
-        else:
-            hx, jac = model.h_jac(pos, known)
+        # ``at_start``: h and its Jacobian at ``start``, when the caller already has them (broadcast over subsets).
+        hx, jac = at_start if it == 0 and at_start is not None else model.h_jac(pos, known)
         raw = z - hx
         r = np.where(use, raw, 0.0)
-        jtw = np.swapaxes(jac * w[..., None], 1, 2)
+        jtw = (jac * w[..., None]).mT
         info = jtw @ jac
         if it == n_iter:
             break
         step = solve_small(info + damp, (jtw @ r[..., None])[..., 0])
-        if float(np.einsum("jd,jd->", step, step)) < tol_m * tol_m:
+        pos = model.clip(pos + step)
+        if float(np.vdot(step, step)) < tol2:
             # Converged: the cost and information at the last evaluation differ from
             # those after this sub-tolerance step only to second order; skip a re-evaluation.
-            pos = model.clip(pos + step)
             break
-        pos = model.clip(pos + step)
+    if raw.ndim == 1:  # evaluated only at the caller's ``at_start``
+        raw = np.broadcast_to(raw, (n_sub, model.p))
+        jac = np.broadcast_to(jac, (n_sub, model.p, d))
     cost = np.einsum("jp,jp->j", w, r * r)
     return GnResult(pos=pos, cost=cost, info=info, n_used=use.sum(axis=1), resid=r, raw=raw, jac=jac)
 
@@ -127,6 +149,12 @@ _SIGNS2 = np.array([[1.0, -1.0], [-1.0, 1.0]])
 def inv_small(a: np.ndarray) -> np.ndarray:
     """Batched inverse of symmetric positive semi-definite d x d matrices, damped so singular ones stay finite."""
     d = a.shape[-1]
+    if d == 2 and a.ndim == 2:  # one 2 x 2: Python floats beat a dozen numpy calls
+        (a00, a01), (a10, a11) = a.tolist()
+        eps = 1e-9 * (a00 + a11 + 1e-9)
+        d00, d11 = a00 + eps, a11 + eps
+        det = d00 * d11 - a01 * a10
+        return np.array([[d11 / det, -a01 / det], [-a10 / det, d00 / det]])
     damped = a + 1e-9 * (np.trace(a, axis1=-2, axis2=-1)[..., None, None] + 1e-9) * np.eye(d)
     if d == 1:
         return 1.0 / damped
@@ -142,12 +170,29 @@ def solve_small(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     if d == 1:
         return b / a[:, 0, :]
     if d == 2:
+        if a.shape[0] == 1:  # one system: Python floats
+            (a00, a01), (_, a11) = a[0].tolist()
+            b0, b1 = b[0].tolist()
+            det = a00 * a11 - a01 * a01
+            return np.array([[(a11 * b0 - a01 * b1) / det, (a00 * b1 - a01 * b0) / det]])
         # Flipping both axes times the sign pattern is the adjugate only for symmetric a
         # (normal matrices, covariances: every caller); general 2x2 systems go to LAPACK.
         adj = a[:, ::-1, ::-1] * _SIGNS2
         det = a[:, 0, 0] * a[:, 1, 1] - a[:, 0, 1] * a[:, 1, 0]
         return (adj @ b[..., None])[..., 0] / det[:, None]
     return np.linalg.solve(a, b[..., None])[..., 0]
+
+
+def _solve_general(m: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """``m x = rhs`` for one small general (non-symmetric) d x d matrix; rhs (d, k)."""
+    d = m.shape[0]
+    if d == 1:
+        return rhs / m[0, 0]
+    if d == 2:
+        (m00, m01), (m10, m11) = m.tolist()
+        det = m00 * m11 - m01 * m10
+        return np.array([[m11 / det, -m01 / det], [-m10 / det, m00 / det]]) @ rhs
+    return np.linalg.solve(m, rhs)
 
 
 @lru_cache(maxsize=256)
@@ -223,20 +268,34 @@ class EkfBank:
     def _update_one(
         self, z: np.ndarray, known: Known, at_prior: tuple[np.ndarray, np.ndarray] | None
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Single filter: the gain form on the used rows only (cheaper than two n x n inverses)."""
+        """Single filter, with d x d algebra only (no m x m innovation covariance, no n x n inverse).
+
+        The readings see only the position block, so with ``A = H^T W H``,
+        ``b = H^T W nu`` (W the masked inverse noise variances) and
+        ``C = (I + A P_pp)^-1`` (push-through identity):
+        ``H^T S^-1 H = C A``, ``H^T S^-1 nu = C b``, hence
+        ``x+ = x + P[:, :d] C b``, ``P+ = P - P[:, :d] C A P[:d, :]`` and
+        ``NIS = nu^T W nu - b^T P_pp C b``; the same update as the gain form
+        ``K = P H^T S^-1``, at d x d cost (d = 2 here, in closed form).
+        """
         use = self.masks[0] & ~np.isnan(z)
         n_used = int(use.sum())
         if n_used == 0:
             return np.zeros(1), np.zeros(1, dtype=int)
         d, x, P = self.d, self.x[0], self.P[0]
         hx, jac = self.model.h_jac(x[:d], known) if at_prior is None else at_prior
-        nu = (z - hx)[use]
-        h_rows = jac[use]
-        pht = P[:, :d] @ h_rows.T  # (n, m)
-        s_mat = h_rows @ pht[:d] + np.diag(self.model.sigma_m[use] ** 2)
-        gain_t = np.linalg.solve(s_mat, pht.T)  # (m, n) = K^T, S symmetric
-        nis = float(nu @ np.linalg.solve(s_mat, nu))
-        self.x[0] = x + nu @ gain_t
-        p_new = P - pht @ gain_t
+        w = use * _inv_var(self.model)
+        nu = np.where(use, z - hx, 0.0)
+        jtw = (jac * w[:, None]).T  # (d, p)
+        a_mat = jtw @ jac
+        p_pos = P[:d, :d]
+        # C [b | A] in one small solve: g = C b, ca = C A.
+        b = jtw @ nu
+        sol = _solve_general(np.eye(d) + a_mat @ p_pos, np.column_stack([b, a_mat]))
+        g, ca = sol[:, 0], sol[:, 1:]
+        p_cols = P[:, :d]
+        nis = float(w @ (nu * nu) - b @ (p_pos @ g))
+        self.x[0] = x + p_cols @ g
+        p_new = P - p_cols @ ca @ P[:d, :]
         self.P[0] = 0.5 * (p_new + p_new.T)
         return np.array([nis]), np.array([n_used])

@@ -160,7 +160,7 @@ class Estimator:
         used: np.ndarray | None = None,
     ) -> Estimate:
         d = self.model.d
-        ok = pos is not None and bool(np.all(np.isfinite(pos)))
+        ok = pos is not None and bool(np.isfinite(pos).all())
         return Estimate(
             t_s=t_s,
             position_m=np.full(d, np.nan) if pos is None else np.array(pos, dtype=float),

@@ -83,7 +83,8 @@ class L1Decoder(Estimator):
         # IRLS converges linearly: a cold start (far from the minimiser) gets fifteen times the budget.
         pos = self._irls(z, avail, start, known, self.n_irls if self.pos is not None else 15 * self.n_irls)
         resid = z - model.h(pos, known)
-        t = np.nan_to_num(resid * resid / model.sigma_m**2, nan=-1.0)
+        t = resid * resid / model.sigma_m**2
+        t = np.where(np.isnan(t), -1.0, t)  # missing readings are never set aside
         # Decode: at most s readings, the largest l1 residuals that fail the gate, are
         # set aside; the rest must then be consistent as a whole, else alarm.
         worst = np.argsort(-t)[: self.s]

@@ -84,7 +84,7 @@ class MeasurementModel:
         """Project onto the admissible box (rejects mirror solutions outside the area)."""
         if self.bounds_m is None:
             return pos
-        return np.clip(pos, self.bounds_m[0], self.bounds_m[1])
+        return np.minimum(np.maximum(pos, self.bounds_m[0]), self.bounds_m[1])  # np.clip's wrapper costs more
 
     def ids(self) -> tuple[int, ...]:
         return self.sensor_ids or tuple(range(self.p))
@@ -171,7 +171,8 @@ class AnchorRanges2D(MeasurementModel):
         if geometry is None:
             return None
         idx, inv = geometry
-        rho2 = np.nan_to_num(z * z - self._dz2(known), nan=0.0)
+        rho2 = z * z - self._dz2(known)
+        rho2 = np.where(np.isnan(rho2), 0.0, rho2)
         rhs_base = rho2 - self._norm2
         rhs = rhs_base[idx[:, :2]] - rhs_base[idx[:, 2:3]]
         return self.clip(np.einsum("jab,jb->ja", inv, rhs))
