@@ -23,6 +23,7 @@ from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.offboard import OffboardAsync, VelocityBodyYawspeed
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
+from mavsdk.plugins.telemetry import FlightMode
 
 # MAVSDK's DistanceSensor carries no sensor id, so we keep the newest readings of
 # forward-facing sensors (orientation "forward") and take their median.
@@ -49,7 +50,9 @@ async def fly(url: str, seconds: float, target_m: float, gain: float) -> list[tu
 
     await action.arm()
     await action.takeoff()
-    await asyncio.sleep(8)
+    # PX4 (and secuav-sim) ends a takeoff in Hold; start the wall loop from there.
+    await asyncio.wait_for(_until_mode(telemetry, FlightMode.HOLD), timeout=30)
+    print("took off; holding the wall distance")
     watcher = asyncio.create_task(watch_ranges())
     await offboard.set_velocity_body(VelocityBodyYawspeed(0, 0, 0, 0))
     await offboard.start()
@@ -68,7 +71,14 @@ async def fly(url: str, seconds: float, target_m: float, gain: float) -> list[tu
     async for in_air in telemetry.subscribe_in_air():
         if not in_air:
             break
+    print("landed")
     return seen
+
+
+async def _until_mode(telemetry: TelemetryAsync, wanted: FlightMode) -> None:
+    async for mode in telemetry.subscribe_flight_mode():
+        if mode == wanted:
+            return
 
 
 def main() -> None:
@@ -81,8 +91,10 @@ def main() -> None:
     seen = asyncio.run(fly(args.url, args.seconds, args.target, args.gain))
     tail = [d for t, d in seen if t > args.seconds / 2]
     if tail:
-        print(f"distance seen in the second half: median {statistics.median(tail):.2f} m, "
-              f"min {min(tail):.2f} m, max {max(tail):.2f} m over {len(tail)} samples")
+        print(
+            f"distance seen in the second half: median {statistics.median(tail):.2f} m, "
+            f"min {min(tail):.2f} m, max {max(tail):.2f} m over {len(tail)} samples"
+        )
 
 
 if __name__ == "__main__":
