@@ -79,3 +79,19 @@ def test_wall_hover_group(tmp_path: Path) -> None:
     recap, ekf = res["estimators"]["recap"], res["estimators"]["ekf"]
     assert recap["max_error_m"] < 0.1 and ekf["max_error_m"] > 0.5
     assert recap["attack_detection_recall"] >= 0.9
+
+
+def test_moving_leg_type_b_in_parallel_gives_the_serial_numbers(tmp_path: Path) -> None:
+    args = ("--scenario", "anchors8", "--attack", "type-b", "--param", "start_s=2", "--param", "rate_per_s=0.5")
+    common = (*args, "--leg", "moving", "--trials", "2", "--duration", "10", "--estimators", "ekf,rarse")
+    assert main(["--out", str(tmp_path / "par"), "--jobs", "2", *common]) == 0
+    assert main(["--out", str(tmp_path / "ser"), "--jobs", "1", *common]) == 0
+    par = json.loads((tmp_path / "par" / "results.json").read_text())
+    ser = json.loads((tmp_path / "ser" / "results.json").read_text())
+    assert par["leg"] == "moving" and par["trials"] == 2
+    for name in ("ekf", "rarse"):
+        for key in ("rmse_m", "max_error_m", "attack_detection_recall", "attack_detection_precision"):
+            assert par["estimators"][name][key] == ser["estimators"][name][key], (name, key)
+    rarse, ekf = par["estimators"]["rarse"], par["estimators"]["ekf"]
+    assert rarse["rmse_m"] < 0.12 and ekf["max_error_m"] > 2 * rarse["max_error_m"]
+    assert rarse["attack_detection_recall"] >= 0.9
