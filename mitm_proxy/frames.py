@@ -31,6 +31,8 @@ from mitm_proxy.packet import Header
 
 __all__ = [
     "BAD_CRC",
+    "BAD_FLAGS",
+    "BAD_LENGTH",
     "CRC_EXTRA",
     "GARBAGE",
     "SIGNATURE_LEN",
@@ -53,9 +55,11 @@ GARBAGE: Final = "garbage"  # bytes that do not start with a MAVLink magic byte
 TRUNCATED: Final = "truncated"  # a header whose frame runs past the end of the datagram
 BAD_CRC: Final = "bad_crc"  # a complete frame of a known message whose CRC does not match
 BAD_FLAGS: Final = "bad_flags"  # a v2 header with incompatibility flags we cannot honour
+BAD_LENGTH: Final = "bad_length"  # a v1 header claiming more payload than its message has
 
 CRC_EXTRA: Final[dict[int, int]] = {msgid: cls.crc_extra for msgid, cls in dialect.mavlink_map.items()}
 
+_V1_MAX_LEN: Final[dict[int, int]] = {msgid: cls.unpacker.size for msgid, cls in dialect.mavlink_map.items()}
 _EXTRA_BYTES: Final[dict[int, bytes]] = {msgid: bytes((extra,)) for msgid, extra in CRC_EXTRA.items()}
 _mcrf4xx = crc16.mcrf4xx
 _V1 = struct.Struct("<BBBBBB").unpack_from  # stx len seq sysid compid msgid
@@ -106,6 +110,9 @@ def _candidate(data: bytes, i: int, n: int) -> tuple[Header, int, str | None]:
         if n - i < V1_HEADER_LEN:
             return _NO_HEADER, 0, TRUNCATED
         _, plen, seq, sysid, compid, msgid = _V1(data, i)
+        size = _V1_MAX_LEN.get(msgid)
+        if size is not None and plen > size:  # MAVLink 1 has no extensions: longer is never valid
+            return _NO_HEADER, 0, BAD_LENGTH
         crc_at = i + V1_HEADER_LEN + plen
         end = crc_at + CRC_LEN
         header = Header(1, msgid, sysid, compid, seq, plen)
@@ -123,8 +130,13 @@ def _candidate(data: bytes, i: int, n: int) -> tuple[Header, int, str | None]:
 _NO_HEADER: Final = Header(0, -1, 0, 0, 0, 0)
 
 
-def _known_frame_inside(data: bytes, start: int, end: int, n: int) -> bool:
-    """Whether a CRC-valid frame of a known message starts in ``data[start:end]``."""
+def _known_frame_inside(data: bytes, start: int, end: int, n: int, memo: dict[int, bool]) -> bool:
+    """Whether a CRC-valid frame of a known message starts in ``data[start:end]``.
+
+    ``memo`` (one per datagram) remembers each position's verdict, so a datagram
+    crafted as overlapping fake headers costs each position one check, not one
+    per fake header that covers it.
+    """
     j = start
     while True:
         a = data.find(b"\xfd", j, end)
@@ -132,8 +144,11 @@ def _known_frame_inside(data: bytes, start: int, end: int, n: int) -> bool:
         k = min(x for x in (a, b, end) if x >= 0)
         if k >= end:
             return False
-        header, _, reason = _candidate(data, k, n)
-        if reason is None and header.msgid in CRC_EXTRA:
+        known = memo.get(k)
+        if known is None:
+            header, _, reason = _candidate(data, k, n)
+            known = memo[k] = reason is None and header.msgid in CRC_EXTRA
+        if known:
             return True
         j = k + 1
 
@@ -148,6 +163,7 @@ def split(datagram: bytes) -> SplitResult:
     i = 0
     skip_start = -1  # start of the current run of skipped bytes
     skip_reason = ""
+    memo: dict[int, bool] | None = None  # made on the first unknown-id candidate
     while i < n:
         c = data[i]
         if c == STX_V2 and n - i >= V2_HEADER_LEN:
@@ -172,8 +188,11 @@ def split(datagram: bytes) -> SplitResult:
                 continue
         if c in (STX_V2, STX_V1):
             header, end, reason = _candidate(data, i, n)
-            if reason is None and header.msgid not in CRC_EXTRA and _known_frame_inside(data, i + 1, end, n):
-                reason = GARBAGE
+            if reason is None and header.msgid not in CRC_EXTRA:
+                if memo is None:
+                    memo = {}
+                if _known_frame_inside(data, i + 1, end, n, memo):
+                    reason = GARBAGE
             if reason is None:
                 if skip_start >= 0:
                     out.bad.append(skip_reason)

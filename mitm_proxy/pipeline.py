@@ -106,8 +106,7 @@ class Pipeline:
         for reason in res.bad:
             st.add_bad(reason)
         rec = self.recorder
-        if rec is not None:
-            rec.original(frames)
+        first = rec.original(frames) if rec is not None else 0
         active, wanted = self._wanted()
         signer = self.signer
         slow = bool(res.bad)
@@ -128,7 +127,7 @@ class Pipeline:
             if rec is not None:
                 rec.forwarded_frames(frames)
             return [Outgoing(datagram, now_s, now_s, len(frames))]
-        return self._slow(frames, direction, now_s, st, active, wanted)
+        return self._slow(frames, direction, now_s, st, active, wanted, first)
 
     def _slow(
         self,
@@ -138,12 +137,13 @@ class Pipeline:
         st: DirectionStats,
         active: list[Stage],
         wanted: frozenset[int],
+        first: int,
     ) -> list[Outgoing]:
         signer = self.signer
         rec = self.recorder
         now_parts: list[bytes] = []
         later: list[Outgoing] = []
-        for header, raw in frames:
+        for j, (header, raw) in enumerate(frames, first):
             if header.signed and signer is not None:
                 reason = signer.verify(raw)
                 if reason is not None:
@@ -160,9 +160,12 @@ class Pipeline:
             except Exception as exc:  # a stage bug must not stop forwarding
                 st.add_bad(STAGE_ERROR)
                 self._log_once(f"stage:{type(exc).__name__}", "stage failed on msgid %d: %r", header.msgid, exc)
-                pkts = [Packet(raw, header, direction, self.link, now_s)]
+                pkt = Packet(raw, header, direction, self.link, now_s)  # as it came, not half-changed
+                pkts = [pkt]
             if not any(p is pkt for p in pkts):
                 st.dropped += 1
+                if rec is not None:
+                    rec.dropped(header.msgid, pkt, j)
             for p in pkts:
                 data = self._wire(p, st)
                 if p.release_s > now_s:
@@ -171,11 +174,11 @@ class Pipeline:
                     st.bytes_out += len(data)
                     later.append(Outgoing(data, p.release_s, p.rx_s, 1))
                     if rec is not None:
-                        rec.forwarded(data, p.header.msgid, p, p.release_s - now_s)
+                        rec.forwarded(data, p.header.msgid, p, p.release_s - now_s, j)
                 else:
                     now_parts.append(data)
                     if rec is not None:
-                        rec.forwarded(data, p.header.msgid, p)
+                        rec.forwarded(data, p.header.msgid, p, 0.0, j)
         out: list[Outgoing] = []
         if now_parts:
             joined = b"".join(now_parts)

@@ -19,7 +19,7 @@ from test_frames_support import (
     unknown_frame,
 )
 
-from mitm_proxy.frames import BAD_CRC, BAD_FLAGS, CRC_EXTRA, GARBAGE, TRUNCATED, crc_of, split
+from mitm_proxy.frames import BAD_CRC, BAD_FLAGS, BAD_LENGTH, CRC_EXTRA, GARBAGE, TRUNCATED, crc_of, split
 
 
 def raws(datagram: bytes) -> list[bytes]:
@@ -129,6 +129,15 @@ def test_unknown_incompat_flags_are_refused() -> None:
     res = split(bytes(a) + b)
     assert [raw for _, raw in res.frames] == [b]
     assert res.bad == [BAD_FLAGS]
+
+
+def test_v1_longer_than_its_message_is_refused_without_a_crc() -> None:
+    a = bytearray(pack(heartbeat(), v1=True))
+    a[1] = 40  # HEARTBEAT has 9 payload bytes and v1 has no extensions
+    b = pack(heartbeat())
+    res = split(bytes(a) + bytes(40) + b)
+    assert [raw for _, raw in res.frames] == [b]
+    assert res.bad == [BAD_LENGTH]
 
 
 def test_empty_and_pure_garbage() -> None:

@@ -11,8 +11,9 @@ from pymavlink import mavutil
 from test_frames_support import HEARTBEAT, distance, heartbeat, local_position, mav, pack
 
 from attack_profiles.profile import parse_profile
+from mitm_proxy import codec
 from mitm_proxy.attack import AttackStage
-from mitm_proxy.packet import Direction
+from mitm_proxy.packet import Direction, Packet
 from mitm_proxy.pipeline import Pipeline
 from mitm_proxy.recording import Recorder
 from mitm_proxy.slots import AttackSlot
@@ -71,10 +72,12 @@ def test_original_and_forwarded_read_back_with_the_attack_visible(tmp_path: Path
 
     index = json.loads((tmp_path / "rec" / "index.json").read_text())
     assert index == [
-        {"index": 2, "msgid": 132, "direction": "downlink", "changed": True, "injected": False, "delay_s": 0.0,
-         "notes": ["attack:wall:rules[0]"]},
-        {"index": 3, "msgid": 132, "direction": "downlink", "changed": False, "injected": False, "delay_s": 0.25,
-         "notes": ["attack:wall:rules[2]"]},
+        {"index": 2, "original": 2, "msgid": 132, "direction": "downlink", "changed": True, "injected": False,
+         "dropped": False, "delay_s": 0.0, "notes": ["attack:wall:rules[0]"]},
+        {"index": None, "original": 3, "msgid": 132, "direction": "downlink", "changed": False, "injected": False,
+         "dropped": True, "delay_s": 0.0, "notes": ["attack:wall:rules[1]"]},
+        {"index": 3, "original": 4, "msgid": 132, "direction": "downlink", "changed": False, "injected": False,
+         "dropped": False, "delay_s": 0.25, "notes": ["attack:wall:rules[2]"]},
     ]  # fmt: skip
 
 
@@ -116,3 +119,29 @@ def test_recording_is_flushed_while_running_so_a_crash_keeps_it(tmp_path: Path) 
     assert (tmp_path / "forwarded.tlog").read_bytes()[:8] == int(1_700_000_000.0 * 1e6).to_bytes(8, "big")
     rec.close()
     assert (tmp_path / "original.tlog").stat().st_size == 2 * (8 + len(frame))
+
+
+class Beacon:
+    """A real stage that adds a STATUSTEXT after each HEARTBEAT."""
+
+    name = "beacon"
+    active = True
+    message_ids = frozenset({HEARTBEAT})
+
+    def process(self, pkt: Packet, now_s: float) -> list[Packet]:
+        extra = codec.build("STATUSTEXT", {"severity": 6, "text": "beacon"}, sysid=1, compid=1, seq=0,
+                            direction=pkt.direction, link=0, now_s=now_s)  # fmt: skip
+        extra.notes.append("beacon")
+        return [pkt, extra]
+
+
+def test_injected_frames_are_indexed_without_an_original(tmp_path: Path) -> None:
+    with Recorder(tmp_path) as rec:
+        pipe = Pipeline(0, [Beacon()], stats=LinkStats(), recorder=rec)
+        pipe.feed(pack(local_position()) + pack(heartbeat()), Direction.UPLINK, 0.0)
+    index = json.loads((tmp_path / "index.json").read_text())
+    assert index == [{"index": 2, "original": None, "msgid": 253, "direction": "uplink", "changed": False,
+                      "injected": True, "dropped": False, "delay_s": 0.0, "notes": ["beacon"]}]  # fmt: skip
+    msgs = read_tlog(tmp_path / "forwarded.tlog")
+    assert [m.get_type() for m in msgs] == ["LOCAL_POSITION_NED", "HEARTBEAT", "STATUSTEXT"]
+    assert msgs[2].text == "beacon"
