@@ -9,8 +9,9 @@ sees the readings *after* the attack stage, as the ground side would, and:
    ``max_age_s``;
 2. steps the estimator when every sensor has reported since the last step
    (or ``max_wait_s`` after the first one did, so a dropped sensor cannot stall
-   it), or at ``rate_hz`` if configured; off the forwarding path by default
-   (:mod:`mitm_proxy.secure_worker`);
+   it), or at ``rate_hz`` if configured; on the forwarding path while steps are
+   cheap, in a worker thread that sheds sets when they are not
+   (:mod:`mitm_proxy.secure_worker` says why, with the figures);
 3. rewrites what passes with the latest finished estimate: each group reading
    becomes what the secure estimate implies for it (the secure distance; the
    range from the secure position to that anchor); LOCAL_POSITION_NED and
@@ -55,12 +56,12 @@ from mitm_proxy.secure_layout import (
     build_estimator,
     build_layout,
 )
-from mitm_proxy.secure_worker import InlineStepper, Job, StepResult, ThreadStepper
+from mitm_proxy.secure_worker import Job, Stepper, StepResult
 from secuav_common.geo import ned_to_geodetic
 from secuav_common.loading import InputError
 from secuav_common.scenario import Home, Scenario
 
-__all__ = ["FLAGGED_QUALITY", "SecureConfig", "SecureSlot", "SecureStage"]
+__all__ = ["FLAGGED_QUALITY", "PeerBoard", "SecureConfig", "SecureSlot", "SecureStage"]
 
 log = logging.getLogger(__name__)
 
@@ -69,6 +70,28 @@ FLAGGED_QUALITY = 1  # DISTANCE_SENSOR.signal_quality: 1 = "invalid" (0 = unknow
 NO_TARGET_QUALITY = 0
 UINT16_TOP = 65534  # 65535 means "unknown" in several MAVLink fields
 NOTE = "secure"
+
+
+class PeerBoard:
+    """The latest secure position of each vehicle, shared by the secure stages of one proxy.
+
+    Each stage posts its own estimate and reads its peers', so an
+    inter-vehicle range can be checked against, and replaced by, the distance
+    between two secure positions. All access is from the event loop's thread.
+    """
+
+    def __init__(self, max_age_s: float = 1.0) -> None:
+        self.max_age_s = max_age_s
+        self._pos: dict[int, tuple[np.ndarray, float]] = {}
+
+    def post(self, sysid: int, pos_ned_m: np.ndarray, now_s: float) -> None:
+        self._pos[sysid] = (pos_ned_m, now_s)
+
+    def get(self, sysid: int, now_s: float) -> np.ndarray | None:
+        entry = self._pos.get(sysid)
+        if entry is None or now_s - entry[1] > self.max_age_s:
+            return None
+        return entry[0]
 
 
 @dataclass(slots=True)
@@ -95,13 +118,16 @@ class SecureStage:
         sysid: int,
         publish: Publish | None = None,
         source: str = "<secure>",
+        peers: PeerBoard | None = None,
     ) -> None:
         self.scenario = scenario
         self.sysid = sysid
         self.publish = publish
+        self.peers = peers if peers is not None else PeerBoard()
+        self._peer_flagged: set[int] = set()  # inter-vehicle sensor ids judged attacked, latest frame each
         self.config = OFF
         self.layout: Layout | None = None
-        self._stepper: InlineStepper | ThreadStepper | None = None
+        self._stepper: Stepper | None = None
         self._ids: frozenset[int] = frozenset()
         self.counters = _Counters()
         self._home = scenario.world.home
@@ -123,11 +149,7 @@ class SecureStage:
             return
         layout = build_layout(config, self.scenario, self.sysid, source)
         estimator = build_estimator(config, layout, source)
-        stepper: InlineStepper | ThreadStepper = (
-            ThreadStepper(estimator, layout.model, name=f"secure-v{self.sysid}")
-            if config.executor == "thread"
-            else InlineStepper(estimator, layout.model)
-        )
+        stepper = Stepper(estimator, layout.model, config.executor, config.step_budget_s, name=f"secure-v{self.sysid}")
         old = self._stepper
         self._reset_readings(layout)
         self.config, self.layout, self._stepper = config, layout, stepper
@@ -144,6 +166,7 @@ class SecureStage:
         self._last_submit_s = -math.inf
         self._sim_t_s: float | None = None
         self._height_m: float | None = None  # known NED z (2-D anchors)
+        self._peer_flagged = set()
         self._height_rx = -math.inf
 
     def close(self) -> None:
@@ -182,7 +205,7 @@ class SecureStage:
             self._take_home(fields)
             return [pkt]
         self.poll(now_s)
-        self._substitute(layout, pkt, fields)
+        self._substitute(layout, pkt, fields, now_s)
         return [pkt]
 
     # -- collecting --------------------------------------------------------------------------------
@@ -232,13 +255,16 @@ class SecureStage:
                     self.counters.sets_timed_out += 1
             if due:
                 self._submit(stepper, now_s)
+        done = stepper.drain()
+        if done and self.layout.position_dims:
+            last = done[-1]
+            if last.estimate.ok:
+                self.peers.post(self.sysid, np.array(_position_ned(self.layout, last)), now_s)
         if self.publish is not None:
-            for res in stepper.drain():
+            for res in done:
                 self._publish(res)
-        else:
-            stepper.drain()
 
-    def _submit(self, stepper: InlineStepper | ThreadStepper, now_s: float) -> None:
+    def _submit(self, stepper: Stepper, now_s: float) -> None:
         z = np.where(now_s - self._rx <= self.config.max_age_s, self._z, np.nan)
         known: float | None = None
         if self.layout is not None and self.layout.position_dims == 2:
@@ -252,7 +278,7 @@ class SecureStage:
 
     # -- substituting ------------------------------------------------------------------------------
 
-    def _substitute(self, layout: Layout, pkt: Packet, fields: dict[str, Any]) -> None:
+    def _substitute(self, layout: Layout, pkt: Packet, fields: dict[str, Any], now_s: float) -> None:
         stepper = self._stepper
         res = stepper.latest() if stepper is not None else None
         if res is None or not res.estimate.ok:
@@ -262,6 +288,9 @@ class SecureStage:
         if msgid == DISTANCE_SENSOR:
             i = layout.index_of.get(fields.get("id"))  # type: ignore[arg-type]
             if i is None:
+                if fields.get("id") in layout.peer_of:
+                    changed = self._substitute_peer_range(layout, res, fields, now_s)
+                    self._note_change(pkt, changed)
                 return
             implied = res.implied_m[i]
             if math.isfinite(implied):
@@ -284,6 +313,29 @@ class SecureStage:
             if layout.position_dims == 3:
                 changed |= _set(fields, "alt", round(alt * 1000.0))
                 changed |= _set(fields, "relative_alt", round(-pos[2] * 1000.0))
+        self._note_change(pkt, changed)
+
+    def _substitute_peer_range(self, layout: Layout, res: StepResult, fields: dict[str, Any], now_s: float) -> bool:
+        """Range to peer n: the distance between the two secure positions; flagged when the reading is far off."""
+        sid = fields["id"]
+        peer = self.peers.get(layout.peer_of[sid], now_s)
+        own = np.array(_position_ned(layout, res))
+        if peer is None or not np.all(np.isfinite(own)) or not np.all(np.isfinite(peer)):
+            return False
+        implied = float(np.linalg.norm(own - peer))
+        changed = False
+        if fields.get("signal_quality") != NO_TARGET_QUALITY:
+            if abs(fields.get("current_distance", 0) / 100.0 - implied) > self.config.peer_gate_m:
+                self._peer_flagged.add(sid)
+            else:
+                self._peer_flagged.discard(sid)
+        if sid in self._peer_flagged:
+            changed |= _set(fields, "signal_quality", FLAGGED_QUALITY)
+            self.counters.flagged_frames += 1
+        changed |= _set(fields, "current_distance", min(max(round(implied * 100.0), 0), UINT16_TOP))
+        return changed
+
+    def _note_change(self, pkt: Packet, changed: bool) -> None:
         if changed:
             pkt.changed = True
             pkt.notes.append(f"{NOTE}:{self.config.estimator}")
@@ -305,7 +357,7 @@ class SecureStage:
             "time_s": time.time(),
             "ok": est.ok,
             "alarm": est.alarm,
-            "attacked": sorted(layout.sensor_ids[i] for i in res.attacked_idx),
+            "attacked": sorted([*(layout.sensor_ids[i] for i in res.attacked_idx), *self._peer_flagged]),
             "used": sorted(layout.sensor_ids[i] for i in est.used),
             "step_time_s": est.step_time_s,
             "readings_m": [_num(v) for v in res.job.z],
@@ -327,13 +379,18 @@ class SecureStage:
         st = self._stepper
         res = st.latest() if st is not None else None
         flagged = (
-            [] if res is None or self.layout is None else sorted(self.layout.sensor_ids[i] for i in res.attacked_idx)
+            []
+            if res is None or self.layout is None
+            else sorted([*(self.layout.sensor_ids[i] for i in res.attacked_idx), *self._peer_flagged])
         )
         return {
             "active": self.active,
             "estimator": self.config.estimator,
             "group": None if self.layout is None else self.layout.group,
             "executor": self.config.executor,
+            "threaded": None if st is None else st.threaded,
+            "executor_switches": 0 if st is None else st.switches,
+            "step_time_ewma_s": None if st is None else st.step_ewma_s,
             "steps": 0 if st is None else st.steps,
             "dropped_steps": 0 if st is None else st.dropped,
             "overruns": 0 if st is None else st.overruns,
@@ -354,7 +411,7 @@ class SecureStage:
     def wait_idle(self, timeout_s: float = 5.0) -> bool:
         """Block until submitted sets are stepped (tests, shutdown; never on the forwarding path)."""
         st = self._stepper
-        return st.wait_idle(timeout_s) if isinstance(st, ThreadStepper) else True
+        return st.wait_idle(timeout_s) if st is not None else True
 
 
 def _position_ned(layout: Layout, res: StepResult) -> tuple[float, float, float]:
@@ -412,9 +469,15 @@ class SecureSlot:
         scenario: Scenario,
         config: SecureConfig | None = None,
         publish: Publish | None = None,
+        peers: PeerBoard | None = None,
     ) -> None:
+        """``config`` is the starting configuration (``--secure``, config file); ``InputError`` if unusable.
+
+        Give every slot of one proxy the same ``peers`` board, so inter-vehicle
+        ranges can be checked against the peers' secure positions.
+        """
         self.sysid = sysid
-        self.stage = SecureStage(config or OFF, scenario, sysid, publish)
+        self.stage = SecureStage(config or OFF, scenario, sysid, publish, peers=peers)
         self._state = self._accepted(None)
 
     @property

@@ -45,8 +45,16 @@ class SecureConfig(BaseModel):
     max_age_s: Annotated[float, Field(gt=0.0, le=10.0)] = Field(
         0.5, description="a reading older than this counts as missing (NaN)"
     )
-    executor: Literal["thread", "inline"] = Field(
-        "thread", description="thread: step off the forwarding path, latest estimate wins; inline: step in place"
+    peer_gate_m: Annotated[float, Field(gt=0.0)] = Field(
+        0.5, description="an inter-vehicle range further than this from the secure positions' distance is flagged"
+    )
+    executor: Literal["auto", "inline", "thread"] = Field(
+        "auto",
+        description="inline: step on the forwarding path; thread: in a worker, latest estimate wins; "
+        "auto: inline while the smoothed step time stays under step_budget_s, else the worker",
+    )
+    step_budget_s: Annotated[float, Field(gt=0.0, le=1.0)] = Field(
+        0.002, description="auto: longest smoothed step the forwarding path may wait for"
     )
 
     @field_validator("estimator", mode="before")

@@ -12,6 +12,9 @@ the proxy's numbers comparable with the offline evaluation:
   from it to that anchor (``model.h``), and the position messages carry it.
   In 2-D the height is known: the downward rangefinder if the vehicle has one,
   else LOCAL_POSITION_NED's z, else the scenario's hold height.
+  Inter-vehicle ranges (id 50+n) become the distance between this vehicle's
+  secure position and peer n's, when peer n's link runs a secure stage on the
+  same :class:`~mitm_proxy.secure.PeerBoard`; a reading far from it is flagged.
 
 Substitution uses ``model.h(position, known)`` for every reading, so a reading
 becomes exactly what the secure position implies.
@@ -30,6 +33,7 @@ from estimators.scenario_models import anchor_model, wall_group_model
 from mitm_proxy.secure_config import SecureConfig
 from secuav_common.loading import InputError
 from secuav_common.scenario import Home, Scenario, Vehicle, WallDistanceTarget
+from secuav_common.sensor_ids import peer_sensor_id
 
 DISTANCE_SENSOR = 132
 LOCAL_POSITION_NED = 32
@@ -48,6 +52,8 @@ class Layout:
     sensor_ids: tuple[int, ...]  # index -> wire id
     height_sensor_id: int | None  # downward rangefinder giving the known height (2-D anchors)
     position_dims: int  # 0: no position output (wall); 2: north, east; 3: north, east, down
+    peer_of: dict[int, int]  # inter-vehicle DISTANCE_SENSOR id -> peer sysid (anchors group only)
+    peer_sigma_m: float  # noise std of the inter-vehicle ranges
     home: Home
     message_ids: frozenset[int]
 
@@ -85,6 +91,8 @@ def build_layout(config: SecureConfig, scenario: Scenario, sysid: int, source: s
     ids = tuple(int(i) for i in model.ids())
     height_id = None
     position_dims = 0
+    peer_of: dict[int, int] = {}
+    iv = vehicle.sensors.inter_vehicle
     wanted = {DISTANCE_SENSOR}
     if group == "anchors":
         position_dims = config.dims
@@ -92,6 +100,8 @@ def build_layout(config: SecureConfig, scenario: Scenario, sysid: int, source: s
         if config.dims == 2:
             down = [r.id for r in vehicle.sensors.rangefinders if r.orientation == "down"]
             height_id = down[0] if down else None
+        if iv is not None:
+            peer_of = {peer_sensor_id(n): n for n in iv.peers}
     return Layout(
         sysid=sysid,
         group=group,
@@ -100,6 +110,8 @@ def build_layout(config: SecureConfig, scenario: Scenario, sysid: int, source: s
         sensor_ids=ids,
         height_sensor_id=height_id,
         position_dims=position_dims,
+        peer_of=peer_of,
+        peer_sigma_m=iv.noise_std_m if iv is not None else 0.1,
         home=scenario.world.home,
         message_ids=frozenset(wanted),
     )

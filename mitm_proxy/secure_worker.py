@@ -1,20 +1,26 @@
 """Stepping the estimator without holding up the frames that pass meanwhile.
 
-Two ways, one shape (``submit`` a complete reading set, read the ``latest``
-result, ``drain`` the results not yet published):
+One :class:`Stepper`, three modes (``submit`` a reading set, read the
+``latest`` finished result, ``drain`` the results not yet published):
 
-- :class:`ThreadStepper` (default): one dedicated worker thread and a mailbox
-  of size one. ``submit`` never waits: a set that arrives while the previous
-  one still waits for the worker replaces it and counts as a dropped step, so a
-  slow estimator sheds load instead of queueing latency, and the forwarding path
-  always substitutes the latest *finished* estimate. The estimators spend most
-  of a step in small numpy calls, so the worker holds the GIL for much of it;
-  the forwarding thread then waits at most the interpreter's switch interval
-  (5 ms by default) — see ``benchmarks/secure_stage_bench.py`` for the figures.
-- :class:`InlineStepper`: steps inside ``submit``, on the forwarding path.
-  Deterministic (the tests use it to check accuracy frame by frame); the frame
-  that completes a set waits one step (0.1-2 ms for the bench's estimators).
-  A step longer than ``budget_s`` counts as an overrun.
+- ``inline``: the step runs inside ``submit``, on the forwarding path; the frame
+  that completes a set waits one step. Deterministic (the accuracy tests use it).
+- ``thread``: one dedicated worker thread with a mailbox of one. ``submit`` never
+  waits: a set that arrives while the previous one still waits for the worker
+  replaces it and counts as a dropped step, so a slow estimator sheds load
+  instead of queueing latency, and frames carry the latest *finished* estimate.
+- ``auto`` (the default): inline while steps are cheap, the worker thread once
+  the smoothed step time exceeds ``budget_s``, back inline when it falls under
+  half of it.
+
+Why auto, from ``benchmarks/secure_stage_bench.py`` (2 k frames/s through the
+real pipeline on the 2-core bench machine): the bench's estimators step in
+0.1-2 ms, mostly in small numpy calls that hold the GIL, so a worker thread does
+not run beside the forwarding thread but takes turns with it; every handover
+costs a thread wake-up and the frames arriving meanwhile wait for the GIL. For
+such steps inline is as fast or faster at p99 (see the benchmark's figures).
+Only a step much longer than a frame interval is worth moving off the path,
+which is what the budget decides.
 
 The worker also computes what the estimate implies for every reading
 (``model.h``), so the forwarding path only copies numbers.
@@ -26,6 +32,7 @@ import logging
 import threading
 from collections import deque
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -34,7 +41,9 @@ from estimators.models import Known, MeasurementModel
 
 log = logging.getLogger(__name__)
 
+Mode = Literal["auto", "inline", "thread"]
 MAX_UNPUBLISHED = 64  # results kept for publishing when nobody drains (no frames flowing)
+EWMA_GAIN = 0.2  # weight of the newest step time in the smoothed figure
 
 
 @dataclass(frozen=True, slots=True)
@@ -45,7 +54,7 @@ class Job:
     z: np.ndarray
     known: Known
     sim_t_s: float | None  # the vehicle's clock (time_boot_ms) of the newest reading, to join with truth
-    rx_s: float  # proxy monotonic time the set was complete
+    rx_s: float  # proxy monotonic time the set was submitted
 
 
 @dataclass(frozen=True, slots=True)
@@ -67,20 +76,66 @@ def run_step(estimator: Estimator, model: MeasurementModel, job: Job) -> StepRes
     return StepResult(job, est, implied, est.attacked)
 
 
-class _Base:
-    """Counters and the result hand-over shared by both steppers."""
+class Stepper:
+    """Runs one estimator in the configured mode; see the module docstring."""
 
-    def __init__(self, estimator: Estimator, model: MeasurementModel) -> None:
+    def __init__(
+        self,
+        estimator: Estimator,
+        model: MeasurementModel,
+        mode: Mode = "auto",
+        budget_s: float = 0.002,
+        name: str = "secure-step",
+    ) -> None:
         self.estimator = estimator
         self.model = model
+        self.mode = mode
+        self.budget_s = budget_s
+        self.name = name
         self.steps = 0
         self.dropped = 0
-        self.overruns = 0
+        self.overruns = 0  # inline steps longer than the budget
+        self.switches = 0  # auto: moves between inline and the thread
         self.errors = 0
         self.last_error: str | None = None
+        self.step_ewma_s: float | None = None
         self._latest: StepResult | None = None
         self._unpublished: deque[StepResult] = deque(maxlen=MAX_UNPUBLISHED)
         self._lock = threading.Lock()
+        self._cond = threading.Condition()
+        self._mailbox: Job | None = None
+        self._stepping = False
+        self._closed = False
+        self._thread: threading.Thread | None = None
+        self._threaded = mode == "thread"
+        if self._threaded:
+            self._start_thread()
+
+    # -- for the forwarding path ----------------------------------------------------------------------
+
+    @property
+    def threaded(self) -> bool:
+        """True while steps run in the worker thread."""
+        return self._threaded
+
+    def submit(self, job: Job) -> None:
+        if self._threaded and self.mode == "auto" and self._calm() and not self.busy:
+            self._threaded = False  # steps became cheap again: back on the path
+            self.switches += 1
+        if not self._threaded:
+            self._step(job)
+            if self.step_ewma_s is not None and self.step_ewma_s > self.budget_s:
+                self.overruns += 1
+                if self.mode == "auto":
+                    self._threaded = True
+                    self.switches += 1
+                    self._start_thread()
+            return
+        with self._cond:
+            if self._mailbox is not None:
+                self.dropped += 1
+            self._mailbox = job
+            self._cond.notify()
 
     def latest(self) -> StepResult | None:
         return self._latest  # one attribute read: atomic under the GIL
@@ -91,61 +146,6 @@ class _Base:
             self._unpublished.clear()
         return out
 
-    def _step(self, job: Job) -> None:
-        try:
-            res = run_step(self.estimator, self.model, job)
-        except Exception as exc:  # a numerical failure must not stop the stage; counted and logged once
-            self.errors += 1
-            if self.last_error is None:
-                log.warning("secure estimator %s failed: %s", self.estimator.name, exc)
-            self.last_error = f"{type(exc).__name__}: {exc}"
-            return
-        with self._lock:
-            self.steps += 1
-            self._latest = res
-            self._unpublished.append(res)
-
-    def close(self) -> None:
-        pass
-
-
-class InlineStepper(_Base):
-    """Steps in the caller's thread (see module docstring)."""
-
-    def __init__(self, estimator: Estimator, model: MeasurementModel, budget_s: float = 0.005) -> None:
-        super().__init__(estimator, model)
-        self.budget_s = budget_s
-
-    def submit(self, job: Job) -> None:
-        self._step(job)
-        latest = self._latest
-        if latest is not None and latest.job is job and latest.estimate.step_time_s > self.budget_s:
-            self.overruns += 1
-
-    @property
-    def busy(self) -> bool:
-        return False
-
-
-class ThreadStepper(_Base):
-    """One worker thread, mailbox of one, latest wins (see module docstring)."""
-
-    def __init__(self, estimator: Estimator, model: MeasurementModel, name: str = "secure-step") -> None:
-        super().__init__(estimator, model)
-        self._cond = threading.Condition()
-        self._mailbox: Job | None = None
-        self._stepping = False
-        self._closed = False
-        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
-        self._thread.start()
-
-    def submit(self, job: Job) -> None:
-        with self._cond:
-            if self._mailbox is not None:
-                self.dropped += 1
-            self._mailbox = job
-            self._cond.notify()
-
     @property
     def busy(self) -> bool:
         return self._stepping or self._mailbox is not None
@@ -154,6 +154,40 @@ class ThreadStepper(_Base):
         """Block until every submitted set is stepped (tests and shutdown only, never on the forwarding path)."""
         with self._cond:
             return self._cond.wait_for(lambda: not self.busy or self._closed, timeout_s)
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+        t = self._thread
+        if t is not None and threading.current_thread() is not t:
+            t.join(timeout=5.0)
+
+    # -- internals --------------------------------------------------------------------------------------
+
+    def _calm(self) -> bool:
+        return self.step_ewma_s is not None and self.step_ewma_s < self.budget_s / 2
+
+    def _step(self, job: Job) -> None:
+        try:
+            res = run_step(self.estimator, self.model, job)
+        except Exception as exc:  # a numerical failure must not stop the stage; counted, logged once
+            self.errors += 1
+            if self.last_error is None:
+                log.warning("secure estimator %s failed: %s", self.estimator.name, exc)
+            self.last_error = f"{type(exc).__name__}: {exc}"
+            return
+        dt = res.estimate.step_time_s
+        self.step_ewma_s = dt if self.step_ewma_s is None else self.step_ewma_s + EWMA_GAIN * (dt - self.step_ewma_s)
+        with self._lock:
+            self.steps += 1
+            self._latest = res
+            self._unpublished.append(res)
+
+    def _start_thread(self) -> None:
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._run, name=self.name, daemon=True)
+            self._thread.start()
 
     def _run(self) -> None:
         while True:
@@ -169,10 +203,3 @@ class ThreadStepper(_Base):
                 with self._cond:
                     self._stepping = False
                     self._cond.notify_all()
-
-    def close(self) -> None:
-        with self._cond:
-            self._closed = True
-            self._cond.notify_all()
-        if threading.current_thread() is not self._thread:
-            self._thread.join(timeout=5.0)

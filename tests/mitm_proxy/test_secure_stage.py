@@ -20,7 +20,8 @@ from test_secure_support import Frame, StreamMaker, packet_of, wire_fields
 from attack_profiles import library
 from attack_profiles.action import Direction
 from attack_profiles.engine import Engine
-from mitm_proxy.secure import FLAGGED_QUALITY, SecureConfig, SecureStage
+from attack_profiles.profile import parse_profile
+from mitm_proxy.secure import FLAGGED_QUALITY, PeerBoard, SecureConfig, SecureStage
 from secuav_common.geo import geodetic_to_ned
 from secuav_common.scenario import Scenario, load_scenario
 
@@ -251,3 +252,57 @@ def test_dropped_sensor_does_not_stall_the_estimator(wall: Scenario) -> None:
     assert st["steps"] >= 75, st  # 10 Hz sets (the sonar's rate) all along
     truth, _raw, sub = _wall_series(outs, 2.0)
     assert np.sqrt(np.mean((sub - truth) ** 2)) < 0.05
+
+
+@pytest.mark.timeout(90)
+def test_formation_inter_vehicle_range_checked_against_both_secure_positions() -> None:
+    """Two links, one PeerBoard: vehicle 1's range to vehicle 2 (id 52) biased 1.5 m, and anchor 11 of
+    vehicle 1 ramped. Both ranges are replaced by what the secure positions imply, and both are flagged."""
+    sc = load_scenario("formation")
+    profile = parse_profile(
+        {
+            "name": "iv-bias",
+            "rules": [
+                {
+                    "target": {"message": "DISTANCE_SENSOR", "sensor_id": 52, "sysid": 1, "field": "current_distance"},
+                    "kind": "bias",
+                    "offset_m": 1.5,
+                    "start_s": 3.0,
+                },
+                {
+                    "target": {"message": "DISTANCE_SENSOR", "sensor_id": 11, "sysid": 1, "field": "current_distance"},
+                    "kind": "ramp",
+                    "rate_per_s": 0.2,
+                    "start_s": 3.0,
+                },
+            ],
+        },
+        "<test>",
+    )
+    m1 = StreamMaker(sc, 1, engine=Engine(profile, scenario=sc), seed=20)
+    m2 = StreamMaker(sc, 2, seed=21)
+    m1.peers, m2.peers = {2: m2}, {1: m1}
+    board = PeerBoard()
+    stages = {s: SecureStage(SecureConfig(estimator="secekf", executor="inline"), sc, s, peers=board) for s in (1, 2)}
+    assert stages[1].layout is not None and stages[1].layout.peer_of == {52: 2}
+    frames = sorted(
+        [(fr.t_s, 1, fr) for fr in m1.frames(15.0)] + [(fr.t_s, 2, fr) for fr in m2.frames(15.0)],
+        key=lambda x: (x[0], x[1]),
+    )
+    iv: dict[int, list[tuple[float, float, int]]] = {51: [], 52: []}
+    for t, sysid, fr in frames:
+        pkt = packet_of(fr.raw, t)
+        stages[sysid].process(pkt, t)
+        f = wire_fields(pkt)
+        if pkt.header.msgid == DS and f["id"] in iv and t >= 8.0:
+            iv[f["id"]].append((f["current_distance"] / 100, fr.truth["range_m"], f["signal_quality"]))
+    for sid in (51, 52):
+        got = np.array(iv[sid])
+        assert len(got) > 50
+        err = got[:, 0] - got[:, 1]
+        assert np.sqrt(np.mean(err**2)) < 0.2, (sid, np.sqrt(np.mean(err**2)))
+    flagged52 = np.mean(np.array(iv[52])[:, 2] == FLAGGED_QUALITY)
+    flagged51 = np.mean(np.array(iv[51])[:, 2] == FLAGGED_QUALITY)
+    assert flagged52 > 0.95 and flagged51 < 0.05, (flagged52, flagged51)
+    assert 11 in stages[1].stats()["flagged_sensors"] and 52 in stages[1].stats()["flagged_sensors"]
+    assert stages[2].stats()["flagged_sensors"] == []

@@ -25,7 +25,7 @@ from attack_profiles.engine import Engine
 from mitm_proxy import codec
 from mitm_proxy.packet import Header, Packet
 from secuav_common.geo import ned_to_geodetic
-from secuav_common.scenario import Scenario, WallDistanceTarget
+from secuav_common.scenario import KeepRangeTarget, Scenario, WallDistanceTarget
 from secuav_common.sensor_ids import ORIENTATION, SENSOR_TYPE
 
 V2_HEADER = struct.Struct("<BBBBBBBHB")
@@ -69,6 +69,7 @@ class StreamMaker:
         engine: Engine | None = None,
         seed: int = 0,
         sway_m: float = 0.05,
+        peers: dict[int, StreamMaker] | None = None,
     ) -> None:
         self.sc = scenario
         self.veh = scenario.vehicle(sysid)
@@ -76,6 +77,7 @@ class StreamMaker:
         self.engine = engine
         self.rng = np.random.default_rng(seed)
         self.sway_m = sway_m
+        self.peers = peers or {}  # sysid -> the peer's maker, for inter-vehicle ranges
         self.mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=1)
         self.mav.robust_parsing = True
         if engine is not None:
@@ -86,6 +88,9 @@ class StreamMaker:
             n = np.asarray(wall.normal_ned)
             self.hold = np.asarray(wall.point_ned_m) + n * tgt.distance_m
             self.hold[2] = -tgt.altitude_m
+        elif isinstance(tgt, KeepRangeTarget):
+            start = self.veh.start.pos_ned_m
+            self.hold = np.array([start[0], start[1], -tgt.altitude_m])
         else:
             self.hold = np.asarray(tgt.pos_ned_m, dtype=float)  # type: ignore[union-attr]
 
@@ -177,6 +182,14 @@ class StreamMaker:
                     meas = true_m + uwb.noise_std_m * self.rng.standard_normal()
                     msgs.append(
                         (self._range(ms, 0.0, uwb.max_m, meas, 4, 10 + a, 100, uwb.noise_std_m), {"range_m": true_m})
+                    )
+            iv = sensors.inter_vehicle
+            if iv is not None and k % max(1, round(1 / (iv.rate_hz * dt_s))) == 0:
+                for n, peer in sorted(self.peers.items()):
+                    true_m = float(np.linalg.norm(pos - peer.truth(t)))
+                    meas = true_m + iv.noise_std_m * self.rng.standard_normal()
+                    msgs.append(
+                        (self._range(ms, 0.0, 100.0, meas, 4, 50 + n, 100, iv.noise_std_m), {"range_m": true_m})
                     )
             gps = 0.05 * self.rng.standard_normal(3)
             own = pos + gps  # the autopilot's own (GPS) estimate
