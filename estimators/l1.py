@@ -82,7 +82,8 @@ class L1Decoder(Estimator):
         start = model.initial_pos() if self.pos is None else self.pos
         # IRLS converges linearly: a cold start (far from the minimiser) gets fifteen times the budget.
         pos = self._irls(z, avail, start, known, self.n_irls if self.pos is not None else 15 * self.n_irls)
-        resid = z - model.h(pos, known)
+        at_pos = model.h_jac(pos, known)  # also the refit's first evaluation
+        resid = z - at_pos[0]
         t = resid * resid / model.sigma_m**2
         t = np.where(np.isnan(t), -1.0, t)  # missing readings are never set aside
         # Decode: at most s readings, the largest l1 residuals that fail the gate, are
@@ -90,7 +91,7 @@ class L1Decoder(Estimator):
         worst = np.argsort(-t)[: self.s]
         use = avail.copy()
         use[worst[t[worst] > self.gate1]] = False
-        fit = gauss_newton(model, z, use[None, :], pos, known, 2)  # starts at the l1 solution
+        fit = gauss_newton(model, z, use[None, :], pos, known, 2, at_start=at_pos)  # starts at the l1 solution
         cov = inv_small(fit.info[0])
         # Budget left (fewer than s set aside) and a kept reading fails on its deleted residual:
         # set it aside too (an attack near the gate can hide in the l1 fit).

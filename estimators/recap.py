@@ -92,13 +92,15 @@ class Recap(Estimator):
             return self._output(t_s, z, known, self.omega, False)
         self.ekf.predict(dt_s)
         x_pred, P_pred = self.ekf.x[0], self.ekf.P[0]
-        flagged = self._flag(z, x_pred[:d], P_pred[:d, :d], known)
+        # h and its Jacobian at the prediction serve the detector, the subset fits' first step and the update.
+        at_pred = self.model.h_jac(x_pred[:d], known)
+        flagged = self._flag_resid(z - at_pred[0], at_pred[1], P_pred[:d, :d])
         if self.s <= 1 and flagged.sum() <= self.s:
             omega, alarm = avail & ~flagged, False
         else:
-            omega, alarm = self._search(z, known, x_pred[:d], P_pred[:d, :d], 1)
+            omega, alarm = self._search(z, known, x_pred[:d], P_pred[:d, :d], 1, at_pred)
             if alarm:  # maybe only unconverged: one Gauss-Newton step suffices near the prediction, not far off
-                omega, alarm = self._search(z, known, x_pred[:d], P_pred[:d, :d], self.n_iter)
+                omega, alarm = self._search(z, known, x_pred[:d], P_pred[:d, :d], self.n_iter, at_pred)
         if alarm:
             self.alarms_in_row += 1
             if self.alarms_in_row >= self.reinit_after and self._init(z, known):
@@ -108,13 +110,19 @@ class Recap(Estimator):
         self.alarms_in_row = 0
         self.omega = omega
         self.ekf.masks = omega[None, :]
-        self.ekf.update(z, known)
+        self.ekf.update(z, known, at_pred)
         return self._output(t_s, z, known, omega, False)
 
     def _search(
-        self, z: np.ndarray, known: Known, pos_pred: np.ndarray, cov_pred: np.ndarray, n_iter: int
+        self,
+        z: np.ndarray,
+        known: Known,
+        pos_pred: np.ndarray,
+        cov_pred: np.ndarray,
+        n_iter: int,
+        at_pred: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> tuple[np.ndarray, bool]:
-        fits = gauss_newton(self.model, z, self.masks, pos_pred, known, n_iter)
+        fits = gauss_newton(self.model, z, self.masks, pos_pred, known, n_iter, at_start=at_pred)
         gap = fits.pos - pos_pred
         # Fit covariance C_S = info^-1; pseudo-inverse keeps rank-deficient subsets finite.
         spread = cov_pred + inv_small(fits.info)
