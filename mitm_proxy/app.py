@@ -18,6 +18,7 @@ import contextlib
 import logging
 import signal
 from collections.abc import Callable
+from dataclasses import asdict
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -25,11 +26,13 @@ from typing import Any
 from attack_profiles import library
 from attack_profiles.profile import Profile, load_profile
 from mitm_proxy.attack import AttackStage
-from mitm_proxy.config import SECURE_OFF, ProxyConfig
+from mitm_proxy.config import ProxyConfig
 from mitm_proxy.endpoints import UdpEndpoint
 from mitm_proxy.link import GroundRouter, Link
 from mitm_proxy.pipeline import Pipeline
 from mitm_proxy.recording import Recorder
+from mitm_proxy.secure import PeerBoard, SecureSlot
+from mitm_proxy.secure_config import OFF, SecureConfig, config_from_payload
 from mitm_proxy.signing import Signer
 from mitm_proxy.slots import AttackSlot
 from mitm_proxy.stats import LinkStats
@@ -57,6 +60,9 @@ class Proxy:
         self.scenario: Scenario | None = load_scenario(config.scenario) if config.scenario else None
         self.signer: Signer | None = Signer.from_file(config.signing_key) if config.signing_key else None
         initial = resolve_profile(config.profile) if config.profile else None
+        secure = self._secure_config()
+        peers = PeerBoard()
+        self.secure: dict[int, SecureSlot] = {}
         self.slots: dict[int, AttackSlot] = {}
         self.stages: dict[int, AttackStage] = {}
         self.stats: dict[int, LinkStats] = {}
@@ -70,6 +76,8 @@ class Proxy:
             stage = AttackStage(slot, active=config.attack == "on")
             self.stages[link.sysid] = stage
             self.stats[link.sysid] = LinkStats(link.sysid)
+            if self.scenario is not None:  # the estimators' models come from the scenario
+                self.secure[link.sysid] = SecureSlot(link.sysid, self.scenario, secure, self._publish_estimate, peers)
         self.endpoints: dict[Endpoint, UdpEndpoint] = {}
         self.links: list[Link] = []
         self.routers: list[GroundRouter] = []
@@ -77,6 +85,26 @@ class Proxy:
         self.control: Any = None  # the ControlPlane when a broker is configured
         self._stack = contextlib.AsyncExitStack()
         self._tasks: list[asyncio.Task[Any]] = []
+
+    def _secure_config(self) -> SecureConfig:
+        """``--secure`` / ``secure:``; the secure stage needs the scenario (sensor layout, anchors, noise)."""
+        cfg = config_from_payload(self.config.secure, "secure")
+        if cfg.enabled and self.scenario is None:
+            raise InputError("secure", "estimator", cfg.estimator, "the secure stage needs --scenario")
+        return cfg if cfg.enabled else OFF
+
+    def _publish_estimate(self, sysid: int, payload: dict[str, Any]) -> None:
+        if self.control is not None:
+            from mitm_proxy.control import vehicle_topic
+
+            self.control.publish_nowait(vehicle_topic(sysid, "estimate"), payload)
+
+    def _secure_set(self, sysid: int, payload: Any, request_id: str | None) -> dict[str, Any]:
+        return self.secure[sysid].offer_payload(payload, request_id)
+
+    def _secure_state(self, sysid: int) -> dict[str, Any] | None:
+        slot = self.secure.get(sysid)
+        return None if slot is None else slot.state
 
     # -- life cycle --------------------------------------------------------------
     async def __aenter__(self) -> Proxy:
@@ -117,8 +145,10 @@ class Proxy:
             if self.config.record is not None:
                 recorder = Recorder(Path(self.config.record) / f"v{sysid}", i)
                 self.recorders.append(recorder)
-            pipeline = Pipeline(i, [self.stages[sysid]], stats=self.stats[sysid], recorder=recorder,
-                                signer=self.signer)  # fmt: skip
+            stages: list[Any] = [self.stages[sysid]]  # tap -> attack -> secure -> forward
+            if sysid in self.secure:
+                stages.append(self.secure[sysid].stage)
+            pipeline = Pipeline(i, stages, stats=self.stats[sysid], recorder=recorder, signer=self.signer)
             grounds = [self.endpoints[ep] for ep in link_cfg.ground_endpoints]
             link = Link(i, sysid, pipeline, self.stats[sysid], self.endpoints[link_cfg.vehicle_endpoint], grounds)
             self.links.append(link)
@@ -140,8 +170,10 @@ class Proxy:
             url = cfg.broker
         parse_broker_url(url)
         ca = str(cfg.broker_tls_ca) if cfg.broker_tls_ca else None
-        plane = ControlPlane(url, self.slots, stats=self.stats_snapshot, secure=None, username=cfg.broker_username,
-                             password=cfg.broker_password, tls_ca=ca)  # fmt: skip
+        plane = ControlPlane(url, self.slots, stats=self.stats_snapshot,
+                             secure=self._secure_set if self.secure else None,
+                             secure_state=self._secure_state if self.secure else None,
+                             username=cfg.broker_username, password=cfg.broker_password, tls_ca=ca)  # fmt: skip
         self.control = plane
         await self._stack.enter_async_context(plane)  # it connects, reconnects and publishes in its own task
 
@@ -150,11 +182,8 @@ class Proxy:
         profile = self.config.profile
         if profile is None or not Path(profile).exists():
             return
-        try:
-            from mitm_proxy.reload import ProfileWatcher
-        except ImportError:  # the control-plane engineer's module has not landed yet
-            log.warning("proxy.reload_unavailable", extra={"profile": str(profile)})
-            return
+        from mitm_proxy.reload import ProfileWatcher
+
         watcher = ProfileWatcher(Path(profile), self.slots)
         self._tasks.append(asyncio.create_task(_run_watcher(watcher), name="reload"))
 
@@ -175,6 +204,8 @@ class Proxy:
         for rec in self.recorders:
             rec.close()
         self.recorders.clear()
+        for slot in self.secure.values():
+            slot.close()
 
     # -- what the control plane and the log show ------------------------------------
     def stats_snapshot(self) -> dict[int, dict[str, Any]]:
@@ -185,6 +216,9 @@ class Proxy:
             snap["pending_delayed"] = link.pending
             snap["pipeline_errors"] = link.pipeline_errors
             snap["endpoints"] = {ep.name: ep.snapshot() for ep in (link.vehicle, *link.grounds)}
+            secure = self.secure.get(link.sysid)
+            if secure is not None:
+                snap["secure"] = {"estimator": secure.stage.config.estimator, **asdict(secure.stage.counters)}
             out[link.sysid] = snap
         return out
 
@@ -228,15 +262,11 @@ async def _run_watcher(watcher: Any) -> None:
 async def serve(proxy: Proxy, stop: asyncio.Event | None = None,
                 on_ready: Callable[[Proxy], None] | None = None) -> int:  # fmt: skip
     """Run ``proxy`` until SIGINT/SIGTERM (or ``stop``); returns the exit code."""
-    config = proxy.config
     stop = stop or asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         with contextlib.suppress(NotImplementedError, RuntimeError):
             loop.add_signal_handler(sig, stop.set)
-    if config.secure != SECURE_OFF:
-        log.warning("proxy.secure_unavailable",
-                    extra={"secure": config.secure, "detail": "the secure stage is not in the pipeline yet; off"})
     async with proxy:
         if on_ready is not None:
             on_ready(proxy)

@@ -77,7 +77,7 @@ class ProxyConfig(_Strict):
     profile: Path | None = None
     record: Path | None = None
     signing_key: Path | None = None
-    secure: str = SECURE_OFF
+    secure: str | dict[str, Any] = SECURE_OFF  # an estimator name, off, or SecureConfig fields (needs scenario)
     broker: str = "embedded"  # embedded | none | mqtt://[user:pass@]host[:port] | mqtts://...
     broker_username: str | None = None
     broker_password: str | None = None
