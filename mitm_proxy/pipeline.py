@@ -88,10 +88,11 @@ class Pipeline:
             self._union = frozenset().union(*sets)
         return active, self._union
 
-    def _log_once(self, key: str, msg: str, *args: object) -> None:
+    def _log_once(self, key: str, event: str, **extra: object) -> None:
+        """Faults are counted per frame but logged once per kind, so a flood cannot flood the log."""
         if key not in self._logged:
             self._logged.add(key)
-            log.warning(msg, *args)
+            log.warning(event, extra={"link": self.link, **extra})
 
     def feed(self, datagram: bytes, direction: Direction, now_s: float) -> list[Outgoing]:
         """Process one received datagram; return what to send to the other side."""
@@ -159,7 +160,9 @@ class Pipeline:
                 pkts = self._run_stages(pkt, active, now_s)
             except Exception as exc:  # a stage bug must not stop forwarding
                 st.add_bad(STAGE_ERROR)
-                self._log_once(f"stage:{type(exc).__name__}", "stage failed on msgid %d: %r", header.msgid, exc)
+                self._log_once(
+                    f"stage:{type(exc).__name__}", "pipeline.stage_error", msgid=header.msgid, error=repr(exc)
+                )
                 pkt = Packet(raw, header, direction, self.link, now_s)  # as it came, not half-changed
                 pkts = [pkt]
             if not any(p is pkt for p in pkts):
@@ -208,10 +211,10 @@ class Pipeline:
         if p.changed:
             try:
                 data = codec.encode(p, self.signer if p.header.signed else None)
-            except codec.EncodeError as exc:
+            except codec.EncodeError as exc:  # e.g. a value out of the wire range: send it as it came
                 st.add_bad(ENCODE_ERROR)
                 self._log_once(
-                    f"encode:{p.header.msgid}", "could not re-pack msgid %d, sent as it was: %s", p.header.msgid, exc
+                    f"encode:{p.header.msgid}", "pipeline.encode_error", msgid=p.header.msgid, error=str(exc)
                 )
                 data = p.raw
             else:
@@ -222,6 +225,11 @@ class Pipeline:
         if p.injected:
             st.injected += 1
             if self.signer is not None and not p.header.signed:
-                st.resigned += 1
-                data = codec.sign_injected(data, self.signer)
+                try:
+                    data = codec.sign_injected(data, self.signer)
+                except codec.EncodeError as exc:  # not a v2 frame of a known id: it leaves unsigned
+                    st.add_bad(ENCODE_ERROR)
+                    self._log_once("sign_injected", "pipeline.sign_error", msgid=p.header.msgid, error=str(exc))
+                else:
+                    st.resigned += 1
         return data

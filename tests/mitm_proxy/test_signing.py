@@ -185,3 +185,38 @@ def test_with_a_key_unsigned_frames_pass_and_rewrites_stay_unsigned() -> None:
     (out,) = pipe.feed(d, DOWN, time.monotonic())
     ((h, _),) = split(out.data).frames
     assert not h.signed and stats[DOWN].rewritten == 1 and stats[DOWN].resigned == 0
+
+
+class InjectV1:
+    """A stage that injects a MAVLink 1 frame (which cannot carry a signature)."""
+
+    name = "v1"
+    active = True
+    message_ids = frozenset({0})
+
+    def process(self, pkt: Packet, now_s: float) -> list[Packet]:
+        frame = pack(heartbeat(), v1=True)
+        ((h, raw),) = split(frame).frames
+        return [pkt, Packet(raw, h, pkt.direction, 0, now_s, injected=True)]
+
+
+def test_with_a_key_injected_frames_are_signed_unless_they_cannot_be() -> None:
+    stats = LinkStats(1)
+    signer = Signer(TEST_KEY, link_id=5)
+    beacon_fields = {"type": 2, "autopilot": 12, "base_mode": 1, "custom_mode": 0, "system_status": 4,
+                     "mavlink_version": 3}  # fmt: skip
+
+    class InjectV2(InjectV1):
+        def process(self, pkt: Packet, now_s: float) -> list[Packet]:
+            return [pkt, codec.build("HEARTBEAT", beacon_fields, sysid=1, compid=1, seq=0, direction=DOWN,
+                                     link=0, now_s=now_s)]  # fmt: skip
+
+    pipe = Pipeline(0, [InjectV2()], stats=stats, signer=signer)
+    (out,) = pipe.feed(pack(heartbeat()), DOWN, time.monotonic())
+    frames = split(out.data).frames
+    assert [h.signed for h, _ in frames] == [False, True] and frames[1][1][-13] == 5
+    assert Signer(TEST_KEY).verify(frames[1][1]) is None
+    pipe = Pipeline(0, [InjectV1()], stats=stats, signer=signer)
+    (out,) = pipe.feed(pack(heartbeat()), DOWN, time.monotonic())
+    assert [h.version for h, _ in split(out.data).frames] == [2, 1]
+    assert stats[DOWN].bad == {"encode_error": 1} and stats[DOWN].injected == 2 and stats[DOWN].resigned == 1
