@@ -80,7 +80,10 @@ class SimRunner:
         self.vehicles: list[VehicleLink] = []
         self._csv: CsvTruth | None = None
         self._mqtt: MqttTruth | None = None
-        self._truth_every = max(1, round(1.0 / (config.truth_hz * self.sim.dt_s * TICK_STEPS)))
+        # Truth is sampled on ticks (50 Hz); a rate that does not divide it (20 Hz) keeps its average
+        # by stepping a due time instead of publishing every round(50 / rate) ticks.
+        self._truth_period_s = 1.0 / config.truth_hz
+        self._next_truth_t_s = 0.0
         self.summary = RunSummary()
 
     async def __aenter__(self) -> SimRunner:
@@ -135,7 +138,8 @@ class SimRunner:
             v.personality.tick(t, now_wall_s)
             v.link.flush()
         self.summary.ticks += 1
-        if self.summary.ticks % self._truth_every == 0 and (self._csv or self._mqtt):
+        if t + 1e-9 >= self._next_truth_t_s and (self._csv or self._mqtt):
+            self._next_truth_t_s = max(self._next_truth_t_s + self._truth_period_s, t)
             self._publish_truth()
 
     def _publish_truth(self) -> None:

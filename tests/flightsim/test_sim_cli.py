@@ -1,0 +1,162 @@
+"""``secuav-sim`` as a user runs it: bad input, clean stop on signals, headless runs, ground truth out."""
+
+from __future__ import annotations
+
+import asyncio
+import csv
+import json
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import aiomqtt
+import pytest
+
+from flightsim.runner import RunConfig, SimRunner
+from secuav_common.broker import EmbeddedBroker
+from secuav_common.scenario import load_scenario
+from secuav_common.urls import Endpoint
+
+SIM = [sys.executable, "-m", "flightsim"]
+BAD_SCENARIO = """\
+name: bad
+vehicles:
+  - sysid: 1
+    start: {pos_ned_m: [0, 0, 0]}
+    sensors:
+      rangefinders:
+        - {id: 0, type: lidar}
+"""
+
+
+def _sim(*args: str, timeout_s: float = 20) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*SIM, *args], capture_output=True, text=True, timeout=timeout_s)
+
+
+@pytest.mark.timeout(60)
+def test_bad_input_is_one_line_naming_file_field_and_value_and_nothing_starts(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(BAD_SCENARIO)
+    cases = {
+        (str(bad),): [str(bad), "vehicles[0].sensors.rangefinders[0].type", "'lidar'"],
+        (str(tmp_path / "missing.yaml"),): ["missing.yaml"],
+        ("anchors8", "--mavlink", "udp://127.0.0.1:1"): ["udp://127.0.0.1:1", "scheme"],
+        ("formation", "--mavlink", "udpout://127.0.0.1:1", "--mavlink", "udpout://127.0.0.1:2", "--mavlink",
+         "udpout://127.0.0.1:3"): ["--mavlink given 3 times"],
+        ("anchors8", "--speed", "-2"): ["--speed -2"],
+        ("anchors8", "--duration", "0"): ["--duration 0"],
+        ("anchors8", "--broker", "http://127.0.0.1"): ["http://127.0.0.1"],
+    }  # fmt: skip
+    for args, needles in cases.items():
+        r = _sim(*args)
+        assert r.returncode == 2, (args, r.stderr)
+        lines = r.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("secuav-sim: error: "), (args, r.stderr)
+        for needle in needles:
+            assert needle in lines[0], (args, lines[0])
+        assert "sim.start" not in r.stderr and r.stdout == ""
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_stops_the_simulator_cleanly_within_a_second(sig: signal.Signals, udp_port: Callable[[], int]) -> None:
+    port = udp_port()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as listener:
+        listener.bind(("127.0.0.1", port))
+        listener.settimeout(20)
+        proc = subprocess.Popen(
+            [*SIM, "formation", "--mavlink", f"udpout://127.0.0.1:{port}", "--mavlink", f"udpout://127.0.0.1:{port}"],
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            listener.recv(2048)  # it is up and sending
+            time.sleep(0.3)
+            t0 = time.monotonic()
+            proc.send_signal(sig)
+            rc = proc.wait(timeout=5)
+            took = time.monotonic() - t0
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+        err = proc.stderr.read() if proc.stderr else ""
+    assert rc == 0, err
+    assert took < 1.0, took
+    assert "sim.stop" in err and "Traceback" not in err
+
+
+@pytest.mark.timeout(60)
+def test_fast_mode_runs_headless_and_writes_truth_csv(tmp_path: Path, udp_port: Callable[[], int]) -> None:
+    out = tmp_path / "truth.csv"
+    port = udp_port()
+    args = (
+        "formation",
+        "--fast",
+        "--duration",
+        "10",
+        "--truth-csv",
+        str(out),
+        "--mavlink",
+        f"udpout://127.0.0.1:{port}",
+    )
+    r = _sim(*args)
+    assert r.returncode == 0, r.stderr
+    stop = next(line for line in r.stderr.splitlines() if "sim.stop" in line)
+    fields = dict(kv.split("=", 1) for kv in stop.split() if "=" in kv)
+    assert float(fields["sim_t_s"]) == pytest.approx(10.0, abs=0.03)
+    assert float(fields["rtf"]) > 2.0  # as fast as possible, not wall clock
+    rows = list(csv.DictReader(out.open()))
+    start = {v.sysid: v.start.pos_ned_m for v in load_scenario("formation").vehicles}
+    for sysid in (1, 2):
+        mine = [r for r in rows if int(r["sysid"]) == sysid]
+        assert 190 <= len(mine) <= 201  # 20 Hz for 10 s
+        times = [float(r["t_s"]) for r in mine]
+        assert times == sorted(times)
+        last = mine[-1]  # parked where the scenario put it
+        assert abs(float(last["north_m"]) - start[sysid][0]) < 0.01
+        assert abs(float(last["east_m"]) - start[sysid][1]) < 0.01
+        assert last["collided"] == "0"
+    # same seed, same truth
+    again = tmp_path / "again.csv"
+    r2 = _sim(*args[:4], "--truth-csv", str(again), *args[6:])
+    assert r2.returncode == 0 and again.read_text() == out.read_text()
+
+
+@pytest.mark.timeout(60)
+async def test_truth_goes_to_mqtt_per_vehicle(tcp_port: Callable[[], int], udp_port: Callable[[], int]) -> None:
+    port = tcp_port()
+    async with EmbeddedBroker(port=port) as broker:
+        assert broker.started
+        async with aiomqtt.Client("127.0.0.1", port, identifier="truth-test") as client:
+            await client.subscribe("secuav/+/truth")
+            cfg = RunConfig(
+                load_scenario("formation"),
+                [Endpoint("udpout", "127.0.0.1", udp_port()), Endpoint("udpout", "127.0.0.1", udp_port())],
+                broker=broker.address,
+            )
+            seen: dict[str, list[dict[str, object]]] = {}
+            stop = asyncio.Event()
+            async with SimRunner(cfg) as runner:
+                task = asyncio.create_task(runner.run(stop))
+
+                async def collect() -> None:
+                    async for msg in client.messages:
+                        seen.setdefault(str(msg.topic), []).append(json.loads(bytes(msg.payload)))  # type: ignore[arg-type]
+                        if all(len(seen.get(f"secuav/v{s}/truth", [])) >= 10 for s in (1, 2)):
+                            return
+
+                await asyncio.wait_for(collect(), 15)
+                stop.set()
+                await task
+    for sysid, start in ((1, (4.0, 4.0)), (2, (1.0, 1.0))):
+        samples = seen[f"secuav/v{sysid}/truth"]
+        assert all(s["sysid"] == sysid for s in samples)
+        t = [float(s["t_s"]) for s in samples]  # type: ignore[arg-type]
+        assert t == sorted(t)
+        pos = samples[-1]["pos_ned_m"]
+        assert abs(pos[0] - start[0]) < 0.01 and abs(pos[1] - start[1]) < 0.01  # type: ignore[index]
+        assert samples[-1]["collided"] is False
