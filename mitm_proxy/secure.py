@@ -61,7 +61,7 @@ from secuav_common.geo import ned_to_geodetic
 from secuav_common.loading import InputError
 from secuav_common.scenario import Home, Scenario
 
-__all__ = ["FLAGGED_QUALITY", "PeerBoard", "SecureConfig", "SecureSlot", "SecureStage"]
+__all__ = ["FLAGGED_QUALITY", "PeerBoard", "SecureConfig", "SecureSlot", "SecureStage", "make_slots"]
 
 log = logging.getLogger(__name__)
 
@@ -477,7 +477,7 @@ class SecureSlot:
         ranges can be checked against the peers' secure positions.
         """
         self.sysid = sysid
-        self.stage = SecureStage(config or OFF, scenario, sysid, publish, peers=peers)
+        self.stage = SecureStage(config or OFF, scenario, sysid, publish, source="--secure", peers=peers)
         self._state = self._accepted(None)
 
     @property
@@ -515,3 +515,30 @@ class SecureSlot:
 
     def close(self) -> None:
         self.stage.close()
+
+
+def make_slots(
+    scenario: Scenario,
+    sysids: list[int],
+    config: SecureConfig | str | None = None,
+    publish: Publish | None = None,
+    source: str = "--secure",
+) -> dict[int, SecureSlot]:
+    """One slot per link, all on one :class:`PeerBoard`; what the proxy app builds at start.
+
+    ``config`` may be an estimator name (``--secure NAME``), ``"off"``/None, or a
+    full :class:`SecureConfig` (the config file). ``InputError`` names the
+    source and field when a vehicle cannot run it (no wall group and no UWB).
+    """
+    if not isinstance(config, SecureConfig):
+        config = config_from_payload(config, source)
+    board = PeerBoard()
+    slots: dict[int, SecureSlot] = {}
+    try:
+        for sysid in sysids:
+            slots[sysid] = SecureSlot(sysid, scenario, config, publish, peers=board)
+    except InputError:
+        for slot in slots.values():
+            slot.close()
+        raise
+    return slots

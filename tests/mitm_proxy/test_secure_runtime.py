@@ -238,3 +238,26 @@ def test_auto_executor_keeps_cheap_steps_inline(wall: Scenario) -> None:
     assert st["executor"] == "auto" and st["steps"] >= 25 and st["dropped_steps"] == 0
     assert not st["threaded"] and st["executor_switches"] == 0 and stage._stepper is not None
     assert stage._stepper._thread is None
+
+
+@pytest.mark.timeout(30)
+def test_make_slots_from_the_secure_flag() -> None:
+    """``--secure NAME`` for every vehicle of a scenario: one slot each, one shared peer board; bad input refused."""
+    from mitm_proxy.secure import make_slots
+    from secuav_common.loading import InputError
+
+    formation = load_scenario("formation")
+    slots = make_slots(formation, [1, 2], "secekf")
+    try:
+        assert [s.state["estimator"] for s in slots.values()] == ["secekf", "secekf"]
+        assert slots[1].stage.peers is slots[2].stage.peers
+        assert all(s.stage.active and s.state["group"] == "anchors" for s in slots.values())
+    finally:
+        for s in slots.values():
+            s.close()
+    off = make_slots(formation, [1, 2], "off")
+    assert not any(s.stage.active for s in off.values())
+    with pytest.raises(InputError, match=r"--secure: estimator: unknown estimator.*'kalmanish'"):
+        make_slots(formation, [1, 2], "kalmanish")
+    with pytest.raises(InputError, match=r"--secure: group: .*no wall_distance target"):
+        make_slots(formation, [1], SecureConfig(estimator="secekf", group="wall"))

@@ -187,6 +187,30 @@ def test_anchors8_two_attacked_links_position_near_truth_and_links_flagged(ancho
 
 
 @pytest.mark.timeout(60)
+def test_anchors8_in_3d_the_height_is_substituted_too(anchors8: Scenario) -> None:
+    """dims=3: the full NED position is estimated; LOCAL_POSITION_NED z and GLOBAL_POSITION_INT alt carry it."""
+    maker = StreamMaker(anchors8, engine=_engine("anchors-ramp", anchors8, start_s=3.0), seed=22)
+    stage = SecureStage(SecureConfig(estimator="secekf", executor="inline", dims=3), anchors8, 1)
+    assert stage.layout is not None and stage.layout.height_sensor_id is None and stage.layout.position_dims == 3
+    outs = run(stage, maker, 15.0)
+    home = anchors8.world.home
+    dz, dalt = [], []
+    for o in outs:
+        if o.frame.t_s < 8.0:
+            continue
+        true_z = maker.truth(o.frame.t_s)[2]
+        if o.msgid == LPN:
+            dz.append(o.fields["z"] - true_z)
+        elif o.msgid == GPI:
+            dalt.append(o.fields["alt"] / 1000 - (home.alt_m - true_z))
+            assert o.fields["relative_alt"] == pytest.approx(o.fields["alt"] - home.alt_m * 1000, abs=2)
+    assert np.sqrt(np.mean(np.square(dz))) < 0.1 and np.sqrt(np.mean(np.square(dalt))) < 0.1
+    lpn, _gpi, _own = _position_errors(outs, 8.0, home)
+    assert np.sqrt(np.mean(lpn**2)) < 0.15
+    assert stage.stats()["flagged_sensors"] == [11, 14]
+
+
+@pytest.mark.timeout(60)
 def test_anchors8_without_attack_costs_no_accuracy(anchors8: Scenario) -> None:
     maker = StreamMaker(anchors8, seed=5)
     stage = SecureStage(SecureConfig(estimator="secekf", executor="inline"), anchors8, 1)
