@@ -257,3 +257,96 @@ def _offboard_loss(runner: SimRunner, gcs: Gcs) -> None:
 @pytest.mark.timeout(60)
 async def test_offboard_loss_falls_back_to_hold_as_px4(udp_port: Callable[[], int]) -> None:
     await _run(udp_port(), "anchors8", _offboard_loss)
+
+
+# -- missions over the wire ------------------------------------------------------------------------
+def _upload(gcs: Gcs, items: list[tuple[int, int, int, float]], mission_type: int = 0) -> int:
+    """Answer the vehicle's MISSION_REQUEST_INTs with (frame, command, x, y) items; the MISSION_ACK type."""
+    gcs.mav.mission_count_send(1, 1, len(items), mission_type)
+    while True:
+        m = gcs.recv(["MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK"], 2.0)
+        if m.get_type() == "MISSION_ACK":
+            return int(m.type)
+        frame, command, x, y = items[m.seq]
+        gcs.mav.mission_item_int_send(
+            1, 1, m.seq, frame, command, int(m.seq == 0), 1, 0, 0.3, 0, math.nan, x, int(y), 2.5, mission_type
+        )
+
+
+def _download(gcs: Gcs, mission_type: int = 0) -> list[object]:
+    gcs.mav.mission_request_list_send(1, 1, mission_type)
+    count = gcs.recv("MISSION_COUNT", 2.0).count
+    items = []
+    for seq in range(count):
+        gcs.mav.mission_request_int_send(1, 1, seq, mission_type)
+        items.append(gcs.recv("MISSION_ITEM_INT", 2.0, lambda m, s=seq: m.seq == s))
+    gcs.mav.mission_ack_send(1, 1, mav.MAV_MISSION_ACCEPTED, mission_type)
+    return items
+
+
+def _missions(runner: SimRunner, gcs: Gcs) -> None:
+    v = _vehicle(runner)
+    from secuav_common.geo import ned_to_geodetic
+
+    gcs.recv("HEARTBEAT")
+    rel = mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+    pts = [ned_to_geodetic(v.home, n, e, 0.0) for n, e in ((2.5, 1.0), (1.0, 1.0), (1.0, 2.5))]
+    items = [(rel, mav.MAV_CMD_NAV_WAYPOINT, round(lat * 1e7), round(lon * 1e7)) for lat, lon, _ in pts]
+    items.insert(1, (mav.MAV_FRAME_MISSION, mav.MAV_CMD_DO_CHANGE_SPEED, 0, 0))  # accepted, not flown
+    assert _upload(gcs, items) == mav.MAV_MISSION_ACCEPTED
+    back = _download(gcs)
+    assert [(m.frame, m.command, m.x, m.y) for m in back] == items
+    assert len(v.commander.nav.mission) == 3
+    # fences and rally points are stored and returned (not enforced)
+    fence = [(mav.MAV_FRAME_GLOBAL_INT, mav.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION, items[0][2], items[0][3])]
+    assert _upload(gcs, fence, mav.MAV_MISSION_TYPE_FENCE) == mav.MAV_MISSION_ACCEPTED
+    assert [(m.command, m.x) for m in _download(gcs, mav.MAV_MISSION_TYPE_FENCE)] == [(fence[0][1], fence[0][2])]
+    assert len(_download(gcs)) == 4  # the mission is untouched
+    # an item the vehicle cannot fly is refused with a reason, and the old mission stays
+    bad = [(rel, mav.MAV_CMD_NAV_LOITER_TURNS, items[0][2], items[0][3])]
+    assert _upload(gcs, bad) == mav.MAV_MISSION_UNSUPPORTED
+    assert "not supported" in gcs.expect_text("Mission item 0")
+    assert len(v.commander.nav.mission) == 3
+    # clear all
+    gcs.mav.mission_clear_all_send(1, 1, mav.MAV_MISSION_TYPE_ALL)
+    assert gcs.recv("MISSION_ACK", 2.0).type == mav.MAV_MISSION_ACCEPTED
+    assert _download(gcs) == [] and v.commander.nav.mission == []
+
+
+@pytest.mark.timeout(60)
+async def test_mission_upload_download_fence_refusal_and_clear(udp_port: Callable[[], int]) -> None:
+    await _run(udp_port(), "anchors8", _missions)
+
+
+# -- a crash is reported and ends the flight -----------------------------------------------------------
+def _crash(runner: SimRunner, gcs: Gcs) -> None:
+    v = _vehicle(runner)
+    gcs.recv("HEARTBEAT")
+    _take_off(gcs)
+    forward = 1479  # velocity + yaw rate only: MAVSDK's set_velocity_body mask
+
+    def push() -> None:
+        gcs.mav.set_position_target_local_ned_send(
+            0, 1, 1, mav.MAV_FRAME_BODY_NED, forward, 0, 0, 0, 3.0, 0, 0, 0, 0, 0, 0, 0
+        )
+
+    for _ in range(3):
+        push()
+        time.sleep(0.1)
+    assert gcs.set_px4_mode("OFFBOARD") == ACCEPTED
+    deadline = time.monotonic() + 6
+    while not v.crashed:
+        assert time.monotonic() < deadline, v.truth.pos_ned_m
+        push()
+        time.sleep(0.1)
+    assert "collision with wall 'wall'" in gcs.expect_text("collision")
+    hb = gcs.recv("HEARTBEAT", 2.0, lambda m: m.system_status == mav.MAV_STATE_EMERGENCY)
+    assert not hb.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED
+    assert gcs.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1) == DENIED
+    assert "crashed" in gcs.expect_text("Arming denied")
+    assert v.truth.pos_ned_m[0] > 4.0  # it hit the wall 5 m north
+
+
+@pytest.mark.timeout(60)
+async def test_a_crash_into_the_wall_is_reported_and_ends_the_flight(udp_port: Callable[[], int]) -> None:
+    await _run(udp_port(), "wall_hover", _crash)
