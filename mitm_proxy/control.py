@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import hashlib
 import json
 import logging
@@ -233,6 +234,7 @@ class ControlPlane:
         self.connected = asyncio.Event()
         self.connections = 0  # successful connects, for tests and the log
         self._task: asyncio.Task[None] | None = None
+        self._restore_handler: Callable[[], None] | None = None
         self._client: aiomqtt.Client | None = None
         self._unknown: set[str] = set()  # vehicle keys already logged
         self._unencodable: set[str] = set()  # topics whose payload could not be made JSON (logged once)
@@ -247,8 +249,35 @@ class ControlPlane:
 
     async def __aenter__(self) -> ControlPlane:
         if self.address is not None:
+            self._install_race_filter()
             self._task = asyncio.create_task(self.run(), name="control-plane")
         return self
+
+    def _install_race_filter(self) -> None:
+        """Keep aiomqtt's dead-socket race out of the log.
+
+        When the broker vanishes while a publish is under way, aiomqtt has
+        already scheduled ``loop.add_writer`` for the closed socket; the loop
+        then reports EBADF with a traceback. The session's own error says the
+        same thing once, so that report is dropped and everything else passes
+        on to the handler that was there before.
+        """
+        loop = asyncio.get_running_loop()
+        previous = loop.get_exception_handler()
+
+        def handler(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
+            exc = context.get("exception")
+            text = repr(context.get("handle", ""))
+            if isinstance(exc, OSError) and exc.errno == errno.EBADF and ("add_writer" in text or "add_reader" in text):
+                log.debug("mqtt.socket_race", extra={"error": repr(exc)})
+                return
+            if previous is not None:
+                previous(loop, context)
+            else:
+                loop.default_exception_handler(context)
+
+        loop.set_exception_handler(handler)
+        self._restore_handler = lambda: loop.set_exception_handler(previous)
 
     async def __aexit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
@@ -266,6 +295,9 @@ class ControlPlane:
             with contextlib.suppress(asyncio.CancelledError):
                 await self._task
             self._task = None
+        if self._restore_handler is not None:
+            self._restore_handler()
+            self._restore_handler = None
 
     async def wait_connected(self, timeout_s: float) -> None:
         await asyncio.wait_for(self.connected.wait(), timeout_s)

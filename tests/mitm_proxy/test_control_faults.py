@@ -219,3 +219,29 @@ def test_publish_nowait_turns_nan_and_numpy_into_json_and_never_raises(caplog: p
         plane.publish_nowait("secuav/v1/estimate", loop)  # unencodable: dropped, logged once
     assert len(plane.outbox.queue) == 2
     assert [r.getMessage() for r in caplog.records].count("control.unencodable") == 1
+
+
+async def test_aiomqtts_dead_socket_race_stays_out_of_the_log_and_other_errors_do_not(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    import socket
+
+    caplog.set_level(logging.DEBUG)
+    loop = asyncio.get_running_loop()
+    plane = ControlPlane("mqtt://127.0.0.1:1", {1: AttackSlot(1)}, stats=no_stats, backoff_s=(30.0, 30.0))
+    async with plane:
+        # What aiomqtt does when the broker vanishes mid-publish: add_writer scheduled for a socket closed since.
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        fd = sock.fileno()
+        sock.close()
+        loop.call_soon(loop.add_writer, fd, lambda: None)
+
+        def other_bug() -> None:
+            raise RuntimeError("someone else's bug")
+
+        loop.call_soon(other_bug)
+        await asyncio.sleep(0.05)
+    errors = [r for r in caplog.records if r.name == "asyncio" and r.levelno >= logging.ERROR]
+    assert len(errors) == 1 and "someone else's bug" in repr(errors[0].exc_info)
+    assert any(r.getMessage() == "mqtt.socket_race" for r in caplog.records)
+    assert loop.get_exception_handler() is None  # put back as it was
