@@ -135,3 +135,72 @@ def test_image_installs_the_project_like_the_readme_setup() -> None:
     assert SpecifierSet(requires).contains("3.11.0"), f"python:3.11 does not satisfy requires-python {requires}"
     ignore = (DOCKER / "Dockerfile.dockerignore").read_text().split()
     assert ".venv" in ignore and ".git" in ignore
+
+
+def _third_party_imports(package_dirs: list[Path]) -> dict[str, str]:
+    """Top-level modules the installed packages import (module -> first file), minus stdlib and our own."""
+    import ast
+    import sys
+
+    ours = {p.name for p in package_dirs}
+    found: dict[str, str] = {}
+    for pkg in package_dirs:
+        for path in sorted(pkg.rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text(), str(path))):
+                if isinstance(node, ast.Import):
+                    names = [a.name for a in node.names]
+                elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                    names = [node.module]
+                else:
+                    continue
+                for name in names:
+                    top = name.split(".")[0]
+                    if top not in sys.stdlib_module_names and top not in ours:
+                        found.setdefault(top, str(path.relative_to(ROOT)))
+    return found
+
+
+def _closure(names: set[str]) -> set[str]:
+    """The declared distributions and everything they require, as installed here (markers honoured)."""
+    from importlib.metadata import PackageNotFoundError, requires
+
+    from packaging.requirements import Requirement
+    from packaging.utils import canonicalize_name
+
+    seen: set[str] = set()
+    todo = list(names)
+    while todo:
+        name = todo.pop()
+        if name in seen:
+            continue
+        seen.add(name)
+        try:
+            reqs = requires(name) or []
+        except PackageNotFoundError:
+            continue
+        for text in reqs:
+            req = Requirement(text)
+            if req.marker is None or req.marker.evaluate({"extra": ""}):
+                todo.append(canonicalize_name(req.name))
+    return seen
+
+
+def test_every_third_party_import_is_installed_by_the_declared_dependencies() -> None:
+    """``pip install .`` (the image) gets pyproject's dependencies and what they require: nothing else."""
+    from importlib.metadata import packages_distributions
+
+    from packaging.requirements import Requirement
+    from packaging.utils import canonicalize_name
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    include = project["tool"]["setuptools"]["packages"]["find"]["include"]
+    dirs = [ROOT / pat.rstrip("*") for pat in include if (ROOT / pat.rstrip("*") / "__init__.py").is_file()]
+    assert {d.name for d in dirs} >= {"mitm_proxy", "flightsim", "secuav_common"}
+    installed = _closure({canonicalize_name(Requirement(r).name) for r in project["project"]["dependencies"]})
+    dists = packages_distributions()
+    missing = {}
+    for module, where in _third_party_imports(dirs).items():
+        provided = {canonicalize_name(d) for d in dists.get(module, [module])}
+        if not provided & installed:
+            missing[module] = where
+    assert not missing, f"imported, but no dependency in pyproject.toml brings it: {missing}"
