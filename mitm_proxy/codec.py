@@ -162,10 +162,7 @@ def decode(pkt: Packet) -> dict[str, Any]:
     if pkt.fields is not None:
         return pkt.fields
     lay = _layout(message_class(pkt.header.msgid))
-    try:
-        t = _unpack(lay, _payload_of(pkt))
-    except struct.error as exc:
-        raise DecodeError(f"{lay.name}: {exc}") from exc
+    t = _unpack(lay, _payload_of(pkt))  # padded or cut to the exact size: cannot fail
     out = lay.to_fields(t)
     pkt.fields = out
     return out

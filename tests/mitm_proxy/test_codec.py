@@ -237,3 +237,25 @@ def test_every_message_of_the_dialect_round_trips_zero_and_nonzero_payloads() ->
             assert all(_same(ours[n], getattr(ref, n)) for n in cls.fieldnames), cls.msgname
             p.changed = True
             assert codec.encode(p) == frame, cls.msgname  # printable payload bytes: byte-exact
+
+
+def test_careful_path_names_missing_fields_and_bad_array_lengths() -> None:
+    p = packet(pack(distance()))
+    f = codec.decode(p)
+    p.changed = True
+    f["quaternion"] = [1.0, 0.0]
+    with pytest.raises(codec.EncodeError, match=r"DISTANCE_SENSOR\.quaternion: need 4 values, got 2"):
+        codec.encode(p)
+    del f["quaternion"]
+    with pytest.raises(codec.EncodeError, match="missing field 'quaternion'"):
+        codec.encode(p)
+
+
+def test_unknown_ids_cannot_be_encoded_or_signed() -> None:
+    p = packet(unknown_frame())
+    p.fields = {}
+    p.changed = True
+    with pytest.raises(codec.EncodeError, match="not in the dialect"):
+        codec.encode(p)
+    with pytest.raises(codec.EncodeError, match="not in the dialect"):
+        codec.sign_injected(unknown_frame(), Signer(TEST_KEY))

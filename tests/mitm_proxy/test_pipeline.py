@@ -132,6 +132,8 @@ def test_garbage_is_stripped_counted_and_valid_frames_survive() -> None:
     assert out.data == a + b
     assert stats[DOWN].bad == {"garbage": 1, "bad_flags": 1}
     assert pipe.feed(b"just garbage", DOWN, time.monotonic()) == []
+    assert pipe.feed(b"", DOWN, time.monotonic()) == []
+    assert stats[DOWN].datagrams_in == 3 and stats[DOWN].frames_out == 2
 
 
 def test_unknown_ids_are_forwarded_and_counted() -> None:

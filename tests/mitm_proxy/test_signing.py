@@ -69,6 +69,8 @@ def test_bad_keys_name_the_file(tmp_path: Path) -> None:
         Signer.from_file(tmp_path / "missing.key")
     with pytest.raises(InputError):
         parse_key(b"z" * 64, "x")  # 64 chars, not hex, not base64 of 32 bytes
+    with pytest.raises(InputError):
+        parse_key(b"!not base64!", "x")
     with pytest.raises(ValueError, match="32 bytes"):
         Signer(b"short")
     with pytest.raises(ValueError, match="link id"):
