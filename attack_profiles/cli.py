@@ -2,9 +2,11 @@
 
 Offline subcommands live here: ``validate F [--scenario S]``, ``list``,
 ``show NAME``, ``schema``. ``apply``, ``clear`` and ``status`` talk to a running
-proxy; their parsers are defined here so the proxy's CLI can reuse
-:func:`build_parser` and plug in real handlers through ``live_handlers``
-(until then they answer with one line saying so and exit 2).
+proxy; their parsers are defined here so the proxy's CLI
+(``mitm_proxy.attack_cli``, the installed ``secuav-attack``) can reuse
+:func:`build_parser` and plug in real handlers through ``live_handlers`` and
+its transport flags through ``live_options`` (this module alone answers them
+with one line saying so and exit 2: a library never imports the service).
 
 Every failure is one line on stderr and a non-zero exit code; no traceback.
 """
