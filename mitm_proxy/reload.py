@@ -15,7 +15,9 @@ since. A sysid named with no such link is logged.
 
 A change is noticed by the file's inode, size and mtime, then confirmed by its
 content hash, so touching the file or saving it unchanged re-offers nothing,
-and an editor's write-to-temp-and-rename is seen like an in-place write.
+and an editor's write-to-temp-and-rename is seen like an in-place write. On a
+file system with coarse timestamps a same-size edit within one tick would look
+unchanged, so every few polls the file is read and hashed regardless.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from secuav_common.loading import InputError, parse_document
 log = logging.getLogger(__name__)
 
 _Signature = tuple[int, int, int]  # inode, size, mtime in ns
+REHASH_EVERY = 4  # polls; at the default 0.5 s a same-size, same-mtime edit is seen within 2 s
 
 
 class ProfileWatcher:
@@ -73,6 +76,7 @@ class ProfileWatcher:
                 self._fed = {s for s, slot in slots.items() if slot.state.hash == self._installed}
         self._missing_logged = False
         self._failure_logged = False
+        self._polls = 0
 
     async def __aenter__(self) -> ProfileWatcher:
         return self
@@ -106,8 +110,9 @@ class ProfileWatcher:
             self._signature = None
             return []
         self._missing_logged = False
-        if signature == self._signature:
-            return []
+        self._polls += 1
+        if signature == self._signature and self._polls % REHASH_EVERY:
+            return []  # the fast path; every REHASH_EVERY-th poll reads anyway (see the module docstring)
         raw = self._read()
         if raw is None:
             return []  # vanished between stat and read: the next poll says so

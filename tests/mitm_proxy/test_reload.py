@@ -14,7 +14,7 @@ from test_control_support import Observer
 
 from attack_profiles.profile import load_profile
 from mitm_proxy.control import ControlPlane
-from mitm_proxy.reload import ProfileWatcher
+from mitm_proxy.reload import REHASH_EVERY, ProfileWatcher
 from mitm_proxy.slots import AttackSlot, SlotState
 from secuav_common.broker import EmbeddedBroker
 from secuav_common.scenario import load_scenario
@@ -194,3 +194,17 @@ async def test_the_running_watcher_reloads_and_the_plane_acknowledges_on_mqtt(
                 with pytest.raises(asyncio.CancelledError):
                     await task
     assert [s.profile for s in seen] == ["second", "second"] and [s.ok for s in seen] == [True, False]
+
+
+def test_a_same_size_edit_within_one_timestamp_tick_is_still_seen(tmp_path: Path) -> None:
+    path = tmp_path / "attack.yaml"
+    write(path, profile_text("first", offset_m=1.0))
+    slots = {1: AttackSlot(1)}
+    watcher = started(path, slots)
+    before = path.stat()
+    path.write_text(profile_text("first", offset_m=2.0), encoding="utf-8")  # same size
+    os.utime(path, ns=(before.st_atime_ns, before.st_mtime_ns))  # as a coarse-clock file system would leave it
+    assert path.stat().st_size == before.st_size
+    states = [watcher.poll() for _ in range(REHASH_EVERY)]
+    assert [len(s) for s in states] == [0] * (REHASH_EVERY - 1) + [1]
+    assert slots[1].engine is not None and slots[1].engine.profile.rules[0].offset == 2.0
