@@ -31,17 +31,21 @@ DURATION_S = 20
 ESTIMATORS = "ekf,secekf,rarse"
 
 
-async def _record_sim(tlog: Path, truth: Path, profile: Profile | None) -> Counts:
-    """The recorder binds 127.0.0.1 port 0 (a free port, no race); the sim sends there."""
-    engine = None if profile is None else Engine(profile, seed=0, scenario=load_scenario("anchors8"))
+async def _record_sim(
+    tlog: Path, truth: Path, profile: Profile | None, scenario: str = "anchors8", vehicles: int = 1
+) -> Counts:
+    """The recorder binds 127.0.0.1 port 0 (a free port, no race) per vehicle; the sim sends there."""
+    engine = None if profile is None else Engine(profile, seed=0, scenario=load_scenario(scenario))
     bound: asyncio.Future[list[tuple[str, int]]] = asyncio.get_running_loop().create_future()
-    endpoint = Endpoint("udpin", "127.0.0.1", 0)
+    endpoints = [Endpoint("udpin", "127.0.0.1", 0) for _ in range(vehicles)]
     task = asyncio.create_task(
-        record([endpoint], tlog, engine, duration_s=60.0, idle_stop_s=1.0, on_bound=bound.set_result)
+        record(endpoints, tlog, engine, duration_s=60.0, idle_stop_s=1.0, on_bound=bound.set_result)
     )
-    port = (await asyncio.wait_for(bound, 10))[0][1]
-    args = ["anchors8", "--fast", "--duration", str(DURATION_S), "-q", "--truth-csv", str(truth)]
-    proc = await asyncio.create_subprocess_exec(SIM, *args, "--mavlink", f"udpout://127.0.0.1:{port}")
+    ports = [addr[1] for addr in await asyncio.wait_for(bound, 10)]
+    args = [scenario, "--fast", "--duration", str(DURATION_S), "-q", "--truth-csv", str(truth)]
+    for port in ports:  # one --mavlink per vehicle
+        args += ["--mavlink", f"udpout://127.0.0.1:{port}"]
+    proc = await asyncio.create_subprocess_exec(SIM, *args)
     assert await asyncio.wait_for(proc.wait(), 60) == 0
     return await asyncio.wait_for(task, 30)
 
@@ -213,3 +217,20 @@ def test_log_of_another_vehicle_is_refused(
     assert _eval(tmp_path / "o", "--tlog", str(logs["clean"]), "--scenario", "formation") == 2
     err = capsys.readouterr().err
     assert "sysid 2" in err and not (tmp_path / "o").exists()
+
+
+@pytest.mark.timeout(120)
+def test_two_vehicles_on_two_ports_score_the_inter_vehicle_range(tmp_path: Path) -> None:
+    tlog, truth = tmp_path / "f.tlog", tmp_path / "f.csv"
+    attack = library.load("type-a", links=[12], offset_m=2.0, start_s=3.0)
+    counts = asyncio.run(_record_sim(tlog, truth, attack, scenario="formation", vehicles=2))
+    assert counts.rewritten > 100  # id 12 of both vehicles
+    out = tmp_path / "out"
+    args = ["--scenario", "formation", "--estimators", "ekf,secekf", "--out", str(out)]
+    assert main([*args, "--tlog", str(tlog), "--truth", str(truth)]) == 0
+    res = json.loads((out / "results.json").read_text())
+    assert res["test_case"] == 2 and res["log"]["sysids"] == [1, 2]
+    sec, ekf = res["estimators"]["secekf"], res["estimators"]["ekf"]
+    assert sec["rmse_m"] < 0.15 and sec["inter_vehicle_range"]["rmse_m"] < 0.2
+    assert ekf["rmse_m"] > 2 * sec["rmse_m"]
+    assert sec["attack_detection_recall"] >= 0.9
