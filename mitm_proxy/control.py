@@ -514,7 +514,7 @@ class ControlPlane:
 
     def _apply_secure(self, sysid: int, payload: Any, request_id: str | None) -> None:
         if self._secure is None:
-            self._publish_secure(sysid, self._secure_unavailable(sysid, request_id))
+            self._publish_secure(sysid, self._secure_unavailable(sysid, request_id, asked=True))
             return
         try:
             state = self._secure(sysid, payload, request_id)
@@ -530,19 +530,19 @@ class ControlPlane:
         else:
             self._publish_secure(sysid, {"sysid": sysid, "ok": False, "error": error, "request_id": request_id})
 
-    def _secure_unavailable(self, sysid: int, request_id: str | None) -> dict[str, Any]:
+    def _secure_unavailable(self, sysid: int, request_id: str | None, asked: bool) -> dict[str, Any]:
         return {
             "sysid": sysid,
             "available": False,
             "estimator": None,
-            "ok": request_id is None,  # nothing was asked: nothing failed
+            "ok": not asked,  # at start nothing was asked, so nothing failed
             "error": "the secure stage is not available in this proxy",
             "request_id": request_id,
         }
 
     def _publish_initial_secure(self, sysid: int) -> None:
         if self._secure is None:
-            self._publish_secure(sysid, self._secure_unavailable(sysid, None))
+            self._publish_secure(sysid, self._secure_unavailable(sysid, None, asked=False))
         elif self._secure_state is not None:
             state = self._secure_state(sysid)
             if state is not None:

@@ -172,6 +172,10 @@ async def test_secure_set_without_and_with_a_secure_stage(broker_port: int, slot
             assert initial["available"] is False and initial["request_id"] is None
             state = await obs.request("secuav/v1/secure/set", {"estimator": "secekf"})
             assert not state["ok"] and "not available" in state["error"]
+            start = len(obs.messages)
+            await obs.publish("secuav/v1/secure/set", "recap")  # no request_id: still a request, still refused
+            anonymous = await obs.wait_for("secuav/v1/secure/state", start=start)
+            assert not anonymous["ok"] and anonymous["request_id"] is None
 
     calls: list[tuple[int, Any, str | None]] = []
 
