@@ -22,6 +22,8 @@ one core, rewriting >= 30 k/s, so the core must be far above both.
 from __future__ import annotations
 
 import argparse
+import random
+import struct
 import time
 from collections.abc import Callable
 
@@ -32,13 +34,18 @@ from mitm_proxy.attack import AttackStage
 from mitm_proxy.frames import split
 from mitm_proxy.packet import Direction
 from mitm_proxy.pipeline import Pipeline
+from mitm_proxy.signing import Signer
 from mitm_proxy.slots import AttackSlot
 from mitm_proxy.stats import LinkStats
 
 
-def telemetry(n_frames: int) -> list[bytes]:
-    """``n_frames`` packed frames in a flightsim-like mix; every 10th is DISTANCE_SENSOR id 0."""
+def telemetry(n_frames: int, key: bytes | None = None) -> list[bytes]:
+    """``n_frames`` packed frames in a flightsim-like mix; every 10th is DISTANCE_SENSOR id 0; signed if ``key``."""
     mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    if key is not None:
+        mav.signing.secret_key = key
+        mav.signing.sign_outgoing = True
+        mav.signing.timestamp = 1
     others = [
         mav.heartbeat_encode(2, 12, 129, 393216, 4),
         mav.attitude_encode(1000, 0.01, -0.02, 1.5, 0.001, 0.002, 0.003),
@@ -71,12 +78,28 @@ def best_rate(run: Callable[[], int], repeat: int) -> float:
     return best
 
 
-def pipeline(profile_rules: list[dict] | None, bypass: bool = False) -> Pipeline:
+def pipeline(profile_rules: list[dict] | None, bypass: bool = False, key: bytes | None = None) -> Pipeline:
     slot = AttackSlot(1)
     if profile_rules is not None:
         slot.offer(parse_profile({"name": "bench", "rules": profile_rules}, "bench.yaml"))
     stage = AttackStage(slot, active=not bypass)
-    return Pipeline(0, [stage], stats=LinkStats(1))
+    return Pipeline(0, [stage], stats=LinkStats(1), signer=None if key is None else Signer(key))
+
+
+def adversarial(repeat: int) -> None:
+    """Splitter throughput on crafted 64 KB datagrams (a flood from a hostile side), in MB/s."""
+    fake_unknown = struct.pack("<BBBBBBBHB", 0xFD, 255, 0, 0, 0, 1, 1, 0xFFFF, 0xFF)  # overlapping unknown ids
+    fake_known = bytes((0xFD, 200, 0, 0, 0, 1, 1, 132, 0, 0))  # known id, CRC checked at every position
+    cases = {
+        "random bytes": random.Random(1).randbytes(65000),
+        "overlapping unknown-id headers": (fake_unknown * 6500)[:65000],
+        "known-id headers, bad CRC": (fake_known * 6500)[:65000],
+    }
+    figures = []
+    for name, data in cases.items():
+        rate = best_rate(lambda d=data: (split(d), 1)[1], repeat)
+        figures.append(f"{name} {rate * len(data) / 1e6:,.1f}")
+    print("splitter on hostile 64 KB datagrams, MB/s: " + ", ".join(figures))
 
 
 def crc_figures(frames: list[bytes], repeat: int) -> None:
@@ -113,6 +136,8 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args()
     frames = telemetry(args.frames)
+    key = bytes(range(32))
+    signed = telemetry(args.frames, key)
     five = batched(frames, 5)
     n = len(frames)
     down = Direction.DOWNLINK
@@ -162,6 +187,8 @@ def main() -> None:
         ("pymavlink parse_buffer, 5 frames/datagram", baseline(five)),
         ("bypass, 5 frames/datagram", through(five, lambda: pipeline(rewrite, bypass=True))),
         ("rewrite 10%, 5 frames/datagram", through(five, lambda: pipeline(rewrite))),
+        ("signed, no key: left alone", through(signed, lambda: pipeline(rewrite))),
+        ("signed, key: verify all, rewrite+re-sign 10%", through(signed, lambda: pipeline(rewrite, key=key))),
     ]
     rates = {name: best_rate(run, args.repeat) for name, run in cases}
     base = rates[cases[0][0]]
@@ -172,6 +199,7 @@ def main() -> None:
         ref = base5 if "5 frames" in name else base
         print(f"{name:44s} {rate:12,.0f} {rate / ref:12.2f}")
     crc_figures(frames[:2000], args.repeat)
+    adversarial(args.repeat)
     pipe = pipeline(rewrite)
     now = time.monotonic()
     for d in frames[:1000]:

@@ -21,6 +21,7 @@ is checked alike.
 from __future__ import annotations
 
 import struct
+from bisect import bisect_left
 from dataclasses import dataclass, field
 from typing import Final
 
@@ -130,27 +131,39 @@ def _candidate(data: bytes, i: int, n: int) -> tuple[Header, int, str | None]:
 _NO_HEADER: Final = Header(0, -1, 0, 0, 0, 0)
 
 
-def _known_frame_inside(data: bytes, start: int, end: int, n: int, memo: dict[int, bool]) -> bool:
-    """Whether a CRC-valid frame of a known message starts in ``data[start:end]``.
+class _KnownStarts:
+    """Where CRC-valid frames of known messages start in one datagram, found lazily, left to right.
 
-    ``memo`` (one per datagram) remembers each position's verdict, so a datagram
-    crafted as overlapping fake headers costs each position one check, not one
-    per fake header that covers it.
+    An unknown-id candidate is kept only if no such frame starts inside it. Each
+    position is examined at most once per datagram, so a datagram crafted as
+    overlapping fake headers costs one check per magic byte, not one per fake
+    header covering it.
     """
-    j = start
-    while True:
-        a = data.find(b"\xfd", j, end)
-        b = data.find(b"\xfe", j, end)
-        k = min(x for x in (a, b, end) if x >= 0)
-        if k >= end:
-            return False
-        known = memo.get(k)
-        if known is None:
+
+    __slots__ = ("data", "n", "scanned", "starts")
+
+    def __init__(self, data: bytes, n: int) -> None:
+        self.data = data
+        self.n = n
+        self.scanned = 0  # every position below this has been examined
+        self.starts: list[int] = []
+
+    def inside(self, start: int, end: int) -> bool:
+        data, n = self.data, self.n
+        j = max(start, self.scanned)
+        while j < end:
+            a = data.find(b"\xfd", j, end)
+            b = data.find(b"\xfe", j, end)
+            k = end if a < 0 and b < 0 else (a if b < 0 else b if a < 0 else min(a, b))
+            if k >= end:
+                break
             header, _, reason = _candidate(data, k, n)
-            known = memo[k] = reason is None and header.msgid in CRC_EXTRA
-        if known:
-            return True
-        j = k + 1
+            if reason is None and header.msgid in CRC_EXTRA:
+                self.starts.append(k)
+            j = k + 1
+        self.scanned = max(self.scanned, end)
+        i = bisect_left(self.starts, start)
+        return i < len(self.starts) and self.starts[i] < end
 
 
 def split(datagram: bytes) -> SplitResult:
@@ -163,7 +176,7 @@ def split(datagram: bytes) -> SplitResult:
     i = 0
     skip_start = -1  # start of the current run of skipped bytes
     skip_reason = ""
-    memo: dict[int, bool] | None = None  # made on the first unknown-id candidate
+    known: _KnownStarts | None = None  # made on the first unknown-id candidate
     while i < n:
         c = data[i]
         if c == STX_V2 and n - i >= V2_HEADER_LEN:
@@ -173,25 +186,31 @@ def split(datagram: bytes) -> SplitResult:
             crc_at = i + V2_HEADER_LEN + plen
             end = crc_at + CRC_LEN + (SIGNATURE_LEN if incompat == IFLAG_SIGNED else 0)
             extra = extras.get(msgid)
-            if (
-                extra is not None
-                and incompat <= IFLAG_SIGNED
-                and end <= n
-                and _mcrf4xx(extra, _mcrf4xx(data[i + 1 : crc_at], 0xFFFF)) == data[crc_at] | data[crc_at + 1] << 8
-            ):
-                if skip_start >= 0:
-                    out.bad.append(skip_reason)
-                    skip_start = -1
-                header = Header(2, msgid, sysid, compid, seq, plen, incompat, incompat == IFLAG_SIGNED)
-                frames.append((header, data if (i == 0 and end == n) else data[i:end]))
-                i = end
+            if incompat > IFLAG_SIGNED or extra is not None:
+                if incompat > IFLAG_SIGNED:
+                    reason = BAD_FLAGS
+                elif end > n:
+                    reason = TRUNCATED
+                elif _mcrf4xx(extra, _mcrf4xx(data[i + 1 : crc_at], 0xFFFF)) == data[crc_at] | data[crc_at + 1] << 8:
+                    if skip_start >= 0:
+                        out.bad.append(skip_reason)
+                        skip_start = -1
+                    header = Header(2, msgid, sysid, compid, seq, plen, incompat, incompat == IFLAG_SIGNED)
+                    frames.append((header, data if (i == 0 and end == n) else data[i:end]))
+                    i = end
+                    continue
+                else:
+                    reason = BAD_CRC
+                if skip_start < 0:
+                    skip_start, skip_reason = i, reason
+                i += 1
                 continue
         if c in (STX_V2, STX_V1):
             header, end, reason = _candidate(data, i, n)
             if reason is None and header.msgid not in CRC_EXTRA:
-                if memo is None:
-                    memo = {}
-                if _known_frame_inside(data, i + 1, end, n, memo):
+                if known is None:
+                    known = _KnownStarts(data, n)
+                if known.inside(i + 1, end):
                     reason = GARBAGE
             if reason is None:
                 if skip_start >= 0:
