@@ -463,6 +463,9 @@ class ControlPlane:
             body = message.payload
             raw = bytes(body) if isinstance(body, bytes | bytearray) else ("" if body is None else str(body)).encode()
             self.handle(str(message.topic), raw, retained=message.retain)
+            # A burst of queued requests would otherwise run back to back (the queue hands them
+            # over without yielding); let the datagrams that arrived meanwhile go first.
+            await asyncio.sleep(0)
 
     # -- requests (sans-I/O: tests call handle() directly) ---------------------------------------------
 
