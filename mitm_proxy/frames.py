@@ -11,7 +11,19 @@ is skipped by *one byte*, not by its claimed length, so garbage whose bytes
 happen to look like a header can never swallow the next real frame. Frames of
 message ids our dialect does not know cannot be CRC-checked; they are kept
 (and counted) unless a CRC-valid known frame starts inside them, in which case
-the "unknown frame" was garbage that only looked like a header.
+the "unknown frame" was garbage that only looked like a header. The limit of
+this: garbage shaped like an unknown-id header can hide a following frame of
+another unknown id (neither can be checked); known frames are never hidden.
+
+Skipped bytes are reported once per run with the reason found at its start:
+``garbage`` (no magic byte), ``truncated`` (the frame runs past the datagram),
+``bad_crc``, ``bad_flags`` (v2 incompatibility flags other than signing, which
+MAVLink says must be refused) and ``bad_length`` (a v1 frame longer than its
+message, impossible as v1 has no extensions).
+
+Measured on the 2-core bench machine (benchmarks/proxy_core_bench.py): ~3 µs
+per frame, about 4x pymavlink's ``parse_buffer``; hostile 64 KB datagrams of
+overlapping fake headers still go at ~2-6 MB/s.
 
 The dialect is pymavlink's ``ardupilotmega`` (a superset of ``common`` with the
 same CRC_EXTRA for every common message), so traffic from PX4 and ArduPilot
