@@ -10,11 +10,13 @@ RARSE's hypotheses and the brute-force checks).
 Two solvers live here:
 - ``gauss_newton``: per subset, ``min_pos sum_{i in S} (z_i - h_i(pos))^2 / sigma_i^2``
   by damped Gauss-Newton, projected on the model's box after each step.
-- ``EkfBank``: per subset, a constant-velocity EKF updated in information form
-  ``P+^-1 = P-^-1 + H^T W H``, ``x+ = x- + P+ H^T W nu``, where ``W`` is the
-  masked inverse noise covariance; its normalised innovation squared is
-  ``NIS = nu^T (H P- H^T + R)^-1 nu = nu^T W nu - (H^T W nu)^T P+ (H^T W nu)``
-  (Woodbury), which needs only n x n inverses (n = 2d), never p x p.
+- ``EkfBank``: per subset, a constant-velocity EKF. The readings see only the
+  position block, so the update needs only d x d algebra (push-through
+  identity), never the p x p innovation covariance nor an n x n inverse: with
+  ``W`` the masked inverse noise covariance, ``A = H^T W H``, ``b = H^T W nu``
+  and ``C = (I + A P_pp)^-1``: ``x+ = x- + P[:, :d] C b``,
+  ``P+ = P- - P[:, :d] C A P[:d, :]`` and
+  ``NIS = nu^T (H P- H^T + R)^-1 nu = nu^T W nu - b^T P_pp C b``.
 """
 
 from __future__ import annotations
@@ -183,6 +185,18 @@ def solve_small(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.linalg.solve(a, b[..., None])[..., 0]
 
 
+def _inv_general_batch(m: np.ndarray) -> np.ndarray:
+    """Inverses of J small general (non-symmetric) d x d matrices; closed form for d <= 2."""
+    d = m.shape[-1]
+    if d == 1:
+        return 1.0 / m
+    if d == 2:
+        # adj([[a, b], [c, d]]) = [[d, -b], [-c, a]]: both axes flipped, transposed, signed.
+        det = m[:, 0, 0] * m[:, 1, 1] - m[:, 0, 1] * m[:, 1, 0]
+        return m[:, ::-1, ::-1].mT * _SIGNS2 / det[:, None, None]
+    return np.linalg.inv(m)
+
+
 def _solve_general(m: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     """``m x = rhs`` for one small general (non-symmetric) d x d matrix; rhs (d, k)."""
     d = m.shape[0]
@@ -245,24 +259,23 @@ class EkfBank:
         """
         if self.x.shape[0] == 1:
             return self._update_one(z, known, at_prior)
-        model, d = self.model, self.d
-        avail = ~np.isnan(z)
-        use = self.masks & avail
-        w = use / model.sigma_m**2
+        # The push-through form of :meth:`_update_one`, batched over filters.
+        model, d, P = self.model, self.d, self.P
+        use = self.masks & ~np.isnan(z)
+        w = use * _inv_var(model)
         hx, jac = model.h_jac(self.x[:, :d], known)
-        nu = (np.where(avail, z, 0.0) - hx) * use
-        jtw = np.swapaxes(jac * w[..., None], 1, 2)
-        info_meas = jtw @ jac
-        a = np.zeros((self.x.shape[0], self.n))
-        a[:, :d] = (jtw @ nu[..., None])[..., 0]
-        y = np.linalg.inv(self.P)
-        y[:, :d, :d] += info_meas
-        p_post = np.linalg.inv(y)
-        p_post = 0.5 * (p_post + np.swapaxes(p_post, 1, 2))
-        gain_a = np.einsum("jab,jb->ja", p_post, a)
-        nis = np.einsum("jp,jp->j", w, nu * nu) - np.einsum("ja,ja->j", a, gain_a)
-        self.x = self.x + gain_a
-        self.P = p_post
+        nu = np.where(use, z - hx, 0.0)
+        jtw = (jac * w[..., None]).mT  # (J, d, p)
+        a_mat = jtw @ jac
+        b = (jtw @ nu[..., None])[..., 0]
+        p_pos = P[:, :d, :d]
+        c_mat = _inv_general_batch(np.eye(d) + a_mat @ p_pos)
+        g = (c_mat @ b[..., None])[..., 0]
+        p_cols = P[:, :, :d]
+        nis = np.einsum("jp,jp->j", w, nu * nu) - np.einsum("jd,jd->j", b, (p_pos @ g[..., None])[..., 0])
+        self.x = self.x + (p_cols @ g[..., None])[..., 0]
+        p_new = P - p_cols @ (c_mat @ a_mat) @ P[:, :d, :]
+        self.P = 0.5 * (p_new + p_new.mT)
         return np.maximum(nis, 0.0), use.sum(axis=1)
 
     def _update_one(
