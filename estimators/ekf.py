@@ -8,8 +8,8 @@ property tests and the benchmark show.
 Predict ``x <- F x``, ``P <- F P F^T + Q`` with ``F = [[I, dt I], [0, I]]``,
 ``Q = q^2 G G^T``, ``G = [dt^2/2 I; dt I]`` (white acceleration of std q).
 Update with every reading present: ``nu = z - h(pos)``, ``H = [dh/dpos, 0]``,
-information form ``P+^-1 = P-^-1 + H^T R^-1 H``, ``x+ = x- + P+ H^T R^-1 nu``
-(same as the gain form; see ``bank.EkfBank``). The first step, without ``x0``,
+gain form ``K = P H^T (H P H^T + R)^-1``, ``x+ = x- + K nu``, ``P+ = P- - K H P-``,
+computed with d x d algebra only (push-through identity; see ``bank.EkfBank``). The first step, without ``x0``,
 starts from a least-squares fix of the first readings.
 """
 
