@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pymavlink.dialects.v20 import common as mavlink
 
 from flightsim.api import FlightMode, Outcome, Result, VehicleModel
-from flightsim.mavlink import commands, modes, offboard
+from flightsim.mavlink import commands, ftp, modes, offboard
 from flightsim.mavlink.missions import MissionServer
 from flightsim.mavlink.parameters import ParamServer
 from flightsim.mavlink.streams import StreamTable
@@ -182,6 +182,10 @@ class Px4Personality:
             # FlightMode is a StrEnum, so the refusal reason is told apart by type, not by str.
             outcome = self.vehicle.set_mode(mode) if isinstance(mode, FlightMode) else Outcome(Result.DENIED, mode)
             self._report(outcome)
+        elif kind == "FILE_TRANSFER_PROTOCOL":
+            reply = ftp.answer(msg, self.encoder.mav)
+            if reply is not None:
+                self.send(reply)
         elif kind == "TIMESYNC" and msg.tc1 == 0:
             self.send(self.encoder.mav.timesync_encode(round(self.now_s * 1e9), msg.ts1))
 

@@ -22,6 +22,7 @@ GYRO, ACCEL, MAG, BARO = 0x1, 0x2, 0x4, 0x8
 GPS = 0x20
 MOTOR_OUTPUTS = 0x8000
 AHRS = 0x200000
+GEOFENCE = 0x100000  # healthy (no breach) though not present: MAVProxy prints "fence breach" otherwise
 PREARM_CHECK = 0x10000000
 
 # AUTOPILOT_VERSION.capabilities (MAV_PROTOCOL_CAPABILITY), PX4's set minus FTP and terrain
@@ -87,7 +88,7 @@ class TelemetryBuilder:
         h = self.v.health
         present = GYRO | ACCEL | MAG | BARO | GPS | MOTOR_OUTPUTS | AHRS | PREARM_CHECK
         enabled = present if self.v.armed else present & ~MOTOR_OUTPUTS
-        healthy = MOTOR_OUTPUTS | AHRS
+        healthy = MOTOR_OUTPUTS | AHRS | GEOFENCE
         for bit, ok in ((GYRO, h.gyro), (ACCEL, h.accel), (MAG, h.mag), (BARO, h.baro), (GPS, h.gps)):
             if ok:
                 healthy |= bit
