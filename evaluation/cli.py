@@ -58,7 +58,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--leg", choices=["hover", "moving"], default="hover", help="hold the target or swing about it")
     p.add_argument("--jobs", type=int, default=1, help="trials in parallel (processes)")
     p.add_argument("--out", required=True, type=Path)
-    p.add_argument("--tlog", type=Path, default=None, help="evaluate a recorded MAVLink .tlog instead of flying")
+    p.add_argument(
+        "--tlog",
+        type=Path,
+        default=None,
+        help="evaluate a recorded MAVLink .tlog instead of flying (one trial; --trials, --leg, --duration unused)",
+    )
     p.add_argument("--truth", type=Path, default=None, help="ground-truth CSV for --tlog (secuav-sim --truth-csv)")
     p.add_argument("--rate", type=float, default=None, help="--tlog framing rate in Hz (default: the ranges' own)")
     return p

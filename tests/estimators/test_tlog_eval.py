@@ -234,3 +234,33 @@ def test_two_vehicles_on_two_ports_score_the_inter_vehicle_range(tmp_path: Path)
     assert sec["rmse_m"] < 0.15 and sec["inter_vehicle_range"]["rmse_m"] < 0.2
     assert ekf["rmse_m"] > 2 * sec["rmse_m"]
     assert sec["attack_detection_recall"] >= 0.9
+
+
+def test_recorder_refuses_bad_endpoints(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from evaluation.record import main as record_main
+
+    assert record_main(["--listen", "udpout://127.0.0.1:14550", "--out", str(tmp_path / "a.tlog")]) == 2
+    assert "udpin" in capsys.readouterr().err
+    assert record_main(["--listen", "tcp://127.0.0.1:5760", "--out", str(tmp_path / "b.tlog")]) == 2
+    assert "tcp" in capsys.readouterr().err
+    assert record_main(["--listen", "udpin://127.0.0.1:0", "--out", str(tmp_path / "c.tlog"), "--attack", "nope"]) == 2
+    assert "nope" in capsys.readouterr().err
+
+
+@pytest.mark.timeout(30)
+def test_recorder_stops_cleanly_on_sigterm(tmp_path: Path) -> None:
+    import signal
+    import subprocess
+    import time
+
+    out = tmp_path / "s.tlog"
+    cmd = [sys.executable, "-m", "evaluation.record", "--listen", "udpin://127.0.0.1:0", "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 15
+    while not out.exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    time.sleep(0.3)
+    proc.send_signal(signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=10)
+    assert proc.returncode == 0, stderr
+    assert json.loads(stdout)["frames_in"] == 0 and out.exists()
