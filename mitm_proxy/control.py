@@ -337,7 +337,7 @@ class ControlPlane:
     def _client_for_attempt(self) -> aiomqtt.Client:
         assert self.address is not None
         tls_params = aiomqtt.TLSParameters(ca_certs=self._tls_ca) if self._tls else None
-        return aiomqtt.Client(
+        client = aiomqtt.Client(
             self.address.host,
             self.address.port,
             username=self._username,
@@ -350,6 +350,9 @@ class ControlPlane:
             tls_insecure=self._tls_insecure if self._tls else None,
             logger=_CLIENT_LOG,
         )
+        # aiomqtt warns above 10 publishes in flight; the drain has up to DRAIN_BATCH by design.
+        client.pending_calls_threshold = DRAIN_BATCH + 16
+        return client
 
     async def run(self) -> None:
         """Connect, serve, and on any broker failure reconnect with backoff, until cancelled."""
