@@ -8,6 +8,8 @@ from typing import Any
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from test_secure_support import StreamMaker, packet_of, wire_fields
 
 from attack_profiles import library
@@ -261,3 +263,55 @@ def test_make_slots_from_the_secure_flag() -> None:
         make_slots(formation, [1, 2], "kalmanish")
     with pytest.raises(InputError, match=r"--secure: group: .*no wall_distance target"):
         make_slots(formation, [1], SecureConfig(estimator="secekf", group="wall"))
+
+
+_u16 = st.integers(0, 65535)
+_u8 = st.integers(0, 255)
+_u32 = st.integers(0, 2**32 - 1)
+_i32 = st.integers(-(2**31), 2**31 - 1)
+_f32 = st.floats(width=32, allow_nan=True, allow_infinity=True)
+_GARBLED = {
+    "distance_sensor": {
+        "time_boot_ms": _u32, "min_distance": _u16, "max_distance": _u16, "current_distance": _u16, "type": _u8,
+        "id": st.sampled_from([0, 10, 11, 12, 13, 14, 15, 16, 17, 52, 99, 255]), "orientation": _u8,
+        "covariance": _u8, "signal_quality": _u8,
+    },
+    "local_position_ned": {"time_boot_ms": _u32, "x": _f32, "y": _f32, "z": _f32, "vx": _f32, "vy": _f32, "vz": _f32},
+    "global_position_int": {
+        "time_boot_ms": _u32, "lat": _i32, "lon": _i32, "alt": _i32, "relative_alt": _i32,
+        "vx": st.just(0), "vy": st.just(0), "vz": st.just(0), "hdg": st.just(0),
+    },
+    "home_position": {
+        "latitude": _i32, "longitude": _i32, "altitude": _i32, "x": st.just(0.0), "y": st.just(0.0),
+        "z": st.just(0.0), "q": st.just([1.0, 0.0, 0.0, 0.0]), "approach_x": st.just(0.0),
+        "approach_y": st.just(0.0), "approach_z": st.just(0.0),
+    },
+}  # fmt: skip
+_garbled_frame = st.sampled_from(sorted(_GARBLED)).flatmap(
+    lambda name: st.tuples(st.just(name), st.fixed_dictionaries(_GARBLED[name]))
+)
+
+
+@pytest.mark.timeout(120)
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(garbage=st.lists(_garbled_frame, min_size=1, max_size=40))
+def test_garbled_frames_never_break_the_stage(anchors8: Scenario, garbage: list[tuple[str, dict[str, Any]]]) -> None:
+    """Clean hover, any garbage the attack stage could write, clean again: process() never raises, every
+    frame still re-packs within the wire ranges, and the estimator keeps stepping."""
+    from pymavlink.dialects.v20 import common as mavlink
+
+    from mitm_proxy import codec
+
+    stage = SecureStage(SecureConfig(estimator="secekf", executor="inline"), anchors8, 1)
+    maker = StreamMaker(anchors8, seed=30)
+    timeline = [(fr.t_s, fr.raw) for fr in maker.frames(1.0)]
+    t = 1.0
+    for name, fields in garbage:
+        t += 0.01
+        timeline.append((t, bytes(getattr(maker.mav, name + "_encode")(**fields).pack(maker.mav))))
+    timeline += [(t + 0.05 + fr.t_s, fr.raw) for fr in StreamMaker(anchors8, seed=31).frames(1.0)]
+    for now, raw in timeline:
+        pkt = packet_of(raw, now)
+        assert stage.process(pkt, now) == [pkt]
+        assert mavlink.MAVLink(None).parse_char(bytearray(codec.encode(pkt))) is not None
+    assert stage.stats()["steps"] >= 15 and stage.stats()["step_errors"] == 0
