@@ -53,6 +53,7 @@ ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
 DISTANCE_SENSOR = 132
 LATENCY_RATE = 2000
+CPU_RATE = 40000  # offered; high enough that wake-ups carry several datagrams, as under real load
 
 
 def free_port() -> int:
@@ -205,7 +206,6 @@ def started(target: Target, inp: int, out: int, workdir: Path) -> Iterator[subpr
     proc = subprocess.Popen(argv, cwd=workdir, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                             env={**os.environ, "PYTHONPATH": str(ROOT)})  # fmt: skip
     target.pid = proc.pid
-    time.sleep(2.5 if "mavproxy" in target.name else 1.2)
     try:
         yield proc
     finally:
@@ -285,6 +285,26 @@ def offer(datagrams: list[bytes], inp: int, recv_sock: socket.socket, rate: floa
     return sent_frames, got.frames, achieved, got, list(stamps) if stamps is not None else []
 
 
+def ready(datagrams: list[bytes], port: int, recv_sock: socket.socket, timeout_s: float = 20.0) -> bool:
+    """Send telemetry until the relay forwards some: it has finished starting (imports, sockets)."""
+    sock = udp_socket()
+    recv_sock.settimeout(0.1)
+    t_end = time.monotonic() + timeout_s
+    try:
+        i = 0
+        while time.monotonic() < t_end:
+            sock.sendto(datagrams[i % len(datagrams)], ("127.0.0.1", port))
+            i += 1
+            with contextlib.suppress(TimeoutError):
+                recv_sock.recv(65535)
+                time.sleep(0.3)
+                drain(recv_sock)
+                return True
+        return False
+    finally:
+        sock.close()
+
+
 def drain(sock: socket.socket) -> None:
     sock.settimeout(0.05)
     with contextlib.suppress(TimeoutError):
@@ -306,6 +326,12 @@ def latencies(datagrams: list[bytes], stamps: list[float], got: Received) -> lis
     return out
 
 
+def cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a process so far (clock ticks of /proc/PID/stat)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def rss_kb(pid: int) -> int:
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith("VmRSS:"):
@@ -325,9 +351,12 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--relay", nargs=3, metavar=("IN", "OUT", "LOOP"), help=argparse.SUPPRESS)
     ap.add_argument("--record-s", type=float, default=5.0, help="seconds of flightsim telemetry to record (1x)")
-    ap.add_argument("--rates", default="2000,5000,10000,20000,30000,40000,50000,70000,100000",
+    ap.add_argument("--rates", default="2000,5000,10000,20000,30000,40000,50000,60000,70000,85000,100000",
                     help="offered datagrams/s (= frames/s with --batching frame)")
     ap.add_argument("--step-s", type=float, default=2.0, help="seconds per offered rate")
+    ap.add_argument("--tries", type=int, default=2, help="attempts per rate before it counts as lossy")
+    ap.add_argument("--cpu-s", type=float, default=3.0, help="seconds at --cpu-rate for the CPU figure")
+    ap.add_argument("--cpu-rate", type=float, default=CPU_RATE, help="offered frames/s for the CPU figure")
     ap.add_argument("--latency-s", type=float, default=4.0, help="seconds at 2 k frames/s for the latency figure")
     ap.add_argument("--soak-s", type=float, default=20.0, help="RSS soak length (the issue asks 600 once)")
     ap.add_argument("--targets", help="comma list (default all): " + ",".join(t.name for t in targets(Path(), None)))
@@ -340,6 +369,7 @@ def main() -> int:
         return 0
     if args.quick:
         args.rates, args.step_s, args.latency_s, args.soak_s = "2000,10000,30000,50000,80000", 1.0, 2.0, 5.0
+        args.cpu_s, args.tries = 2.0, 1
     rates = [float(r) for r in args.rates.split(",")]
     recorded = record_telemetry(args.record_s)
     frames_per_dgram = statistics.mean(len(frames_of(d)) for d in recorded)
@@ -368,12 +398,19 @@ def main() -> int:
                 rows.append({"name": target.name, "skip": f"exited with {proc.returncode}"})
                 recv_sock.close()
                 continue
+            if proc is not None and not ready(datagrams, dest, recv_sock):
+                rows.append({"name": target.name, "skip": "forwarded nothing within 20 s"})
+                recv_sock.close()
+                continue
             offer(datagrams, dest, recv_sock, 500, 0.5)  # warm-up (MAVProxy waits for a heartbeat)
             drain(recv_sock)
             best = 0.0
             for rate in rates:
-                sent, got, achieved, _r, _s = offer(datagrams, dest, recv_sock, rate, args.step_s)
-                drain(recv_sock)
+                for _try in range(args.tries):  # best of: other work on the machine causes stray losses
+                    sent, got, achieved, _r, _s = offer(datagrams, dest, recv_sock, rate, args.step_s)
+                    drain(recv_sock)
+                    if got >= sent and achieved >= 0.95 * rate:
+                        break
                 if got < sent or achieved < 0.95 * rate:
                     row["first_loss"] = f"{sent / args.step_s / 1000:.0f}k: {sent - got} of {sent} lost" + (
                         f" (sender reached {achieved / rate:.0%})" if achieved < 0.95 * rate else "")
@@ -384,6 +421,14 @@ def main() -> int:
             lat = latencies(datagrams, stamps, recv)
             row["p50_ms"], row["p99_ms"] = pct(lat, 0.5) * 1e3, pct(lat, 0.99) * 1e3
             row["lat_lost"] = sent - got
+            if proc is not None:
+                # CPU time per forwarded frame under load: frames/s on one core, robust to other work on the
+                # machine. Last but the soak, so a relay that falls behind (MAVProxy) carries no backlog into
+                # the ladder or the latency figures.
+                c0 = cpu_s(proc.pid)
+                _sent, got, _a, _r, _s = offer(datagrams, dest, recv_sock, args.cpu_rate, args.cpu_s)
+                row["cpu_us"] = (cpu_s(proc.pid) - c0) / max(got, 1) * 1e6
+                drain(recv_sock)
             if proc is not None and target.name.startswith("secuav"):
                 drain(recv_sock)
                 offer(datagrams, dest, recv_sock, LATENCY_RATE, 1.0)
@@ -395,11 +440,11 @@ def main() -> int:
         rows.append(row)
         print(f"  measured {target.name}", file=sys.stderr)
     shutil.rmtree(work, ignore_errors=True)
-    report(rows, args.soak_s)
+    report(rows, args.soak_s, args.cpu_rate)
     return 0
 
 
-def report(rows: list[dict[str, object]], soak_s: float) -> None:
+def report(rows: list[dict[str, object]], soak_s: float, cpu_rate: float) -> None:
     by = {r["name"]: r for r in rows}
     direct = by.get("direct", {})
     floor = by.get("bare-asyncio", {}).get("lossless") or 0
@@ -407,7 +452,10 @@ def report(rows: list[dict[str, object]], soak_s: float) -> None:
     d50 = float(direct.get("p50_ms", 0.0) or 0.0)
     d99 = float(direct.get("p99_ms", 0.0) or 0.0)
     print()
-    print(f"{'relay':24} {'lossless f/s':>12} {'x bare':>7} {'x MAVProxy':>10} {'p50 ms':>7} {'p99 ms':>7} "
+    bare_cpu = float(by.get("bare-asyncio", {}).get("cpu_us") or 0.0)
+    mavp_cpu = float(by.get("mavproxy", {}).get("cpu_us") or 0.0)
+    print(f"{'relay':24} {'CPU us/f':>8} {'f/s/core':>9} {'x MAVP':>7} {'lossless f/s':>12} {'x bare':>7} "
+          f"{'x MAVP':>7} {'p50 ms':>7} {'p99 ms':>7} "
           f"{'+p50 ms':>8} {'+p99 ms':>8} {'RSS MB':>7} {'+RSS MB':>8}  first loss")  # fmt: skip
     for r in rows:
         if "skip" in r:
@@ -419,8 +467,15 @@ def report(rows: list[dict[str, object]], soak_s: float) -> None:
         xm = f"{lossless / mavp:.1f}" if mavp and r["name"] != "direct" else "-"
         added = (f"{p50 - d50:8.3f} {p99 - d99:8.3f}" if r["name"] != "direct" else f"{'-':>8} {'-':>8}")
         rss = f"{r['rss_mb']:7.1f} {r['rss_growth_mb']:8.2f}" if "rss_mb" in r else f"{'-':>7} {'-':>8}"
-        print(f"{r['name']:24} {lossless:12.0f} {xb:>7} {xm:>10} {p50:7.3f} {p99:7.3f} {added} {rss}  "
+        cpu = float(r.get("cpu_us") or 0.0)  # type: ignore[arg-type]
+        cpu_cols = (f"{cpu:8.1f} {1e6 / cpu:9.0f} " + (f"{mavp_cpu / cpu:7.1f}" if mavp_cpu else f"{'-':>7}")
+                    if cpu else f"{'-':>8} {'-':>9} {'-':>7}")
+        print(f"{r['name']:24} {cpu_cols} {lossless:12.0f} {xb:>7} {xm:>7} {p50:7.3f} {p99:7.3f} {added} {rss}  "
               f"{r.get('first_loss', 'none up to the top rate')}")
+    if bare_cpu:
+        print(f"\nCPU us/f: relay CPU time per frame forwarded while {cpu_rate:.0f} frames/s are offered "
+              "(f/s/core = 1e6 / it; "
+              f"the bare asyncio relay needs {bare_cpu:.1f} us).", end="")
     print(f"\nlatency at {LATENCY_RATE} frames/s, sender -> relay -> receiver, same monotonic clock; "
           f"+ = minus the direct path; RSS growth over a {soak_s:g} s soak at {LATENCY_RATE} frames/s. "
           "lossless = highest offered rate with no frame lost (bounded by the Python sender: see first loss).")

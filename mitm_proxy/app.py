@@ -31,7 +31,6 @@ from mitm_proxy.endpoints import UdpEndpoint
 from mitm_proxy.link import GroundRouter, Link
 from mitm_proxy.pipeline import Pipeline
 from mitm_proxy.recording import Recorder
-from mitm_proxy.secure import PeerBoard, SecureSlot
 from mitm_proxy.secure_config import OFF, SecureConfig, config_from_payload
 from mitm_proxy.signing import Signer
 from mitm_proxy.slots import AttackSlot
@@ -61,8 +60,11 @@ class Proxy:
         self.signer: Signer | None = Signer.from_file(config.signing_key) if config.signing_key else None
         initial = resolve_profile(config.profile) if config.profile else None
         secure = self._secure_config()
-        peers = PeerBoard()
-        self.secure: dict[int, SecureSlot] = {}
+        self.secure: dict[int, Any] = {}  # sysid -> SecureSlot, when there is a scenario to model the sensors
+        if self.scenario is not None:
+            from mitm_proxy.secure import PeerBoard, SecureSlot  # numpy/scipy estimators: only when they can run
+
+            peers = PeerBoard()
         self.slots: dict[int, AttackSlot] = {}
         self.stages: dict[int, AttackStage] = {}
         self.stats: dict[int, LinkStats] = {}
