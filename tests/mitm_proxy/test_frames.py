@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from test_frames_support import (
     DISTANCE_SENSOR,
@@ -20,10 +20,6 @@ from test_frames_support import (
 )
 
 from mitm_proxy.frames import BAD_CRC, BAD_FLAGS, BAD_LENGTH, CRC_EXTRA, GARBAGE, TRUNCATED, crc_of, split
-
-
-def raws(datagram: bytes) -> list[bytes]:
-    return [raw for _, raw in split(datagram).frames]
 
 
 def test_one_v2_frame_is_the_datagram_itself() -> None:
@@ -165,6 +161,9 @@ def test_fuzz_every_valid_frame_found_in_order_unchanged(chunks: list[tuple[byte
     valid = [f for _, f in chunks]
     res = split(data)
     found = [raw for _, raw in res.frames]
+    # Garbage that happens to be a CRC-valid known frame (~1 in 65536 per look-alike header) *is*
+    # a valid frame to any MAVLink parser; such draws say nothing about resynchronisation.
+    assume(not any(h.msgid in CRC_EXTRA and raw not in valid for h, raw in res.frames))
     # The valid frames are a subsequence of what was found, in order, byte for byte...
     it = iter(found)
     assert all(any(f == x for x in it) for f in valid)
@@ -183,7 +182,10 @@ def test_fuzz_single_byte_corruption_loses_at_most_that_frame(parts: list[bytes]
     pos = data.draw(st.integers(1, len(frame) - 1))
     frame[pos] ^= data.draw(st.integers(1, 255))
     corrupted = [*parts[:k], bytes(frame), *parts[k + 1 :]]
-    found = raws(b"".join(corrupted))
+    res = split(b"".join(corrupted))
+    found = [raw for _, raw in res.frames]
     others = [p for i, p in enumerate(parts) if i != k]
+    # A corrupted header whose CRC still matches by chance is a valid frame to any parser: skip such draws.
+    assume(not any(h.msgid in CRC_EXTRA and raw not in parts and raw != bytes(frame) for h, raw in res.frames))
     it = iter(found)
     assert all(any(p == x for x in it) for p in others)
