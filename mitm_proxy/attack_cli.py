@@ -242,7 +242,8 @@ async def _status(board: Board, args: argparse.Namespace) -> int:
     report: dict[str, Any] = {"online": board.latest.get(ONLINE_TOPIC), "vehicles": {}}
     for sysid in vehicles:
         report["vehicles"][f"v{sysid}"] = {
-            leaf: board.latest.get(vehicle_topic(sysid, leaf)) for leaf in ("attack/state", "secure/state", "stats")
+            leaf: board.latest.get(vehicle_topic(sysid, leaf))
+            for leaf in ("attack/state", "attack/mode/state", "secure/state", "stats")
         }
     if args.json:
         print(json.dumps(report, indent=2))
@@ -252,7 +253,9 @@ async def _status(board: Board, args: argparse.Namespace) -> int:
         attack = entry["attack/state"] or {}
         active = f"{attack.get('profile')} (hash {str(attack.get('hash'))[:12]})" if attack.get("profile") else "none"
         last = "ok" if attack.get("ok") else f"rejected: {attack.get('error')}"
-        print(f"{key}: attack {active} since {_since(attack.get('since'))}; last request {last}")
+        mode = (entry["attack/mode/state"] or {}).get("mode")
+        bypass = " (bypassed)" if mode == "bypass" else ""
+        print(f"{key}: attack {active}{bypass} since {_since(attack.get('since'))}; last request {last}")
         secure = entry["secure/state"]
         if isinstance(secure, dict):
             if secure.get("available") is False:
@@ -266,7 +269,8 @@ async def _status(board: Board, args: argparse.Namespace) -> int:
 
 
 def cmd_status(args: argparse.Namespace) -> int:
-    topics = [f"{PREFIX}/+/attack/state", f"{PREFIX}/+/secure/state", f"{PREFIX}/+/stats", ONLINE_TOPIC]
+    leaves = ("attack/state", "attack/mode/state", "secure/state", "stats")
+    topics = [*(f"{PREFIX}/+/{leaf}" for leaf in leaves), ONLINE_TOPIC]
     return _session(args, topics, lambda c, b, a: _status(b, args))
 
 

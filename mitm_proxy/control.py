@@ -4,7 +4,10 @@ One background task keeps one MQTT session: it subscribes to
 ``secuav/+/attack/set`` and ``secuav/+/secure/set``, hands each request to the
 vehicle's :class:`~mitm_proxy.slots.AttackSlot` (or to the secure stage's
 callable), and publishes what came of it on the retained ``.../state`` topic.
-It also publishes each link's stats at 1 Hz, the retained
+``secuav/+/attack/mode/set`` (``"on"`` or ``"bypass"``) switches the attack
+stage at runtime, keeping its profile, as DESIGN.md's pipeline asks (acknowledged
+on the retained ``.../attack/mode/state``; the secure stage's bypass is its
+``secure/set`` ``"off"``). It also publishes each link's stats at 1 Hz, the retained
 ``secuav/proxy/online`` flag (with a last will of ``false``), and whatever other
 producers hand to :meth:`ControlPlane.publish_nowait`.
 
@@ -32,7 +35,7 @@ import uuid
 from collections import deque
 from collections.abc import Callable, Mapping
 from types import TracebackType
-from typing import Any
+from typing import Any, Protocol
 
 import aiomqtt
 
@@ -55,7 +58,7 @@ SecureState = Callable[[int], "dict[str, Any] | None"]
 
 # A request id the CLI puts first in its JSON, so an oversized or broken payload can still be answered.
 _REQUEST_ID_PREFIX = re.compile(rb'\A\s*\{\s*"request_id"\s*:\s*"([A-Za-z0-9_.:@/-]{1,100})"')
-_TOPIC = re.compile(rf"\A{PREFIX}/([^/]+)/(attack|secure)/set\Z")
+_TOPIC = re.compile(rf"\A{PREFIX}/([^/]+)/(attack/mode|attack|secure)/set\Z")
 _VEHICLE_KEY = re.compile(r"\Av(\d{1,3})\Z")
 
 
@@ -69,7 +72,7 @@ class RequestError(ValueError):
 
 
 def parse_topic(topic: str) -> tuple[str, str] | None:
-    """``("v1", "attack")`` for ``secuav/v1/attack/set``; ``None`` for anything else."""
+    """``("v1", "attack")`` for ``secuav/v1/attack/set`` (kinds: attack, attack/mode, secure); else ``None``."""
     m = _TOPIC.match(topic)
     return (m.group(1), m.group(2)) if m else None
 
@@ -109,6 +112,23 @@ def salvage_request_id(raw: bytes) -> str | None:
     """The request id of a refused payload, when it leads the JSON object (as ``secuav-attack`` writes it)."""
     m = _REQUEST_ID_PREFIX.match(raw[:200])
     return m.group(1).decode() if m else None
+
+
+class Switch(Protocol):
+    """A stage that can be bypassed at runtime (``AttackStage``): ``enabled`` False is the seed's bypass."""
+
+    enabled: bool
+
+
+MODES = {"on": True, "bypass": False}
+
+
+def parse_mode(payload: Any) -> bool:
+    """``"on"``/``"bypass"``, or ``{"mode": ..., "request_id": ...}``; True means on."""
+    value = payload.get("mode") if isinstance(payload, dict) else payload
+    if isinstance(value, str) and value in MODES:
+        return MODES[value]
+    raise RequestError(f'mode: must be "on" or "bypass" (got {json.dumps(value)[:40]})')
 
 
 class Outbox:
@@ -195,7 +215,8 @@ class ControlPlane:
     ``broker_url`` None disables MQTT (``--broker none``): the plane then does
     nothing and :meth:`publish_nowait` discards. ``secure(sysid, payload,
     request_id)`` handles ``secure/set`` and returns the state to publish;
-    ``secure_state(sysid)`` gives the initial one. Username/password given here
+    ``secure_state(sysid)`` gives the initial one. ``attack_stages`` (sysid ->
+    the link's ``AttackStage``) enables ``attack/mode/set``. Username/password given here
     win over those in the URL; ``tls_ca`` (a CA file) or an ``mqtts://`` URL
     turns TLS on, ``tls_insecure`` skips the host name check.
     """
@@ -208,6 +229,7 @@ class ControlPlane:
         stats: Callable[[], dict[int, dict[str, Any]]],
         secure: SecureHandler | None = None,
         secure_state: SecureState | None = None,
+        attack_stages: Mapping[int, Switch] | None = None,
         username: str | None = None,
         password: str | None = None,
         tls_ca: str | None = None,
@@ -222,6 +244,8 @@ class ControlPlane:
         self._stats = stats
         self._secure = secure
         self._secure_state = secure_state
+        self._stages = attack_stages
+        self._modes: dict[int, dict[str, Any]] = {}  # sysid -> the attack/mode/state last queued
         self._username = username if username is not None else (self.address.username if self.address else None)
         self._password = password if password is not None else (self.address.password if self.address else None)
         self._tls = self.address is not None and (self.address.tls or tls_ca is not None)
@@ -389,10 +413,12 @@ class ControlPlane:
 
     async def _serve(self, client: aiomqtt.Client) -> None:
         await client.publish(ONLINE_TOPIC, b"true", qos=1, retain=True)
-        await client.subscribe([(f"{PREFIX}/+/attack/set", 1), (f"{PREFIX}/+/secure/set", 1)])
+        topics = [f"{PREFIX}/+/attack/set", f"{PREFIX}/+/attack/mode/set", f"{PREFIX}/+/secure/set"]
+        await client.subscribe([(t, 1) for t in topics])
         for sysid in self.slots:
             self.publish_state(sysid)
             self._publish_initial_secure(sysid)
+            self._publish_mode(sysid, self._modes.get(sysid) or self._mode_state(sysid, None, None))
         self.connections += 1
         self.connected.set()
         log.info("mqtt.connected", extra={"url": self.address.url if self.address else None})
@@ -451,6 +477,10 @@ class ControlPlane:
             for sysid, slot in self.slots.items():
                 if slot.state is not self._published.get(sysid):
                     self.publish_state(sysid)
+            for sysid, last in list(self._modes.items()):
+                stage = self._stages.get(sysid) if self._stages is not None else None
+                if stage is not None and last["mode"] != ("on" if stage.enabled else "bypass"):
+                    self._publish_mode(sysid, self._mode_state(sysid, None, None))  # switched elsewhere
             if self._secure_state is not None:
                 for sysid in self.slots:
                     try:
@@ -502,6 +532,8 @@ class ControlPlane:
             return
         if kind == "attack":
             self._apply_attack(sysid, payload, request_id)
+        elif kind == "attack/mode":
+            self._apply_mode(sysid, payload, request_id)
         else:
             self._apply_secure(sysid, payload, request_id)
 
@@ -529,10 +561,45 @@ class ControlPlane:
             state = {"sysid": sysid, "ok": False, "error": f"secure stage failed: {exc!r}", "request_id": request_id}
         self._publish_secure(sysid, state)
 
+    def _apply_mode(self, sysid: int, payload: Any, request_id: str | None) -> None:
+        """Switch the attack stage between active and bypass; the profile stays installed either way."""
+        stage = self._stages.get(sysid) if self._stages is not None else None
+        if stage is None:
+            self._refuse(sysid, "attack/mode", "runtime bypass is not available in this proxy", request_id)
+            return
+        try:
+            stage.enabled = parse_mode(payload)
+        except RequestError as exc:
+            self._refuse(sysid, "attack/mode", str(exc), request_id)
+            return
+        log.info("attack.mode", extra={"sysid": sysid, "enabled": stage.enabled, "request_id": request_id})
+        self._publish_mode(sysid, self._mode_state(sysid, request_id, None))
+
+    def _mode_state(self, sysid: int, request_id: str | None, error: str | None) -> dict[str, Any]:
+        """``attack/mode/state``: the mode now, since when, and the verdict on the last request."""
+        stage = self._stages.get(sysid) if self._stages is not None else None
+        mode = None if stage is None else ("on" if stage.enabled else "bypass")
+        last = self._modes.get(sysid)
+        changed = last is None or last["mode"] != mode
+        return {
+            "sysid": sysid,
+            "mode": mode,
+            "since": time.time() if changed else last["since"],  # type: ignore[index]
+            "request_id": request_id,
+            "ok": error is None,
+            "error": error,
+        }
+
+    def _publish_mode(self, sysid: int, state: dict[str, Any]) -> None:
+        self._modes[sysid] = state
+        self.publish_nowait(vehicle_topic(sysid, "attack/mode/state"), state, retain=True)
+
     def _refuse(self, sysid: int, kind: str, error: str, request_id: str | None) -> None:
         if kind == "attack":
             self.slots[sysid].reject(error, request_id)
             self.publish_state(sysid)
+        elif kind == "attack/mode":
+            self._publish_mode(sysid, self._mode_state(sysid, request_id, error))
         else:
             self._publish_secure(sysid, {"sysid": sysid, "ok": False, "error": error, "request_id": request_id})
 

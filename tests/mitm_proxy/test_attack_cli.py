@@ -15,6 +15,7 @@ import pytest
 from attack_profiles import library
 from attack_profiles.profile import load_profile
 from mitm_proxy import attack_cli
+from mitm_proxy.attack import AttackStage
 from mitm_proxy.control import ControlPlane
 from mitm_proxy.slots import AttackSlot
 from secuav_common.broker import EmbeddedBroker
@@ -28,6 +29,7 @@ class Bench:
     url: str
     slots: dict[int, AttackSlot]
     plane: ControlPlane
+    stages: dict[int, AttackStage]
 
 
 def stats() -> dict[int, dict[str, Any]]:
@@ -44,12 +46,13 @@ def stats() -> dict[int, dict[str, Any]]:
 async def bench(tcp_port: Callable[[], int]) -> AsyncIterator[Bench]:
     port = tcp_port()
     slots = {1: AttackSlot(1), 2: AttackSlot(2)}
+    stages = {sysid: AttackStage(slot) for sysid, slot in slots.items()}
     async with EmbeddedBroker(port=port):
         url = f"mqtt://127.0.0.1:{port}"
-        async with ControlPlane(url, slots, stats=stats) as plane:
+        async with ControlPlane(url, slots, stats=stats, attack_stages=stages) as plane:
             await plane.wait_connected(10)
             await asyncio.sleep(0.3)  # the initial retained states reach the broker
-            yield Bench(url, slots, plane)
+            yield Bench(url, slots, plane, stages)
 
 
 async def cli(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
@@ -111,6 +114,12 @@ async def test_clear_and_status(bench: Bench, capsys: pytest.CaptureFixture[str]
     assert "v1: secure not available in this proxy" in lines
     stats_lines = [line for line in lines if line.startswith("v1: downlink 10 in/9 out, rewritten 3, dropped 1, bad 0")]
     assert len(stats_lines) == 1 and "latency p50 0.31 ms p99 0.72 ms" in stats_lines[0]
+
+    bench.stages[2].enabled = False  # bypassed (over attack/mode/set, or by the app)
+    await asyncio.sleep(0.5)
+    code, out, _ = await cli(capsys, "status", "--vehicle", "2", "--broker", bench.url)
+    assert code == 0 and any(line.startswith("v2: attack distance-stuck (hash ") and "(bypassed)" in line
+                             for line in out.splitlines())  # fmt: skip
 
     code, out, err = await cli(capsys, "clear", "--vehicle", "1", "--broker", bench.url)
     assert (code, out) == (0, "ok: v1 cleared\n"), err

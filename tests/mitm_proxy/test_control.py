@@ -259,3 +259,46 @@ async def test_the_real_secure_slot_through_the_plane(broker_port: int) -> None:
         secure_slots[1].offer_payload("secekf", "local-1")
         local = await obs.wait_for(topic, lambda b: b["request_id"] == "local-1")
         assert local["estimator"] == "secekf"
+
+
+async def test_attack_mode_switches_bypass_at_runtime_and_keeps_the_profile(
+    broker_port: int, slots: dict[int, AttackSlot]
+) -> None:
+    from mitm_proxy.attack import AttackStage
+
+    stages = {sysid: AttackStage(slot) for sysid, slot in slots.items()}
+    plane = ControlPlane(f"mqtt://127.0.0.1:{broker_port}", slots, stats=fake_stats, attack_stages=stages)
+    mode_set, mode_state = "secuav/v1/attack/mode/set", "secuav/v1/attack/mode/state"
+    async with plane, Observer(broker_port, ["secuav/v1/attack/#"]) as obs:
+        await plane.wait_connected(10)
+        assert (await obs.wait_for(mode_state))["mode"] == "on"
+        assert (await obs.request(SET1, {"library": "distance-stuck"}))["ok"]
+        assert stages[1].active
+
+        state = await obs.request(mode_set, {"mode": "bypass"})
+        assert state["ok"] and state["mode"] == "bypass" and state["error"] is None
+        assert not stages[1].active and stages[2].enabled  # only vehicle 1
+        assert slots[1].engine is not None  # bypass keeps the profile for later
+
+        bad = await obs.request(mode_set, {"mode": "off"})
+        assert not bad["ok"] and 'must be "on" or "bypass"' in bad["error"] and bad["mode"] == "bypass"
+        assert bad["since"] == state["since"]
+
+        start = len(obs.messages)
+        await obs.publish(mode_set, "on")  # the bare JSON string works too
+        assert (await obs.wait_for(mode_state, lambda b: b["mode"] == "on", start=start))["ok"]
+        assert stages[1].active
+
+        stages[1].enabled = False  # switched by someone else (the app): published all the same
+        changed = await obs.wait_for(mode_state, lambda b: b["mode"] == "bypass", start=start)
+        assert changed["request_id"] is None
+
+
+async def test_attack_mode_without_stages_says_it_is_not_available(
+    broker_port: int, slots: dict[int, AttackSlot]
+) -> None:
+    async with ControlPlane(f"mqtt://127.0.0.1:{broker_port}", slots, stats=fake_stats) as plane:
+        await plane.wait_connected(10)
+        async with Observer(broker_port, ["secuav/v2/attack/mode/#"]) as obs:
+            state = await obs.request("secuav/v2/attack/mode/set", {"mode": "bypass"})
+            assert not state["ok"] and state["mode"] is None and "not available" in state["error"]
