@@ -36,8 +36,9 @@ _LOOPBACK_HOSTS = {"127.0.0.1", "localhost"}
 class UdpEndpoint(asyncio.DatagramProtocol):
     """One UDP socket of the proxy.
 
-    ``receivers`` are called with each datagram and its arrival time; there is
-    one per link that uses the endpoint (the GCS endpoint is shared).
+    ``receiver`` is called with each datagram and its arrival time: the link's
+    (vehicle side) or a :class:`~mitm_proxy.link.GroundRouter` (ground side,
+    which hands uplink to the link or links that share the endpoint).
     ``faults`` counts what went wrong by kind; ``rx``/``tx`` count datagrams.
     """
 
@@ -98,7 +99,8 @@ class UdpEndpoint(asyncio.DatagramProtocol):
             # from a stranger is not ours to forward.
             self._fault("foreign_sender", f"datagram from {_fmt(addr)}, expected {_fmt(self.peer)}")
             return
-        self._clear("unreachable")
+        if self._reported:
+            self._reported.discard("unreachable")
         if self.receiver is not None:
             self.receiver(data, rx_s)
 
@@ -127,7 +129,8 @@ class UdpEndpoint(asyncio.DatagramProtocol):
             self._fault("socket_error", str(exc))
             return False
         self.tx += 1
-        self._clear("no_peer")
+        if self._reported:
+            self._reported.discard("no_peer")  # the condition ended: log it again if it comes back
         return True
 
     # -- fault bookkeeping ---------------------------------------------------------
@@ -136,10 +139,6 @@ class UdpEndpoint(asyncio.DatagramProtocol):
         if kind not in self._reported:
             self._reported.add(kind)
             log.warning(f"endpoint.{kind}", extra={"endpoint": self.name, "url": str(self.endpoint), "detail": detail})
-
-    def _clear(self, kind: str) -> None:
-        """The condition ended: log it again if it comes back."""
-        self._reported.discard(kind)
 
     def snapshot(self) -> dict[str, Any]:
         return {"url": str(self.endpoint), "peer": _fmt(self.peer), "rx": self.rx, "tx": self.tx,
