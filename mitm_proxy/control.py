@@ -397,11 +397,11 @@ class ControlPlane:
                     down_since, attempts, delay_s = None, 0, self._backoff_s[0]
                     await self._serve(client)
             except Exception as exc:  # MqttError is the broker; anything else is our bug: logged, retried
-                if not isinstance(exc, aiomqtt.MqttError):
-                    log.exception("control.failed", extra={"url": url})
                 attempts += 1
                 if down_since is None:
                     down_since = time.monotonic()
+                    if not isinstance(exc, aiomqtt.MqttError):
+                        log.exception("control.failed", extra={"url": url})
                     log.warning("mqtt.unavailable", extra={"url": url, "error": str(exc)})
                 else:
                     log.debug("mqtt.retry", extra={"url": url, "error": str(exc), "attempt": attempts})
@@ -617,7 +617,11 @@ class ControlPlane:
         if self._secure is None:
             self._publish_secure(sysid, self._secure_unavailable(sysid, None, asked=False))
         elif self._secure_state is not None:
-            state = self._secure_state(sysid)
+            try:
+                state = self._secure_state(sysid)
+            except Exception:  # the secure stage's bug: its set requests are still answered
+                log.exception("secure.state_failed", extra={"sysid": sysid})
+                return
             if state is not None:
                 self._publish_secure(sysid, state)
 
