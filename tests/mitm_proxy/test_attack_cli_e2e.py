@@ -1,0 +1,107 @@
+"""The user's whole loop, as processes: mosquitto, ``secuav-proxy --profile F``, ``secuav-attack``.
+
+Apply and clear over MQTT, edit the profile file under the running daemon, read
+it all back with ``status``, and see ``online`` turn false when the daemon stops.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+from test_control_support import MOSQUITTO, Mosquitto
+
+from attack_profiles import library
+from attack_profiles.profile import load_profile
+
+pytestmark = [
+    pytest.mark.timeout(120),
+    pytest.mark.mosquitto,
+    pytest.mark.skipif(MOSQUITTO is None, reason="the mosquitto binary is not installed"),
+]
+REPO = Path(__file__).resolve().parents[2]
+
+
+def attack(*argv: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "mitm_proxy.attack_cli", *argv],
+        cwd=REPO, capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+
+
+def status(broker: str) -> dict[str, object]:
+    done = attack("status", "--json", "--broker", broker)
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout)
+
+
+def wait_until(check: Callable[[], bool], timeout_s: float = 15.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not check():
+        assert time.monotonic() < deadline, "condition not reached"
+        time.sleep(0.2)
+
+
+@pytest.fixture
+def stack(
+    tmp_path: Path, tcp_port: Callable[[], int], udp_port: Callable[[], int]
+) -> Iterator[tuple[str, Path, subprocess.Popen[bytes]]]:
+    port = tcp_port()
+    profile = tmp_path / "attack.yaml"
+    profile.write_text(library.text("wall-spoof"), encoding="utf-8")
+    broker = f"mqtt://127.0.0.1:{port}"
+    with Mosquitto(port, tmp_path):
+        log = (tmp_path / "proxy.log").open("wb")
+        proxy = subprocess.Popen(
+            [sys.executable, "-m", "mitm_proxy", "--broker", broker, "--profile", str(profile),
+             "--vehicle", f"udpin://127.0.0.1:{udp_port()}", "--ground", f"udpout://127.0.0.1:{udp_port()}"],
+            cwd=REPO, stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )  # fmt: skip
+        try:
+            wait_until(lambda: attack("status", "--timeout", "1", "--broker", broker).returncode == 0)
+            yield broker, profile, proxy
+        finally:
+            if proxy.poll() is None:
+                proxy.send_signal(signal.SIGTERM)
+                try:
+                    proxy.wait(10)
+                except subprocess.TimeoutExpired:
+                    proxy.kill()
+            log.close()
+
+
+def test_apply_edit_clear_and_stop_against_the_real_daemon(stack: tuple[str, Path, subprocess.Popen[bytes]]) -> None:
+    broker, profile, proxy = stack
+    first = status(broker)
+    assert first["online"] is True
+    v1 = first["vehicles"]["v1"]  # type: ignore[index]
+    assert v1["attack/state"]["profile"] == "wall-spoof" and v1["attack/state"]["request_id"] == "--profile"
+
+    done = attack("apply", "distance-stuck", "--broker", broker)
+    assert done.returncode == 0 and done.stdout.startswith("ok: v1 distance-stuck (hash "), done.stderr
+
+    # Editing the file under the running daemon: the edit wins and is acknowledged on MQTT.
+    profile.write_text(library.text("wall-spoof").replace("default: 0.2", "default: 0.7"), encoding="utf-8")
+    edited = load_profile(profile).content_hash()
+    wait_until(lambda: status(broker)["vehicles"]["v1"]["attack/state"]["hash"] == edited)  # type: ignore[index]
+    profile.write_text("rules: [\n", encoding="utf-8")  # a broken save keeps the edit active
+    wait_until(lambda: status(broker)["vehicles"]["v1"]["attack/state"]["ok"] is False)  # type: ignore[index]
+    kept = status(broker)["vehicles"]["v1"]["attack/state"]  # type: ignore[index]
+    assert kept["hash"] == edited and str(profile) in kept["error"]
+
+    rejected = attack("apply", "anchors-coordinated", "--broker", broker)  # needs a scenario this daemon lacks
+    assert rejected.returncode == 1 and "needs a scenario" in rejected.stderr
+
+    cleared = attack("clear", "--broker", broker)
+    assert (cleared.returncode, cleared.stdout) == (0, "ok: v1 cleared\n")
+
+    proxy.send_signal(signal.SIGTERM)
+    assert proxy.wait(10) == 0
+    assert status(broker)["online"] is False  # said on the way out; the states stay retained
