@@ -30,11 +30,12 @@ Each step:
    available - s readings (at most s + 1 rounds). The kept set must pass
    ``cost <= chi2.ppf(1 - alpha, |I| - d)`` as a whole, else alarm; then update a constant-velocity EKF with the
    readings of I only. Attacked: readings outside I that fail the test.
-5. Persistent small attacks (RECON, our addition): each sensor's innovation
-   against the EKF prediction, normalised, goes into a window of T steps; a
-   sensor whose window mean m over n readings fails ``n m^2 > chi2.ppf(1 - alpha, 1)``
-   is left out of every consensus (if at most s sensors fail) and reported.
-   A single step cannot see a 3-sigma bias; the window can.
+5. Persistent small attacks (RECON, our addition, ``drift.py``): each sensor's
+   innovation against the EKF prediction, normalised, goes into a window of T
+   steps; a sensor whose window mean m over n readings fails
+   ``n m^2 > chi2.ppf(1 - alpha, 1)`` is left out of every consensus (if at
+   most s sensors fail) and reported. A single step cannot see a 3-sigma
+   bias; the window can.
 Defaults: alpha = 0.01, T = 10, tau = 2 sigma, max_hypotheses = 128, q = 0.5 m/s^2.
 """
 
@@ -46,6 +47,7 @@ import numpy as np
 
 from estimators.bank import EkfBank, gauss_newton, inv_small, subset_masks
 from estimators.base import Estimate, Estimator
+from estimators.drift import InnovationWindow
 from estimators.models import Known, MeasurementModel
 
 
@@ -81,13 +83,7 @@ class Rarse(Estimator):
         self.ekf = EkfBank(self.model, np.ones((1, self.model.p), dtype=bool), self.q_mps2)
         self.P0 = P0
         self.started = x0 is not None
-        # Ring buffer of signed normalised innovations (0 = missing) with running sums, so the
-        # window mean costs O(p) per step.
-        self.innov = np.zeros((self.window, self.model.p))
-        self.seen = np.zeros((self.window, self.model.p), dtype=bool)
-        self.innov_sum = np.zeros(self.model.p)
-        self.seen_sum = np.zeros(self.model.p, dtype=int)
-        self.k = 0
+        self.drift = InnovationWindow(self.model.p, self.window, self.gate1)
         if x0 is not None:
             self.ekf.seed(x0, P0)
 
@@ -98,25 +94,9 @@ class Rarse(Estimator):
         return np.where(np.isnan(t), np.inf, t)
 
     def _drifting(self, z: np.ndarray, at_pred: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-        """Sensors whose innovations against the prediction keep one sign over the window.
-
-        A bias of a few sigma hides inside one step's consensus gate but not in the
-        window mean of normalised innovations, ~N(0, 1/n) for an honest sensor.
-        """
+        """Sensors whose innovations against the prediction keep one sign over the window (``drift.py``)."""
         d = self.model.d
-        P = self.ekf.P[0]
-        hx, jac = at_pred
-        var = self.model.sigma_m**2 + np.einsum("pd,de,pe->p", jac, P[:d, :d], jac)
-        slot = self.k % self.window
-        self.k += 1
-        seen = ~np.isnan(z)
-        value = np.where(seen, z - hx, 0.0) / np.sqrt(var)
-        self.innov_sum += value - self.innov[slot]
-        self.seen_sum += seen.astype(int) - self.seen[slot]
-        self.innov[slot], self.seen[slot] = value, seen
-        n = self.seen_sum
-        # n m^2 with m = sum / n is sum^2 / n.
-        return (n >= 3) & (self.innov_sum * self.innov_sum > self.gate1 * n)
+        return self.drift.update(z, at_pred[0], at_pred[1], self.ekf.P[0][:d, :d], self.model.sigma_m)
 
     def _eliminate(
         self,

@@ -37,9 +37,15 @@ Equations, all RECON (notes §3; the paper could not be read):
 - Nothing accepted: alarm, coast on the prediction; after ``reinit_after``
   alarmed steps in a row, run the init again (the prediction may be the stale
   part).
+- Persistent small attacks (RECON, our addition, shared with rarse,
+  ``drift.py``): each sensor's normalised innovation against the prediction
+  goes into a window of T steps; a sensor whose window mean fails the chi2_1
+  test is kept out of Omega (if at most pa sensors fail). A slowly drifting
+  coordinated spoof of a few sigma passes every single-step test; the window
+  sees it.
 - Attacked: sensors outside Omega that fail the per-sensor chi2_1 test against
-  the updated state.
-Defaults: alpha = 0.01, q = 0.5 m/s^2, reinit_after = 5.
+  the updated state, or the window test.
+Defaults: alpha = 0.01, q = 0.5 m/s^2, reinit_after = 5, T = 10.
 """
 
 from __future__ import annotations
@@ -48,6 +54,7 @@ import numpy as np
 
 from estimators.bank import EkfBank, gauss_newton, inv_small, solve_small, subset_masks
 from estimators.base import Estimate, Estimator
+from estimators.drift import InnovationWindow
 from estimators.models import Known, MeasurementModel
 from estimators.subsets import choose, secure_snapshot
 
@@ -56,8 +63,9 @@ class Recap(Estimator):
     name = "recap"
     secure = True
 
-    def __init__(self, model: MeasurementModel, *, reinit_after: int = 5, **params) -> None:
+    def __init__(self, model: MeasurementModel, *, reinit_after: int = 5, window: int = 10, **params) -> None:
         self.reinit_after = int(reinit_after)
+        self.window = int(window)
         super().__init__(model, **params)
 
     def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:
@@ -67,6 +75,7 @@ class Recap(Estimator):
         self.started = x0 is not None
         self.omega = np.ones(self.model.p, dtype=bool)
         self.alarms_in_row = 0
+        self.drift = InnovationWindow(self.model.p, self.window, self.gate1)
         if x0 is not None:
             self.ekf.seed(x0, P0)
 
@@ -95,12 +104,15 @@ class Recap(Estimator):
         # h and its Jacobian at the prediction serve the detector, the subset fits' first step and the update.
         at_pred = self.model.h_jac(x_pred[:d], known)
         flagged = self._flag_resid(z - at_pred[0], at_pred[1], P_pred[:d, :d])
-        if self.s <= 1 and flagged.sum() <= self.s:
-            omega, alarm = avail & ~flagged, False
+        drifting = self.drift.update(z, at_pred[0], at_pred[1], P_pred[:d, :d], self.model.sigma_m)
+        if not 0 < drifting.sum() <= self.s:
+            drifting[:] = False  # more than s drifting: the prediction itself has moved, not s sensors
+        if self.s <= 1 and (flagged | drifting).sum() <= self.s:
+            omega, alarm = avail & ~(flagged | drifting), False
         else:
-            omega, alarm = self._search(z, known, x_pred[:d], P_pred[:d, :d], 1, at_pred)
+            omega, alarm = self._search(z, known, x_pred[:d], P_pred[:d, :d], 1, at_pred, drifting)
             if alarm:  # maybe only unconverged: one Gauss-Newton step suffices near the prediction, not far off
-                omega, alarm = self._search(z, known, x_pred[:d], P_pred[:d, :d], self.n_iter, at_pred)
+                omega, alarm = self._search(z, known, x_pred[:d], P_pred[:d, :d], self.n_iter, at_pred, drifting)
         if alarm:
             self.alarms_in_row += 1
             if self.alarms_in_row >= self.reinit_after and self._init(z, known):
@@ -111,7 +123,7 @@ class Recap(Estimator):
         self.omega = omega
         self.ekf.masks = omega[None, :]
         self.ekf.update(z, known, at_pred)
-        return self._output(t_s, z, known, omega, False)
+        return self._output(t_s, z, known, omega, False, drifting)
 
     def _search(
         self,
@@ -121,6 +133,7 @@ class Recap(Estimator):
         cov_pred: np.ndarray,
         n_iter: int,
         at_pred: tuple[np.ndarray, np.ndarray] | None = None,
+        drifting: np.ndarray | None = None,
     ) -> tuple[np.ndarray, bool]:
         fits = gauss_newton(self.model, z, self.masks, pos_pred, known, n_iter, at_start=at_pred)
         gap = fits.pos - pos_pred
@@ -129,13 +142,26 @@ class Recap(Estimator):
         pred_term = np.einsum("jd,jd->j", gap, solve_small(spread, gap))
         stat = fits.cost + pred_term
         valid = fits.n_used >= self.model.min_sensors
+        if drifting is not None and drifting.any():
+            valid &= ~(self.masks & drifting).any(axis=1)  # no subset may keep a drifting sensor
         # Previous Omega wins ties: a hair's advantage in the statistic.
         same = np.all(self.masks == self.omega, axis=1)
         choice = choose(stat - 1e-9 * same, fits.n_used, fits.n_used, valid, self.chi)
         return self.masks[choice.index] & ~np.isnan(z), choice.alarm
 
-    def _output(self, t_s: float, z: np.ndarray, known: Known, omega: np.ndarray, alarm: bool) -> Estimate:
+    def _output(
+        self,
+        t_s: float,
+        z: np.ndarray,
+        known: Known,
+        omega: np.ndarray,
+        alarm: bool,
+        drifting: np.ndarray | None = None,
+    ) -> Estimate:
         d = self.model.d
         x, P = self.ekf.x[0], self.ekf.P[0]
-        attacked = self._flag(z, x[:d], P[:d, :d], known) & ~omega
+        flagged = self._flag(z, x[:d], P[:d, :d], known)
+        if drifting is not None:
+            flagged |= drifting & ~np.isnan(z)
+        attacked = flagged & ~omega
         return self._estimate(t_s, x[:d], x[d:], P, attacked, alarm, omega)
