@@ -69,3 +69,38 @@ async def test_formation_ranges_on_the_wire_match_ids_and_geometry(udp_port: Cal
         assert max(abs(x) for x in z) < 4.5
         assert abs(statistics.fmean(z)) < 0.35
         assert 0.7 < statistics.pstdev(z) < 1.3
+
+
+def _per_id_rates(gcs: Gcs, seconds: float) -> dict[int, float]:
+    gcs.drain()
+    counts: dict[int, int] = {}
+    for m in _collect(gcs, seconds):
+        counts[m.id] = counts.get(m.id, 0) + 1
+    return {sid: n / seconds for sid, n in counts.items()}
+
+
+def _throttle(gcs: Gcs) -> None:
+    gcs.recv("HEARTBEAT")
+    before = _per_id_rates(gcs, 1.5)
+    assert before[10] == pytest.approx(10, abs=2.5) and before[0] == pytest.approx(20, abs=4)  # as configured
+    dist = mav.MAVLINK_MSG_ID_DISTANCE_SENSOR
+    assert gcs.command(mav.MAV_CMD_SET_MESSAGE_INTERVAL, dist, 500_000) == 0  # 2 Hz per sensor id
+    slow = _per_id_rates(gcs, 2.0)
+    assert set(slow) == set(before)
+    assert all(1.0 <= r <= 3.0 for r in slow.values()), slow
+    assert gcs.command(mav.MAV_CMD_SET_MESSAGE_INTERVAL, dist, -1) == 0  # stop
+    assert _per_id_rates(gcs, 0.6) == {}
+    assert gcs.command(mav.MAV_CMD_SET_MESSAGE_INTERVAL, dist, 0) == 0  # back to the sensors' own rates
+    after = _per_id_rates(gcs, 1.5)
+    assert after[10] == pytest.approx(10, abs=2.5) and after[0] == pytest.approx(20, abs=4)
+
+
+@pytest.mark.timeout(30)
+async def test_distance_sensor_rate_follows_set_message_interval_per_sensor(udp_port: Callable[[], int]) -> None:
+    port = udp_port()
+    gcs = Gcs(port)
+    try:
+        async with live_sim("anchors8", [port]):
+            await asyncio.to_thread(_throttle, gcs)
+    finally:
+        gcs.close()
