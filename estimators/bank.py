@@ -68,7 +68,7 @@ class Chi2Table:
         if type(dof) is int and 0 <= dof < self._table.shape[0]:  # the per-step case: one plain lookup
             return self._table[dof]
         idx = np.asarray(dof, dtype=int)
-        if np.any(idx >= self._table.shape[0]):
+        if idx.size and idx.max() >= self._table.shape[0]:
             self._table = self._build(2 * int(np.max(idx)))
         return self._table[idx]
 
@@ -157,12 +157,18 @@ def inv_small(a: np.ndarray) -> np.ndarray:
         d00, d11 = a00 + eps, a11 + eps
         det = d00 * d11 - a01 * a10
         return np.array([[d11 / det, -a01 / det], [-a10 / det, d00 / det]])
+    if d == 2:  # a batch of 2 x 2: the damped adjugate over the determinant, element by element
+        a00, a01, a10, a11 = a[..., 0, 0], a[..., 0, 1], a[..., 1, 0], a[..., 1, 1]
+        eps = 1e-9 * (a00 + a11 + 1e-9)
+        d00, d11 = a00 + eps, a11 + eps
+        inv_det = 1.0 / (d00 * d11 - a01 * a10)
+        out = np.empty(a.shape)
+        out[..., 0, 0], out[..., 0, 1] = d11 * inv_det, -a01 * inv_det
+        out[..., 1, 0], out[..., 1, 1] = -a10 * inv_det, d00 * inv_det
+        return out
     damped = a + 1e-9 * (np.trace(a, axis1=-2, axis2=-1)[..., None, None] + 1e-9) * np.eye(d)
     if d == 1:
         return 1.0 / damped
-    if d == 2:
-        det = damped[..., 0, 0] * damped[..., 1, 1] - damped[..., 0, 1] * damped[..., 1, 0]
-        return damped[..., ::-1, ::-1] * _SIGNS2 / det[..., None, None]
     return np.linalg.inv(damped)
 
 
