@@ -322,7 +322,12 @@ async def test_mission_upload_download_fence_refusal_and_clear(udp_port: Callabl
 def _crash(runner: SimRunner, gcs: Gcs) -> None:
     v = _vehicle(runner)
     gcs.recv("HEARTBEAT")
-    _take_off(gcs)
+    # takeoff to a requested altitude: COMMAND_LONG param7 is AMSL, as PX4 reads it
+    assert gcs.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ACCEPTED
+    assert gcs.command(mav.MAV_CMD_NAV_TAKEOFF, *[math.nan] * 6, v.home.alt_m + 3.0) == ACCEPTED
+    gcs.wait_mode("LOITER", 12)
+    time.sleep(0.5)
+    assert abs(-v.truth.pos_ned_m[2] - 3.0) < 0.2
     forward = 1479  # velocity + yaw rate only: MAVSDK's set_velocity_body mask
 
     def push() -> None:
