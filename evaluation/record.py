@@ -171,6 +171,9 @@ async def record(
 
     ``on_bound`` receives the bound addresses (port 0 in a URL picks a free port).
     """
+    for ep in listen:
+        if ep.mode != "udpin":
+            raise InputError("--listen", "", str(ep), "the recorder listens: use udpin://HOST:PORT")
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
     seen = asyncio.Event()
@@ -184,8 +187,6 @@ async def record(
         listeners = []
         try:
             for ep in listen:
-                if ep.mode != "udpin":
-                    raise InputError("--listen", "", str(ep), "the recorder listens: use udpin://HOST:PORT")
                 lis = _Listener(writer, seen)
                 transport, _ = await loop.create_datagram_endpoint(lambda lis=lis: lis, local_addr=ep.address)
                 transports.append(transport)

@@ -240,7 +240,7 @@ def test_recorder_refuses_bad_endpoints(tmp_path: Path, capsys: pytest.CaptureFi
     from evaluation.record import main as record_main
 
     assert record_main(["--listen", "udpout://127.0.0.1:14550", "--out", str(tmp_path / "a.tlog")]) == 2
-    assert "udpin" in capsys.readouterr().err
+    assert "udpin" in capsys.readouterr().err and not (tmp_path / "a.tlog").exists()
     assert record_main(["--listen", "tcp://127.0.0.1:5760", "--out", str(tmp_path / "b.tlog")]) == 2
     assert "tcp" in capsys.readouterr().err
     assert record_main(["--listen", "udpin://127.0.0.1:0", "--out", str(tmp_path / "c.tlog"), "--attack", "nope"]) == 2
