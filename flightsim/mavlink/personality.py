@@ -173,6 +173,9 @@ class Px4Personality:
             self._offboard(offboard.decode_local(msg))
         elif kind == "SET_POSITION_TARGET_GLOBAL_INT":
             self._offboard(offboard.decode_global(msg, self.vehicle.home))
+        elif kind == "SET_ATTITUDE_TARGET":
+            # MAVSDK set_attitude / set_attitude_rate: refused out loud, so offboard.start() fails with a reason.
+            self._offboard("offboard: attitude setpoints are not supported, use position or velocity")
         elif kind in _PARAM_MSGS:
             self.params.handle(msg)
         elif kind in _MISSION_MSGS:

@@ -227,6 +227,10 @@ def _offboard_loss(runner: SimRunner, gcs: Gcs) -> None:
     v = _vehicle(runner)
     gcs.recv("HEARTBEAT")
     _take_off(gcs)
+    # attitude setpoints (MAVSDK set_attitude) are refused out loud and do not count as a stream
+    gcs.mav.set_attitude_target_send(0, 1, 1, 0b0000_0111, [1.0, 0.0, 0.0, 0.0], 0, 0, 0, 0.5)
+    assert "not supported" in gcs.expect_text("attitude setpoints")
+    assert gcs.set_px4_mode("OFFBOARD") == TEMP_REJECTED
     here = v.estimate.pos_ned_m
     pos_yaw = 2552  # ignore velocity, acceleration and yaw rate: MAVSDK's set_position_ned mask
 
