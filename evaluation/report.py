@@ -42,13 +42,14 @@ def summarise(trials: list[TrialResult]) -> dict[str, dict[str, Any]]:
     scored_errors = any(tr.scored_errors for tr in trials)
     scored_detection = any(tr.scored_detection for tr in trials)
     for name in trials[0].traces:
-        errs, rerrs, devs, times = [], [], [], []
+        errs, rerrs, devs, times, has_estimate = [], [], [], [], []
         hit = strong = named = named_true = alarms = steps = 0
         named_by_id = np.zeros(len(trials[0].sensor_ids))
         for tr in trials:
             trace = tr.traces[name]
             keep = tr.t_s > WARMUP_S
             errs.append(trace.err_m[keep])
+            has_estimate.append(np.isfinite(trace.est_xy_m[keep]).all(axis=1))
             if trace.range_err_m is not None:
                 rerrs.append(trace.range_err_m[keep])
             if trace.local_dev_m is not None:
@@ -75,6 +76,8 @@ def summarise(trials: list[TrialResult]) -> dict[str, dict[str, Any]]:
             "attack_detection_precision": _nan_to_none(named_true / named if named else float("nan")),
             "attack_detection_recall": _nan_to_none(hit / strong if strong else float("nan")),
             "alarm_fraction": alarms / steps if steps else 0.0,
+            # Steps with no estimate at all: a secure start that never found a consistent subset.
+            "estimate_fraction": float(np.mean(np.concatenate(has_estimate))) if steps else 0.0,
             "named_fraction_by_sensor_id": {
                 str(sid): round(float(n) / steps, 4) if steps else 0.0
                 for sid, n in zip(trials[0].sensor_ids, named_by_id, strict=True)
@@ -112,6 +115,12 @@ def table(summary: dict[str, dict[str, Any]]) -> str:
             line += f" | {_cell(rng['mean_error_m'], 14)} | {_cell(rng['max_error_m'], 13)}"
         line += f" | {row['step_time_us_median'] / 1000:>18.3f} | {row['step_time_us_p99'] / 1000:>8.3f}"
         lines.append(line)
+    silent = [name for name, row in summary.items() if row.get("estimate_fraction", 1.0) == 0.0]
+    if silent:
+        lines.append(
+            f"n/a for {', '.join(silent)}: no estimate on any step (alarm throughout: more sensors attacked"
+            " than the estimator tolerates, so it refuses to guess)."
+        )
     lines.append("Time per step: one step of every estimator (ReCaP: its one sensor group), median over all steps.")
     return "\n".join(lines)
 

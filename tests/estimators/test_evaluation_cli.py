@@ -95,3 +95,14 @@ def test_moving_leg_type_b_in_parallel_gives_the_serial_numbers(tmp_path: Path) 
     rarse, ekf = par["estimators"]["rarse"], par["estimators"]["ekf"]
     assert rarse["rmse_m"] < 0.12 and ekf["max_error_m"] > 2 * rarse["max_error_m"]
     assert rarse["attack_detection_recall"] >= 0.9
+
+
+def test_over_attacked_formation_alarms_instead_of_guessing(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """type-a hits links 11 and 14 of both vehicles: 4 attacked readings, the two-vehicle model tolerates 2."""
+    args = ("--scenario", "formation", "--attack", "type-a", "--estimators", "ekf,secekf", "--duration", "8")
+    assert main(["--trials", "1", "--out", str(tmp_path), *args]) == 0
+    assert "refuses to guess" in capsys.readouterr().out
+    rows = json.loads((tmp_path / "results.json").read_text())["estimators"]
+    assert rows["secekf"]["alarm_fraction"] == 1.0 and rows["secekf"]["estimate_fraction"] == 0.0
+    assert rows["secekf"]["rmse_m"] is None
+    assert rows["ekf"]["estimate_fraction"] == 1.0 and rows["ekf"]["rmse_m"] > 0.2  # confidently wrong
