@@ -112,6 +112,7 @@ class NavItem:
     hold_s: float = 0.0
     acceptance_radius_m: float = 0.5
     yaw_rad: float | None = None
+    speed_m_s: float | None = None  # horizontal cruise speed on the leg to this item; None: MPC_XY_CRUISE
 
 
 @dataclass(frozen=True, slots=True)

@@ -265,7 +265,8 @@ class Navigator:
                 self._mission_hold_until = t_s + item.hold_s
             if t_s >= self._mission_hold_until:
                 self._advance(est, goal)
-        return self._go(goal, xy=self.p["MPC_XY_CRUISE"])
+        cruise = item.speed_m_s if item.speed_m_s is not None else self.p["MPC_XY_CRUISE"]
+        return self._go(goal, xy=min(cruise, self.p["MPC_XY_VEL_MAX"]))
 
     def _face(self, pos: Vec3, goal: Vec3) -> None:
         """Heading on an auto leg, by MPC_YAW_MODE as PX4: 0/3/4 toward the goal, 1 toward home, 2 away.

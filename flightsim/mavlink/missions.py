@@ -6,7 +6,9 @@ MISSION_ACK, re-requesting an item that does not arrive within
 giving up after ``MAX_RETRIES``. Items are stored as sent so a download
 returns them unchanged; mission_type MISSION (0) is also converted to the
 vehicle's :class:`~flightsim.api.NavItem` list (lat/lon -> local NED around
-HOME). FENCE (1) and RALLY (2) are stored and returned but not enforced.
+HOME). DO_CHANGE_SPEED items set the cruise speed of the legs after them
+(MAVSDK's per-item ``speed_m_s``); other DO_ items are kept but not flown.
+FENCE (1) and RALLY (2) are stored and returned but not enforced.
 
 Progress follows PX4: MISSION_CURRENT on change and at 1 Hz (the stream
 table), MISSION_ITEM_REACHED for every item passed, the last one when the
@@ -300,9 +302,13 @@ class MissionServer:
         nav: list[NavItem] = []
         seqs: list[int] = []
         here = self.v.estimate.pos_ned_m
+        speed: float | None = None  # set by DO_CHANGE_SPEED items for the legs after them, as PX4
         for it in items:
+            if it.command == mavlink.MAV_CMD_DO_CHANGE_SPEED:
+                speed = _changed_speed(it, speed)
+                continue
             if not _is_nav(it.command):
-                continue  # DO_/CONDITION_ items (speed, camera...) are accepted and not flown
+                continue  # other DO_/CONDITION_ items (camera, gimbal...) are accepted and not flown
             if it.command not in _NAV_COMMANDS:
                 return _Refusal(
                     mavlink.MAV_MISSION_UNSUPPORTED, f"Mission item {it.seq}: command {it.command} not supported"
@@ -321,6 +327,7 @@ class MissionServer:
                     hold_s=max(0.0, hold if math.isfinite(hold) else 0.0),
                     acceptance_radius_m=radius if math.isfinite(radius) else 0.5,
                     yaw_rad=yaw,
+                    speed_m_s=speed,
                 )
             )
             seqs.append(it.seq)
@@ -348,6 +355,16 @@ class MissionServer:
     def _rtl_alt(self) -> float:
         p = self.v.get_param("RTL_RETURN_ALT")
         return p.value if p is not None else 5.0
+
+
+def _changed_speed(it: ItemInt, current: float | None) -> float | None:
+    """DO_CHANGE_SPEED param2: a speed in m/s, -1 (or 0, NaN) no change, -2 back to the default cruise speed."""
+    value = it.param2
+    if not math.isfinite(value) or value == -1 or value == 0:
+        return current
+    if value == -2:
+        return None
+    return value if value > 0 else current
 
 
 def _as_int(msg: Message, mav: mavlink.MAVLink) -> ItemInt:

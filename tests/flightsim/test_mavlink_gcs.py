@@ -300,7 +300,7 @@ def _missions(runner: SimRunner, gcs: Gcs) -> None:
     assert _upload(gcs, items) == mav.MAV_MISSION_ACCEPTED
     back = _download(gcs)
     assert [(m.frame, m.command, m.x, m.y) for m in back] == items
-    assert len(v.commander.nav.mission) == 3
+    assert [it.speed_m_s for it in v.commander.nav.mission] == [None, pytest.approx(0.3), pytest.approx(0.3)]
     # fences and rally points are stored and returned (not enforced)
     fence = [(mav.MAV_FRAME_GLOBAL_INT, mav.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION, items[0][2], items[0][3])]
     assert _upload(gcs, fence, mav.MAV_MISSION_TYPE_FENCE) == mav.MAV_MISSION_ACCEPTED
