@@ -66,7 +66,8 @@ def read_tlog(path: Path) -> tuple[dict[int, VehicleLog], LogSummary]:
         raise InputError(str(path), "--tlog", str(path), "no such file")
     logs: dict[int, VehicleLog] = {}
     frames = invalid = 0
-    conn = mavutil.mavlink_connection(str(path), dialect="common", robust_parsing=True)
+    # No dialect argument: it would switch pymavlink's process-wide dialect; the default includes common.
+    conn = mavutil.mavlink_connection(str(path), robust_parsing=True)
     try:
         while True:
             msg = conn.recv_match(type=["DISTANCE_SENSOR", "LOCAL_POSITION_NED"], blocking=False)
