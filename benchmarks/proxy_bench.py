@@ -351,7 +351,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--relay", nargs=3, metavar=("IN", "OUT", "LOOP"), help=argparse.SUPPRESS)
     ap.add_argument("--record-s", type=float, default=5.0, help="seconds of flightsim telemetry to record (1x)")
-    ap.add_argument("--rates", default="2000,5000,10000,20000,30000,40000,50000,60000,70000,85000,100000",
+    ap.add_argument("--rates", default="500,1000,2000,5000,10000,20000,30000,40000,50000,60000,70000,85000,100000",
                     help="offered datagrams/s (= frames/s with --batching frame)")
     ap.add_argument("--step-s", type=float, default=2.0, help="seconds per offered rate")
     ap.add_argument("--tries", type=int, default=2, help="attempts per rate before it counts as lossy")

@@ -17,6 +17,7 @@ import asyncio
 import contextlib
 import json
 import struct
+from collections import Counter
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any
@@ -36,7 +37,9 @@ from secuav_common.scenario import load_scenario
 from secuav_common.urls import Endpoint
 
 DISTANCE_SENSOR = 132
+LOCAL_POSITION_NED = 32
 BIAS_M = 1.5
+NORTH_BIAS_M = 3.0
 ATTACKED_IDS = range(5)  # the wall sensors; other DISTANCE_SENSOR ids of the scenario pass untouched
 PROFILE = f"""
 name: e2e-bias
@@ -44,6 +47,10 @@ rules:
   - target: {{message: DISTANCE_SENSOR, sensor_id: {{first: 0, last: 4}}, field: current_distance}}
     kind: bias
     offset_m: {BIAS_M}
+    start_s: 0
+  - target: {{message: LOCAL_POSITION_NED, field: x}}
+    kind: bias
+    offset_m: {NORTH_BIAS_M}
     start_s: 0
 """
 
@@ -71,6 +78,13 @@ def tlog_frames(path: Path) -> list[bytes]:
         out.append(blob[i : i + n])
         i += n
     return out
+
+
+def lpos_x(frame: bytes) -> tuple[int, float]:
+    """(time_boot_ms, x) of a v2 LOCAL_POSITION_NED frame."""
+    payload = frame[10 : 10 + frame[1]].ljust(28, b"\0")
+    t_ms, x = struct.unpack_from("<If", payload)
+    return t_ms, x
 
 
 def ds_key(frame: bytes) -> tuple[int, int, int]:
@@ -120,6 +134,7 @@ async def first(aiter: AsyncIterator[Any], pred: Callable[[Any], bool], timeout_
 
 async def test_fly_through_the_proxy_bypass_then_attack(tmp_path: Path, udp_port: Callable[[], int]) -> None:
     seen: list[tuple[str, int, int, int]] = []  # (phase, id, time_boot_ms, current_distance) as MAVSDK saw them
+    north: list[tuple[str, int, float]] = []  # (phase, time_boot_ms, LOCAL_POSITION_NED.x) as MAVSDK saw them
     phase = "bypass"
     async with stack(tmp_path, udp_port) as (proxy, runner, api, cap):
         vehicle = runner.sim.vehicles[1]
@@ -135,7 +150,12 @@ async def test_fly_through_the_proxy_bypass_then_attack(tmp_path: Path, udp_port
                     f = json.loads(msg.fields_json)
                     seen.append((phase, int(f["id"]), int(f["time_boot_ms"]), int(f["current_distance"])))
 
-            watcher = asyncio.create_task(watch())
+            async def watch_position() -> None:
+                async for msg in direct.subscribe_message("LOCAL_POSITION_NED"):
+                    f = json.loads(msg.fields_json)
+                    north.append((phase, int(f["time_boot_ms"]), float(f["x"])))
+
+            watchers = [asyncio.create_task(watch()), asyncio.create_task(watch_position())]
             await first(tel.subscribe_health_all_ok(), bool, 20)
             await action.arm()
             await action.takeoff()
@@ -150,7 +170,8 @@ async def test_fly_through_the_proxy_bypass_then_attack(tmp_path: Path, udp_port
             phase = "landing"
             await action.land()
             await first(tel.subscribe_in_air(), lambda in_air: not in_air, 30)
-            watcher.cancel()
+            for w in watchers:
+                w.cancel()
             assert not vehicle.crashed
         snap = proxy.stats_snapshot()[1]
     # -- what the vehicle sent (the proxy's original recording) is the reference
@@ -166,11 +187,21 @@ async def test_fly_through_the_proxy_bypass_then_attack(tmp_path: Path, udp_port
             key = f"{ph}{'+' if attacked else ''}"
             by_phase[key] = by_phase.get(key, 0) + 1
     assert by_phase.get("bypass", 0) > 20 and by_phase.get("attack+", 0) > 20, by_phase
+    # -- position: MAVSDK's north is the vehicle's, then the vehicle's plus the bias (float32 on the wire)
+    x_true = dict(lpos_x(f) for f in original if f[0] == 0xFD and f[7] == LOCAL_POSITION_NED)
+    checked = Counter()
+    for ph, t_ms, x in north:
+        if ph in ("bypass", "attack"):
+            want = x_true[t_ms] + (NORTH_BIAS_M if ph == "attack" else 0.0)
+            assert x == pytest.approx(want, abs=2e-6 * max(1.0, abs(want))), (ph, t_ms, x, x_true[t_ms])
+            checked[ph] += 1
+    assert checked["bypass"] > 10 and checked["attack"] > 10, checked
     assert snap["downlink"]["rewritten"] > 0 and snap["uplink"]["frames_in"] > 0
     # -- byte-exactness on the raw ground endpoint: untargeted frames are the vehicle's, in order
     sent_raw = [f for d in cap.data for _h, f in split(d).frames]
-    untargeted_in = [f for f in original if f[7] != DISTANCE_SENSOR]
-    untargeted_out = [f for f in sent_raw if f[7] != DISTANCE_SENSOR]
+    targeted = (DISTANCE_SENSOR, LOCAL_POSITION_NED)
+    untargeted_in = [f for f in original if f[7] not in targeted]
+    untargeted_out = [f for f in sent_raw if f[7] not in targeted]
     assert len(untargeted_out) > 500
     assert untargeted_out == untargeted_in[: len(untargeted_out)]
     assert len(untargeted_in) - len(untargeted_out) <= 2  # at most what was in flight at teardown
