@@ -28,16 +28,29 @@ Three parts, figures only (no assertions; run it on the machine you care about):
 The measurement streams are synthesised here with numpy (geometry + seeded
 noise), so the same seed gives the same figures.
 
+``--ab OLD`` instead compares the estimators package in the directory OLD (an
+older checkout's top level, e.g. ``git archive <commit> estimators | tar -x -C
+/tmp/old``) with this tree's: part 1's workload in fresh processes, old and new
+alternating ``--ab-repeats`` times, lowest median and p99 of each, the ratio,
+and whether the two produce the same outputs (positions to 1e-9, same
+attacked sets) on every step.
+
     .venv/bin/python benchmarks/estimators_bench.py [--steps 600] [--seed 0] [--skip-scaling]
+    .venv/bin/python benchmarks/estimators_bench.py --ab /tmp/old [--ab-repeats 5]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
+import os
+import subprocess
+import sys
 import time
 import timeit
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 
@@ -234,12 +247,64 @@ def part_accuracy(steps: int, seed: int) -> None:
     )
 
 
+def _ab_child(steps: int, seed: int) -> None:
+    """In a fresh process: part 1's workload; prints per estimator median, p99 and every step's output."""
+    model = AnchorRanges2D.build(seed_anchors(), SIGMA_M, VEHICLE_Z_NED_M)
+    out = {}
+    for name in estimators.names():
+        est = estimators.create(name, model, **({} if name in ("ls", "ekf") else {"s": 2}))
+        rng = np.random.default_rng(seed)
+        attack, r_true = attack_steps(model), model.h(HOVER_XY_M)
+        times, outputs = [], []
+        for k in range(steps):
+            t_s = k / RATE_HZ
+            step = est.step(t_s, r_true + SIGMA_M * rng.standard_normal(model.p) + attack(t_s, r_true), VEHICLE_Z_NED_M)
+            times.append(step.step_time_s)
+            outputs.append([*step.position_m.tolist(), sorted(step.attacked)])
+        t_us = 1e6 * np.array(times)
+        out[name] = {"median": float(np.median(t_us)), "p99": float(np.percentile(t_us, 99)), "out": outputs}
+    print(json.dumps(out))
+
+
+def part_ab(old: Path, repeats: int, steps: int, seed: int) -> None:
+    here = Path(__file__).resolve()
+    new = here.parent.parent
+    if not (old / "estimators" / "__init__.py").is_file():
+        raise SystemExit(f"--ab: {old} has no estimators/ package")
+    runs: dict[str, list[dict]] = {"old": [], "new": []}
+    for _ in range(repeats):
+        for tag, root in (("old", old), ("new", new)):
+            env = {**os.environ, "PYTHONPATH": str(root)}
+            cmd = [sys.executable, str(here), "--ab-child", "--steps", str(steps), "--seed", str(seed)]
+            done = subprocess.run(cmd, env=env, cwd=str(root), capture_output=True, text=True, check=True)
+            runs[tag].append(json.loads(done.stdout))
+    print(f"\nA/B: {old} (old) vs {new} (new), {repeats} alternating runs of {steps} steps, p = 8, s = 2")
+    print(f"{'estimator':<10}{'old med':>9}{'new med':>9}{'new/old':>9}{'old p99':>9}{'new p99':>9}  same outputs")
+    for name in runs["new"][0]:
+        if name not in runs["old"][0]:
+            continue
+        om, nm = (min(r[name]["median"] for r in runs[t]) for t in ("old", "new"))
+        op, np99 = (min(r[name]["p99"] for r in runs[t]) for t in ("old", "new"))
+        a, b = runs["old"][0][name]["out"], runs["new"][0][name]["out"]
+        same = all(np.allclose(x[:-1], y[:-1], atol=1e-9) and x[-1] == y[-1] for x, y in zip(a, b, strict=True))
+        print(f"{name:<10}{om:>9.0f}{nm:>9.0f}{nm / om:>9.2f}{op:>9.0f}{np99:>9.0f}  {same}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--steps", type=int, default=600, help="steps per run at 10 Hz (default 600 = 60 s)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--skip-scaling", action="store_true")
+    parser.add_argument("--ab", type=Path, default=None, metavar="OLD", help="compare with the estimators in OLD")
+    parser.add_argument("--ab-repeats", type=int, default=5)
+    parser.add_argument("--ab-child", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.ab_child:
+        _ab_child(args.steps, args.seed)
+        return
+    if args.ab is not None:
+        part_ab(args.ab.resolve(), args.ab_repeats, args.steps, args.seed)
+        return
     started = time.perf_counter()
     part_timing(args.steps, args.seed)
     if not args.skip_scaling:
