@@ -225,3 +225,14 @@ class Repositionable(Protocol):
     """
 
     def reposition(self, pos_ned_m: Vec3, yaw_rad: float | None = None) -> Outcome: ...
+
+
+@runtime_checkable
+class SpeedSettable(Protocol):
+    """Optional for a VehicleModel: MAV_CMD_DO_CHANGE_SPEED (MAVSDK ``set_current_speed``).
+
+    Sets the horizontal speed of mission legs and repositions until changed
+    again; ``None`` goes back to MPC_XY_CRUISE and the items' own speeds.
+    """
+
+    def set_cruise_speed(self, speed_m_s: float | None) -> Outcome: ...

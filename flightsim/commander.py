@@ -206,6 +206,15 @@ class Commander:
         self.nav.start_reposition(self._est, pos_ned_m, yaw_rad)
         return Outcome(Result.ACCEPTED)
 
+    def set_cruise_speed(self, speed_m_s: float | None) -> Outcome:
+        """MAV_CMD_DO_CHANGE_SPEED: the horizontal speed of auto legs and repositions; None restores the default."""
+        if speed_m_s is not None and not (math.isfinite(speed_m_s) and speed_m_s > 0):
+            return self._deny(f"Change speed denied: {speed_m_s} m/s is not a speed")
+        self.nav.speed_override_m_s = speed_m_s
+        if self.nav.hold_xy_speed is not None:  # a reposition under way takes the new speed too
+            self.nav.hold_xy_speed = self.nav.cruise_m_s()
+        return Outcome(Result.ACCEPTED)
+
     def offboard_setpoint(self, setpoint: OffboardSetpoint) -> None:
         self._offboard = _sanitised(setpoint)
         self._offboard_t_s = self._t_s

@@ -116,6 +116,7 @@ class Navigator:
         self.p = params
         self.hold_pos: Vec3 = (0.0, 0.0, 0.0)
         self.hold_xy_speed: float | None = None  # None: MPC_XY_VEL_MAX; a reposition flies at cruise speed
+        self.speed_override_m_s: float | None = None  # MAV_CMD_DO_CHANGE_SPEED: beats MPC_XY_CRUISE and item speeds
         self.yaw: float = 0.0
         self.target: Vec3 = (0.0, 0.0, 0.0)
         self.rtl_phase = RtlPhase.CLIMB
@@ -195,7 +196,7 @@ class Navigator:
         self.hold_pos = (n, e, d)
         if yaw is not None and math.isfinite(yaw):
             self.yaw = yaw
-        self.hold_xy_speed = self.p["MPC_XY_CRUISE"]
+        self.hold_xy_speed = self.cruise_m_s()
         self.carrot.reset(cur, est.vel_ned_m_s)
 
     def takeoff(self, est: State) -> Guidance:
@@ -265,8 +266,12 @@ class Navigator:
                 self._mission_hold_until = t_s + item.hold_s
             if t_s >= self._mission_hold_until:
                 self._advance(est, goal)
-        cruise = item.speed_m_s if item.speed_m_s is not None else self.p["MPC_XY_CRUISE"]
-        return self._go(goal, xy=min(cruise, self.p["MPC_XY_VEL_MAX"]))
+        return self._go(goal, xy=self.cruise_m_s(item.speed_m_s))
+
+    def cruise_m_s(self, item_speed_m_s: float | None = None) -> float:
+        """Horizontal speed on auto legs: a DO_CHANGE_SPEED command, else the item's, else MPC_XY_CRUISE."""
+        speed = self.speed_override_m_s or item_speed_m_s or self.p["MPC_XY_CRUISE"]
+        return min(speed, self.p["MPC_XY_VEL_MAX"])
 
     def _face(self, pos: Vec3, goal: Vec3) -> None:
         """Heading on an auto leg, by MPC_YAW_MODE as PX4: 0/3/4 toward the goal, 1 toward home, 2 away.

@@ -177,6 +177,10 @@ class Vehicle:
         """Fly to ``pos_ned_m`` (NaN axes: keep) and hold there in Hold mode (MAVSDK ``goto_location``)."""
         return self.commander.reposition(pos_ned_m, yaw_rad)
 
+    def set_cruise_speed(self, speed_m_s: float | None) -> Outcome:
+        """Horizontal speed of mission legs and repositions (MAV_CMD_DO_CHANGE_SPEED); None: MPC_XY_CRUISE."""
+        return self.commander.set_cruise_speed(speed_m_s)
+
     def offboard_setpoint(self, setpoint: OffboardSetpoint) -> None:
         self.commander.offboard_setpoint(setpoint)
 

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from flightsim.api import FlightMode, Outcome, Repositionable, Result
+from flightsim.api import FlightMode, Outcome, Repositionable, Result, SpeedSettable
 from flightsim.mavlink import modes
 from secuav_common.geo import geodetic_to_ned
 
@@ -117,6 +117,17 @@ def _reposition(p: Px4Personality, c: Command) -> Outcome:
     return v.reposition((north, east, down), yaw)
 
 
+def _change_speed(p: Px4Personality, c: Command) -> Outcome:
+    # param2: speed in m/s; -1 "no change", -2 "back to the default" (MAV_CMD_DO_CHANGE_SPEED)
+    v = p.vehicle
+    if not isinstance(v, SpeedSettable):
+        return Outcome(Result.UNSUPPORTED, "Change speed not supported by this vehicle model")
+    speed = c.params[1]
+    if speed == -1:
+        return _ACCEPTED
+    return v.set_cruise_speed(None if speed == -2 else speed)
+
+
 def _mission_start(p: Px4Personality, c: Command) -> Outcome:
     first = c.params[0]
     if math.isfinite(first) and first > 0:
@@ -167,6 +178,7 @@ HANDLERS: dict[int, Handler] = {
     mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH: _rtl,
     mavlink.MAV_CMD_DO_SET_MODE: _set_mode,
     mavlink.MAV_CMD_DO_REPOSITION: _reposition,
+    mavlink.MAV_CMD_DO_CHANGE_SPEED: _change_speed,
     mavlink.MAV_CMD_MISSION_START: _mission_start,
     mavlink.MAV_CMD_DO_SET_MISSION_CURRENT: _set_mission_current,
     mavlink.MAV_CMD_SET_MESSAGE_INTERVAL: _set_message_interval,

@@ -107,6 +107,10 @@ async def test_mavsdk_params_rates_offboard_goto_and_rtl(udp_port: Callable[[], 
         await offboard.stop()
         await asyncio.wait_for(_mode(tel, FlightMode.HOLD), 5)
 
+        # -- set_current_speed: MAV_CMD_DO_CHANGE_SPEED for the auto legs that follow
+        await action.set_current_speed(1.5)
+        assert v.commander.nav.cruise_m_s() == pytest.approx(1.5)
+
         # -- goto_location: DO_REPOSITION, hold there
         goal = (n0 - 0.5, e0 - 1.0, -2.0)
         lat, lon, alt = ned_to_geodetic(v.home, *goal)

@@ -41,3 +41,27 @@ def test_legs_fly_at_their_item_speed_and_default_to_cruise() -> None:
     assert peaks[0] > 2.0
     assert 0.8 < peaks[1] < 1.15
     assert peaks[2] > 2.0
+
+
+def test_a_change_speed_command_beats_item_and_cruise_speeds_until_reset() -> None:
+    legs = [
+        NavItem(NavCommand.WAYPOINT, (6.5, 2.5, -2.5)),
+        NavItem(NavCommand.WAYPOINT, (2.5, 2.5, -2.5), speed_m_s=3.0),
+    ]
+    sim, v = airborne("anchors8")
+    assert v.set_cruise_speed(1.2).ok
+    assert not v.set_cruise_speed(float("nan")).ok and not v.set_cruise_speed(-3.0).ok
+    assert v.set_mission(legs).ok and v.set_mode(FlightMode.MISSION).ok
+    peaks = [0.0, 0.0]
+
+    def watch(_s: Simulation) -> None:
+        tr = v.truth
+        if abs(tr.pos_ned_m[0] - MID_N) < 0.6:
+            i = min(v.mission_current, 1)
+            peaks[i] = max(peaks[i], math.hypot(tr.vel_ned_m_s[0], tr.vel_ned_m_s[1]))
+
+    sim.run_for(14.0, watch)
+    assert v.mission_finished
+    assert all(1.0 < p < 1.35 for p in peaks), peaks
+    assert v.set_cruise_speed(None).ok
+    assert v.commander.nav.cruise_m_s(3.0) == 3.0 and v.commander.nav.cruise_m_s() == 5.0
