@@ -122,6 +122,8 @@ class Proxy:
             "links": " ".join(f"v{ln.sysid}:{ln.vehicle.endpoint}->{','.join(str(g.endpoint) for g in ln.grounds)}"
                               for ln in self.links),
             "attack": self.config.attack, "profile": self.slots[self.links[0].sysid].state.profile or "none",
+            "secure": next((s.stage.config.estimator for s in self.secure.values() if s.stage.config.estimator), "off")
+            if self.secure else "unavailable (no --scenario)",
             "broker": self.config.broker, "record": self.config.record or "off",
             "signing": "on" if self.signer else "off",
         })  # fmt: skip
