@@ -14,6 +14,12 @@ way a proxy recording would. The profile's activation clock runs on the
 vehicle's boot time (``time_boot_ms``), not the wall clock, so a simulator run
 faster than real time is attacked at the same sim seconds as at 1x.
 
+``--takeoff`` makes the recorder a minimal ground station: on each vehicle's
+first HEARTBEAT it sends arm (MAV_CMD_COMPONENT_ARM_DISARM) and take off
+(MAV_CMD_NAV_TAKEOFF, all-NaN: the vehicle's MIS_TAKEOFF_ALT) back to the
+address the vehicle sends from, so a simulator run headless records a flight,
+not a parked vehicle. (Those two commands are not written to the log.)
+
 Stops on SIGINT/SIGTERM, after ``--duration`` seconds, or ``--idle-stop``
 seconds after the last datagram (the simulator finished). Prints one summary
 line (frames in, written, rewritten, dropped, delayed, injected).
@@ -26,6 +32,7 @@ import asyncio
 import contextlib
 import heapq
 import json
+import math
 import signal
 import struct
 import sys
@@ -139,15 +146,25 @@ def _pack_new(name: str, fields: dict[str, Any], like: mavlink.MAVLink_message) 
     return bytes(msg.pack(mav))
 
 
+GCS_SYSID, GCS_COMPID = 255, 190  # what QGroundControl uses
+
+
 class _Listener(asyncio.DatagramProtocol):
     """One bound UDP port; its own parser so frames of different links never interleave."""
 
-    def __init__(self, writer: TlogWriter, seen: asyncio.Event) -> None:
+    def __init__(self, writer: TlogWriter, seen: asyncio.Event, takeoff: bool = False) -> None:
         self.writer = writer
         self.seen = seen
         self.parser = mavlink.MAVLink(None)
         self.parser.robust_parsing = True
         self.last_rx = time.monotonic()
+        self.takeoff = takeoff
+        self.commanded: set[int] = set()
+        self.gcs = mavlink.MAVLink(None, srcSystem=GCS_SYSID, srcComponent=GCS_COMPID)
+        self.transport: asyncio.DatagramTransport | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = transport  # type: ignore[assignment]
 
     def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
         self.last_rx = time.monotonic()
@@ -156,7 +173,19 @@ class _Listener(asyncio.DatagramProtocol):
             if msg.get_type() == "BAD_DATA":
                 self.writer.counts.bad += 1
                 continue
+            if self.takeoff and msg.get_type() == "HEARTBEAT" and msg.get_srcSystem() not in self.commanded:
+                self._arm_and_take_off(msg.get_srcSystem(), msg.get_srcComponent(), addr)
             self.writer.feed(msg)
+
+    def _arm_and_take_off(self, sysid: int, compid: int, addr: tuple[str, int]) -> None:
+        if self.transport is None:
+            return
+        self.commanded.add(sysid)
+        nan = math.nan
+        arm = self.gcs.command_long_encode(sysid, compid, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+        up = self.gcs.command_long_encode(sysid, compid, mavlink.MAV_CMD_NAV_TAKEOFF, 0, *([nan] * 7))
+        for cmd in (arm, up):
+            self.transport.sendto(bytes(cmd.pack(self.gcs)), addr)
 
 
 async def record(
@@ -166,6 +195,7 @@ async def record(
     duration_s: float | None = None,
     idle_stop_s: float | None = None,
     on_bound: Callable[[list[tuple[str, int]]], None] | None = None,
+    takeoff: bool = False,
 ) -> Counts:
     """Record until stopped (signal, duration, or idle after the first datagram).
 
@@ -187,7 +217,7 @@ async def record(
         listeners = []
         try:
             for ep in listen:
-                lis = _Listener(writer, seen)
+                lis = _Listener(writer, seen, takeoff)
                 transport, _ = await loop.create_datagram_endpoint(lambda lis=lis: lis, local_addr=ep.address)
                 transports.append(transport)
                 listeners.append(lis)
@@ -221,6 +251,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="seed of the attack's random primitives")
     p.add_argument("--duration", type=float, default=None, help="stop after S seconds (wall clock)")
     p.add_argument("--idle-stop", type=float, default=None, help="stop S seconds after the last datagram")
+    p.add_argument("--takeoff", action="store_true", help="arm and take off each vehicle on its first heartbeat")
     p.add_argument("-q", "--quiet", action="store_true", help="no summary line")
     return p
 
@@ -243,7 +274,7 @@ def main(argv: list[str] | None = None) -> int:
             except ValueError as err:
                 raise InputError("--listen", "", url, str(err)) from None
         engine = _engine(args)
-        counts = asyncio.run(record(listen, args.out, engine, args.duration, args.idle_stop))
+        counts = asyncio.run(record(listen, args.out, engine, args.duration, args.idle_stop, takeoff=args.takeoff))
     except InputError as err:
         print(f"record: {err}", file=sys.stderr)
         return 2

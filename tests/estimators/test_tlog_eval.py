@@ -2,7 +2,10 @@
 
 The logs come from the real ``secuav-sim`` (anchors8, as fast as possible)
 sending to our recorder on 127.0.0.1; one is recorded through the type-A
-attack (links 11 and 14 biased from 5 s), one clean.
+attack (links 11 and 14 biased from 5 s) while the recorder, as a minimal
+ground station, has the vehicle take off (so heights come from the downward
+laser); one is clean, of the vehicle parked (no laser reading: heights from
+LOCAL_POSITION_NED).
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ from attack_profiles import Engine, library
 from attack_profiles.profile import Profile
 from evaluation.cli import main
 from evaluation.record import Counts, TlogWriter, record
-from evaluation.tlog import _framed, read_tlog, read_truth_csv
+from evaluation.tlog import _framed, log_streams, read_tlog, read_truth_csv
 from secuav_common.loading import InputError
 from secuav_common.scenario import load_scenario
 from secuav_common.urls import Endpoint
@@ -32,14 +35,19 @@ ESTIMATORS = "ekf,secekf,rarse"
 
 
 async def _record_sim(
-    tlog: Path, truth: Path, profile: Profile | None, scenario: str = "anchors8", vehicles: int = 1
+    tlog: Path,
+    truth: Path,
+    profile: Profile | None,
+    scenario: str = "anchors8",
+    vehicles: int = 1,
+    takeoff: bool = False,
 ) -> Counts:
     """The recorder binds 127.0.0.1 port 0 (a free port, no race) per vehicle; the sim sends there."""
     engine = None if profile is None else Engine(profile, seed=0, scenario=load_scenario(scenario))
     bound: asyncio.Future[list[tuple[str, int]]] = asyncio.get_running_loop().create_future()
     endpoints = [Endpoint("udpin", "127.0.0.1", 0) for _ in range(vehicles)]
     task = asyncio.create_task(
-        record(endpoints, tlog, engine, duration_s=60.0, idle_stop_s=1.0, on_bound=bound.set_result)
+        record(endpoints, tlog, engine, duration_s=60.0, idle_stop_s=1.0, on_bound=bound.set_result, takeoff=takeoff)
     )
     ports = [addr[1] for addr in await asyncio.wait_for(bound, 10)]
     args = [scenario, "--fast", "--duration", str(DURATION_S), "-q", "--truth-csv", str(truth)]
@@ -56,7 +64,7 @@ def logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     out: dict[str, Path] = {}
     attack = library.load("type-a", start_s=5.0)
     for name, profile in (("attacked", attack), ("clean", None)):
-        counts = asyncio.run(_record_sim(root / f"{name}.tlog", root / f"{name}.csv", profile))
+        counts = asyncio.run(_record_sim(root / f"{name}.tlog", root / f"{name}.csv", profile, takeoff=bool(profile)))
         assert counts.frames_in > 3000 and counts.written == counts.frames_in
         assert (counts.rewritten > 200) == (profile is not None)
         out[name] = root / f"{name}.tlog"
@@ -90,6 +98,17 @@ def test_attacked_log_with_truth_scores_errors_and_names_the_links(logs: dict[st
 
 
 @pytest.mark.timeout(120)
+@pytest.mark.timeout(60)
+def test_flight_log_heights_come_from_the_downward_laser(logs: dict[str, Path]) -> None:
+    vehicle_logs, _ = read_tlog(logs["attacked"])
+    streams, _ = log_streams(vehicle_logs, [1], {1: 0}, 10.0, read_truth_csv(logs["attacked_truth"]))
+    s = streams[1]
+    late = s.t_s > 10.0  # after the climb to MIS_TAKEOFF_ALT (2.5 m)
+    assert np.all(np.abs(s.laser_down_m[late] - 2.5) < 0.3)
+    assert np.all(np.abs(s.laser_down_m[late] + s.truth_ned_m[late, 2]) < 0.1)  # laser = height from truth
+    assert 0 not in s.readings and set(s.readings) == set(range(10, 18))  # the laser (id 0) is not a range
+
+
 def test_log_without_truth_reports_alarms_links_and_step_times_only(
     logs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
