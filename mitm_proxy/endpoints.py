@@ -7,7 +7,8 @@ replies on that port (how MAVSDK, QGroundControl and MAVProxy answer).
 
 An endpoint only moves datagrams: the link above it decides what they mean.
 Faults of the network never close it: an ICMP "port unreachable" from a ground
-client that went away, a send buffer that fills, a datagram before anyone has
+client that went away (reported by the kernel on the standard loop, see
+:func:`_reports_icmp`), a send buffer that fills, a datagram before anyone has
 sent to a ``udpin`` endpoint. Each is counted and logged once per kind (and
 again only after the endpoint saw it clear), never per datagram.
 """
@@ -18,6 +19,7 @@ import asyncio
 import contextlib
 import logging
 import socket
+import sys
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -31,6 +33,7 @@ Receiver = Callable[[bytes, float], None]  # datagram, monotonic arrival time
 RCVBUF_BYTES = 4 * 1024 * 1024  # ride out bursts (the kernel may cap it at net.core.rmem_max)
 MAX_PENDING_SEND_BYTES = 1024 * 1024  # beyond this, drop rather than queue without bound
 _LOOPBACK_HOSTS = {"127.0.0.1", "localhost"}
+IP_RECVERR = 11  # Linux <linux/in.h>; Python's socket module does not export it
 
 
 class UdpEndpoint(asyncio.DatagramProtocol):
@@ -66,6 +69,9 @@ class UdpEndpoint(asyncio.DatagramProtocol):
         try:
             with contextlib.suppress(OSError):
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF_BYTES)
+            if _reports_icmp(loop):
+                with contextlib.suppress(OSError):
+                    sock.setsockopt(socket.IPPROTO_IP, IP_RECVERR, 1)
             sock.bind(local)
             sock.setblocking(False)
             transport, _ = await loop.create_datagram_endpoint(lambda: self, sock=sock)
@@ -143,6 +149,17 @@ class UdpEndpoint(asyncio.DatagramProtocol):
     def snapshot(self) -> dict[str, Any]:
         return {"url": str(self.endpoint), "peer": _fmt(self.peer), "rx": self.rx, "tx": self.tx,
                 "faults": dict(self.faults)}  # fmt: skip
+
+
+def _reports_icmp(loop: asyncio.AbstractEventLoop) -> bool:
+    """Whether to ask the kernel for ICMP errors on this unconnected socket (``IP_RECVERR``, Linux).
+
+    Then a ground client that went away shows up as ``unreachable`` (counted,
+    logged once) instead of nothing. Only on the standard loop: uvloop 0.2x
+    crashes (SIGSEGV) on the second such error, so under uvloop a vanished
+    peer stays silent; forwarding is the same either way.
+    """
+    return type(loop).__module__.startswith("asyncio") and sys.platform == "linux"
 
 
 def _same_host_port(addr: Any, ep: Endpoint) -> bool:
