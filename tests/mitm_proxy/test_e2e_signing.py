@@ -1,0 +1,80 @@
+"""``--signing-key``: signed MAVLink 2 through the daemon, checked by pymavlink's own signature code.
+
+A vehicle signs with the link key (pymavlink); the proxy rewrites DISTANCE_SENSOR
+per profile and re-signs it; a ground parser holding the same key and refusing
+unsigned frames accepts every frame, and reads the profile's value. Without the
+key the proxy leaves signed frames alone (forwarded as they came, counted).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+from pymavlink.dialects.v20 import common as mavlink2
+from test_link import Peer
+
+from mitm_proxy.app import Proxy
+from mitm_proxy.config import LinkConfig, ProxyConfig
+
+pytestmark = pytest.mark.timeout(30)
+KEY = os.urandom(32)
+PROFILE = ("name: sixty\nrules:\n  - target: {message: DISTANCE_SENSOR, field: current_distance}\n"
+           "    kind: set\n    value: 0.6\n")  # fmt: skip
+
+
+def signer(sysid: int, compid: int) -> mavlink2.MAVLink:
+    mav = mavlink2.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+    mav.signing.secret_key = KEY
+    mav.signing.link_id = 1
+    mav.signing.sign_outgoing = True
+    mav.signing.timestamp = 1_000_000
+    return mav
+
+
+def strict_parser() -> mavlink2.MAVLink:
+    """A receiver with the key that rejects anything unsigned or wrongly signed."""
+    mav = mavlink2.MAVLink(None)
+    mav.signing.secret_key = KEY
+    mav.signing.allow_unsigned_callback = lambda _mav, _msgid: False
+    mav.robust_parsing = True
+    return mav
+
+
+@pytest.mark.parametrize("with_key", [True, False])
+async def test_signed_frames_rewritten_and_resigned_or_left_alone(
+    with_key: bool, udp_port: Callable[[], int], tmp_path: Path
+) -> None:
+    key_file = tmp_path / "link.key"
+    key_file.write_bytes(KEY)
+    profile = tmp_path / "sixty.yaml"
+    profile.write_text(PROFILE)
+    gcs, vehicle = Peer(), Peer()
+    veh = udp_port()
+    link = LinkConfig(sysid=1, vehicle=f"udpin://127.0.0.1:{veh}", ground=[f"udpout://127.0.0.1:{gcs.port}"])
+    cfg = ProxyConfig(links=[link], broker="none", profile=profile, signing_key=key_file if with_key else None)
+    try:
+        async with Proxy(cfg) as proxy:
+            mav = signer(1, 1)
+            sent = [mav.distance_sensor_encode(1000 + i, 10, 4000, 250, 0, 0, 0, 0).pack(mav) for i in range(5)]
+            sent.append(mav.heartbeat_encode(2, 12, 0, 0, 3).pack(mav))
+            for frame in sent:
+                vehicle.send(frame, veh)
+            got, _ = await gcs.frames()
+            snap = proxy.stats_snapshot()[1]["downlink"]
+    finally:
+        gcs.close()
+        vehicle.close()
+    assert len(got) == len(sent)
+    parser = strict_parser()
+    msgs = [parser.parse_char(f) for f in got]
+    assert all(m is not None and m.get_type() != "BAD_DATA" for m in msgs), msgs
+    distances = [m.current_distance for m in msgs if m.get_type() == "DISTANCE_SENSOR"]
+    if with_key:
+        assert distances == [60] * 5 and snap["resigned"] == 5 and snap["rewritten"] == 5
+        assert got[-1] == sent[-1]  # untargeted: byte for byte
+    else:
+        assert distances == [250] * 5 and got == sent  # no key: never modified
+        assert snap["signed_untouched"] == 5 and snap["rewritten"] == 0
