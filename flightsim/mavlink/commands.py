@@ -21,6 +21,7 @@ from secuav_common.geo import geodetic_to_ned
 if TYPE_CHECKING:
     from flightsim.mavlink.personality import Px4Personality
 
+MAX_MSG_ID = 0xFFFF  # MESSAGE_INTERVAL.message_id is a uint16
 FORCE_MAGIC = 21196  # MAV_CMD_COMPONENT_ARM_DISARM param2: arm/disarm regardless of checks
 _GLOBAL_INT_FRAMES = {
     mavlink.MAV_FRAME_GLOBAL,
@@ -150,6 +151,8 @@ def _set_message_interval(p: Px4Personality, c: Command) -> Outcome:
 
 def _get_message_interval(p: Px4Personality, c: Command) -> Outcome:
     msg_id = round(c.params[0]) if math.isfinite(c.params[0]) else -1
+    if not 0 <= msg_id <= MAX_MSG_ID:
+        return Outcome(Result.DENIED, f"Get message interval denied: no message id {msg_id}")
     p.send(p.encoder.mav.message_interval_encode(msg_id, p.streams.interval_us(msg_id)))
     return _ACCEPTED
 

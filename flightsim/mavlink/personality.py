@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import math
+import struct
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -130,6 +131,8 @@ class Px4Personality:
             self.send(self.missions.mission_current_msg())
         elif msg_id == mavlink.MAVLINK_MSG_ID_MESSAGE_INTERVAL:
             target = round(param2) if math.isfinite(param2) else -1
+            if not 0 <= target <= 0xFFFF:
+                return False
             self.send(self.encoder.mav.message_interval_encode(target, self.streams.interval_us(target)))
         elif self.telemetry.can_build(msg_id):
             msg = self.telemetry.build(msg_id, t)
@@ -197,7 +200,7 @@ class Px4Personality:
         self.stats.commands += 1
         try:
             outcome = commands.dispatch(self, cmd)
-        except (ValueError, OverflowError, TypeError) as exc:
+        except (ValueError, OverflowError, TypeError, struct.error) as exc:
             # A malformed command must still be answered, or MAVSDK retries and times out.
             outcome = Outcome(Result.FAILED, f"command {cmd.command} rejected: {exc}")
         if not outcome.ok:
