@@ -33,6 +33,7 @@ class VehicleStream:
     readings: dict[int, np.ndarray]  # wire sensor id -> (T,) metres, NaN = none in that frame
     laser_down_m: np.ndarray  # (T,) downward rangefinder (height), NaN if the vehicle has none
     local_ned_m: np.ndarray | None = None  # (T, 3) the autopilot's LOCAL_POSITION_NED (logs only), not truth
+    boot_offset_s: float = 0.0  # vehicle boot time at t_s = 0 (logs; 0 for flights)
 
 
 def _altitude(scenario: Scenario, sysid: int) -> float:

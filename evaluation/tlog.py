@@ -221,5 +221,5 @@ def log_streams(
         if log.local_ned:
             arr = np.array(log.local_ned)
             local = _sample(arr[:, 0], arr[:, 1:4], t_end, max_gap_s=1.0)
-        out[s] = VehicleStream(s, t_end - t0 + period, truth_ned, readings, laser, local)
+        out[s] = VehicleStream(s, t_end - t0 + period, truth_ned, readings, laser, local, t0 - period)
     return out, t0 - period

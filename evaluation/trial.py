@@ -77,7 +77,11 @@ def _matrix(stream: VehicleStream, ids: list[int]) -> np.ndarray:
 def _attack(engine: Engine | None, stream: VehicleStream, z: np.ndarray, ids: list[int]) -> np.ndarray:
     if engine is None:
         return z
-    return engine.apply_array(stream.t_s, z, ids, sysid=stream.sysid, true_pos_ned_m=stream.truth_ned_m)
+    # A "vehicle" clock profile reads the boot clock; the live coordinated spoof tracks LOCAL_POSITION_NED,
+    # so a log (which has it) is attacked the same way, a flight with truth.
+    t_s = stream.t_s + stream.boot_offset_s if engine.profile.clock == "vehicle" else stream.t_s
+    position = stream.truth_ned_m if stream.local_ned_m is None else stream.local_ned_m
+    return engine.apply_array(t_s, z, ids, sysid=stream.sysid, true_pos_ned_m=position)
 
 
 def run_trial(
