@@ -7,6 +7,7 @@ and setpoints, including NaN, infinities and ids nobody assigned.
 
 from __future__ import annotations
 
+import logging
 import math
 
 from flight_helpers import airborne
@@ -100,3 +101,81 @@ def test_any_offboard_setpoint_is_used_or_refused_and_never_poisons_the_loops(
     b.advance(0.05)
     assert _finite(b.v)
     assert all(math.isfinite(c) for c in b.v.estimate.pos_ned_m)
+
+
+_INT_RANGES = {
+    f"{sign}int{bits}_t": (0, 2**bits - 1) if sign == "u" else (-(2 ** (bits - 1)), 2 ** (bits - 1) - 1)
+    for sign in ("u", "")
+    for bits in (8, 16, 32, 64)
+}
+_GCS_MESSAGES = [
+    mavlink.MAVLink_param_set_message,
+    mavlink.MAVLink_param_request_read_message,
+    mavlink.MAVLink_param_request_list_message,
+    mavlink.MAVLink_mission_count_message,
+    mavlink.MAVLink_mission_item_int_message,
+    mavlink.MAVLink_mission_item_message,
+    mavlink.MAVLink_mission_request_int_message,
+    mavlink.MAVLink_mission_request_list_message,
+    mavlink.MAVLink_mission_set_current_message,
+    mavlink.MAVLink_mission_clear_all_message,
+    mavlink.MAVLink_mission_ack_message,
+    mavlink.MAVLink_set_mode_message,
+    mavlink.MAVLink_set_position_target_global_int_message,
+    mavlink.MAVLink_set_attitude_target_message,
+    mavlink.MAVLink_timesync_message,
+    mavlink.MAVLink_file_transfer_protocol_message,
+]
+
+
+def _field(ftype: str, length: int) -> st.SearchStrategy[object]:
+    if ftype == "char":
+        return st.binary(max_size=length)
+    one: st.SearchStrategy[object]
+    if ftype in ("float", "double"):
+        one = floats32
+    else:
+        lo, hi = _INT_RANGES[ftype]
+        one = st.one_of(st.integers(lo, hi), st.sampled_from([lo, hi, 0, 1]))
+    return st.lists(one, min_size=length, max_size=length) if length else one
+
+
+@st.composite
+def gcs_messages(draw: st.DrawFn) -> mavlink.MAVLink_message:
+    cls = draw(st.sampled_from(_GCS_MESSAGES))
+    values = {}
+    types = dict(zip(cls.fieldnames, cls.fieldtypes, strict=True))  # declaration order
+    lengths = dict(zip(cls.ordered_fieldnames, cls.array_lengths, strict=True))  # wire order
+    for name in cls.fieldnames:
+        values[name] = draw(_field(types[name], lengths[name]))
+    if "target_system" in values:
+        values["target_system"] = draw(st.sampled_from([0, 1, values["target_system"]]))
+    if "target_component" in values:
+        values["target_component"] = draw(st.sampled_from([0, 1, values["target_component"]]))
+    return cls(**values)
+
+
+class _Errors(logging.Handler):
+    def __init__(self) -> None:
+        super().__init__(logging.ERROR)
+        self.records: list[logging.LogRecord] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append(record)
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(msgs=st.lists(gcs_messages(), min_size=1, max_size=4))
+def test_no_ground_message_makes_a_handler_fail(msgs: list[mavlink.MAVLink_message]) -> None:
+    b = bench()
+    errors = _Errors()
+    logger = logging.getLogger("flightsim.mavlink.personality")
+    logger.addHandler(errors)
+    try:
+        for msg in msgs:
+            b.feed(msg)
+        b.advance(0.04)
+    finally:
+        logger.removeHandler(errors)
+    assert errors.records == [], [r.exc_info for r in errors.records]
+    assert _finite(b.v)
