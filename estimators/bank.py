@@ -85,7 +85,8 @@ class GnResult:
 
 
 @lru_cache(maxsize=8)
-def _damping(d: int) -> np.ndarray:
+def damping(d: int) -> np.ndarray:
+    """``1e-9 I``: the tiny Levenberg damping every small normal-equation solve adds (read-only, cached)."""
     out = 1e-9 * np.eye(d)
     out.setflags(write=False)
     return out
@@ -121,7 +122,7 @@ def gauss_newton(
     pos = np.empty((n_sub, d))
     pos[...] = start
     # Tiny Levenberg damping keeps rank-deficient subsets (too few readings) finite.
-    damp = _damping(d)
+    damp = damping(d)
     tol2 = tol_m * tol_m
     for it in range(n_iter + 1):
         # ``at_start``: h and its Jacobian at ``start``, when the caller already has them (broadcast over subsets).

@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimators.bank import gauss_newton, inv_small, solve_small
+from estimators.bank import damping, gauss_newton, inv_small, solve_small
 from estimators.base import Estimate, Estimator
 from estimators.models import Known, MeasurementModel
 
@@ -62,15 +62,16 @@ class L1Decoder(Estimator):
         model = self.model
         zf = np.where(avail, z, 0.0)
         pos = start[None, :].copy()
-        damp = 1e-9 * np.eye(model.d)
+        damp = damping(model.d)
+        floor = self.eps * model.sigma_m
         for _ in range(n_iter):
             hx, jac = model.h_jac(pos, known)
             r = (zf - hx) * avail
-            w = avail / np.maximum(np.abs(r), self.eps * model.sigma_m)
-            jtw = np.swapaxes(jac * w[..., None], 1, 2)
+            w = avail / np.maximum(np.abs(r), floor)
+            jtw = (jac * w[..., None]).mT
             step = solve_small(jtw @ jac + damp, (jtw @ r[..., None])[..., 0])
             pos = model.clip(pos + step)
-            if float(np.einsum("jd,jd->", step, step)) < 1e-12:
+            if float(np.vdot(step, step)) < 1e-12:
                 break
         return pos[0]
 
