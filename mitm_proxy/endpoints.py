@@ -50,6 +50,7 @@ class UdpEndpoint(asyncio.DatagramProtocol):
         self.name = name
         self.receiver: Receiver | None = None
         self.peer: tuple[str, int] | None = endpoint.address if endpoint.mode == "udpout" else None
+        self._udpin = endpoint.mode == "udpin"
         self.local: tuple[str, int] | None = None
         self.rx = 0
         self.tx = 0
@@ -92,7 +93,9 @@ class UdpEndpoint(asyncio.DatagramProtocol):
     def datagram_received(self, data: bytes, addr: tuple[str, int] | Any) -> None:
         rx_s = time.monotonic()
         self.rx += 1
-        if self.endpoint.mode == "udpin":
+        if addr == self.peer:  # the common case, both modes: the peer we know
+            pass
+        elif self._udpin:
             peer = (addr[0], addr[1])
             if peer != self.peer:
                 if self.peer is not None:
@@ -100,7 +103,7 @@ class UdpEndpoint(asyncio.DatagramProtocol):
                     log.info("endpoint.peer_changed",
                              extra={"endpoint": self.name, "old": _fmt(self.peer), "new": _fmt(peer)})  # fmt: skip
                 self.peer = peer
-        elif addr[:2] != self.peer and not _same_host_port(addr, self.endpoint):
+        elif not _same_host_port(addr, self.endpoint):
             # A udpout socket is not connected (so a vanished peer cannot make it unusable); anything
             # from a stranger is not ours to forward.
             self._fault("foreign_sender", f"datagram from {_fmt(addr)}, expected {_fmt(self.peer)}")
