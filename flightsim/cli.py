@@ -1,10 +1,11 @@
-"""``secuav-sim [SCENARIO] [--speed X] [--mavlink URL]... [--broker URL] [--truth-csv F] [--duration S] [--seed N]``.
+"""``secuav-sim [SCENARIO] [--speed X] [--mavlink URL]... [--gcs URL] [--broker URL] [--truth-csv F] [--seed N]``.
 
 Runs every vehicle of a scenario with a PX4 personality on MAVLink 2.
 Vehicle i (sysid i+1) sends to the proxy at ``udpout://127.0.0.1:(14560+i)``
 by default; one ``--mavlink URL`` moves vehicle i to URL's port + i, or give
-one ``--mavlink`` per vehicle. Bad input is one line on stderr and exit 2;
-nothing starts.
+one ``--mavlink`` per vehicle. ``--gcs URL`` streams every vehicle to one more
+fixed peer as well (QGroundControl on 14550 beside MAVSDK on 14540, as PX4 SITL
+does). Bad input is one line on stderr and exit 2; nothing starts.
 """
 
 from __future__ import annotations
@@ -64,6 +65,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="udpout://HOST:PORT or udpin://HOST:PORT; once (vehicle i uses PORT+i) or once per vehicle; "
         "default udpout://127.0.0.1:14560+i (the proxy)",
     )
+    p.add_argument(
+        "--gcs",
+        metavar="URL",
+        help="udpout://HOST:PORT every vehicle also streams to, e.g. QGroundControl/MAVProxy on "
+        "udpout://127.0.0.1:14550 when running without the proxy",
+    )
     p.add_argument("--broker", metavar="URL", help="publish ground truth to mqtt://HOST[:PORT] (secuav/v<sysid>/truth)")
     p.add_argument("--truth-csv", metavar="FILE", type=Path, help="write ground truth to a CSV file")
     p.add_argument("--truth-hz", type=float, default=20.0, help="ground-truth sample rate (default 20 Hz)")
@@ -117,6 +124,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         scenario = load_scenario(args.scenario)
         endpoints = endpoints_for(args.mavlink, scenario)
         broker = parse_broker_url(args.broker) if args.broker else None
+        gcs = parse_endpoint(args.gcs) if args.gcs else None
+        if gcs is not None and gcs.mode != "udpout":
+            raise ValueError(f"--gcs {args.gcs}: must be udpout://HOST:PORT (the GCS listens there)")
     except (InputError, ValueError) as exc:
         return _fail(str(exc))
     speed = 0.0 if args.fast else args.speed
@@ -131,7 +141,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     from flightsim.runner import RunConfig  # after validation: bad input never pays for JSBSim
 
-    config = RunConfig(scenario, endpoints, args.seed, speed, duration, broker, args.truth_csv, args.truth_hz)
+    config = RunConfig(scenario, endpoints, args.seed, speed, duration, broker, args.truth_csv, args.truth_hz, gcs)
     try:
         return asyncio.run(_serve(config))
     except OSError as exc:

@@ -45,6 +45,7 @@ class RunConfig:
     broker: BrokerAddress | None = None
     truth_csv: Path | None = None
     truth_hz: float = 20.0
+    gcs: Endpoint | None = None  # every vehicle also streams here (udpout), e.g. QGroundControl on 14550
 
 
 @dataclass(slots=True)
@@ -91,7 +92,8 @@ class SimRunner:
             for cfg, endpoint in zip(self.config.scenario.vehicles, self.config.endpoints, strict=True):
                 vehicle = self.sim.vehicles[cfg.sysid]
                 holder: list[Px4Personality] = []
-                link = UdpLink(endpoint, lambda data, now, h=holder: h[0].receive(data, now))
+                also = (self.config.gcs.address,) if self.config.gcs is not None else ()
+                link = UdpLink(endpoint, lambda data, now, h=holder: h[0].receive(data, now), also)
                 personality = Px4Personality(vehicle, link.send)
                 holder.append(personality)
                 # Answers (COMMAND_ACK, PARAM_VALUE) leave right away, not at the next tick.

@@ -28,11 +28,18 @@ Address = tuple[str, int]
 class UdpLink(asyncio.DatagramProtocol):
     """Moves datagrams between a socket and a receive callback; counts what it cannot send."""
 
-    def __init__(self, endpoint: Endpoint, on_datagram: Callable[[bytes, float], None]) -> None:
+    def __init__(
+        self,
+        endpoint: Endpoint,
+        on_datagram: Callable[[bytes, float], None],
+        also_to: tuple[Address, ...] = (),
+    ) -> None:
         self.endpoint = endpoint
         self._on_datagram = on_datagram
         self._transport: asyncio.DatagramTransport | None = None
         self._fixed: Address | None = endpoint.address if endpoint.mode == "udpout" else None
+        # Further fixed peers (a GCS on 14550 beside MAVSDK on 14540, as PX4 SITL streams to both).
+        self._also = tuple(a for a in also_to if a != self._fixed)
         self._peers: dict[Address, float] = {}
         self._pending: list[bytes] = []
         self._pending_len = 0
@@ -61,7 +68,7 @@ class UdpLink(asyncio.DatagramProtocol):
     def datagram_received(self, data: bytes, addr: Address) -> None:
         now = time.monotonic()
         self.rx_datagrams += 1
-        if addr[:2] != self._fixed:
+        if addr[:2] != self._fixed and addr[:2] not in self._also:
             self._peers[addr[:2]] = now
         self._on_datagram(data, now)
         if self.on_after_receive is not None:
@@ -89,6 +96,9 @@ class UdpLink(asyncio.DatagramProtocol):
             return
         if self._fixed is not None:
             t.sendto(datagram, self._fixed)
+            self.tx_datagrams += 1
+        for addr in self._also:
+            t.sendto(datagram, addr)
             self.tx_datagrams += 1
         if self._peers:
             now = time.monotonic()

@@ -50,6 +50,7 @@ def test_bad_input_is_one_line_naming_file_field_and_value_and_nothing_starts(tm
         ("anchors8", "--speed", "-2"): ["--speed -2"],
         ("anchors8", "--duration", "0"): ["--duration 0"],
         ("anchors8", "--broker", "http://127.0.0.1"): ["http://127.0.0.1"],
+        ("anchors8", "--gcs", "udpin://127.0.0.1:14550"): ["--gcs udpin://127.0.0.1:14550", "udpout"],
     }  # fmt: skip
     for args, needles in cases.items():
         r = _sim(*args)
@@ -160,3 +161,40 @@ async def test_truth_goes_to_mqtt_per_vehicle(tcp_port: Callable[[], int], udp_p
         pos = samples[-1]["pos_ned_m"]
         assert abs(pos[0] - start[0]) < 0.01 and abs(pos[1] - start[1]) < 0.01  # type: ignore[index]
         assert samples[-1]["collided"] is False
+
+
+@pytest.mark.timeout(30)
+def test_gcs_option_streams_every_vehicle_to_one_more_port(udp_port: Callable[[], int]) -> None:
+    api, gcs = udp_port(), udp_port()
+    with (
+        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as api_sock,
+        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as gcs_sock,
+    ):
+        api_sock.bind(("127.0.0.1", api))
+        gcs_sock.bind(("127.0.0.1", gcs))
+        proc = subprocess.Popen(
+            [*SIM, "formation", "--mavlink", f"udpout://127.0.0.1:{api}", "--gcs", f"udpout://127.0.0.1:{gcs}", "-q"],
+            stderr=subprocess.PIPE,
+        )
+        try:
+            on_gcs = _heartbeat_sysids(gcs_sock, want={1, 2})
+            on_api = _heartbeat_sysids(api_sock, want={1})
+        finally:
+            proc.terminate()
+            proc.wait(timeout=5)
+    assert on_gcs == {1, 2}  # both vehicles on the one GCS port, told apart by sysid
+    assert on_api == {1}  # vehicle 2 streams to api + 1
+
+
+def _heartbeat_sysids(sock: socket.socket, want: set[int], timeout_s: float = 10.0) -> set[int]:
+    from pymavlink.dialects.v20 import common as mavlink
+
+    parser = mavlink.MAVLink(None)
+    seen: set[int] = set()
+    sock.settimeout(timeout_s)
+    end = time.monotonic() + timeout_s
+    while not want <= seen and time.monotonic() < end:
+        for msg in parser.parse_buffer(sock.recv(65536)) or []:
+            if msg.get_type() == "HEARTBEAT":
+                seen.add(msg.get_srcSystem())
+    return seen
