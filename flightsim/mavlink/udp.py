@@ -53,7 +53,9 @@ class UdpLink(asyncio.DatagramProtocol):
         if self.endpoint.mode == "udpin":
             local: Address = self.endpoint.address
         else:
-            local = ("127.0.0.1" if self.endpoint.host.startswith("127.") else "0.0.0.0", 0)
+            # A socket bound to loopback cannot reach another host: bind wide only when a peer is elsewhere.
+            hosts = [self.endpoint.host, *(a[0] for a in self._also)]
+            local = ("127.0.0.1" if all(h.startswith("127.") for h in hosts) else "0.0.0.0", 0)
         await loop.create_datagram_endpoint(lambda: self, local_addr=local)
         return self
 
