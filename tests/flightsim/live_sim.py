@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 
 from flightsim.runner import RunConfig, SimRunner
 from secuav_common.scenario import Scenario, load_scenario
@@ -33,9 +33,8 @@ async def live_sim(
             await asyncio.wait_for(task, 5.0)
 
 
-async def until(predicate: object, timeout_s: float, what: str, poll_s: float = 0.05) -> None:
+async def until(predicate: Callable[[], bool], timeout_s: float, what: str, poll_s: float = 0.05) -> None:
     """Wait (wall clock) until ``predicate()`` is true; fail naming ``what`` otherwise."""
-    assert callable(predicate)
     loop = asyncio.get_running_loop()
     end = loop.time() + timeout_s
     while not predicate():

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 
 import pytest
@@ -151,9 +152,8 @@ async def _fly(runner: SimRunner, f: Flight) -> None:
         f.log.append("landed")
 
 
-async def until_async(check: object, timeout_s: float, what: str) -> None:
+async def until_async(check: Callable[[], Awaitable[bool]], timeout_s: float, what: str) -> None:
     """Poll an async predicate (a MAVSDK call) until it is true."""
-    assert callable(check)
     loop = asyncio.get_running_loop()
     end = loop.time() + timeout_s
     while not await check():
@@ -163,8 +163,7 @@ async def until_async(check: object, timeout_s: float, what: str) -> None:
 
 
 @pytest.mark.timeout(120)
-async def test_mavsdk_flies_both_formation_vehicles_at_once(udp_port: object) -> None:
-    assert callable(udp_port)
+async def test_mavsdk_flies_both_formation_vehicles_at_once(udp_port: Callable[[], int]) -> None:
     flights = [Flight(1, udp_port(), []), Flight(2, udp_port(), [])]
     async with live_sim("formation", [f.port for f in flights]) as runner:
         async with asyncio.TaskGroup() as flying:  # one failure cancels the other flight
