@@ -108,6 +108,10 @@ def _shape(
     if dv_norm > limit:
         dv = [c * limit / dv_norm for c in dv]
     new_vel = tuple(v + c for v, c in zip(vel, dv, strict=True))
+    if math.sqrt(sum(c * c for c in new_vel)) * dt_s >= dist:
+        # this step would reach (or pass) the target: a few micrometres away the speed the braking curve
+        # allows still covers more than the distance in one step, so snap rather than step past it
+        return target, tuple(0.0 for _ in pos)
     return tuple(p + v * dt_s for p, v in zip(pos, new_vel, strict=True)), new_vel
 
 
