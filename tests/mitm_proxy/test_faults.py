@@ -114,6 +114,38 @@ async def test_a_flood_from_the_ground_does_not_starve_the_vehicle(udp_port: Cal
             vehicle.close()
 
 
+async def test_a_telemetry_flood_does_not_starve_commands(udp_port: Callable[[], int]) -> None:
+    """The vehicle floods the downlink; every command the GCS sends meanwhile reaches the vehicle, in order."""
+    async with one_link(udp_port) as (proxy, veh, (gcs,)):
+        vehicle = Peer()
+        try:
+            vehicle.send(heartbeat(packer(1)), veh)
+            _, proxy_addr = await gcs.frames(0.2)
+            assert proxy_addr is not None
+            stop = threading.Event()
+            flood = asyncio.create_task(
+                asyncio.to_thread(_flood, vehicle, ("127.0.0.1", veh), stop, heartbeat(packer(1)))
+            )
+            sink = asyncio.create_task(gcs.frames(1.0))  # the GCS reads its telemetry
+            commands = asyncio.create_task(vehicle.frames(0.5))
+            g = packer(255, 190)
+            sent = []
+            for _ in range(100):
+                cmd = command(g, 1)
+                sent.append(cmd)
+                gcs.reply(cmd, proxy_addr)
+                await asyncio.sleep(0.005)
+            got, _ = await commands
+            stop.set()
+            flooded = await flood
+            await sink
+            assert flooded > 2000
+            assert got == sent
+            assert proxy.stats_snapshot()[1]["downlink"]["frames_in"] > 1000
+        finally:
+            vehicle.close()
+
+
 async def test_vehicle_comes_back_from_a_new_port(udp_port: Callable[[], int],
                                                   caplog: pytest.LogCaptureFixture) -> None:  # fmt: skip
     caplog.set_level(logging.INFO)
