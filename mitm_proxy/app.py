@@ -1,5 +1,10 @@
 """The proxy process: links, control plane and the periodic stats line.
 
+Each link's pipeline is tap -> attack -> secure -> forward (DESIGN.md). The
+attack stage is always there (``--attack bypass`` skips it; with no profile
+it costs nothing); the secure stage is there when a scenario says what the
+sensors are (``--scenario``), off until ``--secure NAME`` or ``secure/set``.
+
 ``async with Proxy(config) as proxy: await stop.wait()`` is the whole daemon
 (:func:`serve` adds the signal handling). Entering opens every socket first, so
 a port that is taken fails before anything else starts; leaving closes the
