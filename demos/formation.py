@@ -19,7 +19,7 @@ LEADER = (4.0, 4.0)
 KEEP_M = 3.0
 DEFAULT_ATTACK = "anchors-ramp"
 DEFAULT_PARAMS: dict[str, Any] = {"links": [11, 14, 51]}
-DEFAULT_SECURE = "rarse"
+DEFAULT_SECURE = "secekf"
 
 
 async def run_case(case: Case, opts: Options) -> dict[str, Any]:

@@ -17,7 +17,7 @@ SCENARIO = "anchors8"
 CONTROLLER = "demos.controllers.localise"
 TARGET = (2.5, 2.5)
 DEFAULT_ATTACK = "anchors-ramp"
-DEFAULT_SECURE = "rarse"
+DEFAULT_SECURE = "secekf"
 
 
 async def run_case(case: Case, opts: Options) -> dict[str, Any]:

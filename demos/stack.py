@@ -62,7 +62,7 @@ class Processes:
     def check_alive(self) -> None:
         """Raise with the process's log tail if a service died under us."""
         for name, proc in self.running.items():
-            if proc.returncode is not None and name != "controller":
+            if proc.returncode is not None and not name.startswith("controller"):
                 tail = (self.out / f"{name}.log").read_text(errors="replace").splitlines()[-8:]
                 raise RuntimeError(f"{name} exited with {proc.returncode}:\n  " + "\n  ".join(tail))
 

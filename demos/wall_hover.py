@@ -18,7 +18,7 @@ from secuav_common.scenario import load_scenario
 SCENARIO = "wall_hover"
 CONTROLLER = "demos.controllers.wall_hover"
 DEFAULT_ATTACK = "wall-spoof-two"
-DEFAULT_SECURE = "recap"
+DEFAULT_SECURE = "secekf"
 
 
 async def run_case(case: Case, opts: Options) -> dict[str, Any]:

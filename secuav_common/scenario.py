@@ -246,7 +246,7 @@ def _require_unique(values: list[object], where: str, field: str) -> None:
         seen.add(v)
 
 
-SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
+SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"  # packaged; ./scenarios links here
 DEFAULT_SCENARIO = SCENARIO_DIR / "wall_hover.yaml"
 
 
