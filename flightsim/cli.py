@@ -16,30 +16,17 @@ import contextlib
 import logging
 import signal
 import sys
-import time
 from collections.abc import Sequence
 from pathlib import Path
 
 from secuav_common.broker import parse_broker_url
 from secuav_common.loading import InputError
+from secuav_common.logs import KeyValueFormatter
 from secuav_common.ports import proxy_vehicle_url
 from secuav_common.scenario import DEFAULT_SCENARIO, Scenario, load_scenario
 from secuav_common.urls import Endpoint, parse_endpoint
 
 PROG = "secuav-sim"
-_STD_ATTRS = set(logging.LogRecord("", 0, "", 0, "", None, None).__dict__) | {"message", "asctime"}
-
-
-class KeyValueFormatter(logging.Formatter):
-    """``12:00:01.234 INFO vehicle.ready sysid=1 mavlink=udpout://...``: greppable, one event per line."""
-
-    def format(self, record: logging.LogRecord) -> str:
-        stamp = time.strftime("%H:%M:%S", time.localtime(record.created)) + f".{int(record.msecs):03d}"
-        extras = " ".join(f"{k}={v}" for k, v in record.__dict__.items() if k not in _STD_ATTRS)
-        line = f"{stamp} {record.levelname} {record.getMessage()}" + (f" {extras}" if extras else "")
-        if record.exc_info:
-            line += "\n" + self.formatException(record.exc_info)
-        return line
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -15,29 +15,16 @@ import argparse
 import asyncio
 import logging
 import sys
-import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from mitm_proxy.config import ProxyConfig, build_config, load_config, override_endpoints
 from secuav_common.loading import InputError
+from secuav_common.logs import KeyValueFormatter
 from secuav_common.urls import parse_endpoint
 
 PROG = "secuav-proxy"
-_STD_ATTRS = set(logging.LogRecord("", 0, "", 0, "", None, None).__dict__) | {"message", "asctime"}
-
-
-class KeyValueFormatter(logging.Formatter):
-    """``12:00:01.234 INFO proxy.stats sysid=1 down=120/120 ...``: one greppable event per line."""
-
-    def format(self, record: logging.LogRecord) -> str:
-        stamp = time.strftime("%H:%M:%S", time.localtime(record.created)) + f".{int(record.msecs):03d}"
-        extras = " ".join(f"{k}={v}" for k, v in record.__dict__.items() if k not in _STD_ATTRS)
-        line = f"{stamp} {record.levelname} {record.getMessage()}" + (f" {extras}" if extras else "")
-        if record.exc_info:
-            line += "\n" + self.formatException(record.exc_info)
-        return line
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -45,32 +32,61 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", metavar="F", type=Path, help="YAML config file (flags win over it)")
     p.add_argument("--scenario", metavar="F", type=Path, help="one link per vehicle of this scenario (sysids from it)")
     p.add_argument("--vehicles", metavar="N", type=int, help="one link per vehicle, sysids 1..N (default 1)")
-    p.add_argument("--vehicle", metavar="URL", action="append", default=[],
-                   help="vehicle side: udpin://HOST:PORT (default udpin://127.0.0.1:14560+i); "
-                        "once (link i uses PORT+i) or once per link")
-    p.add_argument("--ground", metavar="URL", action="append", default=[],
-                   help="ground side, repeatable (default udpout://127.0.0.1:14540+i and :14550); "
-                        "with several links each URL is one endpoint shared by all")
-    p.add_argument("--link", metavar="URL", nargs="+", action="append", default=[],
-                   help="VEHICLE_URL GROUND_URL...: one link, repeat once per vehicle in order")
-    p.add_argument("--profile", metavar="F", help="initial attack profile: a file (reloaded on change) "
-                                                  "or a library name (secuav-attack list)")
+    p.add_argument(
+        "--vehicle",
+        metavar="URL",
+        action="append",
+        default=[],
+        help="vehicle side: udpin://HOST:PORT (default udpin://127.0.0.1:14560+i); "
+        "once (link i uses PORT+i) or once per link",
+    )
+    p.add_argument(
+        "--ground",
+        metavar="URL",
+        action="append",
+        default=[],
+        help="ground side, repeatable (default udpout://127.0.0.1:14540+i and :14550); "
+        "with several links each URL is one endpoint shared by all",
+    )
+    p.add_argument(
+        "--link",
+        metavar="URL",
+        nargs="+",
+        action="append",
+        default=[],
+        help="VEHICLE_URL GROUND_URL...: one link, repeat once per vehicle in order",
+    )
+    p.add_argument(
+        "--profile",
+        metavar="F",
+        help="initial attack profile: a file (reloaded on change) or a library name (secuav-attack list)",
+    )
     p.add_argument("--attack", choices=("on", "bypass"), help="attack stage active or bypassed (default on)")
     p.add_argument("--secure", metavar="NAME", help="secure estimator, or off (default off)")
-    p.add_argument("--broker", metavar="URL",
-                   help="embedded (default: amqtt on 127.0.0.1:1883, or the broker already there), "
-                        "mqtt://[user:pass@]HOST[:PORT], mqtts://..., or none")
+    p.add_argument(
+        "--broker",
+        metavar="URL",
+        help="embedded (default: amqtt on 127.0.0.1:1883, or the broker already there), "
+        "mqtt://[user:pass@]HOST[:PORT], mqtts://..., or none",
+    )
     p.add_argument("--broker-username", metavar="NAME")
     p.add_argument("--broker-password", metavar="PASS")
     p.add_argument("--broker-tls-ca", metavar="F", type=Path, help="CA file for mqtts://")
-    p.add_argument("--record", metavar="DIR", type=Path,
-                   help="write DIR/v<sysid>/original.tlog, forwarded.tlog and index.json")
+    p.add_argument(
+        "--record", metavar="DIR", type=Path, help="write DIR/v<sysid>/original.tlog, forwarded.tlog and index.json"
+    )
     p.add_argument("--signing-key", metavar="F", type=Path, help="MAVLink 2 signing key: verify, re-sign changes")
     p.add_argument("--seed", type=int, help="seed of the attack engine's random primitives (default 0)")
-    p.add_argument("--stats-interval", metavar="S", type=float, dest="stats_interval_s",
-                   help="seconds between stats lines (default 5)")
-    p.add_argument("--loop", choices=("auto", "uvloop", "asyncio"), default="auto",
-                   help="event loop (auto: uvloop when installed)")
+    p.add_argument(
+        "--stats-interval",
+        metavar="S",
+        type=float,
+        dest="stats_interval_s",
+        help="seconds between stats lines (default 5)",
+    )
+    p.add_argument(
+        "--loop", choices=("auto", "uvloop", "asyncio"), default="auto", help="event loop (auto: uvloop when installed)"
+    )
     p.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
     p.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
     return p  # fmt: skip

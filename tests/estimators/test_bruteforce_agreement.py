@@ -80,7 +80,12 @@ def test_anchor_snapshot_agrees(links, sizes, signs, xy, seed: int) -> None:
         if not alarm:
             # Routes differ (6 or all honest readings, filter or fit): agree to noise level.
             assert np.linalg.norm(out.position_m - pos) < 0.2, name
-            assert set(out.attacked) == attacked, name
+            # A reading that noise alone put near the chi2_1 gate (|r| 2.58 against the fit; attacks
+            # here are >= 10 sigma) may fall either side of it depending on which readings the fit
+            # used: the routes need not agree on those, and must agree on every other reading.
+            dev = np.abs(z - model.h(pos)) / 0.1
+            borderline = {int(i) for i in np.flatnonzero((dev > 1.5) & (dev < 6.0))}
+            assert set(out.attacked) ^ attacked <= borderline, (name, set(out.attacked), attacked)
 
 
 @CASES
