@@ -46,4 +46,7 @@ async def run_case(case: Case, opts: Options) -> dict[str, Any]:
 def summary(figures: dict[str, Any]) -> str:
     err = figures["range_error_m"]
     flagged = ", ".join(figures["uav2"]["flagged_by_proxy"]) or "none"
-    return f"range error rms {err['rms']:.2f} m, max {err['max']:.2f} m; uav2 flagged {flagged}"
+    return (
+        f"range error rms {err['rms']:.2f} m, max {err['max']:.2f} m; uav2 flagged {flagged}; "
+        f"collided {figures['collided']}"
+    )

@@ -33,5 +33,6 @@ def summary(figures: dict[str, Any]) -> str:
     flagged = ", ".join(f"{k} ({v:.0%})" for k, v in figures["flagged_by_proxy"].items()) or "none"
     return (
         f"position error rms {err['rms']:.2f} m, max {err['max']:.2f} m; "
-        f"controller fix error rms {fix.get('rms', float('nan')):.2f} m; flagged {flagged}"
+        f"controller fix error rms {fix.get('rms', float('nan')):.2f} m; flagged {flagged}; "
+        f"collided {figures['collided']}"
     )

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import math
 import time
@@ -16,14 +17,15 @@ from dataclasses import dataclass
 from typing import IO, Any
 
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
-from mavsdk.asyncio.plugins.action import ActionAsync
+from mavsdk.asyncio.plugins.action import ActionAsync, ActionError
 from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync
-from mavsdk.asyncio.plugins.offboard import OffboardAsync
+from mavsdk.asyncio.plugins.offboard import OffboardAsync, OffboardError
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
 INVALID_QUALITY = 1  # DISTANCE_SENSOR.signal_quality 1 = invalid (what secuav-proxy --secure sets on attacked sensors)
 STALE_S = 0.5
 RATE_HZ = 20.0
+LAND_TIMEOUT_S = 40.0
 
 
 class Log:
@@ -121,15 +123,24 @@ async def _run(args: argparse.Namespace, log: Log, hold: Callable[[Vehicle, Log]
             await asyncio.sleep(0.1)
         await hold(v, log)
         log.write("event", event="landing")
-        await v.offboard.stop()
-        await v.action.land()
-        async for in_air in v.telemetry.subscribe_in_air():
-            if not in_air:
-                break
+        try:
+            await v.offboard.stop()
+            await v.action.land()
+        except (OffboardError, ActionError) as exc:  # e.g. the vehicle crashed: it is down already
+            log.write("event", event="land-refused", reason=str(exc))
+        else:
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(_landed(v), LAND_TIMEOUT_S)
         log.write("event", event="done")
     finally:
         for task in watchers:
             task.cancel()
+
+
+async def _landed(v: Vehicle) -> None:
+    async for in_air in v.telemetry.subscribe_in_air():
+        if not in_air:
+            return
 
 
 def run(args: argparse.Namespace, hold: Callable[[Vehicle, Log], Awaitable[None]]) -> None:

@@ -82,6 +82,9 @@ def main(argv: list[str] | None = None) -> None:
                 anchors = np.array([table[i - ANCHOR_BASE] for i in ids])
                 fix = trilaterate(anchors, np.array([readings[i] for i in ids]), v.pos_ned_m[2], fix)
             goal = target
+            if args.peer_at is not None and peer is None:
+                # no usable range (silent, or marked invalid by the secure stage): the fix implies it
+                peer = float(np.linalg.norm(fix - np.array(args.peer_at)))
             if args.peer_at is not None and peer is not None:
                 # stand on the line from the peer through our fix, at the range we must keep
                 away = fix - np.array(args.peer_at)
