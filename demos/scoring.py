@@ -49,25 +49,18 @@ def distance_metrics(
     vehicle = next(v for v in scenario.vehicles if v.sysid == sysid)
     target_m = float(getattr(vehicle.target, "distance_m", 2.5))
     true_series = [(t, wall_distance_m(scenario, d["pos_ned_m"], sysid)) for t, d in truth]
-    scored = [(t, d) for t, d in true_series if window.start_s <= t <= window.end_s]
+    scored = [(t, d) for t, d in true_series if _in(window, t)]
     seen = [(float(s["wall_s"]), s["distance_m"]) for s in steps if s.get("distance_m") is not None]
-    seen_scored = [d for t, d in seen if window.start_s <= t <= window.end_s]
+    seen_scored = [d for t, d in seen if _in(window, t)]
     flagged_by_controller: Counter[int] = Counter(i for s in steps for i in s.get("flagged", []))
-    flagged_by_proxy: Counter[int] = Counter()
-    step_us: list[float] = []
-    for t, e in estimates:
-        if window.start_s <= t <= window.end_s:
-            flagged_by_proxy.update(int(i) for i in e.get("attacked", []))
-        if e.get("step_time_s") is not None:
-            step_us.append(1e6 * float(e["step_time_s"]))
-    n_est = sum(1 for t, _ in estimates if window.start_s <= t <= window.end_s)
+    step_us = [1e6 * float(e["step_time_s"]) for _, e in estimates if e.get("step_time_s") is not None]
     return {
         "target_distance_m": target_m,
         "distance_error_m": _rms_max([d - target_m for _, d in scored]),
         "min_distance_m": round(min((d for _, d in scored), default=math.nan), 4),
         "collided": any(bool(d.get("collided")) for _, d in truth),
         "seen_error_m": _rms_max([d - target_m for d in seen_scored]),
-        "flagged_by_proxy": {str(k): round(v / n_est, 3) for k, v in sorted(flagged_by_proxy.items())} if n_est else {},
+        "flagged_by_proxy": detection(estimates, window),
         "flagged_by_controller_steps": {str(k): v for k, v in sorted(flagged_by_controller.items())},
         "secure_step_time_us": {
             "median": round(float(np.median(step_us)), 1) if step_us else None,

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from secuav_common.broker import parse_broker_url
 from secuav_common.loading import InputError
-from secuav_common.logs import KeyValueFormatter
+from secuav_common.logs import setup_logging
 from secuav_common.ports import proxy_vehicle_url
 from secuav_common.scenario import DEFAULT_SCENARIO, Scenario, load_scenario
 from secuav_common.urls import Endpoint, parse_endpoint
@@ -89,17 +89,6 @@ def endpoints_for(urls: Sequence[str], scenario: Scenario) -> list[Endpoint]:
     raise ValueError(f"--mavlink given {len(parsed)} times; give it once or once per vehicle ({n})")
 
 
-def _setup_logging(verbose: int, quiet: bool) -> None:
-    handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(KeyValueFormatter())
-    root = logging.getLogger()
-    root.handlers[:] = [handler]
-    root.setLevel(logging.WARNING if quiet else logging.DEBUG if verbose else logging.INFO)
-    if verbose < 2:
-        for noisy in ("aiomqtt", "asyncio", "jsbsim"):
-            logging.getLogger(noisy).setLevel(logging.WARNING)
-
-
 def _fail(message: str, code: int = 2) -> int:
     print(f"{PROG}: error: {message}", file=sys.stderr)
     return code
@@ -124,7 +113,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args.truth_hz > 0:
         return _fail(f"--truth-hz {args.truth_hz}: must be positive")
     duration = args.duration if args.duration is not None else (scenario.duration_s if speed == 0 else None)
-    _setup_logging(args.verbose, args.quiet)
+    setup_logging(args.verbose, args.quiet, noisy=("aiomqtt", "asyncio", "jsbsim"))
 
     from flightsim.runner import RunConfig  # after validation: bad input never pays for JSBSim
 

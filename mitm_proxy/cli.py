@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import logging
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -21,7 +20,7 @@ from typing import Any
 
 from mitm_proxy.config import ProxyConfig, build_config, load_config, override_endpoints
 from secuav_common.loading import InputError
-from secuav_common.logs import KeyValueFormatter
+from secuav_common.logs import setup_logging
 from secuav_common.urls import parse_endpoint
 
 PROG = "secuav-proxy"
@@ -129,17 +128,6 @@ def _links_from_flag(groups: list[list[str]], args: argparse.Namespace, file_val
     return [{"sysid": s, "vehicle": g[0], "ground": g[1:]} for s, g in zip(sysids, groups, strict=True)]
 
 
-def _setup_logging(verbose: int, quiet: bool) -> None:
-    handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(KeyValueFormatter())
-    root = logging.getLogger()
-    root.handlers[:] = [handler]
-    root.setLevel(logging.WARNING if quiet else logging.DEBUG if verbose else logging.INFO)
-    if verbose < 2:
-        for noisy in ("aiomqtt", "asyncio", "amqtt", "transitions"):
-            logging.getLogger(noisy).setLevel(logging.WARNING)
-
-
 def _fail(message: str, code: int = 2) -> int:
     print(f"{PROG}: error: {message}", file=sys.stderr)
     return code
@@ -167,7 +155,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         proxy = Proxy(cfg)  # reads the scenario, profile and key: their errors come before any socket
     except (InputError, ValueError) as exc:
         return _fail(str(exc))
-    _setup_logging(args.verbose, args.quiet)
+    setup_logging(args.verbose, args.quiet, noisy=("aiomqtt", "asyncio", "amqtt", "transitions"))
     try:
         loop = new_event_loop(args.loop)
     except ImportError:

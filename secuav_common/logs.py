@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import logging
+import sys
 import time
+from collections.abc import Iterable
 
 _STD_ATTRS = set(logging.LogRecord("", 0, "", 0, "", None, None).__dict__) | {"message", "asctime"}
 
@@ -18,3 +20,15 @@ class KeyValueFormatter(logging.Formatter):
         if record.exc_info:
             line += "\n" + self.formatException(record.exc_info)
         return line
+
+
+def setup_logging(verbose: int, quiet: bool, noisy: Iterable[str]) -> None:
+    """Key=value lines on stderr; INFO by default, ``-q`` warnings only, ``-v`` debug (``-vv`` also ``noisy``)."""
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(KeyValueFormatter())
+    root = logging.getLogger()
+    root.handlers[:] = [handler]
+    root.setLevel(logging.WARNING if quiet else logging.DEBUG if verbose else logging.INFO)
+    if verbose < 2:
+        for name in noisy:
+            logging.getLogger(name).setLevel(logging.WARNING)

@@ -10,10 +10,11 @@ acceleration 3135.
 from __future__ import annotations
 
 import math
+from typing import Literal
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from flightsim.api import OffboardSetpoint
+from flightsim.api import OffboardSetpoint, Vec3
 from secuav_common.geo import geodetic_to_ned
 from secuav_common.scenario import Home
 
@@ -53,6 +54,7 @@ def _empty(sp: OffboardSetpoint) -> bool:
 def decode_local(msg: mavlink.MAVLink_set_position_target_local_ned_message) -> OffboardSetpoint | str:
     """The setpoint, or why it was rejected."""
     mask, frame = msg.type_mask, msg.coordinate_frame
+    kind: Literal["ned", "body"]
     if frame in NED_FRAMES:
         kind = "ned"
     elif frame in BODY_FRAMES:
@@ -62,18 +64,7 @@ def decode_local(msg: mavlink.MAVLink_set_position_target_local_ned_message) -> 
     pos = _group(mask, POS_IGNORE, (msg.x, msg.y, msg.z))
     if pos is not None and kind == "body":
         return "offboard: positions in a body frame are not supported"
-    yaw, yaw_rate = _yaw(mask, msg.yaw, msg.yaw_rate)
-    sp = OffboardSetpoint(
-        pos_ned_m=pos,
-        vel_m_s=_group(mask, VEL_IGNORE, (msg.vx, msg.vy, msg.vz)),
-        acc_m_s2=_group(mask, ACC_IGNORE, (msg.afx, msg.afy, msg.afz)),
-        yaw_rad=yaw,
-        yaw_rate_rad_s=yaw_rate,
-        frame=kind,  # type: ignore[arg-type]
-    )
-    if _empty(sp):
-        return f"offboard: type mask {mask} leaves nothing to fly"
-    return sp
+    return _setpoint(msg, pos, kind)
 
 
 def decode_global(msg: mavlink.MAVLink_set_position_target_global_int_message, home: Home) -> OffboardSetpoint | str:
@@ -86,6 +77,16 @@ def decode_global(msg: mavlink.MAVLink_set_position_target_global_int_message, h
     if not mask & POS_IGNORE:
         alt_amsl = msg.alt if alt_kind == "amsl" else home.alt_m + msg.alt
         pos = geodetic_to_ned(home, msg.lat_int / 1e7, msg.lon_int / 1e7, alt_amsl)
+    return _setpoint(msg, pos, "ned")
+
+
+def _setpoint(
+    msg: mavlink.MAVLink_set_position_target_local_ned_message | mavlink.MAVLink_set_position_target_global_int_message,
+    pos: Vec3 | None,
+    frame: Literal["ned", "body"],
+) -> OffboardSetpoint | str:
+    """The velocity, acceleration and yaw parts both setpoint messages share, around an already-decoded position."""
+    mask = msg.type_mask
     yaw, yaw_rate = _yaw(mask, msg.yaw, msg.yaw_rate)
     sp = OffboardSetpoint(
         pos_ned_m=pos,
@@ -93,6 +94,7 @@ def decode_global(msg: mavlink.MAVLink_set_position_target_global_int_message, h
         acc_m_s2=_group(mask, ACC_IGNORE, (msg.afx, msg.afy, msg.afz)),
         yaw_rad=yaw,
         yaw_rate_rad_s=yaw_rate,
+        frame=frame,
     )
     if _empty(sp):
         return f"offboard: type mask {mask} leaves nothing to fly"
