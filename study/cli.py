@@ -1,0 +1,147 @@
+"""``secuav-study``: run a whole study (attacks x magnitudes x estimators x seeds) on Dask, resumably.
+
+    secuav-study run studies/stealth.yaml --out out/stealth                 # embedded LocalCluster, one worker per core
+    secuav-study run studies/stealth.yaml --out out/stealth --workers 2
+    secuav-study run studies/stealth.yaml --out out/stealth --scheduler tcp://10.0.0.5:8786
+    secuav-study report out/stealth                                          # rewrite report.md and figures/
+    secuav-study validate studies/stealth.yaml
+    secuav-study schema
+
+``run`` prints a progress bar (cells done, failed, ETA) and, last, one JSON
+line ``{"cells", "ran", "skipped", "failed", "out"}``: ``failed`` counts the
+cells of the study whose rows in DIR carry an error. Exit 0 when none failed,
+1 when some did (they are in the results), 2 on bad input, 130 when
+interrupted (what finished is kept; run again to go on).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import socket
+import sys
+from pathlib import Path
+from typing import Any
+
+from secuav_common.loading import InputError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="secuav-study", description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(dest="command", required=True)
+    run = sub.add_parser("run", help="run the cells not yet in DIR, then write the report")
+    run.add_argument("study", type=Path)
+    run.add_argument("--out", required=True, type=Path)
+    where = run.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes (default: cores)")
+    where.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="a running dask scheduler")
+    run.add_argument("--retry-failed", action="store_true", help="run again the cells recorded as failed")
+    run.add_argument("--no-progress", action="store_true", help="no progress bar (the JSON line still comes)")
+    rep = sub.add_parser("report", help="(re)write DIR/report.md and DIR/figures/ from DIR/results.parquet")
+    rep.add_argument("out", type=Path)
+    val = sub.add_parser("validate", help="check a study file and count its cells")
+    val.add_argument("study", type=Path)
+    sub.add_parser("schema", help="print the JSON Schema of a study file")
+    return p
+
+
+def _load(path: Path) -> tuple[Any, list[Any]]:
+    from study.spec import expand, load_study
+
+    study = load_study(path)
+    return study, expand(study, str(path))
+
+
+def _check_scheduler(url: str) -> None:
+    """A tcp:// scheduler that refuses connections is named at once (Dask itself retries until its timeout)."""
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(url)
+    if parts.scheme not in ("tcp", "tls") or not parts.hostname or parts.port is None:
+        raise InputError("--scheduler", "", url, "expected tcp://HOST:PORT")
+    try:
+        socket.create_connection((parts.hostname, parts.port), timeout=10).close()
+    except OSError as exc:
+        raise InputError("--scheduler", "", url, f"cannot reach the scheduler: {exc.strerror or exc}") from None
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def _run(args: argparse.Namespace) -> int:
+    from study import runner, store
+    from study.report import write_report
+
+    try:
+        study, cells = _load(args.study)
+        if args.workers is not None and not 1 <= args.workers <= 1024:
+            raise InputError("--workers", "", args.workers, "must lie in 1..1024")
+        if args.scheduler is not None:
+            _check_scheduler(args.scheduler)
+        definition = study.model_dump(mode="json")
+        held = store.saved_study(args.out)
+        if held is not None and held.get("name") != study.name:
+            raise InputError(str(args.out), "study.json: name", held.get("name"),
+                             f"this directory holds another study; use a new --out for {study.name!r}")  # fmt: skip
+    except InputError as err:
+        print(f"secuav-study: {err}", file=sys.stderr)
+        return 2
+    store.save_study(args.out, definition)
+    done = store.done(args.out, retry_failed=args.retry_failed)
+    signal.signal(signal.SIGTERM, _terminate)
+    summary = runner.Summary(cells=len(cells))
+    try:
+        with runner.dask_client(args.workers, args.scheduler) as client:
+            summary = runner.run(cells, study.estimators, args.out, client, done, label=study.name,
+                                 progress=not args.no_progress)  # fmt: skip
+    except KeyboardInterrupt:
+        summary.interrupted = True
+    except OSError as exc:  # the scheduler cannot be reached
+        print(f"secuav-study: --scheduler {args.scheduler}: {exc}", file=sys.stderr)
+        return 2
+    summary.failed = runner.failed_cells(args.out)
+    if summary.interrupted:
+        kept = f"{summary.ran} cells done this run are kept in {args.out}"
+        print(f"secuav-study: interrupted; {kept}; run again to go on", file=sys.stderr)
+    else:
+        report = write_report(args.out)
+        print(f"report: {report}", file=sys.stderr)
+    print(json.dumps(summary.as_dict(args.out)), flush=True)
+    if summary.interrupted:
+        return 130
+    return 1 if summary.failed else 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.command == "schema":
+        from study.spec import Study
+
+        print(json.dumps(Study.model_json_schema(), indent=2))
+        return 0
+    if args.command == "validate":
+        try:
+            study, cells = _load(args.study)
+        except InputError as err:
+            print(f"secuav-study: {err}", file=sys.stderr)
+            return 2
+        runs = len(cells) * len(study.estimators)
+        print(f"{args.study}: ok; {len(cells)} cells x {len(study.estimators)} estimators = {runs} runs ({study.mode})")
+        return 0
+    if args.command == "report":
+        from study.report import write_report
+
+        if not (args.out / "results.parquet").is_dir():
+            print(f"secuav-study: {args.out}: no results.parquet here (run a study first)", file=sys.stderr)
+            return 2
+        print(write_report(args.out))
+        return 0
+    os.environ.setdefault("PYTHONWARNINGS", "ignore::DeprecationWarning")  # quiet workers
+    return _run(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,85 @@
+"""Per-estimator figures of one offline trial, beyond the pooled ones of :func:`evaluation.report.summarise`.
+
+Ground truth for detection is the attack itself: a reading is attacked where
+the engine changed it (its offset is non-zero), whatever the size.
+- detection delay: from the first attacked step to the first step at which the
+  estimator names a reading that is attacked at that step; None if it never does
+  (or nothing was attacked).
+- false-alarm rate: the share of steps with an estimate at which the estimator
+  names a reading that is not attacked at that step (on clean runs: any name).
+- recall (all): the share of attacked readings named, however small the attack.
+- recall by magnitude: attacked readings named, binned by |offset| in units of
+  the sensor's noise sigma, so a small attack that is missed shows as missed.
+Only steps after the estimators' warm-up are scored, as in ``secuav-eval``.
+"""
+
+from __future__ import annotations
+
+import itertools
+from typing import Any
+
+import numpy as np
+
+from evaluation.report import summarise
+from evaluation.trial import WARMUP_S, TrialResult
+
+SIGMA_BINS = (0.0, 1.0, 3.0, 5.0, 10.0, float("inf"))
+
+
+def _bin_label(lo: float, hi: float) -> str:
+    return f"{lo:g}-{hi:g}" if np.isfinite(hi) else f">{lo:g}"
+
+
+def detection_figures(trial: TrialResult, name: str) -> dict[str, Any]:
+    trace = trial.traces[name]
+    keep = trial.t_s > WARMUP_S
+    t = trial.t_s[keep]
+    offsets = np.abs(np.nan_to_num(trial.offsets_m[keep], nan=0.0))
+    attacked = offsets > 0.0
+    named = trace.named[keep]
+    has_estimate = np.isfinite(trace.est_xy_m[keep]).all(axis=1)
+    delay = None
+    onset = np.flatnonzero(attacked.any(axis=1))
+    if onset.size:
+        caught = np.flatnonzero((named & attacked).any(axis=1))
+        caught = caught[caught >= onset[0]]
+        if caught.size:
+            delay = float(t[caught[0]] - t[onset[0]])
+    wrong = (named & ~attacked).any(axis=1) & has_estimate
+    n_est = int(has_estimate.sum())
+    by_bin: dict[str, float | None] = {}
+    in_sigma = offsets / trial.sigma_m
+    for lo, hi in itertools.pairwise(SIGMA_BINS):
+        sel = attacked & (in_sigma > lo) & (in_sigma <= hi)
+        by_bin[_bin_label(lo, hi)] = float((named & sel).sum() / sel.sum()) if sel.any() else None
+    return {
+        "detection_delay_s": delay,
+        "false_alarm_rate": float(wrong.sum() / n_est) if n_est else None,
+        "recall_all": float((named & attacked).sum() / attacked.sum()) if attacked.any() else None,
+        "recall_by_sigma": by_bin,
+        "attacked_fraction": float(attacked.any(axis=1).mean()) if t.size else 0.0,
+    }
+
+
+def trial_rows(trial: TrialResult) -> dict[str, dict[str, Any]]:
+    """Per estimator: the figures a study row stores."""
+    pooled = summarise([trial])
+    rows = {}
+    for name, row in pooled.items():
+        rng = row.get("inter_vehicle_range") or {}
+        rows[name] = {
+            "rmse_m": row["rmse_m"],
+            "mean_error_m": row["mean_error_m"],
+            "p95_error_m": row["p95_error_m"],
+            "max_error_m": row["max_error_m"],
+            "range_rmse_m": rng.get("rmse_m"),
+            "range_max_error_m": rng.get("max_error_m"),
+            "estimate_fraction": row["estimate_fraction"],
+            "alarm_fraction": row["alarm_fraction"],
+            "attack_detection_precision": row["attack_detection_precision"],
+            "attack_detection_recall": row["attack_detection_recall"],
+            "step_time_us_median": row["step_time_us_median"],
+            "step_time_us_p99": row["step_time_us_p99"],
+            **detection_figures(trial, name),
+        }
+    return rows

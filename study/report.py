@@ -1,0 +1,246 @@
+"""``DIR/report.md`` and ``DIR/figures/*.png`` from the stored rows of a study.
+
+Per attack, magnitude and estimator: the mean over seeds with a 95 % bootstrap
+confidence interval (``scipy.stats.bootstrap``, percentile method, fixed
+random state so the same rows give the same report) of the RMSE, recall and
+detection delay; the worst error over seeds; the false-alarm rate on clean runs;
+and a summary laid out like the seed's Table 5.1. Rows that failed are listed,
+and every group whose estimate fraction is below 1 is named: a step without an
+estimate is never silently left out of an error figure.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from study.store import load, saved_study
+
+CI_LEVEL = 0.95
+RESAMPLES = 2000
+GROUP = ["attack", "params", "leg", "position", "estimator"]
+
+
+def mean_ci(values: Any) -> tuple[float | None, float | None, float | None, int]:
+    """Mean and 95 % bootstrap CI of the finite values; (None, None, None, 0) when there are none."""
+    a = np.asarray([v for v in values if v is not None and math.isfinite(v)], dtype=float)
+    if a.size == 0:
+        return None, None, None, 0
+    mean = float(a.mean())
+    if a.size < 2:
+        return mean, None, None, 1
+    if np.all(a == a[0]):
+        return mean, mean, mean, int(a.size)
+    res = stats.bootstrap((a,), np.mean, confidence_level=CI_LEVEL, n_resamples=RESAMPLES, method="percentile",
+                          random_state=np.random.default_rng(0))  # fmt: skip
+    return mean, float(res.confidence_interval.low), float(res.confidence_interval.high), int(a.size)
+
+
+def _missing(value: Any) -> bool:
+    return value is None or (isinstance(value, float) and math.isnan(value))
+
+
+def _fmt(mean: float | None, lo: float | None = None, hi: float | None = None, digits: int = 3) -> str:
+    if _missing(mean):
+        return "n/a"
+    if _missing(lo) or _missing(hi):
+        return f"{mean:.{digits}f}"
+    return f"{mean:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
+
+
+def _magnitude_axis(frame: pd.DataFrame) -> str | None:
+    """The first parameter that varies numerically across an attack's cells (the x axis of its figures)."""
+    params = [json.loads(p) if p else {} for p in frame["params"].unique()]
+    for key in dict.fromkeys(k for p in params for k in p):
+        values = {json.dumps(p.get(key)) for p in params}
+        numeric = all(isinstance(p.get(key), int | float) and not isinstance(p.get(key), bool) for p in params)
+        if len(values) > 1 and numeric:
+            return key
+    return None
+
+
+def _where(leg: str, position: str | None) -> str:
+    return f"leg {leg}" + (f", position {position}" if position else "")
+
+
+def _mean_or_none(values: pd.Series, *, median: bool = False) -> float | None:
+    values = values.dropna()
+    if not len(values):
+        return None
+    return float(values.median() if median else values.mean())
+
+
+def summarise(frame: pd.DataFrame) -> pd.DataFrame:
+    """One row per (attack, params, leg, position, estimator) of the successful rows."""
+    out = []
+    for key, g in frame.groupby(GROUP, dropna=False, sort=False):
+        row = dict(zip(GROUP, key, strict=True))
+        row["n"] = len(g)
+        for metric in ("rmse_m", "recall_all", "detection_delay_s", "false_alarm_rate"):
+            m, lo, hi, n = mean_ci(g[metric].tolist())
+            row.update({metric: m, f"{metric}_lo": lo, f"{metric}_hi": hi, f"{metric}_n": n})
+        worst = g["max_error_m"].dropna()
+        row["worst_error_m"] = float(worst.max()) if len(worst) else None
+        row["estimate_fraction"] = _mean_or_none(g["estimate_fraction"])
+        row["step_time_us_median"] = _mean_or_none(g["step_time_us_median"], median=True)
+        row["collided"] = _mean_or_none(g["collided"].astype(float))
+        out.append(row)
+    return pd.DataFrame(out)
+
+
+def _attack_section(name: str, s: pd.DataFrame, closed_loop: bool) -> list[str]:
+    axis = _magnitude_axis(s)
+    lines = [f"### {name}", ""]
+    head = ["magnitude" if axis is None else axis, "estimator", "n", "RMSE [m] mean [95% CI]", "worst [m]"]
+    head += ["collided"] if closed_loop else ["recall (all attacked readings)", "detection delay [s] (detected/n)",
+                                              "false alarms"]  # fmt: skip
+    for (leg, pos), block in s.groupby(["leg", "position"], dropna=False, sort=False):
+        lines += [f"{_where(leg, pos if isinstance(pos, str) else None)}:", ""]
+        lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        block = block.assign(_x=[_x_value(p, axis) for p in block["params"]]).sort_values(["_x", "estimator"])
+        for _, r in block.iterrows():
+            x = r["params"] if axis is None else r["_x"]
+            cells = [str(x), r["estimator"], str(r["n"]), _fmt(r["rmse_m"], r["rmse_m_lo"], r["rmse_m_hi"]),
+                     _fmt(r["worst_error_m"])]  # fmt: skip
+            if closed_loop:
+                cells.append("n/a" if _missing(r["collided"]) else f"{r['collided']:.0%}")
+            else:
+                delay = _fmt(r["detection_delay_s"], r["detection_delay_s_lo"], r["detection_delay_s_hi"], 2)
+                cells += [
+                    _fmt(r["recall_all"], r["recall_all_lo"], r["recall_all_hi"]),
+                    f"{delay} ({r['detection_delay_s_n']}/{r['n']})",
+                    _fmt(r["false_alarm_rate"], r["false_alarm_rate_lo"], r["false_alarm_rate_hi"]),
+                ]
+            lines.append("| " + " | ".join(cells) + " |")
+        lines.append("")
+    return lines
+
+
+def _x_value(params: str | None, axis: str | None) -> float:
+    if axis is None or not params:
+        return 0.0
+    value = json.loads(params).get(axis)
+    return float(value) if isinstance(value, int | float) else 0.0
+
+
+def _table51(frame: pd.DataFrame) -> list[str]:
+    lines = ["## Summary in the layout of the seed's Table 5.1", "",
+             "Pooled over magnitudes, positions, legs and seeds (successful rows only).", "",
+             "| attack | estimator | mean abs. error [m] | max abs. error [m] | time per step [ms] |",
+             "|---|---|---|---|---|"]  # fmt: skip
+    for (attack, est), g in frame.groupby(["attack", "estimator"], sort=False):
+        mean = g["mean_error_m"].mean() if g["mean_error_m"].notna().any() else g["rmse_m"].mean()
+        worst = g["max_error_m"].max()
+        step = g["step_time_us_median"].median()
+        step_text = "n/a" if pd.isna(step) else f"{step / 1000:.3f}"
+        lines.append(f"| {attack} | {est} | {_fmt(mean)} | {_fmt(worst)} | {step_text} |")
+    return [*lines, ""]
+
+
+def _figures(out: Path, summary: pd.DataFrame) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig_dir = out / "figures"
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for attack, s in summary.groupby("attack", sort=False):
+        axis = _magnitude_axis(s)
+        if axis is None:
+            continue
+        places = list(s.groupby(["leg", "position"], dropna=False, sort=False))
+        width = max(6.5, 4.6 * len(places))
+        fig, axes = plt.subplots(2, len(places), figsize=(width, 7), squeeze=False, sharex=True)
+        for col, ((leg, pos), block) in enumerate(places):
+            for est, e in block.groupby("estimator", sort=False):
+                e = e.assign(_x=[_x_value(p, axis) for p in e["params"]]).sort_values("_x")
+                for row, metric in enumerate(("rmse_m", "detection_delay_s")):
+                    ax = axes[row, col]
+                    y = e[metric].astype(float)
+                    line = ax.plot(e["_x"], y, marker="o", ms=3, lw=1.2, label=est)[0]
+                    lo, hi = e[f"{metric}_lo"].astype(float), e[f"{metric}_hi"].astype(float)
+                    ax.fill_between(e["_x"], lo, hi, color=line.get_color(), alpha=0.15, lw=0)
+            axes[0, col].set_title(_where(leg, pos if isinstance(pos, str) else None), fontsize=9)
+            axes[0, col].set_ylabel("RMSE [m] (mean, 95% CI)")
+            axes[1, col].set_ylabel("detection delay [s]")
+            axes[1, col].set_xlabel(axis)
+            xs = [_x_value(p, axis) for p in s["params"]]
+            for ax in axes[:, col]:
+                ax.grid(True, alpha=0.3)
+                if min(xs) > 0 and max(xs) / min(xs) >= 10:
+                    ax.set_xscale("log")
+        axes[0, 0].set_yscale("symlog", linthresh=0.05)
+        axes[0, 0].legend(fontsize=7)
+        fig.suptitle(f"{attack}: error and detection delay vs {axis}")
+        fig.tight_layout()
+        path = fig_dir / f"{attack}.png"
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+        paths.append(path)
+    return paths
+
+
+def write_report(out: Path) -> Path:
+    """(Re)write ``report.md`` and the figures from what ``results.parquet`` holds now."""
+    frame = load(out)
+    study = saved_study(out) or {}
+    ok = frame[frame["status"] == "ok"]
+    failed = frame[frame["status"] != "ok"]
+    closed_loop = study.get("mode") == "closed-loop"
+    lines = [f"# Study {study.get('name', out.name)}", ""]
+    lines += [
+        f"- mode: {study.get('mode', 'n/a')}; scenario: {study.get('scenario', 'n/a')}; "
+        f"duration {study.get('duration_s') or 'the scenario default'} s",
+        f"- rows: {len(frame)} ({len(ok)} ok, {len(failed)} failed) over {frame['cell'].nunique()} cells; "
+        f"workers: {', '.join(sorted(str(w) for w in ok['worker'].dropna().unique())) or 'n/a'}",
+        f"- means over seeds with {CI_LEVEL:.0%} bootstrap confidence intervals ({RESAMPLES} resamples)",
+        "",
+    ]
+    if len(failed):
+        lines += [f"## Failed ({failed['cell'].nunique()} cells)", ""]
+        for _, r in failed.drop_duplicates("cell").head(20).iterrows():
+            lines.append(f"- cell {r['cell']} ({r['attack']} {r['params']}, seed {r['seed']}): {r['error']}")
+        lines.append("")
+    if not len(ok):
+        lines.append("No successful rows yet.")
+    else:
+        summary = summarise(ok)
+        partial = summary[summary["estimate_fraction"].notna() & (summary["estimate_fraction"] < 1.0)]
+        if len(partial):
+            lines += ["## Where estimators gave no estimate on some steps", "",
+                      "Errors count only steps with an estimate; these groups lacked one at times:", ""]  # fmt: skip
+            for _, r in partial.iterrows():
+                lines.append(f"- {r['estimator']} on {r['attack']} {r['params'] or ''} "
+                             f"({_where(r['leg'], r['position'] if isinstance(r['position'], str) else None)}): "
+                             f"estimate on {r['estimate_fraction']:.1%} of steps")  # fmt: skip
+            lines.append("")
+        clean = summary[summary["attack"] == "none"]
+        if len(clean) and not closed_loop:
+            lines += ["## Clean runs: false alarms", "",
+                      "| estimator | where | n | false-alarm rate [95% CI] | RMSE [m] [95% CI] |",
+                      "|---|---|---|---|---|"]  # fmt: skip
+            for _, r in clean.iterrows():
+                where = _where(r["leg"], r["position"] if isinstance(r["position"], str) else None)
+                lines.append(f"| {r['estimator']} | {where} | {r['n']} | "
+                             f"{_fmt(r['false_alarm_rate'], r['false_alarm_rate_lo'], r['false_alarm_rate_hi'])} | "
+                             f"{_fmt(r['rmse_m'], r['rmse_m_lo'], r['rmse_m_hi'])} |")  # fmt: skip
+            lines.append("")
+        lines += ["## Per attack and magnitude", ""]
+        attacked = summary if closed_loop else summary[summary["attack"] != "none"]
+        for attack, s in attacked.groupby("attack", sort=False):
+            lines += _attack_section(str(attack), s, closed_loop)
+        lines += _table51(ok)
+        figures = _figures(out, summary)
+        if figures:
+            lines += ["## Figures", ""] + [f"![{p.stem}](figures/{p.name})" for p in figures] + [""]
+    path = out / "report.md"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path

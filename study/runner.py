@@ -1,0 +1,128 @@
+"""Run the cells of a study on Dask and store their rows as they finish.
+
+The client submits one task per cell that still lacks rows, then writes each
+batch of finished cells to ``DIR/results.parquet`` at once (see
+:mod:`study.store`); workers only compute and return rows, so they need no
+shared disk. A cell whose task raised, or whose worker died, is recorded with
+its error and the rest go on. Ctrl-C or SIGTERM loses only the cells that were
+running; a re-run with the same ``DIR`` picks up from there.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from collections.abc import Iterator
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from study.cells import base_row, run_cell
+from study.spec import Cell
+from study.store import Writer, load
+
+
+@dataclass
+class Summary:
+    cells: int
+    ran: int = 0
+    skipped: int = 0
+    failed: int = 0
+    interrupted: bool = False
+
+    def as_dict(self, out: Path) -> dict[str, Any]:
+        return {"cells": self.cells, "ran": self.ran, "skipped": self.skipped, "failed": self.failed, "out": str(out)}
+
+
+def plan(cells: list[Cell], names: list[str], done: set[tuple[str, str]]) -> list[tuple[Cell, list[str]]]:
+    """Per cell, the estimators it still lacks (cells with none left are skipped)."""
+    out = []
+    for cell in cells:
+        missing = [n for n in names if (cell.key, n) not in done]
+        if missing:
+            out.append((cell, missing))
+    return out
+
+
+@contextlib.contextmanager
+def dask_client(workers: int | None, scheduler: str | None) -> Iterator[Any]:
+    """An embedded LocalCluster (one single-threaded process per worker), or a client of a running scheduler."""
+    import dask
+    from distributed import Client, LocalCluster
+
+    # Let workers queue cells ahead, so none waits a scheduler round trip between two cells.
+    dask.config.set({"distributed.scheduler.worker-saturation": float("inf")})
+    if scheduler is not None:
+        with Client(scheduler, timeout="15s") as client:
+            yield client
+        return
+    with (
+        LocalCluster(
+            n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None, silence_logs=logging.ERROR
+        ) as cluster,
+        Client(cluster) as client,
+    ):
+        yield client
+
+
+def _failed_rows(cell: Cell, names: list[str], error: BaseException) -> list[dict[str, Any]]:
+    rows = []
+    for name in names:
+        row = base_row(cell, name)
+        row.update(status="error", error=f"{type(error).__name__}: {error}", worker=None,
+                   started_at=datetime.now(UTC), wall_s=None)  # fmt: skip
+        rows.append(row)
+    return rows
+
+
+def failed_cells(out: Path) -> int:
+    frame = load(out)
+    return int(frame.loc[frame["status"] != "ok", "cell"].nunique()) if len(frame) else 0
+
+
+def run(
+    cells: list[Cell],
+    names: list[str],
+    out: Path,
+    client: Any,
+    done: set[tuple[str, str]],
+    *,
+    label: str = "cells",
+    progress: bool = True,
+) -> Summary:
+    """Submit what is not done, write rows as cells finish; returns the counts of this run."""
+    from distributed import as_completed
+
+    todo = plan(cells, names, done)
+    summary = Summary(cells=len(cells), skipped=len(cells) - len(todo))
+    if not todo:
+        return summary
+    writer = Writer(out)
+    by_future = {}
+    for cell, missing in todo:
+        future = client.submit(run_cell, cell, missing, key=f"cell-{cell.key}-{'-'.join(missing)}", pure=False)
+        by_future[future] = (cell, missing)
+    bar = tqdm(total=len(todo), desc=label, unit="cell", disable=not progress, dynamic_ncols=True)
+    failed_now = 0
+    try:
+        for batch in as_completed(list(by_future), with_results=True, raise_errors=False).batches():
+            rows: list[dict[str, Any]] = []
+            for future, result in batch:
+                cell, missing = by_future.pop(future)
+                cell_rows = result if future.status == "finished" else _failed_rows(cell, missing, result)
+                failed_now += any(r["status"] != "ok" for r in cell_rows)
+                rows.extend(cell_rows)
+            writer.write(rows)
+            summary.ran += len(batch)
+            bar.update(len(batch))
+            bar.set_postfix(failed=failed_now, refresh=False)
+    except KeyboardInterrupt:
+        summary.interrupted = True
+        for future in by_future:
+            future.cancel()
+    finally:
+        bar.close()
+    return summary

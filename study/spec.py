@@ -1,0 +1,246 @@
+"""The study file: what to sweep, validated once, expanded into cells.
+
+A study is a grid: attacks (each with its parameter grid) x legs x hover
+positions x seeds. One *cell* is one point of that grid; in it every listed
+estimator runs on the same attacked measurement stream (offline) or flies the
+same seeded flight with that estimator in the proxy (closed loop). A cell is
+named by a stable hash of its definition (scenario content, leg, position,
+resolved attack profile, seed, duration, mode), so a re-run of the same file
+recognises what is done, and adding an estimator or a seed runs only what is new.
+
+Parameter grids: in ``params``, a list is a grid axis and a scalar is fixed.
+A parameter whose own value is a list (``links: [11, 14]``, declared with a list
+default) is fixed when written as a flat list and swept when written as a list
+of lists (``links: [[11, 14], [12, 15]]``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, field_validator, model_validator
+
+import estimators
+from attack_profiles import library
+from attack_profiles.profile import Profile
+from evaluation.cli import resolve_profile
+from secuav_common.loading import InputError, dump_json, load_model, parse_document, validate
+from secuav_common.scenario import HoldTarget, Scenario, load_scenario, resolve_scenario_path
+
+Mode = Literal["offline", "closed-loop"]
+Leg = Literal["hover", "moving"]
+SECURE_OFF = "off"  # closed loop: fly with the secure stage bypassed
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class AttackSpec(_Strict):
+    """A library profile name or a profile file, with parameters (lists are grid axes)."""
+
+    profile: str = Field(description="library profile name (secuav-attack list) or a profile file")
+    params: dict[str, Any] = Field(default_factory=dict, description="a list is a grid axis; a scalar is fixed")
+
+
+AttackEntry = Annotated[Literal["none"] | AttackSpec, Field(description="'none' (clean runs) or a profile")]
+
+
+class Study(_Strict):
+    """A sweep of attacks x magnitudes x legs x positions x seeds over a set of estimators."""
+
+    name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+    description: str = ""
+    mode: Mode = "offline"
+    scenario: str = Field(description="bundled scenario name or a scenario file")
+    duration_s: PositiveFloat | None = Field(None, description="seconds per trial or flight (default: the scenario's)")
+    legs: list[Leg] = Field(default_factory=lambda: ["hover"], min_length=1)
+    positions: list[tuple[float, float]] | None = Field(
+        None, description="hover points (north, east) in metres, scenario frame; default the scenario's target"
+    )
+    estimators: list[str] = Field(min_length=1, description="estimator names; closed loop also 'off'")
+    seeds: int | list[int] = Field(description="a count (0..N-1) or an explicit list")
+    attacks: list[AttackEntry] = Field(min_length=1)
+    settle_s: PositiveFloat = Field(5.0, description="closed loop: hold before the attack and the scoring start")
+
+    @field_validator("estimators", mode="before")
+    @classmethod
+    def _yaml_off(cls, names: Any) -> Any:
+        # YAML 1.1 reads a bare `off` as false; in this list it can only mean the secure stage off.
+        return [SECURE_OFF if n is False else n for n in names] if isinstance(names, list) else names
+
+    @field_validator("estimators")
+    @classmethod
+    def _known_estimators(cls, names: list[str]) -> list[str]:
+        known = estimators.names()
+        for name in names:
+            if name not in known and name != SECURE_OFF:
+                raise ValueError(f"unknown estimator {name!r}; choose from {', '.join(known)}")
+        if len(set(names)) != len(names):
+            raise ValueError("an estimator is listed twice")
+        return names
+
+    @field_validator("seeds")
+    @classmethod
+    def _seeds(cls, seeds: int | list[int]) -> int | list[int]:
+        if isinstance(seeds, int) and not 1 <= seeds <= 100_000:
+            raise ValueError("a seed count must lie in 1..100000")
+        if isinstance(seeds, list) and (not seeds or len(set(seeds)) != len(seeds)):
+            raise ValueError("an explicit seed list must be non-empty and without repeats")
+        return seeds
+
+    @model_validator(mode="after")
+    def _mode_rules(self) -> Study:
+        if self.mode == "offline" and SECURE_OFF in self.estimators:
+            raise ValueError(f"estimators: {SECURE_OFF!r} is for closed-loop studies only")
+        if self.mode == "closed-loop":
+            if self.legs != ["hover"]:
+                raise ValueError("legs: closed-loop flights hold the demo's target, so only [hover]")
+            if self.positions is not None:
+                raise ValueError("positions: closed-loop flights hold the demo's target; leave positions out")
+        return self
+
+    def seed_list(self) -> list[int]:
+        return list(range(self.seeds)) if isinstance(self.seeds, int) else list(self.seeds)
+
+
+@dataclass(frozen=True, slots=True)
+class Cell:
+    """One grid point; everything a worker needs, with no file to read (workers share no disk)."""
+
+    key: str  # stable hash of the definition
+    study: str
+    mode: Mode
+    scenario: Scenario
+    duration_s: float
+    leg: Leg
+    position: tuple[float, float] | None  # None: the scenario's own target (wall hover, formation)
+    attack: str  # profile name, or "none"
+    attack_ref: str | None  # what the user wrote (library name or file), for closed-loop flights
+    params: dict[str, Any]  # the grid values of this cell (the swept and fixed parameters given)
+    profile: Profile | None
+    seed: int
+    settle_s: float
+
+
+def load_study(path: str | Path) -> Study:
+    return load_model(Study, path)
+
+
+def parse_study(text: str, source: str) -> Study:
+    return validate(Study, parse_document(text, source), source)
+
+
+def _resolve_near(ref: str, base: Path) -> str:
+    """A relative file name is read next to the study file first, then from the working directory."""
+    near = base / ref
+    return str(near) if not Path(ref).is_absolute() and near.exists() else ref
+
+
+def _declared_list_params(ref: str, profile_text: dict[str, Any] | None) -> set[str]:
+    declared = (profile_text or {}).get("parameters") or {}
+    return {k for k, v in declared.items() if isinstance(v, dict) and isinstance(v.get("default"), list)}
+
+
+def _grid(params: dict[str, Any], list_valued: set[str]) -> list[dict[str, Any]]:
+    axes: list[tuple[str, list[Any]]] = []
+    for name, value in params.items():
+        sweep = isinstance(value, list) and (name not in list_valued or all(isinstance(v, list) for v in value))
+        if sweep and not value:
+            raise ValueError(f"parameter {name!r}: an empty list sweeps nothing")
+        if sweep and len({json.dumps(v, sort_keys=True) for v in value}) != len(value):
+            raise ValueError(f"parameter {name!r} lists a value twice")
+        axes.append((name, value if sweep else [value]))
+    combos = itertools.product(*(values for _, values in axes))
+    return [dict(zip((n for n, _ in axes), combo, strict=True)) for combo in combos]
+
+
+def _profile_document(ref: str) -> dict[str, Any] | None:
+    if ref in library.names():
+        doc = parse_document(library.text(ref), f"library:{ref}")
+    elif Path(ref).exists():
+        doc = parse_document(Path(ref).read_bytes(), ref)
+    else:
+        return None
+    return doc if isinstance(doc, dict) else None
+
+
+def _with_position(scenario: Scenario, north: float, east: float) -> Scenario:
+    """The scenario with its first vehicle starting under and holding (north, east)."""
+    first = scenario.vehicles[0]
+    if not isinstance(first.target, HoldTarget):
+        raise ValueError(f"scenario {scenario.name!r} has no hold target, so positions cannot move it")
+    down = first.target.pos_ned_m[2]
+    start = first.start.model_copy(update={"pos_ned_m": (north, east, first.start.pos_ned_m[2])})
+    target = first.target.model_copy(update={"pos_ned_m": (north, east, down)})
+    vehicle = first.model_copy(update={"start": start, "target": target})
+    return scenario.model_copy(update={"vehicles": [vehicle, *scenario.vehicles[1:]]})
+
+
+def cell_key(**definition: Any) -> str:
+    text = json.dumps(definition, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def expand(study: Study, source: str) -> list[Cell]:
+    """Every cell of the study, in a stable order; ``InputError`` names the study field at fault."""
+    base = Path(source).resolve().parent
+    try:
+        scenario_path = resolve_scenario_path(_resolve_near(study.scenario, base))
+        scenario = load_scenario(scenario_path)
+    except InputError as err:
+        raise InputError(source, "scenario", study.scenario, str(err)) from None
+    if study.mode == "closed-loop":
+        from study.closed_loop import demo_for
+
+        try:
+            demo_for(scenario)
+        except ValueError as exc:
+            raise InputError(source, "scenario", study.scenario, str(exc)) from None
+    duration = study.duration_s or scenario.duration_s
+    positions: list[tuple[float, float] | None] = list(study.positions) if study.positions else [None]
+    variants: list[tuple[tuple[float, float] | None, Scenario]] = []
+    for i, pos in enumerate(positions):
+        try:
+            variants.append((pos, scenario if pos is None else _with_position(scenario, *pos)))
+        except ValueError as exc:
+            raise InputError(source, f"positions[{i}]", list(pos or ()), str(exc)) from None
+    attacks: list[tuple[str, str | None, dict[str, Any], Profile | None]] = []
+    for i, entry in enumerate(study.attacks):
+        if entry == "none":
+            attacks.append(("none", None, {}, None))
+            continue
+        assert isinstance(entry, AttackSpec)
+        ref = _resolve_near(entry.profile, base)
+        try:
+            grid = _grid(entry.params, _declared_list_params(ref, _profile_document(ref)))
+        except ValueError as exc:
+            raise InputError(source, f"attacks[{i}].params", entry.params, str(exc)) from None
+        for values in grid:
+            try:
+                profile = resolve_profile(ref, values)
+            except InputError as err:
+                raise InputError(source, f"attacks[{i}]", {"profile": entry.profile, **values}, str(err)) from None
+            attacks.append((profile.name, ref, values, profile))
+    cells: list[Cell] = []
+    seen: set[str] = set()
+    scenario_hash = hashlib.sha256(dump_json(scenario).encode()).hexdigest()[:16]
+    for (name, ref, values, profile), leg, (pos, scen), seed in itertools.product(
+        attacks, study.legs, variants, study.seed_list()
+    ):
+        key = cell_key(
+            mode=study.mode, scenario=scenario_hash, duration_s=duration, leg=leg, position=pos,
+            attack=None if profile is None else profile.content_hash(), seed=seed,
+            settle_s=study.settle_s if study.mode == "closed-loop" else None,
+        )  # fmt: skip
+        if key in seen:  # two attack entries that resolve to the same profile: one cell
+            continue
+        seen.add(key)
+        cells.append(Cell(key, study.name, study.mode, scen, duration, leg, pos, name, ref, values, profile, seed,
+                          study.settle_s))  # fmt: skip
+    return cells

@@ -1,0 +1,117 @@
+"""The results of a study on disk: ``DIR/results.parquet``, a Parquet dataset written append-only.
+
+Each batch of finished cells becomes one new file ``results.parquet/part-*.parquet``,
+written under a hidden temporary name, synced, then renamed into place, so a
+kill never leaves half a file and a written row is never rewritten. Any Parquet
+reader takes the directory as one table (``pandas.read_parquet(DIR /
+"results.parquet")``). A cell is done when it has a row for an estimator; rows
+of a cell re-run with ``--retry-failed`` supersede the failed ones (:func:`load`
+keeps the newest row per cell and estimator).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import pyarrow as pa
+import pyarrow.dataset as ds
+import pyarrow.parquet as pq
+
+RESULTS = "results.parquet"
+STUDY_FILE = "study.json"
+
+_S, _F, _I = pa.string(), pa.float64(), pa.int64()
+SCHEMA = pa.schema([
+    ("study", _S), ("cell", _S), ("scenario", _S), ("mode", _S), ("leg", _S),
+    ("position", _S),  # JSON [north, east] in metres, or null for the scenario's own target
+    ("attack", _S), ("attack_hash", _S), ("params", _S),  # params: JSON of this cell's parameter values
+    ("seed", _I), ("estimator", _S), ("status", _S), ("error", _S),
+    ("rmse_m", _F), ("mean_error_m", _F), ("p95_error_m", _F), ("max_error_m", _F),
+    ("range_rmse_m", _F), ("range_max_error_m", _F),
+    ("estimate_fraction", _F), ("alarm_fraction", _F),
+    ("attack_detection_precision", _F), ("attack_detection_recall", _F),
+    ("detection_delay_s", _F), ("false_alarm_rate", _F), ("recall_all", _F),
+    ("recall_by_sigma", _S), ("attacked_fraction", _F),
+    ("step_time_us_median", _F), ("step_time_us_p99", _F),
+    ("collided", pa.bool_()), ("min_distance_m", _F), ("flagged", _S),  # closed loop
+    ("worker", _S), ("started_at", pa.timestamp("ms", tz="UTC")), ("wall_s", _F),
+])  # fmt: skip
+COLUMNS = SCHEMA.names
+
+
+def results_dir(out: Path) -> Path:
+    return out / RESULTS
+
+
+def _sync_dir(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+class Writer:
+    """Appends batches of rows as new part files; the only thing that writes ``DIR``."""
+
+    def __init__(self, out: Path) -> None:
+        self.dir = results_dir(out)
+        self.dir.mkdir(parents=True, exist_ok=True)
+        self._stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime())
+        self._seq = 0
+
+    def write(self, rows: list[dict[str, Any]]) -> Path | None:
+        if not rows:
+            return None
+        table = pa.Table.from_pylist([{c: r.get(c) for c in COLUMNS} for r in rows], schema=SCHEMA)
+        self._seq += 1
+        name = f"part-{self._stamp}-{os.getpid()}-{self._seq:06d}.parquet"
+        tmp, final = self.dir / f".{name}.tmp", self.dir / name
+        with open(tmp, "wb") as sink:
+            pq.write_table(table, sink)
+            sink.flush()
+            os.fsync(sink.fileno())
+        os.replace(tmp, final)
+        _sync_dir(self.dir)
+        return final
+
+
+def load(out: Path) -> pd.DataFrame:
+    """Every row, the newest per (cell, estimator); an empty frame with the columns when there are none."""
+    path = results_dir(out)
+    if not path.is_dir() or not any(path.glob("part-*.parquet")):
+        return pd.DataFrame({c: pd.Series(dtype=object) for c in COLUMNS})
+    frame = ds.dataset(path, format="parquet", schema=SCHEMA).to_table().to_pandas()
+    frame = frame.sort_values("started_at", kind="stable")
+    return frame.drop_duplicates(["cell", "estimator"], keep="last").reset_index(drop=True)
+
+
+def done(out: Path, *, retry_failed: bool = False) -> set[tuple[str, str]]:
+    """(cell, estimator) pairs already recorded (with ``retry_failed``: only those that succeeded)."""
+    frame = load(out)
+    if retry_failed:
+        frame = frame[frame["status"] == "ok"]
+    return set(zip(frame["cell"], frame["estimator"], strict=True))
+
+
+def save_study(out: Path, definition: dict[str, Any]) -> None:
+    """Remember which study the directory holds, so another one is not mixed into it."""
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / STUDY_FILE
+    tmp = out / f".{STUDY_FILE}.tmp"
+    tmp.write_text(json.dumps(definition, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def saved_study(out: Path) -> dict[str, Any] | None:
+    path = out / STUDY_FILE
+    return json.loads(path.read_text(encoding="utf-8")) if path.exists() else None
+
+
+def as_json(value: Any) -> str | None:
+    return None if value is None else json.dumps(value, sort_keys=True, separators=(",", ":"))

@@ -1,0 +1,150 @@
+"""The study file: validation with one clear line, grid expansion, stable cell keys, detection figures."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from evaluation.trial import EstimatorTrace, TrialResult
+from secuav_common.loading import InputError
+from study.cli import main
+from study.metrics import detection_figures
+from study.runner import plan
+from study.spec import _grid, expand, parse_study
+
+BASE = """
+name: t
+scenario: anchors8
+duration_s: 5
+estimators: [ekf, secekf]
+seeds: 3
+attacks:
+  - none
+  - profile: anchors-constant
+    params: {offset_m: [0.1, 0.3, 1.0], links: [11, 14]}
+"""
+
+
+def _cells(text: str) -> list:
+    return expand(parse_study(text, "s.yaml"), "s.yaml")
+
+
+def test_grid_counts_and_list_valued_parameters() -> None:
+    cells = _cells(BASE)
+    assert len(cells) == (1 + 3) * 3  # (none + three offsets) x three seeds
+    attacked = [c for c in cells if c.attack == "anchors-constant"]
+    assert {c.params["offset_m"] for c in attacked} == {0.1, 0.3, 1.0}
+    assert all(c.params["links"] == [11, 14] for c in attacked)  # a flat list of a list parameter is fixed
+    swept = _cells(BASE.replace("links: [11, 14]", "links: [[11, 14], [12, 15]]"))
+    assert len(swept) == (1 + 3 * 2) * 3
+
+
+def test_cell_keys_are_stable_and_ignore_the_estimator_list() -> None:
+    a = [c.key for c in _cells(BASE)]
+    b = [c.key for c in _cells(BASE.replace("[ekf, secekf]", "[ekf, secekf, rarse]"))]
+    assert a == b and len(set(a)) == len(a)
+    more_seeds = _cells(BASE.replace("seeds: 3", "seeds: 4"))
+    assert set(a) < {c.key for c in more_seeds}
+    changed = _cells(BASE.replace("duration_s: 5", "duration_s: 6"))
+    assert not set(a) & {c.key for c in changed}
+
+
+def test_plan_runs_only_missing_estimators() -> None:
+    cells = _cells(BASE)
+    done = {(cells[0].key, "ekf"), (cells[0].key, "secekf"), (cells[1].key, "ekf")}
+    todo = plan(cells, ["ekf", "secekf"], done)
+    assert len(todo) == len(cells) - 1
+    assert todo[0] == (cells[1], ["secekf"])
+
+
+def test_positions_move_start_and_hold_target() -> None:
+    cells = _cells(BASE + "positions: [[2.5, 2.5], [0.6, 2.5]]\n")
+    assert len(cells) == 2 * 12
+    edge = next(c for c in cells if c.position == (0.6, 2.5))
+    first = edge.scenario.vehicles[0]
+    assert first.start.pos_ned_m[:2] == (0.6, 2.5) and first.target.pos_ned_m[:2] == (0.6, 2.5)
+
+
+@pytest.mark.parametrize(
+    ("change", "field"),
+    [
+        (("[ekf, secekf]", "[ekf, nosuch]"), "estimators"),
+        (("offset_m: [0.1, 0.3, 1.0]", "offset_m: [0.1, []]"), "attacks[1]"),
+        (("anchors-constant", "no-such-profile"), "attacks[1]"),
+        (("scenario: anchors8", "scenario: nowhere"), "scenario"),
+        (("seeds: 3", "seeds: 0"), "seeds"),
+        (("offset_m: [0.1, 0.3, 1.0]", "offset_m: [0.1, 0.1]"), "attacks[1].params"),
+        (("duration_s: 5", "duration_s: -1"), "duration_s"),
+        (("name: t", "name: t\nbogus: 1"), "bogus"),
+    ],
+)
+def test_bad_study_file_one_line_naming_file_and_field(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], change: tuple[str, str], field: str
+) -> None:
+    path = tmp_path / "bad.yaml"
+    path.write_text(BASE.replace(*change))
+    assert main(["validate", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(path) in err and field in err, err
+    assert main(["run", str(path), "--out", str(tmp_path / "out")]) == 2
+    assert not (tmp_path / "out").exists()
+
+
+def test_closed_loop_refuses_what_a_demo_cannot_fly() -> None:
+    text = BASE.replace("name: t", "name: t\nmode: closed-loop")
+    with pytest.raises(InputError, match="positions"):
+        _cells(text + "positions: [[1.0, 1.0]]\n")
+    odd = text.replace("[ekf, secekf]", "[off, secekf]")  # YAML's bare `off` is the secure stage off
+    assert parse_study(odd, "s.yaml").estimators == ["off", "secekf"]
+    with pytest.raises(InputError, match=r"estimators: .off. is for closed-loop"):
+        parse_study(BASE.replace("[ekf, secekf]", "[off]"), "s.yaml")
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.dictionaries(
+        st.sampled_from(["a", "b", "c", "d"]),
+        st.one_of(st.floats(-5, 5), st.lists(st.integers(0, 9), min_size=1, max_size=4, unique=True)),
+        max_size=4,
+    )
+)
+def test_grid_is_the_product_of_its_axes(params: dict) -> None:
+    combos = _grid(params, set())
+    expected = math.prod(len(v) if isinstance(v, list) else 1 for v in params.values())
+    assert len(combos) == expected
+    assert len({tuple(sorted(c.items())) for c in combos}) == expected
+    for combo in combos:
+        for k, v in params.items():
+            assert combo[k] in v if isinstance(v, list) else combo[k] == v
+
+
+def _trial(offsets: np.ndarray, named: np.ndarray, has_estimate: np.ndarray) -> TrialResult:
+    n, p = offsets.shape
+    t = np.arange(1, n + 1) * 0.1
+    est = np.where(has_estimate[:, None], 0.0, np.nan) * np.ones((n, 2))
+    trace = EstimatorTrace(np.zeros(n), None, est, np.zeros(n), named, named.any(axis=1))
+    return TrialResult(t, np.zeros((n, 2)), np.zeros((p, 2)), offsets, np.full(p, 0.1), tuple(range(p)), {"x": trace})
+
+
+def test_detection_delay_and_false_alarms_from_known_offsets() -> None:
+    n, p = 60, 4
+    offsets = np.zeros((n, p))
+    offsets[30:, 1] = 0.05  # a half-sigma attack from t = 3.1 s
+    named = np.zeros((n, p), dtype=bool)
+    named[20, 3] = True  # a false alarm before the attack
+    named[35:, 1] = True  # caught 0.5 s after onset
+    named[40, 2] = True  # a wrong name during the attack
+    fig = detection_figures(_trial(offsets, named, np.ones(n, dtype=bool)), "x")
+    assert fig["detection_delay_s"] == pytest.approx(0.5)
+    scored = n - 10  # after the 1 s warm-up
+    assert fig["false_alarm_rate"] == pytest.approx(2 / scored)
+    assert fig["recall_all"] == pytest.approx(25 / 30)
+    assert fig["recall_by_sigma"]["0-1"] == pytest.approx(25 / 30) and fig["recall_by_sigma"][">10"] is None
+    clean = detection_figures(_trial(np.zeros((n, p)), named, np.ones(n, dtype=bool)), "x")
+    assert clean["detection_delay_s"] is None and clean["recall_all"] is None
+    assert clean["false_alarm_rate"] == pytest.approx(26 / scored)
