@@ -9,6 +9,7 @@ from __future__ import annotations
 import time
 import traceback
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import Any
 
 from study.spec import Cell
@@ -64,9 +65,8 @@ def run_cell(cell: Cell, names: list[str]) -> list[dict[str, Any]]:
         failure = None
     except Exception as exc:  # recorded in the results; the study goes on with the other cells
         figures = {}
-        failure = f"{type(exc).__name__}: {exc}"
-        tail = traceback.format_exc(limit=-3).strip().splitlines()
-        failure += " | " + " / ".join(line.strip() for line in tail[-4:-1])
+        where = traceback.extract_tb(exc.__traceback__)[-1]
+        failure = f"{type(exc).__name__}: {exc} (at {Path(where.filename).name}:{where.lineno} in {where.name})"
     wall_s = time.perf_counter() - t0
     rows = []
     for name in names:

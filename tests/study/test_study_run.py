@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 
 import pandas as pd
@@ -172,3 +173,23 @@ attacks:
     assert 0.0 < row["max_error_m"] < 1.5 and row["min_distance_m"] > 1.0
     flagged = json.loads(row["flagged"])
     assert flagged.get("0", 0) > 0.5 and flagged.get("2", 0) > 0.5
+
+
+def test_a_cell_that_raises_is_recorded_with_its_error_and_the_rest_go_on(tmp_path: Path) -> None:
+    from study.runner import dask_client, failed_cells, run
+    from study.spec import expand, parse_study
+
+    path = _study(tmp_path, SMALL)
+    cells = expand(parse_study(SMALL, str(path)), str(path))
+    good = cells[0]
+    first = good.scenario.vehicles[0]
+    deaf = first.model_copy(update={"sensors": first.sensors.model_copy(update={"uwb": None})})
+    # No UWB on the vehicle: the real trial has no anchor ranges to model and raises.
+    broken = replace(good, key="0" * 16, scenario=good.scenario.model_copy(update={"vehicles": [deaf]}))
+    out = tmp_path / "out"
+    with dask_client(1, None) as client:
+        summary = run([broken, good], ["ekf"], out, client, set(), progress=False)
+    assert summary.ran == 2 and failed_cells(out) == 1
+    rows = pd.read_parquet(out / "results.parquet").set_index("cell")
+    assert rows.loc[good.key, "status"] == "ok"
+    assert rows.loc["0" * 16, "status"] == "error" and rows.loc["0" * 16, "error"]
