@@ -11,6 +11,8 @@ ever feeds truth to the outside unaltered.
   NaN beyond ``max_m`` or on dropout.
 - Inter-vehicle range to peer sysid n (sensor id 50+n): 3-D distance between
   the two true positions + N(0, std); NaN on dropout.
+- Both radio ranges may instead carry heavy-tailed (Student-t) noise and NLOS
+  excess paths (``noise:`` in the scenario, :class:`secuav_common.scenario.RangeNoise`).
 - GPS and the state estimate share one position error model, documented on
   :class:`PositionError`.
 
@@ -107,6 +109,22 @@ class RangefinderModel:
         )
 
 
+def radio_noise(rng: random.Random, std_m: float, extra: sc.RangeNoise | None) -> float:
+    """The error of one radio range: Gaussian, or Student-t of the same std, plus an NLOS excess path."""
+    if extra is None:  # the plain model draws exactly as it always has, so old seeds give old flights
+        return rng.gauss(0.0, std_m) if std_m > 0 else 0.0
+    noise = 0.0
+    if std_m > 0:
+        z = rng.gauss(0.0, 1.0)
+        dof = extra.student_t_dof
+        if dof is not None:  # t = z / sqrt(chi2_dof / dof), rescaled to unit variance
+            z = z / math.sqrt(rng.gammavariate(dof / 2.0, 2.0) / dof) * math.sqrt((dof - 2.0) / dof)
+        noise = std_m * z
+    if extra.nlos_prob > 0 and rng.random() < extra.nlos_prob and extra.nlos_mean_m > 0:
+        noise += rng.expovariate(1.0 / extra.nlos_mean_m)
+    return noise
+
+
 class UwbModel:
     def __init__(self, cfg: sc.UwbRanging, anchors: Mapping[int, Vec3], rng: random.Random) -> None:
         self.cfg = cfg
@@ -125,7 +143,7 @@ class UwbModel:
         out = []
         for k, a in self.anchors.items():
             d = _dist(truth.pos_ned_m, a)
-            noise = rng.gauss(0.0, cfg.noise_std_m) if cfg.noise_std_m > 0 else 0.0
+            noise = radio_noise(rng, cfg.noise_std_m, cfg.noise)
             dropped = cfg.dropout_prob > 0 and rng.random() < cfg.dropout_prob
             value = NAN if dropped or d > cfg.max_m else max(0.0, d + noise)
             out.append(_range(anchor_sensor_id(k), truth.t_s, value, cfg.max_m, cfg.noise_std_m))
@@ -149,7 +167,7 @@ class PeerRangeModel:
         out = []
         for sysid in cfg.peers:
             other = peers.get(sysid)
-            noise = rng.gauss(0.0, cfg.noise_std_m) if cfg.noise_std_m > 0 else 0.0
+            noise = radio_noise(rng, cfg.noise_std_m, cfg.noise)
             dropped = cfg.dropout_prob > 0 and rng.random() < cfg.dropout_prob
             value = NAN if other is None or dropped else max(0.0, _dist(truth.pos_ned_m, other.pos_ned_m) + noise)
             out.append(_range(peer_sensor_id(sysid), truth.t_s, value, PEER_MAX_M, cfg.noise_std_m))

@@ -96,11 +96,27 @@ class Rangefinder(_Strict):
         return self
 
 
+class RangeNoise(_Strict):
+    """Radio range noise beyond the Gaussian: heavy tails and non-line-of-sight paths (off by default).
+
+    UWB ranges indoors are not Gaussian: multipath and bodies in the way lengthen
+    some readings (NLOS: a positive excess path, here exponential with mean
+    ``nlos_mean_m``, on a share ``nlos_prob`` of readings), and the line-of-sight
+    error itself has heavier tails (Student-t with ``student_t_dof`` degrees of
+    freedom, scaled to keep ``noise_std_m`` as its standard deviation).
+    """
+
+    nlos_prob: Probability = 0.0
+    nlos_mean_m: NonNegFloat = 0.3
+    student_t_dof: float | None = Field(None, gt=2.0, description="None: Gaussian; > 2 for a finite variance")
+
+
 class UwbRanging(_Strict):
     """Two-way ranging to anchors of the world (3-D distances)."""
 
     anchors: list[int] | Literal["all"] = "all"
     noise_std_m: NonNegFloat = 0.10
+    noise: RangeNoise | None = None
     rate_hz: PositiveFloat = 10.0
     dropout_prob: Probability = 0.0
     max_m: PositiveFloat = 100.0
@@ -111,6 +127,7 @@ class InterVehicleRanging(_Strict):
 
     peers: list[int]
     noise_std_m: NonNegFloat = 0.10
+    noise: RangeNoise | None = None
     rate_hz: PositiveFloat = 10.0
     dropout_prob: Probability = 0.0
 
