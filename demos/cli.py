@@ -39,6 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--base-port", type=int, default=None,
                    help="ports BASE+i (proxy), BASE+10+i (MAVSDK), BASE+20 (GCS), BASE+21 (MQTT) "
                    "instead of DESIGN.md's port plan")  # fmt: skip
+    p.add_argument("--no-progress", action="store_true", help="no progress bar per flight")
     p.add_argument("-v", "--verbose", action="store_true")
     return p
 
@@ -73,7 +74,7 @@ async def _main(args: argparse.Namespace) -> int:
     ports = Ports() if base is None else Ports(base, base + 10, base + 20, base + 21)
     params = {**getattr(demo, "DEFAULT_PARAMS", {}), **_params(args.param)}
     opts = Options(out=out, seconds=args.seconds, settle_s=args.settle, seed=args.seed, ports=ports,
-                   attack_params=params)  # fmt: skip
+                   attack_params=params, progress=not args.no_progress and sys.stderr.isatty())  # fmt: skip
     selected = cases(demo, args.attack, args.secure, matrix)
     results = []
     for i, case in enumerate(selected, 1):

@@ -48,6 +48,7 @@ class Options:
     seed: int | None = None
     ports: Ports = field(default_factory=Ports)
     attack_params: dict[str, Any] | None = None
+    progress: bool = True  # a progress bar per flight on stderr
 
 
 @dataclass
@@ -93,6 +94,39 @@ async def wait_for_event(path: Path, event: str, procs: Processes, name: str, ti
     raise TimeoutError(f"{name} did not reach {event!r} within {timeout_s:.0f} s: see {path.parent}/{name}.log")
 
 
+class FlightProgress:
+    """One bar per flight: the phase as its label, and the seconds of the hold (settle + scored) as progress."""
+
+    def __init__(self, label: str, hold_s: float, enabled: bool) -> None:
+        from tqdm import tqdm
+
+        self._label = label
+        self._bar = tqdm(total=round(hold_s), unit="s", leave=False, disable=not enabled,
+                         bar_format="{desc} |{bar}| {n:.0f}/{total} s of hold")  # fmt: skip
+        self._ticker: asyncio.Task[None] | None = None
+        self.phase("starting broker, proxy, simulator")
+
+    def phase(self, text: str) -> None:
+        self._bar.set_description_str(f"    {self._label}: {text}")
+
+    async def _tick(self, since: float) -> None:
+        while True:
+            self._bar.n = min(float(self._bar.total), time.time() - since)
+            self._bar.refresh()
+            await asyncio.sleep(0.5)
+
+    def holding_since(self, wall_s: float) -> None:
+        self._ticker = asyncio.create_task(self._tick(wall_s))
+
+    async def __aenter__(self) -> FlightProgress:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        if self._ticker is not None:
+            self._ticker.cancel()
+        self._bar.close()
+
+
 def _dump(path: Path, rows: list[tuple[float, dict[str, Any]]]) -> None:
     path.write_text("".join(json.dumps({"wall_s": t, **d}) + "\n" for t, d in rows), encoding="utf-8")
 
@@ -112,7 +146,8 @@ async def fly(
     for path in logs.values():
         path.unlink(missing_ok=True)
     acks: dict[int, dict[str, Any]] = {}
-    async with EmbeddedBroker(port=p.mqtt), Tap("127.0.0.1", p.mqtt, topics) as tap, Processes(out) as procs:
+    bar = FlightProgress(case.slug, opts.settle_s + opts.seconds, opts.progress)
+    async with bar, EmbeddedBroker(port=p.mqtt), Tap("127.0.0.1", p.mqtt, topics) as tap, Processes(out) as procs:
         proxy = [tool("secuav-proxy"), "--scenario", scenario, "--secure", case.secure, "--broker", p.broker_url,
                  "--record", str(out / "record")]  # fmt: skip
         for i in range(n):
@@ -128,8 +163,12 @@ async def fly(
                 sys.executable, "-m", c.module, "--url", f"udpin://127.0.0.1:{p.api + i}",
                 "--seconds", str(opts.seconds), "--log", str(logs[c.sysid]), *c.args,
             ])  # fmt: skip
+        bar.phase("taking off")
         holds = [await wait_for_event(logs[s], "holding", procs, f"controller{s}", 120.0) for s in sysids]
+        bar.holding_since(max(holds))
+        bar.phase("settling")
         await asyncio.sleep(opts.settle_s)
+        bar.phase("holding, attack on" if case.attack is not None else "holding")
         t_scored = time.time()
         if case.attack is not None:
             payload = attack_payload(case.attack, opts.attack_params)
@@ -141,6 +180,7 @@ async def fly(
         landings = [
             await wait_for_event(logs[s], "landing", procs, f"controller{s}", opts.seconds + 60.0) for s in sysids
         ]
+        bar.phase("landing")
         for s in sysids:
             await wait_for_event(logs[s], "done", procs, f"controller{s}", 60.0)
         truth = {s: [(x.wall_s, x.payload) for x in tap.on(f"secuav/v{s}/truth")] for s in sysids}
