@@ -18,6 +18,7 @@ from demos import formation, localise, wall_hover
 from demos.flight import Case, Options
 from demos.report import plot, write_report
 from demos.stack import Ports
+from secuav_common.logs import add_common_flags
 
 DEMOS: dict[str, ModuleType] = {"wall-hover": wall_hover, "localise": localise, "formation": formation}
 
@@ -41,6 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "instead of DESIGN.md's port plan")  # fmt: skip
     p.add_argument("--no-progress", action="store_true", help="no progress bar per flight")
     p.add_argument("-v", "--verbose", action="store_true")
+    add_common_flags(p, log_flags=False)
     return p
 
 

@@ -43,6 +43,7 @@ from evaluation.report import plot, summarise, table, write_results
 from evaluation.tlog import frame_rate_hz, log_streams, read_tlog, read_truth_csv
 from evaluation.trial import RATE_HZ, TrialResult, evaluate, is_formation, is_wall, run_trial
 from secuav_common.loading import InputError
+from secuav_common.logs import add_common_flags
 from secuav_common.scenario import Scenario, load_scenario, resolve_scenario_path
 
 
@@ -66,6 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--truth", type=Path, default=None, help="ground-truth CSV for --tlog (secuav-sim --truth-csv)")
     p.add_argument("--rate", type=float, default=None, help="--tlog framing rate in Hz (default: the ranges' own)")
+    add_common_flags(p, log_flags=False)
     return p
 
 

@@ -49,6 +49,7 @@ from attack_profiles.action import Direction
 from attack_profiles.profile import Profile
 from evaluation.cli import parse_params, resolve_profile
 from secuav_common.loading import InputError
+from secuav_common.logs import add_common_flags
 from secuav_common.scenario import load_scenario, resolve_scenario_path
 from secuav_common.urls import Endpoint, parse_endpoint
 
@@ -242,7 +243,7 @@ async def record(
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m evaluation.record", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="secuav-record", description=__doc__.split("\n")[0])
     p.add_argument("--listen", action="append", required=True, metavar="URL", help="udpin://HOST:PORT (repeatable)")
     p.add_argument("--out", required=True, type=Path, help=".tlog file to write")
     p.add_argument("--attack", default="none", help="profile file, library name, or 'none' (default)")
@@ -253,6 +254,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--idle-stop", type=float, default=None, help="stop S seconds after the last datagram")
     p.add_argument("--takeoff", action="store_true", help="arm and take off each vehicle on its first heartbeat")
     p.add_argument("-q", "--quiet", action="store_true", help="no summary line")
+    add_common_flags(p, log_flags=False)
     return p
 
 

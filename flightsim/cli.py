@@ -21,7 +21,7 @@ from pathlib import Path
 
 from secuav_common.broker import parse_broker_url
 from secuav_common.loading import InputError
-from secuav_common.logs import setup_logging
+from secuav_common.logs import add_common_flags, setup_logging
 from secuav_common.ports import proxy_vehicle_url
 from secuav_common.scenario import DEFAULT_SCENARIO, Scenario, load_scenario
 from secuav_common.urls import Endpoint, parse_endpoint
@@ -70,6 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, help="noise seed (default: the scenario's seed)")
     p.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
     p.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
+    add_common_flags(p)
     return p  # fmt: skip
 
 
@@ -113,7 +114,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args.truth_hz > 0:
         return _fail(f"--truth-hz {args.truth_hz}: must be positive")
     duration = args.duration if args.duration is not None else (scenario.duration_s if speed == 0 else None)
-    setup_logging(args.verbose, args.quiet, noisy=("aiomqtt", "asyncio", "jsbsim"))
+    setup_logging(args.verbose, args.quiet, noisy=("aiomqtt", "asyncio", "jsbsim"), json_lines=args.log_json)
 
     from flightsim.runner import RunConfig  # after validation: bad input never pays for JSBSim
 

@@ -26,10 +26,12 @@ from pathlib import Path
 from typing import Any
 
 from secuav_common.loading import InputError
+from secuav_common.logs import add_common_flags
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="secuav-study", description=__doc__.splitlines()[0])
+    add_common_flags(p, log_flags=False)
     sub = p.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="run the cells not yet in DIR, then write the report")
     run.add_argument("study", type=Path)
