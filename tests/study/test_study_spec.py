@@ -148,3 +148,9 @@ def test_detection_delay_and_false_alarms_from_known_offsets() -> None:
     clean = detection_figures(_trial(np.zeros((n, p)), named, np.ones(n, dtype=bool)), "x")
     assert clean["detection_delay_s"] is None and clean["recall_all"] is None
     assert clean["false_alarm_rate"] == pytest.approx(26 / scored)
+
+
+@pytest.mark.parametrize("path", sorted((Path(__file__).resolve().parents[2] / "studies").glob("*.yaml")))
+def test_bundled_studies_validate(path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["validate", str(path)]) == 0
+    assert f"{path}: ok;" in capsys.readouterr().out
