@@ -185,22 +185,51 @@ def _closure(names: set[str]) -> set[str]:
     return seen
 
 
-def test_every_third_party_import_is_installed_by_the_declared_dependencies() -> None:
-    """``pip install .`` (the image) gets pyproject's dependencies and what they require: nothing else."""
+CORE = {"mitm_proxy", "attack_profiles", "estimators", "secuav_common"}  # what `pip install secuav` must run
+
+
+def _requirements(project: dict, extras: set[str]) -> set[str]:
+    """Distribution names that ``pip install .[extras]`` asks for (self-references like secuav[sim] expanded)."""
+    from packaging.requirements import Requirement
+    from packaging.utils import canonicalize_name
+
+    optional = project["project"]["optional-dependencies"]
+    names = {canonicalize_name(Requirement(r).name) for r in project["project"]["dependencies"]}
+    todo, seen = list(extras), set()
+    while todo:
+        extra = todo.pop()
+        if extra in seen:
+            continue
+        seen.add(extra)
+        for text in optional[extra]:
+            req = Requirement(text)
+            if canonicalize_name(req.name) == canonicalize_name(project["project"]["name"]):
+                todo.extend(req.extras)
+            else:
+                names.add(canonicalize_name(req.name))
+    return names
+
+
+@pytest.mark.parametrize(("extras", "packages"), [(set(), CORE), ({"all"}, None)], ids=["proxy-only", "all"])
+def test_every_third_party_import_is_installed_by_the_declared_dependencies(
+    extras: set[str], packages: set[str] | None
+) -> None:
+    """``pip install .`` (the proxy image) runs the proxy and libraries; ``.[all]`` everything: nothing else needed."""
     from importlib.metadata import packages_distributions
 
-    from packaging.requirements import Requirement
     from packaging.utils import canonicalize_name
 
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())
     include = project["tool"]["setuptools"]["packages"]["find"]["include"]
     dirs = [ROOT / pat.rstrip("*") for pat in include if (ROOT / pat.rstrip("*") / "__init__.py").is_file()]
     assert {d.name for d in dirs} >= {"mitm_proxy", "flightsim", "secuav_common"}
-    installed = _closure({canonicalize_name(Requirement(r).name) for r in project["project"]["dependencies"]})
+    if packages is not None:
+        dirs = [d for d in dirs if d.name in packages]
+    installed = _closure(_requirements(project, extras))
     dists = packages_distributions()
     missing = {}
     for module, where in _third_party_imports(dirs).items():
         provided = {canonicalize_name(d) for d in dists.get(module, [module])}
         if not provided & installed:
             missing[module] = where
-    assert not missing, f"imported, but no dependency in pyproject.toml brings it: {missing}"
+    assert not missing, f"imported, but no dependency of .[{','.join(extras)}] brings it: {missing}"
