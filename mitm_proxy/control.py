@@ -282,9 +282,11 @@ class ControlPlane:
 
         When the broker vanishes while a publish is under way, aiomqtt has
         already scheduled ``loop.add_writer`` for the closed socket; the loop
-        then reports EBADF with a traceback. The session's own error says the
-        same thing once, so that report is dropped and everything else passes
-        on to the handler that was there before.
+        then reports EBADF with a traceback, or EPERM when the kernel has
+        meanwhile handed the number to a regular file (say a recording) that
+        epoll cannot watch. The session's own error says the same thing once,
+        so that report is dropped and everything else passes on to the handler
+        that was there before.
         """
         loop = asyncio.get_running_loop()
         previous = loop.get_exception_handler()
@@ -292,7 +294,8 @@ class ControlPlane:
         def handler(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
             exc = context.get("exception")
             text = repr(context.get("handle", ""))
-            if isinstance(exc, OSError) and exc.errno == errno.EBADF and ("add_writer" in text or "add_reader" in text):
+            stale_fd = isinstance(exc, OSError) and exc.errno in (errno.EBADF, errno.EPERM)
+            if stale_fd and ("add_writer" in text or "add_reader" in text):
                 log.debug("mqtt.socket_race", extra={"error": repr(exc)})
                 return
             if previous is not None:

@@ -228,17 +228,25 @@ def test_publish_nowait_turns_nan_and_numpy_into_json_and_never_raises(caplog: p
 async def test_aiomqtts_dead_socket_race_stays_out_of_the_log_and_other_errors_do_not(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
-    import socket
+    import os
+    import resource
+    import tempfile
 
     caplog.set_level(logging.DEBUG)
     loop = asyncio.get_running_loop()
     plane = ControlPlane("mqtt://127.0.0.1:1", {1: AttackSlot(1)}, stats=no_stats, backoff_s=(30.0, 30.0))
     async with plane:
         # What aiomqtt does when the broker vanishes mid-publish: add_writer scheduled for a socket closed since.
-        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        fd = sock.fileno()
-        sock.close()
+        # The number must be one nothing else can get meanwhile (aiomqtt's connect thread opens files and
+        # sockets, and the kernel hands out the lowest free number): the highest one the process may use.
+        fd = resource.getrlimit(resource.RLIMIT_NOFILE)[0] - 1
+        with pytest.raises(OSError):
+            os.fstat(fd)  # not open
         loop.call_soon(loop.add_writer, fd, lambda: None)
+        # The same race after the number went to a regular file (a recording): epoll refuses it with EPERM.
+        with tempfile.TemporaryFile() as reused:
+            loop.call_soon(loop.add_writer, reused.fileno(), lambda: None)
+            await asyncio.sleep(0.02)
 
         def other_bug() -> None:
             raise RuntimeError("someone else's bug")
@@ -247,5 +255,5 @@ async def test_aiomqtts_dead_socket_race_stays_out_of_the_log_and_other_errors_d
         await asyncio.sleep(0.05)
     errors = [r for r in caplog.records if r.name == "asyncio" and r.levelno >= logging.ERROR]
     assert len(errors) == 1 and "someone else's bug" in repr(errors[0].exc_info)
-    assert any(r.getMessage() == "mqtt.socket_race" for r in caplog.records)
+    assert [r.getMessage() for r in caplog.records].count("mqtt.socket_race") == 2
     assert loop.get_exception_handler() is None  # put back as it was
