@@ -179,7 +179,7 @@ class Proxy:
             url = cfg.broker
         parse_broker_url(url)
         ca = str(cfg.broker_tls_ca) if cfg.broker_tls_ca else None
-        plane = ControlPlane(url, self.slots, stats=self.stats_snapshot,
+        plane = ControlPlane(url, self.slots, stats=self.stats_snapshot, attack_stages=self.stages,
                              secure=self._secure_set if self.secure else None,
                              secure_state=self._secure_state if self.secure else None,
                              username=cfg.broker_username, password=cfg.broker_password, tls_ca=ca)  # fmt: skip

@@ -121,6 +121,7 @@ class Switch(Protocol):
 
 
 MODES = {"on": True, "bypass": False}
+BARE_MODES = frozenset(m.encode() for m in MODES)
 
 
 def parse_mode(payload: Any) -> bool:
@@ -526,6 +527,8 @@ class ControlPlane:
                 # whatever came later, so only a retained request we never saw counts.
                 return
             seen.append(digest)
+        if kind == "attack/mode" and raw.strip() in BARE_MODES:
+            raw = json.dumps(raw.strip().decode()).encode()  # `mosquitto_pub -m bypass`: the word without quotes
         try:
             payload, request_id = decode_payload(raw)
         except RequestError as exc:

@@ -1,0 +1,106 @@
+"""Runtime bypass through the real ``secuav-proxy`` process: ``attack/mode/set`` as a user sends it.
+
+A pymavlink "vehicle" streams DISTANCE_SENSOR into the daemon, a pymavlink
+ground station reads what comes out, and the attack is switched over a real
+broker: a bias profile shows up on the ground, ``bypass`` (the bare word, as
+``mosquitto_pub -m bypass`` sends it) takes it away while the profile stays
+installed, and ``{"mode": "on"}`` brings it back.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import signal
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import aiomqtt
+import pytest
+from pymavlink import mavutil
+
+from secuav_common.broker import EmbeddedBroker
+from tests.conftest import free_tcp_port
+
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(120)]
+TRUE_CM = 250
+BIAS = {"name": "bias", "rules": [{"target": {"message": "DISTANCE_SENSOR", "sensor_id": 0},
+                                   "kind": "bias", "offset": 1.0}]}  # fmt: skip
+
+
+async def _stream_and_read(vehicle_port: int, gcs: mavutil.mavfile, stop: asyncio.Event, seen: list[int]) -> None:
+    veh = mavutil.mavlink_connection(f"udpout:127.0.0.1:{vehicle_port}", source_system=1, source_component=1)
+    try:
+        while not stop.is_set():
+            veh.mav.distance_sensor_send(0, 5, 4000, TRUE_CM, 0, 0, 0, 0)
+            while (msg := gcs.recv_match(type="DISTANCE_SENSOR", blocking=False)) is not None:
+                seen.append(msg.current_distance)
+            await asyncio.sleep(0.01)
+    finally:
+        veh.close()
+
+
+async def _request(
+    client: aiomqtt.Client, topic: str, payload: bytes, state: str, want: Callable[[dict], bool]
+) -> dict:
+    await client.subscribe(state)
+    await client.publish(topic, payload, qos=1)
+    async with asyncio.timeout(20):
+        async for message in client.messages:
+            if str(message.topic) == state:
+                body = json.loads(message.payload)
+                if want(body):
+                    return body
+    raise AssertionError("unreachable")
+
+
+async def _settled(seen: list[int], value: int) -> None:
+    """Wait until the ground receives ``value`` several times in a row (event-based, generous timeout)."""
+    async with asyncio.timeout(20):
+        while not (len(seen) >= 5 and all(v == value for v in seen[-5:])):
+            await asyncio.sleep(0.02)
+
+
+async def test_bypass_and_on_over_mqtt_reach_the_wire(tmp_path: Path, udp_port: Callable[[], int]) -> None:
+    broker_port, vehicle_port, gcs_port = free_tcp_port(), udp_port(), udp_port()
+    async with EmbeddedBroker(port=broker_port):
+        log = open(tmp_path / "proxy.log", "wb")  # noqa: SIM115 - the child writes to it until it stops
+        proxy = subprocess.Popen(
+            [sys.executable, "-m", "mitm_proxy", "--broker", f"mqtt://127.0.0.1:{broker_port}",
+             "--vehicle", f"udpin://127.0.0.1:{vehicle_port}", "--ground", f"udpout://127.0.0.1:{gcs_port}"],
+            stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )  # fmt: skip
+        gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{gcs_port}", source_system=255)
+        seen: list[int] = []
+        stop = asyncio.Event()
+        streamer = asyncio.create_task(_stream_and_read(vehicle_port, gcs, stop, seen))
+        try:
+            await _settled(seen, TRUE_CM)
+            async with aiomqtt.Client("127.0.0.1", broker_port) as client:
+                ack = await _request(client, "secuav/v1/attack/set", json.dumps(BIAS).encode(),
+                                     "secuav/v1/attack/state", lambda b: b.get("profile") == "bias")  # fmt: skip
+                assert ack["ok"]
+                await _settled(seen, TRUE_CM + 100)
+                ack = await _request(client, "secuav/v1/attack/mode/set", b"bypass",
+                                     "secuav/v1/attack/mode/state", lambda b: b.get("mode") == "bypass")  # fmt: skip
+                assert ack["ok"], ack
+                await _settled(seen, TRUE_CM)
+                ack = await _request(client, "secuav/v1/attack/mode/set", b'{"mode": "on", "request_id": "r2"}',
+                                     "secuav/v1/attack/mode/state", lambda b: b.get("request_id") == "r2")  # fmt: skip
+                assert ack["ok"] and ack["mode"] == "on", ack
+                await _settled(seen, TRUE_CM + 100)
+        finally:
+            stop.set()
+            await streamer
+            gcs.close()
+            proxy.send_signal(signal.SIGINT)
+            try:
+                proxy.wait(10)
+            finally:
+                if proxy.poll() is None:
+                    proxy.kill()
+                log.close()
+    assert proxy.returncode in (0, 130), (tmp_path / "proxy.log").read_text()
