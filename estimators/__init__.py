@@ -7,8 +7,11 @@ estimator has ``reset(x0=None, t_s=0.0, P0=None)`` and
 
 from estimators.base import Estimate, Estimator
 from estimators.ekf import ExtendedKalman
+from estimators.l0 import L0Exact
 from estimators.l1 import L1Decoder
 from estimators.ls import LeastSquares
+from estimators.marzullo import Marzullo
+from estimators.milp import Milp
 from estimators.models import (
     AnchorRanges2D,
     AnchorRanges3D,
@@ -23,7 +26,7 @@ from estimators.registry import create, names, register
 from estimators.secekf import SecEkf
 from estimators.secopt import SecOpt
 
-for _cls in (LeastSquares, ExtendedKalman, L1Decoder, SecEkf, SecOpt, Recap, Rarse):
+for _cls in (LeastSquares, ExtendedKalman, L1Decoder, SecEkf, SecOpt, Recap, Rarse, L0Exact, Milp, Marzullo):
     register(_cls)
 
 __all__ = [

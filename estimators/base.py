@@ -78,6 +78,11 @@ class Estimator:
         self.t_s: float | None = None
         self.reset()
 
+    @classmethod
+    def applies_to(cls, model: MeasurementModel) -> bool:
+        """Whether this estimator can run on ``model`` (most run on any; interval fusion needs one quantity)."""
+        return True
+
     # -- the public shape -------------------------------------------------
     def reset(self, x0: np.ndarray | None = None, t_s: float = 0.0, P0: np.ndarray | None = None) -> None:
         """Forget the past. ``x0``: position (d) or position+velocity (2d); None = bootstrap from data."""

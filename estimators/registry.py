@@ -17,9 +17,9 @@ def register(cls: type[Estimator]) -> type[Estimator]:
     return cls
 
 
-def names() -> list[str]:
-    """Registered estimator names, baselines first."""
-    return list(_REGISTRY)
+def names(model: MeasurementModel | None = None) -> list[str]:
+    """Registered estimator names, baselines first; with ``model``, only those that can run on it."""
+    return [name for name, cls in _REGISTRY.items() if model is None or cls.applies_to(model)]
 
 
 def create(name: str, model: MeasurementModel, **params: Any) -> Estimator:

@@ -38,7 +38,8 @@ from tqdm import tqdm
 import estimators
 from attack_profiles import Engine, library, load_profile
 from attack_profiles.profile import Profile
-from estimators.scenario_models import anchor_model, wall_group_model
+from estimators.models import MeasurementModel
+from estimators.scenario_models import anchor_model, two_vehicle_model, wall_group_model
 from evaluation.report import plot, summarise, table, write_results
 from evaluation.tlog import frame_rate_hz, log_streams, read_tlog, read_truth_csv
 from evaluation.trial import RATE_HZ, TrialResult, evaluate, is_formation, is_wall, run_trial
@@ -52,7 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenario", required=True, help="scenario file or bundled name (anchors8, formation)")
     p.add_argument("--attack", default=None, help="profile file, library name, or 'none' (required unless --tlog)")
     p.add_argument("--param", action="append", default=[], metavar="K=V", help="library profile parameter")
-    p.add_argument("--estimators", default=",".join(estimators.names()), help="comma-separated (default: all)")
+    p.add_argument("--estimators", default=None, help="comma-separated (default: all that run on the scenario)")
     p.add_argument("--trials", type=int, default=3)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--duration", type=float, default=None, help="seconds per trial (default: the scenario's)")
@@ -127,10 +128,11 @@ def main(argv: list[str] | None = None) -> int:
         profile = resolve_profile(args.attack or "none", parse_params(args.param))
         if profile is not None:
             Engine(profile, scenario=scenario)  # checks the profile's sensor ids against the scenario
-        names = [n.strip() for n in args.estimators.split(",") if n.strip()]
-        unknown = [n for n in names if n not in estimators.names()]
+        fits = estimators.names(model_for(scenario))
+        names = fits if args.estimators is None else [n.strip() for n in args.estimators.split(",") if n.strip()]
+        unknown = [n for n in names if n not in fits]
         if unknown or not names:
-            raise InputError("--estimators", "", args.estimators, f"choose from {', '.join(estimators.names())}")
+            raise InputError("--estimators", "", args.estimators, f"choose from {', '.join(fits)} (on this scenario)")
         if args.trials < 1 or args.jobs < 1:
             raise InputError("--trials/--jobs", "", (args.trials, args.jobs), "must be at least 1")
     except InputError as err:
@@ -244,6 +246,16 @@ def _main_tlog(
     }
     _write(args.out, meta, summary, trial)
     return 0
+
+
+def model_for(scenario: Scenario) -> MeasurementModel:
+    """The measurement model the evaluation runs the estimators on (see evaluation.trial)."""
+    first = scenario.vehicles[0]
+    if is_wall(scenario):
+        return wall_group_model(scenario, first.sysid)
+    if is_formation(scenario):
+        return two_vehicle_model(scenario, first.sysid, scenario.vehicles[1].sysid)
+    return anchor_model(scenario, first.sysid)
 
 
 def _model_ids(scenario: Scenario) -> tuple[int, ...]:

@@ -202,6 +202,14 @@ def expand(study: Study, source: str) -> list[Cell]:
             demo_for(scenario)
         except ValueError as exc:
             raise InputError(source, "scenario", study.scenario, str(exc)) from None
+    from evaluation.cli import model_for
+
+    if study.mode == "offline":
+        fits = estimators.names(model_for(scenario))
+        for i, name in enumerate(study.estimators):
+            if name not in fits:
+                reason = f"does not run on scenario {scenario.name!r} (these do: {', '.join(fits)})"
+                raise InputError(source, f"estimators[{i}]", name, reason)
     duration = study.duration_s or scenario.duration_s
     positions: list[tuple[float, float] | None] = list(study.positions) if study.positions else [None]
     variants: list[tuple[tuple[float, float] | None, Scenario]] = []
