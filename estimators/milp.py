@@ -95,7 +95,8 @@ class Milp(Estimator):
         eye = np.eye(p)
         # A big-M no larger than needed keeps the relaxation tight (HiGHS then branches far less):
         # an attack never has to exceed the largest innovation in the window plus the room dx has.
-        spread = max(float(np.nanmax(np.abs(z - model.h(g, kn)))) for z, kn, g in self.hist)
+        innovations = np.concatenate([np.abs(z - model.h(g, kn)) for z, kn, g in self.hist])
+        spread = float(innovations[~np.isnan(innovations)].max(initial=0.0))
         big_m = min(self.big_m, 2.0 * spread + 1.0)
         blocks, lo, hi = [], [], []
         var_lo, var_hi = np.full(n, -np.inf), np.full(n, np.inf)
