@@ -17,7 +17,12 @@ sees the readings *after* the attack stage, as the ground side would, and:
    range from the secure position to that anchor); LOCAL_POSITION_NED and
    GLOBAL_POSITION_INT carry the secure position (lat/lon via the vehicle's
    HOME_POSITION, else the scenario's home); sensors judged attacked get
-   ``signal_quality`` 1;
+   ``signal_quality`` 1. When the estimator raises its alarm (more sensors
+   disagree than it can correct) the estimate is degraded, not to be trusted:
+   every reading of the group is marked invalid, LOCAL_POSITION_NED carries
+   NaN (MAVLink's "unknown") and GLOBAL_POSITION_INT keeps the last position
+   that was not degraded, so a ground controller holds instead of steering
+   on a confident wrong answer;
 4. publishes each estimate through ``publish(sysid, payload)`` (the control
    plane sends it to ``secuav/v<sysid>/estimate``).
 
@@ -125,6 +130,7 @@ class SecureStage:
         self.publish = publish
         self.peers = peers if peers is not None else PeerBoard()
         self._peer_flagged: set[int] = set()  # inter-vehicle sensor ids judged attacked, latest frame each
+        self._last_valid: StepResult | None = None  # the newest estimate without the alarm
         self.config = OFF
         self.layout: Layout | None = None
         self._stepper: Stepper | None = None
@@ -167,6 +173,7 @@ class SecureStage:
         self._sim_t_s: float | None = None
         self._height_m: float | None = None  # known NED z (2-D anchors)
         self._peer_flagged = set()
+        self._last_valid = None
         self._height_rx = -math.inf
 
     def close(self) -> None:
@@ -283,6 +290,9 @@ class SecureStage:
         res = stepper.latest() if stepper is not None else None
         if res is None or not res.estimate.ok:
             return
+        degraded = res.estimate.alarm
+        if not degraded:
+            self._last_valid = res
         msgid = pkt.header.msgid
         changed = False
         if msgid == DISTANCE_SENSOR:
@@ -296,17 +306,19 @@ class SecureStage:
             if math.isfinite(implied):
                 cm = min(max(round(implied * 100.0), 0), UINT16_TOP)
                 changed |= _set(fields, "current_distance", cm)
-            if i in res.attacked_idx:
+            if i in res.attacked_idx or degraded:
                 changed |= _set(fields, "signal_quality", FLAGGED_QUALITY)
                 self.counters.flagged_frames += 1
         elif msgid == LOCAL_POSITION_NED and layout.position_dims:
-            pos = _position_ned(layout, res)
+            pos = (math.nan,) * 3 if degraded else _position_ned(layout, res)
             changed |= _set(fields, "x", pos[0])
             changed |= _set(fields, "y", pos[1])
             if layout.position_dims == 3:
                 changed |= _set(fields, "z", pos[2])
         elif msgid == GLOBAL_POSITION_INT and layout.position_dims:
-            pos = _position_ned(layout, res)
+            if degraded and self._last_valid is None:
+                return  # nothing trustworthy to say yet: the frame passes as it came
+            pos = _position_ned(layout, self._last_valid if degraded else res)
             lat, lon, alt = ned_to_geodetic(self._home, pos[0], pos[1], pos[2] if math.isfinite(pos[2]) else 0.0)
             changed |= _set(fields, "lat", round(lat * 1e7))
             changed |= _set(fields, "lon", round(lon * 1e7))

@@ -90,7 +90,9 @@ def arguments(description: str) -> argparse.ArgumentParser:
 
 
 def clip(value: float, limit: float) -> float:
-    return max(-limit, min(limit, value))
+    """``value`` limited to +-limit; an unknown value (NaN, as the secure stage sends a position it cannot
+    trust) commands nothing, so the vehicle holds."""
+    return max(-limit, min(limit, value)) if math.isfinite(value) else 0.0
 
 
 async def _run(args: argparse.Namespace, log: Log, hold: Callable[[Vehicle, Log], Awaitable[None]]) -> None:

@@ -77,7 +77,8 @@ def main(argv: list[str] | None = None) -> None:
             if args.peer_range is not None:
                 peer_readings, peer_flagged = v.ranges.fresh(now, {args.peer_range})
                 peer, flagged = peer_readings.get(args.peer_range), flagged + peer_flagged
-            if len(readings) >= 3:
+            fresh = len(readings) >= 3
+            if fresh:
                 ids = sorted(readings)
                 anchors = np.array([table[i - ANCHOR_BASE] for i in ids])
                 fix = trilaterate(anchors, np.array([readings[i] for i in ids]), v.pos_ned_m[2], fix)
@@ -90,7 +91,9 @@ def main(argv: list[str] | None = None) -> None:
                 away = fix - np.array(args.peer_at)
                 bearing = away / max(float(np.linalg.norm(away)), 1e-3)
                 goal = fix + bearing * (args.keep - peer)
-            north, east = (clip(args.gain * float(e), MAX_SPEED_M_S) for e in goal - fix)
+            # Without three trusted ranges (the secure stage marks them all invalid when it cannot correct
+            # the attack) the fix is stale: hold rather than steer on it.
+            north, east = (clip(args.gain * float(e), MAX_SPEED_M_S) if fresh else 0.0 for e in goal - fix)
             down = clip(-args.gain * (v.pos_ned_m[2] + args.altitude), 0.5)  # below the altitude: climb (down < 0)
             await v.offboard.set_velocity_ned(VelocityNedYaw(north, east, down, 0.0))
             log.write(

@@ -330,3 +330,36 @@ def test_formation_inter_vehicle_range_checked_against_both_secure_positions() -
     assert flagged52 > 0.95 and flagged51 < 0.05, (flagged52, flagged51)
     assert 11 in stages[1].stats()["flagged_sensors"] and 52 in stages[1].stats()["flagged_sensors"]
     assert stages[2].stats()["flagged_sensors"] == []
+
+
+@pytest.mark.timeout(90)
+def test_beyond_tolerance_the_substituted_data_is_marked_invalid(anchors8: Scenario) -> None:
+    """Four of eight links lie (s = 2 is all secekf corrects): no confident wrong position reaches the ground."""
+    attack = _engine("anchors-constant", anchors8, links=[10, 11, 12, 13], offset_m=1.5, start_s=3.0)
+    maker = StreamMaker(anchors8, engine=attack, seed=6)
+    published: list[dict[str, Any]] = []
+    stage = SecureStage(
+        SecureConfig(estimator="secekf", executor="inline"), anchors8, 1, publish=lambda s, p: published.append(p)
+    )
+    outs = run(stage, maker, 15.0)
+    late = [o for o in outs if o.frame.t_s >= 6.0]
+    alarmed = np.mean([p["alarm"] for p in published if p["sim_t_s"] is not None and p["sim_t_s"] >= 6.0])
+    assert alarmed > 0.9, alarmed
+    anchor_frames = [o for o in late if o.msgid == DS and o.fields["id"] >= 10]
+    invalid = np.mean([o.fields["signal_quality"] == FLAGGED_QUALITY for o in anchor_frames])
+    assert invalid >= alarmed - 0.05, (invalid, alarmed)
+    lpn = [o for o in late if o.msgid == LPN]
+    unknown = np.mean([math.isnan(o.fields["x"]) and math.isnan(o.fields["y"]) for o in lpn])
+    assert unknown >= alarmed - 0.05, (unknown, alarmed)
+    # Whatever is still claimed valid is not a confident wrong answer.
+    for o in lpn:
+        if not math.isnan(o.fields["x"]):
+            tn, te, _ = maker.truth(o.frame.t_s)
+            assert math.hypot(o.fields["x"] - tn, o.fields["y"] - te) < 0.5
+    # The global position holds the last estimate that was not degraded (near truth), never the degraded one.
+    home = anchors8.world.home
+    for o in late:
+        if o.msgid == GPI and o.changed:
+            n, e, _ = geodetic_to_ned(home, o.fields["lat"] / 1e7, o.fields["lon"] / 1e7, 0.0)
+            tn, te, _ = maker.truth(o.frame.t_s)
+            assert math.hypot(n - tn, e - te) < 0.5
