@@ -40,6 +40,9 @@ class EstimatorTrace:
     named: np.ndarray  # (T, p) bool: judged attacked
     alarm: np.ndarray  # (T,) bool
     local_dev_m: np.ndarray | None = None  # (T,) distance from the autopilot's LOCAL_POSITION_NED (logs)
+    # (T,) normalised estimation error squared e^T P^-1 e of the first vehicle's position (NaN without a
+    # covariance or truth); a consistent estimator averages the number of position dimensions
+    nees: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -214,6 +217,7 @@ def _run_estimator(
     times = np.zeros(n)
     named = np.zeros(z.shape, dtype=bool)
     alarm = np.zeros(n, dtype=bool)
+    nees = np.full(n, np.nan)
     for k in range(n):
         kn = float(known[k, 0]) if known.shape[1] == 1 else known[k]
         out = est.step(float(s1.t_s[k]), z[k], kn)
@@ -223,12 +227,25 @@ def _run_estimator(
         pos = out.position_m
         xy[k] = pos[:2]
         err[k] = float(np.linalg.norm(pos[:2] - s1.truth_ned_m[k, :2]))
+        nees[k] = _nees(pos[:2] - s1.truth_ned_m[k, :2], out.covariance)
         if truth2 is not None and rerr is not None:
             est_range = np.sqrt(np.sum((pos[0:2] - pos[2:4]) ** 2) + (kn[0] - kn[1]) ** 2)
             true_range = float(np.linalg.norm(s1.truth_ned_m[k] - truth2[k]))
             rerr[k] = abs(est_range - true_range)
     dev = None if local is None else np.linalg.norm(xy - local, axis=1)
-    return EstimatorTrace(err, rerr, xy, times, named, alarm, dev)
+    return EstimatorTrace(err, rerr, xy, times, named, alarm, dev, nees)
+
+
+def _nees(error: np.ndarray, cov: np.ndarray | None) -> float:
+    """``e^T P^-1 e`` over the first ``len(e)`` states (the position block); NaN when it cannot be formed."""
+    d = error.shape[0]
+    if cov is None or cov.shape[0] < d or not np.isfinite(error).all():
+        return float("nan")
+    block = cov[:d, :d]
+    try:
+        return float(error @ np.linalg.solve(block, error))
+    except np.linalg.LinAlgError:
+        return float("nan")
 
 
 def _wall_trial(
@@ -249,11 +266,13 @@ def _wall_trial(
         n = z.shape[0]
         d_est, times = np.full(n, np.nan), np.zeros(n)
         named, alarm = np.zeros(z.shape, dtype=bool), np.zeros(n, dtype=bool)
+        nees = np.full(n, np.nan)
         for k in range(n):
             out = est.step(float(s1.t_s[k]), z[k])
             d_est[k], times[k], alarm[k] = out.position_m[0], out.step_time_s, out.alarm
             named[k, list(out.attacked)] = True
-        traces[name] = EstimatorTrace(np.abs(d_est - true_d), None, d_est[:, None], times, named, alarm)
+            nees[k] = _nees(np.array([d_est[k] - true_d[k]]), out.covariance)
+        traces[name] = EstimatorTrace(np.abs(d_est - true_d), None, d_est[:, None], times, named, alarm, None, nees)
     offsets, floor, scored_err, scored_det = _offsets(
         model, z, clean, engine, true_d[:, None], np.zeros((z.shape[0], 1)), from_log
     )

@@ -8,6 +8,11 @@ the engine changed it (its offset is non-zero), whatever the size.
 - false-alarm rate: the share of steps with an estimate at which the estimator
   names a reading that is not attacked at that step (on clean runs: any name).
 - recall (all): the share of attacked readings named, however small the attack.
+- valid fraction and valid error: the steps where the estimator claims a
+  trustworthy estimate (one exists and no alarm is raised), and the error there;
+  beyond what it can correct an estimator must say so rather than be wrong.
+- NEES: the mean of ``e^T P^-1 e`` over those steps (consistency: a filter
+  whose covariance is honest averages the number of position dimensions).
 - recall by magnitude: attacked readings named, binned by |offset| in units of
   the sensor's noise sigma, so a small attack that is missed shows as missed.
 Only steps after the estimators' warm-up are scored, as in ``secuav-eval``.
@@ -45,6 +50,11 @@ def detection_figures(trial: TrialResult, name: str) -> dict[str, Any]:
         caught = caught[caught >= onset[0]]
         if caught.size:
             delay = float(t[caught[0]] - t[onset[0]])
+    valid = has_estimate & ~trace.alarm[keep]  # estimates that claim to be trustworthy
+    err = trace.err_m[keep]
+    valid_err = err[valid & np.isfinite(err)]
+    nees = None if trace.nees is None else trace.nees[keep][valid]
+    nees = None if nees is None or not np.isfinite(nees).any() else nees[np.isfinite(nees)]
     wrong = (named & ~attacked).any(axis=1) & has_estimate
     n_est = int(has_estimate.sum())
     by_bin: dict[str, float | None] = {}
@@ -58,6 +68,10 @@ def detection_figures(trial: TrialResult, name: str) -> dict[str, Any]:
         "recall_all": float((named & attacked).sum() / attacked.sum()) if attacked.any() else None,
         "recall_by_sigma": by_bin,
         "attacked_fraction": float(attacked.any(axis=1).mean()) if t.size else 0.0,
+        "valid_fraction": float(valid.mean()) if t.size else 0.0,
+        "valid_rmse_m": float(np.sqrt(np.mean(valid_err**2))) if valid_err.size else None,
+        "valid_max_error_m": float(valid_err.max()) if valid_err.size else None,
+        "nees_mean": None if nees is None else float(np.mean(nees)),
     }
 
 

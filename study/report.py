@@ -82,12 +82,13 @@ def summarise(frame: pd.DataFrame) -> pd.DataFrame:
     for key, g in frame.groupby(GROUP, dropna=False, sort=False):
         row = dict(zip(GROUP, key, strict=True))
         row["n"] = len(g)
-        for metric in ("rmse_m", "recall_all", "detection_delay_s", "false_alarm_rate"):
+        for metric in ("rmse_m", "recall_all", "detection_delay_s", "false_alarm_rate", "valid_rmse_m", "nees_mean"):
             m, lo, hi, n = mean_ci(g[metric].tolist())
             row.update({metric: m, f"{metric}_lo": lo, f"{metric}_hi": hi, f"{metric}_n": n})
         worst = g["max_error_m"].dropna()
         row["worst_error_m"] = float(worst.max()) if len(worst) else None
         row["estimate_fraction"] = _mean_or_none(g["estimate_fraction"])
+        row["valid_fraction"] = _mean_or_none(g["valid_fraction"])
         row["step_time_us_median"] = _mean_or_none(g["step_time_us_median"], median=True)
         row["collided"] = _mean_or_none(g["collided"].astype(float))
         out.append(row)
@@ -98,8 +99,9 @@ def _attack_section(name: str, s: pd.DataFrame, closed_loop: bool) -> list[str]:
     axis = _magnitude_axis(s)
     lines = [f"### {name}", ""]
     head = ["magnitude" if axis is None else axis, "estimator", "n", "RMSE [m] mean [95% CI]", "worst [m]"]
-    head += ["collided"] if closed_loop else ["recall (all attacked readings)", "detection delay [s] (detected/n)",
-                                              "false alarms"]  # fmt: skip
+    offline = ["recall (all attacked readings)", "detection delay [s] (detected/n)", "false alarms", "claimed valid",
+               "RMSE when claimed valid [m]"]  # fmt: skip
+    head += ["collided"] if closed_loop else offline
     for (leg, pos), block in s.groupby(["leg", "position"], dropna=False, sort=False):
         lines += [f"{_where(leg, pos if isinstance(pos, str) else None)}:", ""]
         lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -116,6 +118,8 @@ def _attack_section(name: str, s: pd.DataFrame, closed_loop: bool) -> list[str]:
                     _fmt(r["recall_all"], r["recall_all_lo"], r["recall_all_hi"]),
                     f"{delay} ({r['detection_delay_s_n']}/{r['n']})",
                     _fmt(r["false_alarm_rate"], r["false_alarm_rate_lo"], r["false_alarm_rate_hi"]),
+                    "n/a" if _missing(r["valid_fraction"]) else f"{r['valid_fraction']:.0%}",
+                    _fmt(r["valid_rmse_m"], r["valid_rmse_m_lo"], r["valid_rmse_m_hi"]),
                 ]
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
@@ -225,13 +229,16 @@ def write_report(out: Path) -> Path:
         clean = summary[summary["attack"] == "none"]
         if len(clean) and not closed_loop:
             lines += ["## Clean runs: false alarms", "",
-                      "| estimator | where | n | false-alarm rate [95% CI] | RMSE [m] [95% CI] |",
-                      "|---|---|---|---|---|"]  # fmt: skip
+                      "NEES: mean of e' P^-1 e over the steps claimed valid; an estimator whose covariance is "
+                      "honest averages the number of position dimensions (2; 1 for a wall distance).", "",
+                      "| estimator | where | n | false-alarm rate [95% CI] | RMSE [m] [95% CI] | NEES [95% CI] |",
+                      "|---|---|---|---|---|---|"]  # fmt: skip
             for _, r in clean.iterrows():
                 where = _where(r["leg"], r["position"] if isinstance(r["position"], str) else None)
                 lines.append(f"| {r['estimator']} | {where} | {r['n']} | "
                              f"{_fmt(r['false_alarm_rate'], r['false_alarm_rate_lo'], r['false_alarm_rate_hi'])} | "
-                             f"{_fmt(r['rmse_m'], r['rmse_m_lo'], r['rmse_m_hi'])} |")  # fmt: skip
+                             f"{_fmt(r['rmse_m'], r['rmse_m_lo'], r['rmse_m_hi'])} | "
+                             f"{_fmt(r['nees_mean'], r['nees_mean_lo'], r['nees_mean_hi'], 2)} |")  # fmt: skip
             lines.append("")
         lines += ["## Per attack and magnitude", ""]
         attacked = summary if closed_loop else summary[summary["attack"] != "none"]

@@ -37,6 +37,7 @@ SCHEMA = pa.schema([
     ("attack_detection_precision", _F), ("attack_detection_recall", _F),
     ("detection_delay_s", _F), ("false_alarm_rate", _F), ("recall_all", _F),
     ("recall_by_sigma", _S), ("attacked_fraction", _F),
+    ("valid_fraction", _F), ("valid_rmse_m", _F), ("valid_max_error_m", _F), ("nees_mean", _F),
     ("step_time_us_median", _F), ("step_time_us_p99", _F),
     ("collided", pa.bool_()), ("min_distance_m", _F), ("flagged", _S),  # closed loop
     ("worker", _S), ("started_at", pa.timestamp("ms", tz="UTC")), ("wall_s", _F),
