@@ -17,6 +17,7 @@ import numpy as np
 
 from estimators.bank import Chi2Table, cv_matrices, gauss_newton, inv_small
 from estimators.models import Known, MeasurementModel
+from estimators.subsets import secure_snapshot
 
 
 @dataclass(frozen=True, eq=False)
@@ -30,6 +31,11 @@ class Estimate:
     indices into z. ``alarm``: the readings cannot single out an attacked set of
     at most s sensors (more are attacked than tolerated, or the model is wrong).
     ``ok`` is False while no estimate exists yet (position is NaN then).
+    ``valid`` is False when the estimate is degraded: beyond what the
+    estimator can correct, not to be trusted (an alarm that the readings of
+    this step confirm at a ten times smaller false-alarm level: no p - s of them
+    agree on one position). An alarm that
+    they do not confirm (a filter surprised by a manoeuvre) leaves it valid.
     """
 
     t_s: float
@@ -41,6 +47,7 @@ class Estimate:
     step_time_s: float
     used: frozenset[int] = frozenset()
     ok: bool = True
+    valid: bool = True
 
 
 def _indices(mask: np.ndarray) -> frozenset[int]:
@@ -70,6 +77,8 @@ class Estimator:
             raise ValueError(f"s={self.s} must lie in 0..{model.p - 1}")
         self.alpha = alpha
         self.chi = Chi2Table(alpha, 4 * model.p)
+        # Confirming an alarm from one step's readings alone: ten times stricter, so noise alone seldom degrades.
+        self.chi_confirm = Chi2Table(alpha / 10.0, 4 * model.p)
         self.gate1 = float(self.chi(1))  # per-sensor test threshold, used every step
         self.q_mps2 = q_mps2
         self.p0_pos_m = p0_pos_m
@@ -103,10 +112,19 @@ class Estimator:
             zv = np.where(np.isfinite(zv), zv, np.nan)  # +-inf from a garbled frame counts as missing
         dt_s = 0.0 if self.t_s is None else max(0.0, float(t_s) - self.t_s)
         self.t_s = float(t_s)
-        est = self._step(float(t_s), dt_s, zv, self.model.default_known if known is None else known)
+        kn = self.model.default_known if known is None else known
+        est = self._step(float(t_s), dt_s, zv, kn)
+        if est.alarm and est.ok and self.secure:
+            object.__setattr__(est, "valid", self._readings_agree(zv, est.position_m, kn))
         # The Estimate is frozen for its readers; stamping our own fresh instance costs far less than replace().
         object.__setattr__(est, "step_time_s", time.perf_counter() - t0)
         return est
+
+    def _readings_agree(self, z: np.ndarray, near: np.ndarray, known: Known) -> bool:
+        """Whether some p - s of this step's readings agree on one position (the one-step l0 test)."""
+        if int((~np.isnan(z)).sum()) < self.model.min_sensors:
+            return True  # too few readings to test anything: the alarm is not confirmed
+        return not secure_snapshot(self.model, z, self.s, self.chi_confirm, near, known).alarm
 
     # -- for subclasses ---------------------------------------------------
     def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:

@@ -43,6 +43,7 @@ class EstimatorTrace:
     # (T,) normalised estimation error squared e^T P^-1 e of the first vehicle's position (NaN without a
     # covariance or truth); a consistent estimator averages the number of position dimensions
     nees: np.ndarray | None = None
+    degraded: np.ndarray | None = None  # (T,) bool: the estimate says it is not to be trusted (Estimate.valid False)
 
 
 @dataclass(frozen=True, eq=False)
@@ -218,11 +219,12 @@ def _run_estimator(
     named = np.zeros(z.shape, dtype=bool)
     alarm = np.zeros(n, dtype=bool)
     nees = np.full(n, np.nan)
+    degraded = np.zeros(n, dtype=bool)
     for k in range(n):
         kn = float(known[k, 0]) if known.shape[1] == 1 else known[k]
         out = est.step(float(s1.t_s[k]), z[k], kn)
         times[k] = out.step_time_s
-        alarm[k] = out.alarm
+        alarm[k], degraded[k] = out.alarm, not out.valid
         named[k, list(out.attacked)] = True
         pos = out.position_m
         xy[k] = pos[:2]
@@ -233,7 +235,7 @@ def _run_estimator(
             true_range = float(np.linalg.norm(s1.truth_ned_m[k] - truth2[k]))
             rerr[k] = abs(est_range - true_range)
     dev = None if local is None else np.linalg.norm(xy - local, axis=1)
-    return EstimatorTrace(err, rerr, xy, times, named, alarm, dev, nees)
+    return EstimatorTrace(err, rerr, xy, times, named, alarm, dev, nees, degraded)
 
 
 def _nees(error: np.ndarray, cov: np.ndarray | None) -> float:
@@ -266,13 +268,15 @@ def _wall_trial(
         n = z.shape[0]
         d_est, times = np.full(n, np.nan), np.zeros(n)
         named, alarm = np.zeros(z.shape, dtype=bool), np.zeros(n, dtype=bool)
-        nees = np.full(n, np.nan)
+        nees, degraded = np.full(n, np.nan), np.zeros(n, dtype=bool)
         for k in range(n):
             out = est.step(float(s1.t_s[k]), z[k])
-            d_est[k], times[k], alarm[k] = out.position_m[0], out.step_time_s, out.alarm
+            d_est[k], times[k], alarm[k], degraded[k] = out.position_m[0], out.step_time_s, out.alarm, not out.valid
             named[k, list(out.attacked)] = True
             nees[k] = _nees(np.array([d_est[k] - true_d[k]]), out.covariance)
-        traces[name] = EstimatorTrace(np.abs(d_est - true_d), None, d_est[:, None], times, named, alarm, None, nees)
+        traces[name] = EstimatorTrace(
+            np.abs(d_est - true_d), None, d_est[:, None], times, named, alarm, None, nees, degraded
+        )
     offsets, floor, scored_err, scored_det = _offsets(
         model, z, clean, engine, true_d[:, None], np.zeros((z.shape[0], 1)), from_log
     )

@@ -17,8 +17,9 @@ sees the readings *after* the attack stage, as the ground side would, and:
    range from the secure position to that anchor); LOCAL_POSITION_NED and
    GLOBAL_POSITION_INT carry the secure position (lat/lon via the vehicle's
    HOME_POSITION, else the scenario's home); sensors judged attacked get
-   ``signal_quality`` 1. When the estimator raises its alarm (more sensors
-   disagree than it can correct) the estimate is degraded, not to be trusted:
+   ``signal_quality`` 1. When the estimate is degraded (the estimator's alarm,
+   confirmed by the readings: more sensors disagree than it can correct), so
+   not to be trusted:
    every reading of the group is marked invalid, LOCAL_POSITION_NED carries
    NaN (MAVLink's "unknown") and GLOBAL_POSITION_INT keeps the last position
    that was not degraded, so a ground controller holds instead of steering
@@ -290,7 +291,7 @@ class SecureStage:
         res = stepper.latest() if stepper is not None else None
         if res is None or not res.estimate.ok:
             return
-        degraded = res.estimate.alarm
+        degraded = not res.estimate.valid
         if not degraded:
             self._last_valid = res
         msgid = pkt.header.msgid
@@ -369,6 +370,7 @@ class SecureStage:
             "time_s": time.time(),
             "ok": est.ok,
             "alarm": est.alarm,
+            "valid": est.valid,
             "attacked": sorted([*(layout.sensor_ids[i] for i in res.attacked_idx), *self._peer_flagged]),
             "used": sorted(layout.sensor_ids[i] for i in est.used),
             "step_time_s": est.step_time_s,

@@ -9,7 +9,7 @@ the engine changed it (its offset is non-zero), whatever the size.
   names a reading that is not attacked at that step (on clean runs: any name).
 - recall (all): the share of attacked readings named, however small the attack.
 - valid fraction and valid error: the steps where the estimator claims a
-  trustworthy estimate (one exists and no alarm is raised), and the error there;
+  trustworthy estimate (one exists and it is not degraded: ``Estimate.valid``), and the error there;
   beyond what it can correct an estimator must say so rather than be wrong.
 - NEES: the mean of ``e^T P^-1 e`` over those steps (consistency: a filter
   whose covariance is honest averages the number of position dimensions).
@@ -50,7 +50,8 @@ def detection_figures(trial: TrialResult, name: str) -> dict[str, Any]:
         caught = caught[caught >= onset[0]]
         if caught.size:
             delay = float(t[caught[0]] - t[onset[0]])
-    valid = has_estimate & ~trace.alarm[keep]  # estimates that claim to be trustworthy
+    degraded = trace.alarm if trace.degraded is None else trace.degraded
+    valid = has_estimate & ~degraded[keep]  # estimates that claim to be trustworthy
     err = trace.err_m[keep]
     valid_err = err[valid & np.isfinite(err)]
     nees = None if trace.nees is None else trace.nees[keep][valid]

@@ -87,3 +87,35 @@ def test_fusion_interval_holds_every_point_enough_intervals_cover(spans: list[tu
     assert covered and all(a - 1e-9 <= x <= b + 1e-9 for x in covered)
     for end in (a, b):  # the interval is the smallest such: its ends are covered
         assert ((lo <= end + 1e-9) & (end - 1e-9 <= hi)).sum() >= need
+
+
+@pytest.mark.parametrize("name", ["secekf", "secopt", "recap", "rarse", "l1", "l0", "milp"])
+def test_beyond_tolerance_no_estimator_claims_a_valid_estimate(anchors8: AnchorRanges2D, name: str) -> None:
+    """Four of eight links biased 1.5 m after the estimators settled: degraded, never confidently wrong."""
+    rng = np.random.default_rng(3)
+    est = estimators.create(name, anchors8)
+    claimed = []
+    for k in range(60):
+        z = anchors8.h(HOVER_XY_M) + SIGMA_M * rng.standard_normal(8)
+        if k >= 20:
+            z[[0, 1, 2, 3]] += 1.5
+        out = est.step(0.1 * k, z)
+        if k < 20:
+            assert out.valid or k < 3, (k, out)
+        elif k >= 25 and out.valid:
+            claimed.append(np.linalg.norm(out.position_m - HOVER_XY_M))
+    # Whatever is still claimed valid is no worse than the noise allows (the plain EKF is metres off here).
+    assert all(e < 5 * SIGMA_M for e in claimed), claimed
+
+
+def test_a_manoeuvre_that_surprises_the_filter_is_not_degraded(wall_group: ScalarGroup) -> None:
+    """Two of five wall sensors ramp while the vehicle closes in at 1 m/s: within tolerance, so valid."""
+    rng = np.random.default_rng(8)
+    est = estimators.create("secekf", wall_group)
+    for k in range(80):
+        t = 0.1 * k
+        truth = 5.0 - min(t, 2.5)  # 1 m/s toward the wall, then holding at 2.5 m
+        z = truth + wall_group.sigma_m * rng.standard_normal(5)
+        z[[0, 2]] += 0.4 * max(0.0, t - 1.0)
+        out = est.step(t, z)
+        assert out.valid, (k, out)
