@@ -115,9 +115,11 @@ class Engine:
         self.seed = seed
         self.scenario = scenario
         self._anchors: dict[int, Vec3] = {}
+        self._noise: dict[int, float] = {}
         if scenario is not None:
             self.validate_against(scenario)
             self._anchors = {ANCHOR_BASE + k: pos for k, pos in scenario.anchor_positions().items()}
+            self._noise = _noise_by_id(scenario)
         for i, rule in enumerate(profile.rules):
             if isinstance(rule, CoordinatedSpoofRule) and scenario is None:
                 raise InputError(profile.source, f"rules[{i}].kind", rule.kind, "needs a scenario for anchor positions")
@@ -355,7 +357,7 @@ class Engine:
             for name in _fields_of(rule, msg):
                 spec = msg.fields[name] if name is not None else None
                 seed = _rule_seed(self.profile.seed, self.seed, i if name is None else f"{i}.{name}")
-                ctx = Context(i, spec, random.Random(seed), self._anchors)
+                ctx = Context(i, spec, random.Random(seed), self._anchors, self._noise)
                 plans[msg.msgid].append(
                     _Compiled(
                         index=i,
@@ -379,6 +381,21 @@ def _fields_of(rule: RuleBase, msg: MessageSpec) -> list[str | None]:
     if isinstance(rule, GarbageRule) and rule.scope == "frame":
         return list(msg.fields)
     return [rule.target.field or msg.default_field]
+
+
+def _noise_by_id(scenario: Scenario) -> dict[int, float]:
+    """DISTANCE_SENSOR id -> the noise std the scenario gives that sensor (the largest over vehicles)."""
+    out: dict[int, float] = {}
+    anchors = {ANCHOR_BASE + a.id for a in scenario.world.anchors}
+    for v in scenario.vehicles:
+        for r in v.sensors.rangefinders:
+            out[r.id] = max(out.get(r.id, 0.0), r.noise_std_m)
+        uwb, iv = v.sensors.uwb, v.sensors.inter_vehicle
+        for sid in (_sensor_ids(v, anchors) & set(range(ANCHOR_BASE, PEER_BASE))) if uwb is not None else ():
+            out[sid] = max(out.get(sid, 0.0), uwb.noise_std_m)
+        for n in iv.peers if iv is not None else ():
+            out[PEER_BASE + n] = max(out.get(PEER_BASE + n, 0.0), iv.noise_std_m)
+    return out
 
 
 def _sensor_ids(vehicle: Vehicle, anchors: set[int]) -> set[int]:

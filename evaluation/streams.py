@@ -34,6 +34,10 @@ class VehicleStream:
     laser_down_m: np.ndarray  # (T,) downward rangefinder (height), NaN if the vehicle has none
     local_ned_m: np.ndarray | None = None  # (T, 3) the autopilot's LOCAL_POSITION_NED (logs only), not truth
     boot_offset_s: float = 0.0  # vehicle boot time at t_s = 0 (logs; 0 for flights)
+    # (T, 3) the position an attacker on the link reads (the vehicle's own estimate, what LOCAL_POSITION_NED
+    # carries, noise and all); flights only (a log has local_ned_m)
+    attacker_view_ned_m: np.ndarray | None = None
+    laser_down_id: int | None = None  # DISTANCE_SENSOR id of the downward laser (attacked like any reading)
 
 
 def _altitude(scenario: Scenario, sysid: int) -> float:
@@ -60,6 +64,7 @@ def fly(
         for s in sysids
     }
     truth = {s: np.zeros((n_frames, 3)) for s in sysids}
+    seen = {s: np.zeros((n_frames, 3)) for s in sysids}
     frames: dict[int, list[dict[int, float]]] = {s: [] for s in sysids}
     if leg == "moving":
         for v in sim.vehicles.values():
@@ -81,11 +86,12 @@ def fly(
                 latest[r.sensor_id] = r.distance_m
             frames[s].append(latest)
             truth[s][k] = v.truth.pos_ned_m
+            seen[s][k] = v.estimate.pos_ned_m
     t_rel = (np.arange(n_frames) + 1) * period
     out = {}
     for s in sysids:
         ids = sorted({i for f in frames[s] for i in f})
         readings = {i: np.array([f.get(i, np.nan) for f in frames[s]], dtype=float) for i in ids}
         laser = readings.pop(down[s]) if down[s] is not None and down[s] in readings else np.full(n_frames, np.nan)
-        out[s] = VehicleStream(s, t_rel, truth[s], readings, laser)
+        out[s] = VehicleStream(s, t_rel, truth[s], readings, laser, attacker_view_ned_m=seen[s], laser_down_id=down[s])
     return out

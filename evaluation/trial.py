@@ -14,7 +14,7 @@ recorded log (:func:`evaluate` with ``from_log``, streams from
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -82,10 +82,21 @@ def _attack(engine: Engine | None, stream: VehicleStream, z: np.ndarray, ids: li
     if engine is None:
         return z
     # A "vehicle" clock profile reads the boot clock; the live coordinated spoof tracks LOCAL_POSITION_NED,
-    # so a log (which has it) is attacked the same way, a flight with truth.
+    # so it sees what an attacker on the link reads: a log's LOCAL_POSITION_NED, a flight's vehicle estimate.
     t_s = stream.t_s + stream.boot_offset_s if engine.profile.clock == "vehicle" else stream.t_s
-    position = stream.truth_ned_m if stream.local_ned_m is None else stream.local_ned_m
+    position = next(
+        p for p in (stream.local_ned_m, stream.attacker_view_ned_m, stream.truth_ned_m) if p is not None
+    )
     return engine.apply_array(t_s, z, ids, sysid=stream.sysid, true_pos_ned_m=position)
+
+
+def _attacked_height(engine: Engine | None, stream: VehicleStream) -> VehicleStream:
+    """The downward laser is a reading like any other: the attack acts on it before it becomes the height."""
+    sid = stream.laser_down_id
+    if engine is None or sid is None:
+        return stream
+    laser = _attack(engine, stream, stream.laser_down_m[:, None], [sid])[:, 0]  # unchanged unless a rule targets it
+    return replace(stream, laser_down_m=laser)
 
 
 def run_trial(
@@ -114,6 +125,7 @@ def evaluate(
     attack added here (``engine``) is known, and errors cannot be scored at all.
     """
     first = scenario.vehicles[0].sysid
+    streams = {sysid: _attacked_height(engine, st) for sysid, st in streams.items()}
     s1 = streams[first]
     if is_wall(scenario):
         return _wall_trial(scenario, s1, engine, names, from_log)

@@ -48,6 +48,7 @@ class Context:
     spec: FieldSpec | None  # None for frame-level rules
     rng: random.Random
     anchors_ned_m: dict[int, Vec3] = field(default_factory=dict)  # sensor id -> anchor position
+    noise_std_m: dict[int, float] = field(default_factory=dict)  # sensor id -> its noise std in the scenario
 
 
 class Primitive(ABC):

@@ -3,9 +3,14 @@
 For UWB anchor links (DISTANCE_SENSOR ids 10+k, anchor positions from the
 scenario) the attacked ranges become exactly the distances from a fake position
 
-    p_fake(tau) = p_true(t) + offset_ned_m + velocity_ned_m_s * tau
+    p_fake(tau) = M(p_true(t)) + offset_ned_m + velocity_ned_m_s * tau
 
-to each attacked anchor. Every attacked range then agrees with one position, so
+to each attacked anchor, plus ``noise_std_m`` of Gaussian noise (what real
+ranges carry, so the spoofed ones do not stand out by being too clean). ``M``
+is the identity, or with ``mirror_ne_m`` (two points on a line in the
+north-east plane) the reflection across that line: the colluding worst case,
+where the fake position is the mirror image of the true one across the line
+through two honest anchors, which agree with both. Every attacked range then agrees with one position, so
 a residual test over the attacked links alone sees nothing wrong: the hardest
 case for a secure estimator, which has to notice that the attacked set and the
 clean set disagree.
@@ -19,10 +24,12 @@ been seen, ranges pass unchanged.
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Annotated, Literal
+
+from pydantic import Field
 
 from attack_profiles.primitives.base import Context, Primitive, Sample
-from attack_profiles.rule import RuleBase, Vec3Param
+from attack_profiles.rule import Finite, RuleBase, Vec3Param
 from secuav_common.loading import (
     _MISSING,  # the "no value to show" sentinel InputError understands
     InputError,
@@ -36,9 +43,13 @@ class CoordinatedSpoofRule(RuleBase):
     kind: Literal["coordinated_spoof"] = "coordinated_spoof"
     velocity_ned_m_s: Vec3Param = (0.0, 0.0, 0.0)
     offset_ned_m: Vec3Param = (0.0, 0.0, 0.0)
+    mirror_ne_m: tuple[tuple[Finite, Finite], tuple[Finite, Finite]] | None = None
+    noise_std_m: Annotated[float, Field(ge=0.0, allow_inf_nan=False)] = 0.0
 
     def check(self, where: str, source: str) -> None:
         super().check(where, source)
+        if self.mirror_ne_m is not None and self.mirror_ne_m[0] == self.mirror_ne_m[1]:
+            raise InputError(source, f"{where}.mirror_ne_m", self.mirror_ne_m, "two distinct points make the line")
         target = self.target
         field = target.field or "current_distance"
         if target.message != "DISTANCE_SENSOR" or field != "current_distance":
@@ -62,14 +73,20 @@ class CoordinatedSpoof(Primitive):
         self.velocity = rule.velocity_ned_m_s
         self.offset = rule.offset_ned_m
         self.anchors = ctx.anchors_ned_m
+        self.mirror = rule.mirror_ne_m
+        self.noise = rule.noise_std_m
+        self.rng = ctx.rng
 
     def fake_position(self, true_pos: tuple[float, float, float], tau_s: float) -> tuple[float, float, float]:
         v, o = self.velocity, self.offset
-        return (
-            true_pos[0] + o[0] + v[0] * tau_s,
-            true_pos[1] + o[1] + v[1] * tau_s,
-            true_pos[2] + o[2] + v[2] * tau_s,
-        )
+        n, e = true_pos[0], true_pos[1]
+        if self.mirror is not None:  # reflect (n, e) across the line through the two points
+            (n1, e1), (n2, e2) = self.mirror
+            dn, de = n2 - n1, e2 - e1
+            k = ((n - n1) * dn + (e - e1) * de) / (dn * dn + de * de)
+            fn, fe = n1 + k * dn, e1 + k * de  # foot of the perpendicular
+            n, e = 2.0 * fn - n, 2.0 * fe - e
+        return (n + o[0] + v[0] * tau_s, e + o[1] + v[1] * tau_s, true_pos[2] + o[2] + v[2] * tau_s)
 
     def apply(self, s: Sample, tau_s: float | None) -> None:
         true_pos = s.true_pos_ned_m
@@ -78,3 +95,5 @@ class CoordinatedSpoof(Primitive):
             return
         p = self.fake_position(true_pos, tau_s)  # type: ignore[arg-type]
         s.value = math.sqrt((p[0] - anchor[0]) ** 2 + (p[1] - anchor[1]) ** 2 + (p[2] - anchor[2]) ** 2)
+        if self.noise > 0.0:
+            s.value += self.rng.gauss(0.0, self.noise)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from evaluation.cli import main
@@ -106,3 +107,16 @@ def test_over_attacked_formation_alarms_instead_of_guessing(tmp_path: Path, caps
     assert rows["secekf"]["alarm_fraction"] == 1.0 and rows["secekf"]["estimate_fraction"] == 0.0
     assert rows["secekf"]["rmse_m"] is None
     assert rows["ekf"]["estimate_fraction"] == 1.0 and rows["ekf"]["rmse_m"] > 0.2  # confidently wrong
+
+
+def test_the_height_is_inside_the_attack_surface_offline() -> None:
+    """height-spoof ramps the downward laser: the height every range model takes as known is attacked too."""
+    from attack_profiles import library
+    from evaluation.trial import run_trial
+    from secuav_common.scenario import load_scenario
+
+    scenario = load_scenario("anchors8")
+    clean = run_trial(scenario, None, ["secekf"], 3, 15.0, "hover")
+    spoofed = run_trial(scenario, library.load("height-spoof", rate_per_s=0.3), ["secekf"], 3, 15.0, "hover")
+    late = clean.t_s > 10.0
+    assert np.nanmean(spoofed.traces["secekf"].err_m[late]) > 3 * np.nanmean(clean.traces["secekf"].err_m[late])
