@@ -181,7 +181,8 @@ def _figures(out: Path, summary: pd.DataFrame) -> list[Path]:
                 ax.grid(True, alpha=0.3)
                 if min(xs) > 0 and max(xs) / min(xs) >= 10:
                     ax.set_xscale("log")
-        axes[0, 0].set_yscale("symlog", linthresh=0.05)
+        for ax in axes[0, :]:
+            ax.set_yscale("symlog", linthresh=0.05)
         axes[0, 0].legend(fontsize=7)
         fig.suptitle(f"{attack}: error and detection delay vs {axis}")
         fig.tight_layout()
