@@ -143,6 +143,26 @@ def _candidate(data: bytes, i: int, n: int) -> tuple[Header, int, str | None]:
 _NO_HEADER: Final = Header(0, -1, 0, 0, 0, 0)
 
 
+def _frame_starts_within(data: bytes, lo: int, hi: int, n: int) -> bool:
+    """Whether a CRC-valid frame of a known message starts in ``data[lo:hi]`` (a signature block).
+
+    Two C-level searches when the block holds no magic byte, which is nearly always;
+    a true signature that happens to hold one passes unless a whole CRC-valid frame starts there.
+    """
+    j = lo
+    while j < hi:
+        a = data.find(b"\xfd", j, hi)
+        b = data.find(b"\xfe", j, hi)
+        k = hi if a < 0 and b < 0 else (a if b < 0 else b if a < 0 else min(a, b))
+        if k >= hi:
+            return False
+        header, _, reason = _candidate(data, k, n)
+        if reason is None and header.msgid in CRC_EXTRA:
+            return True
+        j = k + 1
+    return False
+
+
 class _KnownStarts:
     """Where CRC-valid frames of known messages start in one datagram, found lazily, left to right.
 
@@ -202,6 +222,9 @@ def split(datagram: bytes) -> SplitResult:
                 if incompat > IFLAG_SIGNED:
                     reason = BAD_FLAGS
                 elif end > n:
+                    reason = TRUNCATED
+                elif incompat and _frame_starts_within(data, crc_at + CRC_LEN, end, n):
+                    # The CRC does not cover the signature: a frame cut short there would swallow the next one.
                     reason = TRUNCATED
                 elif _mcrf4xx(extra, _mcrf4xx(data[i + 1 : crc_at], 0xFFFF)) == data[crc_at] | data[crc_at + 1] << 8:
                     if skip_start >= 0:
