@@ -12,7 +12,7 @@ from typing import Any
 
 from attack_profiles import library
 from attack_profiles.profile import Profile, parse_profile
-from secuav_common.loading import InputError
+from secuav_common.loading import InputError, parse_document
 
 
 def profile_from_payload(payload: Any, source: str = "<mqtt>") -> Profile | None:
@@ -33,4 +33,6 @@ def profile_from_payload(payload: Any, source: str = "<mqtt>") -> Profile | None
             if not isinstance(params, dict):
                 raise InputError(source, "parameters", params, "must be a mapping of parameter name to value")
             return library.load(name, **{str(k): v for k, v in params.items()})
+    if isinstance(payload, str | bytes):  # profile text inside the message: from the network, so no YAML aliases
+        payload = parse_document(payload, source, trusted=False)
     return parse_profile(payload, source)

@@ -100,7 +100,12 @@ def decode_payload(raw: bytes) -> tuple[Any, str | None]:
         payload = json.loads(text)
     except (ValueError, RecursionError) as exc:
         where = f" at line {exc.lineno} column {exc.colno}" if isinstance(exc, json.JSONDecodeError) else ""
-        reason = exc.msg if isinstance(exc, json.JSONDecodeError) else "nested too deeply"
+        if isinstance(exc, json.JSONDecodeError):
+            reason = exc.msg
+        elif isinstance(exc, RecursionError):
+            reason = "nested too deeply"
+        else:  # e.g. an integer of thousands of digits (Python's int parsing limit)
+            reason = str(exc).split(";")[0]
         raise RequestError(f"payload is not JSON: {reason}{where}") from None
     request_id = payload.get("request_id") if isinstance(payload, dict) else None
     if request_id is not None and not isinstance(request_id, str):

@@ -78,8 +78,25 @@ def first_error(err: ValidationError, source: str) -> InputError:
     return InputError(source, field_path(loc), value, reason)
 
 
-def parse_document(text: str | bytes, source: str) -> Any:
-    """Parse YAML (a superset of JSON) text into plain Python data."""
+class _NoAliasLoader(yaml.SafeLoader):
+    """A YAML loader that refuses anchors and aliases: ``&a [*a, *a, ...]`` nested a few levels deep
+    ("billion laughs") expands a few hundred bytes into gigabytes, so untrusted text may not use them."""
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        if self.check_event(yaml.AliasEvent):
+            event = self.peek_event()
+            raise yaml.composer.ComposerError(
+                None, None, "YAML aliases (*name) are not accepted here", event.start_mark
+            )
+        return super().compose_node(parent, index)
+
+
+def parse_document(text: str | bytes, source: str, *, trusted: bool = True) -> Any:
+    """Parse YAML (a superset of JSON) text into plain Python data.
+
+    ``trusted=False`` (text from the network) refuses YAML aliases, so a small
+    message cannot expand into an unbounded document.
+    """
     if len(text) > MAX_DOCUMENT_BYTES:
         raise InputError(source, "", _MISSING, f"document larger than {MAX_DOCUMENT_BYTES} bytes")
     if isinstance(text, bytes):
@@ -88,7 +105,9 @@ def parse_document(text: str | bytes, source: str) -> Any:
         except UnicodeDecodeError as exc:
             raise InputError(source, "", _MISSING, f"not UTF-8 text (byte {exc.start})") from None
     try:
-        return yaml.safe_load(text)
+        return yaml.load(text, Loader=yaml.SafeLoader if trusted else _NoAliasLoader)
+    except RecursionError:
+        raise InputError(source, "", _MISSING, "nested too deeply") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1} column {mark.column + 1}" if mark else "document"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import json
 import logging
 import time
 from collections.abc import Callable
@@ -132,6 +133,12 @@ async def test_a_retained_request_is_applied_once_not_on_every_reconnect(
             assert slots[1].engine is not None and slots[1].engine.profile.name == "distance-stuck"
 
 
+_ALIAS_BOMB = "".join(
+    f"{name}: &{name} [{', '.join([f'*{prev}'] * 9) if prev else ', '.join(['lol'] * 9)}]\n"
+    for prev, name in zip(["", "a", "b", "c", "d", "e", "f"], ["a", "b", "c", "d", "e", "f", "g"], strict=True)
+)
+
+
 async def test_in_the_real_proxy_a_flood_of_bad_requests_loses_no_frame_and_a_swap_lands_between_frames(
     udp_port: Callable[[], int], tcp_port: Callable[[], int]
 ) -> None:
@@ -183,6 +190,16 @@ async def test_in_the_real_proxy_a_flood_of_bad_requests_loses_no_frame_and_a_sw
                 for i in range(40):
                     await obs.publish(SET1, b"\xff\x00" * 100 + bytes([i]))
                     await obs.publish(SET1, b'{"request_id": "big", "x": "' + b"y" * 70_000 + b'"}')
+                # The hostile review's YAML alias bomb (a few hundred bytes that expand to gigabytes), a
+                # document nested past Python's recursion limit and a 5000-digit integer: refused at once.
+                await obs.publish(SET1, json.dumps(_ALIAS_BOMB).encode())
+                bomb_state = await obs.wait_for(STATE1, lambda b: "aliases" in (b["error"] or ""))
+                assert not bomb_state["ok"]
+                await obs.publish(SET1, b"[" * 30_000 + b"]" * 30_000)
+                deep = await obs.wait_for(STATE1, lambda b: "nested too deeply" in (b["error"] or ""))
+                await obs.publish(SET1, b'{"x": ' + b"9" * 5000 + b"}")
+                huge = await obs.wait_for(STATE1, lambda b: "digits" in (b["error"] or ""))
+                assert not deep["ok"] and not huge["ok"]
                 bias = {"name": "plus-1m", "rules": [{"target": {"message": "DISTANCE_SENSOR", "sensor_id": 0,
                         "field": "current_distance"}, "kind": "bias", "offset_m": 1.0}]}  # fmt: skip
                 state = await obs.request(SET1, bias)
