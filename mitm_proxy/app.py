@@ -40,6 +40,7 @@ from mitm_proxy.secure_config import OFF, SecureConfig, config_from_payload
 from mitm_proxy.signing import Signer
 from mitm_proxy.slots import AttackSlot
 from mitm_proxy.stats import LinkStats
+from secuav_common.broker import redact
 from secuav_common.loading import InputError
 from secuav_common.scenario import Scenario, load_scenario
 from secuav_common.urls import Endpoint
@@ -129,7 +130,7 @@ class Proxy:
             "attack": self.config.attack, "profile": self.slots[self.links[0].sysid].state.profile or "none",
             "secure": next((s.stage.config.estimator for s in self.secure.values() if s.stage.config.estimator), "off")
             if self.secure else "unavailable (no --scenario)",
-            "broker": self.config.broker, "record": self.config.record or "off",
+            "broker": redact(self.config.broker), "record": self.config.record or "off",
             "signing": "on" if self.signer else "off",
         })  # fmt: skip
         return self

@@ -20,19 +20,21 @@ import argparse
 import asyncio
 import contextlib
 import json
+import os
 import sys
 import time
 import uuid
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import Any
 
 import aiomqtt
 
 from attack_profiles import cli as profiles_cli
 from mitm_proxy.control import MAX_PAYLOAD_BYTES, ONLINE_TOPIC, PREFIX, parse_vehicle_key, vehicle_topic
-from secuav_common.broker import parse_broker_url
+from secuav_common.broker import parse_broker_url, read_secret
 from secuav_common.loading import InputError
 
 DEFAULT_BROKER = "mqtt://127.0.0.1:1883"
@@ -47,6 +49,9 @@ def add_options(command: str, parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--timeout", type=float, default=5.0, metavar="S", help="wait this long for the proxy (5)")
     parser.add_argument("--tls-ca", metavar="FILE", help="CA file for a TLS broker (mqtts://)")
+    parser.add_argument("--username", metavar="NAME", help="broker user (or in the URL: mqtt://NAME@HOST)")
+    parser.add_argument("--password-file", metavar="F", type=Path,
+                        help="broker password from F (mode 600); SECUAV_BROKER_PASSWORD works too")  # fmt: skip
     if command == "status":
         parser.add_argument("--json", action="store_true", help="print what the broker holds as one JSON document")
 
@@ -110,8 +115,15 @@ def _session(args: argparse.Namespace, topics: list[str], body: Session) -> int:
     """Connect, subscribe, run ``body``; broker trouble becomes one line and exit 3."""
     try:
         address = parse_broker_url(args.broker)
+        password = address.password
+        if password is None and args.password_file is not None:
+            password = read_secret(args.password_file, "--password-file").decode("utf-8").strip()
+        password = password or os.environ.get("SECUAV_BROKER_PASSWORD") or None
     except ValueError as exc:
         print(f"secuav-attack: --broker: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except InputError as exc:
+        print(f"secuav-attack: {exc}", file=sys.stderr)
         return EXIT_USAGE
     tls = aiomqtt.TLSParameters(ca_certs=args.tls_ca) if address.tls or args.tls_ca else None
 
@@ -120,8 +132,8 @@ def _session(args: argparse.Namespace, topics: list[str], body: Session) -> int:
         async with aiomqtt.Client(
             address.host,
             address.port,
-            username=address.username,
-            password=address.password,
+            username=args.username or address.username,
+            password=password,
             identifier=f"secuav-attack-{uuid.uuid4().hex[:8]}",
             timeout=args.timeout,
             tls_params=tls,

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -69,7 +70,10 @@ def build_parser() -> argparse.ArgumentParser:
         "mqtt://[user:pass@]HOST[:PORT], mqtts://..., or none",
     )
     p.add_argument("--broker-username", metavar="NAME")
-    p.add_argument("--broker-password", metavar="PASS")
+    p.add_argument("--broker-password", metavar="PASS",
+                   help="visible to every user in ps: prefer --broker-password-file or SECUAV_BROKER_PASSWORD")
+    p.add_argument("--broker-password-file", metavar="F", type=Path,
+                   help="read the broker password from F (mode 600); SECUAV_BROKER_PASSWORD works too")  # fmt: skip
     p.add_argument("--broker-tls-ca", metavar="F", type=Path, help="CA file for mqtts://")
     p.add_argument(
         "--record", metavar="DIR", type=Path, help="write DIR/v<sysid>/original.tlog, forwarded.tlog and index.json"
@@ -104,10 +108,21 @@ def config_from_args(args: argparse.Namespace) -> ProxyConfig:
         if args.vehicle or args.ground:
             raise ValueError("--link cannot be combined with --vehicle/--ground")
         flags["links"] = _links_from_flag(args.link, args, file_values)
+    if flags["broker_password"] is None:
+        flags["broker_password"] = _password(args.broker_password_file)
     cfg = build_config(file_values, flags, source)
     if args.vehicle or args.ground:
         cfg = override_endpoints(cfg, args.vehicle, args.ground, "<flags>")
     return cfg
+
+
+def _password(path: Path | None) -> str | None:
+    """From ``--broker-password-file`` (owner-readable only), else ``SECUAV_BROKER_PASSWORD``, else none."""
+    if path is not None:
+        from secuav_common.broker import read_secret
+
+        return read_secret(path, "--broker-password-file").decode("utf-8").strip()
+    return os.environ.get("SECUAV_BROKER_PASSWORD") or None
 
 
 def _links_from_flag(groups: list[list[str]], args: argparse.Namespace, file_values: dict[str, Any]) -> list[dict]:

@@ -97,12 +97,10 @@ class Signer:
 
     @classmethod
     def from_file(cls, path: str | Path, link_id: int = DEFAULT_LINK_ID) -> Signer:
+        from secuav_common.broker import read_secret
+
         p = Path(path)
-        try:
-            data = p.read_bytes()
-        except OSError as exc:
-            raise InputError(str(p), "key", str(path), f"cannot read: {exc.strerror}") from exc
-        return cls(parse_key(data, str(p)), link_id)
+        return cls(parse_key(read_secret(p, "key"), str(p)), link_id)
 
     def _digest(self, body: bytes | bytearray | memoryview, link_id: int, ts: int) -> bytes:
         h = hashlib.sha256(self.key)

@@ -13,9 +13,11 @@ import contextlib
 import logging
 import socket
 from dataclasses import dataclass
+from pathlib import Path
 from types import TracebackType
 from urllib.parse import urlsplit
 
+from secuav_common.loading import InputError
 from secuav_common.ports import LOOPBACK, MQTT_PORT
 
 log = logging.getLogger(__name__)
@@ -48,6 +50,29 @@ def parse_broker_url(url: str) -> BrokerAddress:
         raise ValueError(f"broker {url!r}: bad port") from None
     tls = parts.scheme == "mqtts"
     return BrokerAddress(parts.hostname, port or (8883 if tls else MQTT_PORT), parts.username, parts.password, tls)
+
+
+def redact(url: str) -> str:
+    """``url`` with any password replaced by ``***``, for logs (``mqtt://op:***@host:1883``)."""
+    parts = urlsplit(url)
+    if parts.password is None:
+        return url
+    netloc = parts.netloc.replace(f":{parts.password}@", ":***@", 1)
+    return parts._replace(netloc=netloc).geturl()
+
+
+def read_secret(path: str | Path, what: str) -> bytes:
+    """A secret from a file that only its owner can read (as ssh demands of a private key); ``InputError`` else."""
+    p = Path(path)
+    try:
+        mode = p.stat().st_mode
+        data = p.read_bytes()
+    except OSError as exc:
+        raise InputError(str(p), what, str(path), f"cannot read: {exc.strerror or exc}") from None
+    if mode & 0o077:
+        reason = f"readable by others (mode {oct(mode & 0o777)}); chmod 600 it, as ssh demands of a private key"
+        raise InputError(str(p), what, str(path), reason)
+    return data
 
 
 def port_in_use(host: str, port: int) -> bool:

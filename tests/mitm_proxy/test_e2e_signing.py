@@ -49,6 +49,7 @@ async def test_signed_frames_rewritten_and_resigned_or_left_alone(
 ) -> None:
     key_file = tmp_path / "link.key"
     key_file.write_bytes(KEY)
+    key_file.chmod(0o600)
     profile = tmp_path / "sixty.yaml"
     profile.write_text(PROFILE)
     gcs, vehicle = Peer(), Peer()

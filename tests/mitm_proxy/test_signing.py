@@ -57,12 +57,23 @@ def test_key_formats(tmp_path: Path) -> None:
     b64 = tmp_path / "b64.key"
     b64.write_text(base64.b64encode(TEST_KEY).decode() + "\n")
     for p in (raw, hexf, b64):
+        p.chmod(0o600)
         assert Signer.from_file(p).key == TEST_KEY
+
+
+@pytest.mark.parametrize("mode", [0o640, 0o604, 0o644])
+def test_a_key_others_can_read_is_refused_as_ssh_would(tmp_path: Path, mode: int) -> None:
+    key = tmp_path / "link.key"
+    key.write_bytes(TEST_KEY)
+    key.chmod(mode)
+    with pytest.raises(InputError, match=r"link\.key: key: readable by others .*chmod 600"):
+        Signer.from_file(key)
 
 
 def test_bad_keys_name_the_file(tmp_path: Path) -> None:
     short = tmp_path / "short.key"
     short.write_text("abcd")
+    short.chmod(0o600)
     with pytest.raises(InputError, match=r"short\.key: key: need 32 raw bytes"):
         Signer.from_file(short)
     with pytest.raises(InputError, match=r"missing\.key: key: cannot read"):
