@@ -24,6 +24,7 @@ from attack_profiles import library
 from attack_profiles.engine import Engine
 from attack_profiles.profile import Profile, load_profile, profile_schema_text
 from secuav_common.loading import InputError, parse_document
+from secuav_common.logs import add_common_flags
 from secuav_common.scenario import load_scenario
 
 Handler = Callable[[argparse.Namespace], int]
@@ -105,6 +106,7 @@ def build_parser(
     live = dict.fromkeys(LIVE_COMMANDS, needs_proxy)
     live.update(live_handlers or {})
     parser = argparse.ArgumentParser(prog="secuav-attack", description="Check, list and apply SecUAV attack profiles.")
+    add_common_flags(parser, log_flags=False)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("validate", help="check a profile file (or library name) offline")

@@ -21,7 +21,7 @@ from typing import Any
 
 from mitm_proxy.config import ProxyConfig, build_config, load_config, override_endpoints
 from secuav_common.loading import InputError
-from secuav_common.logs import setup_logging
+from secuav_common.logs import add_common_flags, setup_logging
 from secuav_common.urls import parse_endpoint
 
 PROG = "secuav-proxy"
@@ -92,6 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
     p.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
+    add_common_flags(p)
     return p  # fmt: skip
 
 
@@ -170,7 +171,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         proxy = Proxy(cfg)  # reads the scenario, profile and key: their errors come before any socket
     except (InputError, ValueError) as exc:
         return _fail(str(exc))
-    setup_logging(args.verbose, args.quiet, noisy=("aiomqtt", "asyncio", "amqtt", "transitions"))
+    noisy = ("aiomqtt", "asyncio", "amqtt", "transitions")
+    setup_logging(args.verbose, args.quiet, noisy=noisy, json_lines=args.log_json)
     try:
         loop = new_event_loop(args.loop)
     except ImportError:

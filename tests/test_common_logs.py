@@ -39,7 +39,10 @@ def test_json_lines_carry_the_event_and_its_fields() -> None:
     assert doc["ts"].endswith("+00:00")
 
 
-@pytest.mark.parametrize("command", ["secuav-sim", "secuav-eval", "secuav-demo", "secuav-study", "secuav-record"])
+@pytest.mark.parametrize(
+    "command",
+    ["secuav-sim", "secuav-proxy", "secuav-attack", "secuav-eval", "secuav-demo", "secuav-study", "secuav-record"],
+)
 def test_version_on_every_command(command: str) -> None:
     exe = Path(sys.executable).parent / command
     done = subprocess.run([str(exe), "--version"], capture_output=True, text=True, timeout=60, check=False)
