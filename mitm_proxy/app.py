@@ -158,7 +158,8 @@ class Proxy:
             stages: list[Any] = [self.stages[sysid]]  # tap -> attack -> secure -> forward
             if sysid in self.secure:
                 stages.append(self.secure[sysid].stage)
-            pipeline = Pipeline(i, stages, stats=self.stats[sysid], recorder=recorder, signer=self.signer)
+            signer = None if self.signer is None else self.signer.for_link()  # replay state per link
+            pipeline = Pipeline(i, stages, stats=self.stats[sysid], recorder=recorder, signer=signer)
             grounds = [self.endpoints[ep] for ep in link_cfg.ground_endpoints]
             link = Link(i, sysid, pipeline, self.stats[sysid], self.endpoints[link_cfg.vehicle_endpoint], grounds)
             self.links.append(link)

@@ -95,6 +95,15 @@ class Signer:
         self._seen: dict[tuple[int, int, int], int] = {}  # stream -> last timestamp accepted
         self._sent: dict[tuple[int, int, int], int] = {}  # stream -> last timestamp we signed
 
+    def for_link(self) -> Signer:
+        """The same key with replay state of its own, for one link's pipeline.
+
+        Every link must judge freshness alone: a signed frame with no target (a
+        GCS HEARTBEAT on a ground port several vehicles share) reaches each of
+        them, and with one table the second and third vehicle saw it as a replay.
+        """
+        return Signer(self.key, self.link_id, wall_clock=self._wall_clock)
+
     @classmethod
     def from_file(cls, path: str | Path, link_id: int = DEFAULT_LINK_ID) -> Signer:
         from secuav_common.broker import read_secret

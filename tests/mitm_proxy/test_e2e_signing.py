@@ -8,6 +8,7 @@ key the proxy leaves signed frames alone (forwarded as they came, counted).
 
 from __future__ import annotations
 
+import asyncio
 import os
 from collections.abc import Callable
 from pathlib import Path
@@ -79,3 +80,37 @@ async def test_signed_frames_rewritten_and_resigned_or_left_alone(
     else:
         assert distances == [250] * 5 and got == sent  # no key: never modified
         assert snap["signed_untouched"] == 5 and snap["rewritten"] == 0
+
+
+async def test_three_signed_vehicles_on_one_ground_port_all_hear_the_gcs(
+    udp_port: Callable[[], int], tmp_path: Path
+) -> None:
+    """A signed GCS HEARTBEAT (no target) reaches every vehicle: each link judges replays on its own."""
+    key_file = tmp_path / "link.key"
+    key_file.write_bytes(KEY)
+    key_file.chmod(0o600)
+    gcs_port = udp_port()
+    vehicles = {sysid: (Peer(), udp_port()) for sysid in (1, 2, 3)}
+    links = [LinkConfig(sysid=s, vehicle=f"udpin://127.0.0.1:{p}", ground=[f"udpin://127.0.0.1:{gcs_port}"])
+             for s, (_peer, p) in vehicles.items()]  # fmt: skip
+    gcs = Peer()
+    try:
+        async with Proxy(ProxyConfig(links=links, broker="none", signing_key=key_file)) as proxy:
+            for sysid, (peer, port) in vehicles.items():  # each vehicle speaks first, so the proxy knows it
+                peer.send(signer(sysid, 1).heartbeat_encode(2, 12, 0, 0, 3).pack(signer(sysid, 1)), port)
+            await asyncio.sleep(0.2)
+            mav = signer(255, 190)
+            sent = [mav.heartbeat_encode(6, 8, 0, 0, 4).pack(mav) for _ in range(5)]
+            for frame in sent:
+                gcs.send(frame, gcs_port)
+            got = {sysid: (await peer.frames())[0] for sysid, (peer, _port) in vehicles.items()}
+            stale = sum(proxy.stats_snapshot()[s]["uplink"]["bad"].get("stale_signature", 0) for s in vehicles)
+    finally:
+        gcs.close()
+        for peer, _port in vehicles.values():
+            peer.close()
+    assert stale == 0
+    for sysid, frames in got.items():
+        assert frames == sent, f"vehicle {sysid} got {len(frames)} of {len(sent)}"
+        parser = strict_parser()
+        assert all(parser.parse_char(f).get_type() == "HEARTBEAT" for f in frames)
