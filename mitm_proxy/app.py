@@ -32,7 +32,7 @@ from attack_profiles import library
 from attack_profiles.profile import Profile, load_profile
 from mitm_proxy.attack import AttackStage
 from mitm_proxy.config import ProxyConfig
-from mitm_proxy.endpoints import UdpEndpoint
+from mitm_proxy.endpoints import DEFAULT_TAKEOVER_S, UdpEndpoint
 from mitm_proxy.link import GroundRouter, Link
 from mitm_proxy.pipeline import Pipeline
 from mitm_proxy.recording import Recorder
@@ -46,6 +46,7 @@ from secuav_common.scenario import Scenario, load_scenario
 from secuav_common.urls import Endpoint
 
 log = logging.getLogger("secuav-proxy")
+VEHICLE_TAKEOVER_S = 1.0  # a new vehicle source port is followed after this much silence from the old one
 STOP_BUDGET_S = 0.8  # what the control plane may take to say goodbye
 
 
@@ -145,7 +146,9 @@ class Proxy:
             for ep in (link_cfg.vehicle_endpoint, *link_cfg.ground_endpoints):
                 if ep not in self.endpoints:
                     role = "vehicle" if ep == link_cfg.vehicle_endpoint else "ground"
-                    udp = UdpEndpoint(ep, f"{role}:{ep.port}")
+                    # A vehicle streams tens of frames a second: a second of silence means it restarted.
+                    takeover = VEHICLE_TAKEOVER_S if role == "vehicle" else DEFAULT_TAKEOVER_S
+                    udp = UdpEndpoint(ep, f"{role}:{ep.port}", takeover)
                     self.endpoints[ep] = udp
                     await udp.open()
         users: dict[Endpoint, list[Link]] = {}

@@ -1,7 +1,11 @@
 """asyncio UDP endpoints as MAVSDK and mavlink-router write them.
 
-``udpin://HOST:PORT`` binds HOST:PORT and answers whoever sent to it last (a
-vehicle that restarts from a new source port is followed, and said so once);
+``udpin://HOST:PORT`` binds HOST:PORT and answers the peer that sent first. A
+datagram from anyone else is a stranger's: counted, logged once, dropped, so
+one spoofed datagram cannot take the ground side over and receive the GCS's
+commands. Only when the pinned peer has been silent for ``takeover_after_s``
+does a new sender take its place (a vehicle that restarts from a new source
+port is followed that way, and said so once);
 ``udpout://HOST:PORT`` sends to a fixed peer from an ephemeral port and takes
 replies on that port (how MAVSDK, QGroundControl and MAVProxy answer).
 
@@ -18,6 +22,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
 import socket
 import sys
 import time
@@ -34,6 +39,9 @@ RCVBUF_BYTES = 4 * 1024 * 1024  # ride out bursts (the kernel may cap it at net.
 MAX_PENDING_SEND_BYTES = 1024 * 1024  # beyond this, drop rather than queue without bound
 _LOOPBACK_HOSTS = {"127.0.0.1", "localhost"}
 IP_RECVERR = 11  # Linux <linux/in.h>; Python's socket module does not export it
+# A udpin peer silent this long may be replaced by a new sender: a vehicle streams many times a
+# second and a GCS sends its HEARTBEAT at 1 Hz, so only a peer that has really gone is replaced.
+DEFAULT_TAKEOVER_S = 3.0
 
 
 class UdpEndpoint(asyncio.DatagramProtocol):
@@ -45,9 +53,11 @@ class UdpEndpoint(asyncio.DatagramProtocol):
     ``faults`` counts what went wrong by kind; ``rx``/``tx`` count datagrams.
     """
 
-    def __init__(self, endpoint: Endpoint, name: str) -> None:
+    def __init__(self, endpoint: Endpoint, name: str, takeover_after_s: float = DEFAULT_TAKEOVER_S) -> None:
         self.endpoint = endpoint
         self.name = name
+        self.takeover_after_s = takeover_after_s
+        self._peer_heard_s = -math.inf  # when the pinned peer last sent
         self.receiver: Receiver | None = None
         self.peer: tuple[str, int] | None = endpoint.address if endpoint.mode == "udpout" else None
         self._udpin = endpoint.mode == "udpin"
@@ -94,15 +104,19 @@ class UdpEndpoint(asyncio.DatagramProtocol):
         rx_s = time.monotonic()
         self.rx += 1
         if addr == self.peer:  # the common case, both modes: the peer we know
-            pass
+            self._peer_heard_s = rx_s
         elif self._udpin:
             peer = (addr[0], addr[1])
-            if peer != self.peer:
-                if self.peer is not None:
-                    self.faults["peer_changed"] += 1
-                    log.info("endpoint.peer_changed",
-                             extra={"endpoint": self.name, "old": _fmt(self.peer), "new": _fmt(peer)})  # fmt: skip
-                self.peer = peer
+            if self.peer is not None:
+                if rx_s - self._peer_heard_s < self.takeover_after_s:
+                    self._fault("stranger", f"datagram from {_fmt(peer)} while {_fmt(self.peer)} is the peer")
+                    return
+                self.faults["peer_changed"] += 1
+                log.info("endpoint.peer_changed",
+                         extra={"endpoint": self.name, "old": _fmt(self.peer), "new": _fmt(peer)})  # fmt: skip
+                self._reported.discard("stranger")  # a new peer: strangers to it are news again
+            self.peer = peer
+            self._peer_heard_s = rx_s
         elif not _same_host_port(addr, self.endpoint):
             # A udpout socket is not connected (so a vanished peer cannot make it unusable); anything
             # from a stranger is not ours to forward.

@@ -1,6 +1,7 @@
 """MAVLink endpoint URLs as MAVSDK and mavlink-router write them.
 
-``udpin://HOST:PORT`` binds HOST:PORT and answers whoever last sent to it;
+``udpin://HOST:PORT`` binds HOST:PORT and answers the peer that sent first (another sender takes its
+place only after that peer fell silent, see mitm_proxy.endpoints);
 ``udpout://HOST:PORT`` sends to a fixed peer from an ephemeral port.
 """
 

@@ -34,11 +34,13 @@ async def until(cond: Callable[[], bool], timeout_s: float = 2.0) -> None:
     raise AssertionError("condition not met")
 
 
-async def test_udpin_answers_whoever_sent_last(udp_port: Callable[[], int], caplog: pytest.LogCaptureFixture) -> None:
+async def test_udpin_pins_its_peer_and_follows_it_only_after_silence(
+    udp_port: Callable[[], int], caplog: pytest.LogCaptureFixture
+) -> None:
     caplog.set_level(logging.INFO, "mitm_proxy.endpoints")
     port = udp_port()
     got: list[bytes] = []
-    ep = await UdpEndpoint(parse_endpoint(f"udpin://127.0.0.1:{port}"), "vehicle").open()
+    ep = await UdpEndpoint(parse_endpoint(f"udpin://127.0.0.1:{port}"), "vehicle", takeover_after_s=0.3).open()
     ep.receiver = lambda data, rx_s: got.append(data)
     a, b = client(), client()
     try:
@@ -48,8 +50,14 @@ async def test_udpin_answers_whoever_sent_last(udp_port: Callable[[], int], capl
         await until(lambda: got == [b"from a"])
         assert ep.send(b"to a")
         assert (await recv(a))[0] == b"to a"
-        b.sendto(b"from b", ("127.0.0.1", port))  # the vehicle restarted on a new source port
-        await until(lambda: len(got) == 2)
+        for _ in range(3):  # a stranger while a is talking: dropped, counted, logged once; a keeps the replies
+            b.sendto(b"stranger", ("127.0.0.1", port))
+            a.sendto(b"from a", ("127.0.0.1", port))
+        await until(lambda: ep.faults["stranger"] == 3 and len(got) == 4)
+        assert b"stranger" not in got and ep.peer == a.getsockname()
+        await asyncio.sleep(0.35)  # a falls silent (the vehicle restarted on a new source port)
+        b.sendto(b"from b", ("127.0.0.1", port))
+        await until(lambda: got[-1] == b"from b")
         assert ep.send(b"to b")
         data, _ = await recv(b)
         assert data == b"to b" and ep.peer == b.getsockname() and ep.faults["peer_changed"] == 1
@@ -58,6 +66,7 @@ async def test_udpin_answers_whoever_sent_last(udp_port: Callable[[], int], capl
         a.close()
         b.close()
     assert sum("endpoint.no_peer" in r.message for r in caplog.records) == 1
+    assert sum("endpoint.stranger" in r.message for r in caplog.records) == 1
     assert sum("endpoint.peer_changed" in r.message for r in caplog.records) == 1
 
 

@@ -159,12 +159,17 @@ async def test_vehicle_comes_back_from_a_new_port(udp_port: Callable[[], int],
             gcs.reply(cmd, proxy_addr)
             assert (await first.frames(0.2))[0] == [cmd]
             first.close()  # the autopilot restarts: new socket, new source port
-            for _ in range(3):
+            # Until the old port has been silent for a second the new one is a stranger; then it is followed.
+            deadline = asyncio.get_running_loop().time() + 10.0
+            arrived: list[bytes] = []
+            while not arrived and asyncio.get_running_loop().time() < deadline:
                 second.send(heartbeat(packer(1)), veh)
-            assert len((await gcs.frames(0.2))[0]) == 3
+                arrived = (await gcs.frames(0.1))[0]
+            assert arrived
             gcs.reply(cmd, proxy_addr)
             assert (await second.frames(0.2))[0] == [cmd]
-            assert proxy.stats_snapshot()[1]["endpoints"][f"vehicle:{veh}"]["faults"] == {"peer_changed": 1}
+            faults = proxy.stats_snapshot()[1]["endpoints"][f"vehicle:{veh}"]["faults"]
+            assert faults["peer_changed"] == 1 and set(faults) <= {"peer_changed", "stranger"}
         finally:
             second.close()
     assert sum(r.getMessage() == "endpoint.peer_changed" for r in caplog.records) == 1
@@ -241,3 +246,30 @@ async def test_broker_restart_keeps_forwarding_and_reconnects(udp_port: Callable
         finally:
             vehicle.close()
     await broker.__aexit__(None, None, None)
+
+
+async def test_a_stranger_cannot_take_the_ground_side_over(
+    udp_port: Callable[[], int], caplog: pytest.LogCaptureFixture
+) -> None:
+    """udpin ground port: one spoofed datagram neither reaches the vehicle nor diverts the GCS's telemetry."""
+    caplog.set_level(logging.INFO)
+    veh, ground = udp_port(), udp_port()
+    link = LinkConfig(sysid=1, vehicle=f"udpin://127.0.0.1:{veh}", ground=[f"udpin://127.0.0.1:{ground}"])
+    vehicle, gcs, stranger = Peer(), Peer(), Peer()
+    try:
+        async with Proxy(ProxyConfig(links=[link], broker="none")) as proxy:
+            vehicle.send(heartbeat(packer(1)), veh)
+            await vehicle.frames(0.1)
+            gcs.send(heartbeat(packer(255, 190)), ground)  # the GCS speaks first: it is the ground peer
+            assert (await vehicle.frames(0.2))[0]
+            stranger.send(command(packer(250, 1), 1), ground)  # e.g. an arm command from someone else
+            assert (await vehicle.frames(0.3))[0] == []  # never reached the vehicle
+            vehicle.send(heartbeat(packer(1)), veh)
+            assert len((await gcs.frames(0.2))[0]) == 1  # telemetry still goes to the GCS...
+            assert (await stranger.frames(0.2))[0] == []  # ...and not to the stranger
+            faults = proxy.stats_snapshot()[1]["endpoints"][f"ground:{ground}"]["faults"]
+            assert faults.get("stranger") == 1 and "peer_changed" not in faults
+    finally:
+        for p in (vehicle, gcs, stranger):
+            p.close()
+    assert sum(r.getMessage() == "endpoint.stranger" for r in caplog.records) == 1
