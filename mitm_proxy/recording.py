@@ -15,12 +15,22 @@ in original.tlog (``null`` for an injected one), and ``notes`` name the rules
 that acted (``attack:<profile>:rules[<i>]``). It is written as frames go
 (memory stays flat on long runs) and closed by :meth:`Recorder.close`; all
 files are flushed at least every second.
+
+Recording never changes what is forwarded: the pipeline only hands bytes to a
+bounded queue, and one writer thread does the disk work (a slow disk would
+otherwise stall the event loop; a full one raised into the pipeline, and the
+link then forwarded frames raw, past the attack and secure stages). When the
+queue is full the recording loses that chunk (counted in ``lost_chunks``);
+when a write fails the recording stops with one error line and forwarding goes on.
 """
 
 from __future__ import annotations
 
 import json
+import logging
+import queue
 import struct
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -30,7 +40,11 @@ from mitm_proxy.packet import Header, Packet
 
 __all__ = ["Recorder"]
 
+log = logging.getLogger(__name__)
 _STAMP = struct.Struct(">Q")
+QUEUE_CHUNKS = 20_000  # about a few seconds of a busy link; beyond that the recording, not the link, loses
+_ORIGINAL, _FORWARDED, _INDEX = 0, 1, 2
+_FLUSH, _STOP = -1, -2
 
 
 class Recorder:
@@ -41,15 +55,55 @@ class Recorder:
         self.directory.mkdir(parents=True, exist_ok=True)
         self.link = link
         self._clock = wall_clock
-        self._original: IO[bytes] = open(self.directory / "original.tlog", "wb")  # noqa: SIM115 - closed in close()
-        self._forwarded: IO[bytes] = open(self.directory / "forwarded.tlog", "wb")  # noqa: SIM115
-        self._index: IO[str] = open(self.directory / "index.json", "w", encoding="utf-8")  # noqa: SIM115
-        self._index.write("[")
+        self._files: list[IO[bytes]] = [
+            open(self.directory / name, "wb")  # noqa: SIM115 - the writer thread closes them
+            for name in ("original.tlog", "forwarded.tlog", "index.json")
+        ]
+        self._queue: queue.Queue[tuple[int, bytes]] = queue.Queue(QUEUE_CHUNKS)
         self._n_index = 0
         self.original_count = 0
         self.forwarded_count = 0
+        self.lost_chunks = 0
+        self.failed: str | None = None  # why recording stopped, if it did
         self.closed = False
         self._flushed_at = self._clock()
+        self._put(_INDEX, b"[")
+        self._writer = threading.Thread(target=self._write_loop, name=f"recorder-{link}", daemon=True)
+        self._writer.start()
+
+    def _put(self, file: int, data: bytes) -> None:
+        if self.failed is not None or self.closed:
+            return
+        try:
+            self._queue.put_nowait((file, data))
+        except queue.Full:
+            self.lost_chunks += 1
+
+    def _write_loop(self) -> None:
+        """The writer thread: everything that touches the disk happens here."""
+        while True:
+            file, data = self._queue.get()
+            if file == _STOP:
+                break
+            if self.failed is not None:
+                continue  # drain what was queued before the failure
+            try:
+                if file == _FLUSH:
+                    for f in self._files:
+                        f.flush()
+                else:
+                    self._files[file].write(data)
+            except OSError as exc:
+                self.failed = f"{exc.strerror or exc} ({self._files[max(file, 0)].name})"
+                log.error("record.failed", extra={"link": self.link, "dir": str(self.directory), "error": self.failed,
+                                                  "effect": "recording stopped; forwarding goes on"})  # fmt: skip
+        for f in self._files:
+            try:
+                f.close()
+            except OSError as exc:  # the last flush of a full disk
+                if self.failed is None:
+                    self.failed = f"{exc.strerror or exc} ({f.name})"
+                    log.error("record.failed", extra={"link": self.link, "error": self.failed})
 
     FLUSH_EVERY_S = 1.0  # a crash or SIGKILL loses at most about this much of the recording
 
@@ -64,14 +118,14 @@ class Recorder:
         """Frames as received (one datagram's worth); returns the index of the first in original.tlog."""
         first = self.original_count
         stamp = self._stamp()
-        self._original.write(b"".join(stamp + raw for _, raw in frames))
+        self._put(_ORIGINAL, b"".join(stamp + raw for _, raw in frames))
         self.original_count += len(frames)
         return first
 
     def forwarded_frames(self, frames: list[tuple[Header, bytes]]) -> None:
         """Frames forwarded untouched (the fast path)."""
         stamp = self._stamp()
-        self._forwarded.write(b"".join(stamp + raw for _, raw in frames))
+        self._put(_FORWARDED, b"".join(stamp + raw for _, raw in frames))
         self.forwarded_count += len(frames)
 
     def forwarded(
@@ -83,7 +137,7 @@ class Recorder:
         original: int | None = None,
     ) -> None:
         """One forwarded frame; ``pkt`` when a stage handled it, so the index can say what happened."""
-        self._forwarded.write(self._stamp(delay_s) + data)
+        self._put(_FORWARDED, self._stamp(delay_s) + data)
         if pkt is not None and (pkt.changed or pkt.injected or delay_s > 0.0):
             self._entry(self.forwarded_count, original, msgid, pkt, delay_s)
         self.forwarded_count += 1
@@ -106,21 +160,24 @@ class Recorder:
             "delay_s": round(delay_s, 6),
             "notes": list(pkt.notes),
         }
-        self._index.write(("\n" if self._n_index == 0 else ",\n") + json.dumps(entry))
+        self._put(_INDEX, (("\n" if self._n_index == 0 else ",\n") + json.dumps(entry)).encode())
         self._n_index += 1
 
     def flush(self) -> None:
-        for f in (self._original, self._forwarded, self._index):
-            f.flush()
+        """Ask the writer to flush every file (it happens on its thread, after what is queued)."""
+        self._put(_FLUSH, b"")
 
-    def close(self) -> None:
-        """Finish index.json and close the files; safe to call twice."""
+    def close(self, timeout_s: float = 10.0) -> None:
+        """Finish index.json, write what is queued and close the files; safe to call twice."""
         if self.closed:
             return
+        self._put(_INDEX, b"\n]\n")
         self.closed = True
-        self._index.write("\n]\n")
-        for f in (self._original, self._forwarded, self._index):
-            f.close()
+        try:
+            self._queue.put((_STOP, b""), timeout=timeout_s)
+        except queue.Full:  # the writer is stuck on a dead disk: leave it, it is a daemon thread
+            return
+        self._writer.join(timeout_s)
 
     def __enter__(self) -> Recorder:
         return self

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import json
+import logging
 import time
 from pathlib import Path
 from typing import Any
 
+import pytest
 from pymavlink import mavutil
 from test_frames_support import HEARTBEAT, distance, heartbeat, local_position, mav, pack
 
@@ -115,7 +117,11 @@ def test_recording_is_flushed_while_running_so_a_crash_keeps_it(tmp_path: Path) 
     assert (tmp_path / "original.tlog").stat().st_size == 0  # buffered
     clock[0] += 1.5
     pipe.feed(frame, Direction.DOWNLINK, 0.0)
-    assert (tmp_path / "original.tlog").stat().st_size == 8 + len(frame)  # the first second reached the disk
+    # The first second reaches the disk (the writer thread flushes it; wait for that, not for a time).
+    deadline = time.monotonic() + 10.0
+    while (tmp_path / "original.tlog").stat().st_size != 8 + len(frame) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert (tmp_path / "original.tlog").stat().st_size == 8 + len(frame)
     assert (tmp_path / "forwarded.tlog").read_bytes()[:8] == int(1_700_000_000.0 * 1e6).to_bytes(8, "big")
     rec.close()
     assert (tmp_path / "original.tlog").stat().st_size == 2 * (8 + len(frame))
@@ -145,3 +151,29 @@ def test_injected_frames_are_indexed_without_an_original(tmp_path: Path) -> None
     msgs = read_tlog(tmp_path / "forwarded.tlog")
     assert [m.get_type() for m in msgs] == ["LOCAL_POSITION_NED", "HEARTBEAT", "STATUSTEXT"]
     assert msgs[2].text == "beacon"
+
+
+def test_a_full_disk_stops_the_recording_once_and_never_changes_what_is_forwarded(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """--record onto a full disk: the hostile review saw 19,880 of 20,000 frames go out raw; now none."""
+    caplog.set_level(logging.ERROR)
+    for name in ("original.tlog", "forwarded.tlog", "index.json"):  # every write fails: ENOSPC
+        (tmp_path / name).symlink_to("/dev/full")
+    rec = Recorder(tmp_path)
+    profile = parse_profile({"name": "plus", "rules": [{"target": {"message": "DISTANCE_SENSOR"}, "kind": "bias",
+                                                        "offset": 1.0}]})  # fmt: skip
+    slot = AttackSlot(1)
+    slot.offer(profile)
+    pipe = Pipeline(0, [AttackStage(slot)], stats=LinkStats(), recorder=rec)
+    sender = mav(1)
+    outs = []
+    for i in range(2000):
+        rec.flush()  # push every chunk to the (full) disk at once
+        outs += pipe.feed(pack(distance(cm=250, t_ms=i), sender), Direction.DOWNLINK, time.monotonic())
+    rec.close()
+    parser = mavutil.mavlink.MAVLink(None)
+    decoded = [parser.decode(bytearray(o.data)).current_distance for o in outs]
+    assert decoded == [350] * 2000  # every frame went through the attack stage
+    assert rec.failed is not None and "No space left" in rec.failed
+    assert sum(r.getMessage() == "record.failed" for r in caplog.records) == 1
