@@ -29,7 +29,7 @@ from secuav_common.scenario import load_scenario
 
 Handler = Callable[[argparse.Namespace], int]
 OptionsHook = Callable[[str, argparse.ArgumentParser], None]  # (subcommand, its parser): add transport options
-LIVE_COMMANDS = ("apply", "clear", "status")
+LIVE_COMMANDS = ("apply", "clear", "status", "mode", "secure")
 
 
 def _params(pairs: Sequence[str]) -> dict[str, Any]:
@@ -139,6 +139,17 @@ def build_parser(
     p = sub.add_parser("status", help="show the active profile of a running proxy")
     p.add_argument("--vehicle", type=int, metavar="N", help="only this vehicle's sysid")
     p.set_defaults(func=live["status"])
+
+    p = sub.add_parser("mode", help="switch the attack stage on or to bypass (the profile stays installed)")
+    p.add_argument("mode", choices=["on", "bypass"])
+    p.add_argument("--vehicle", type=int, metavar="N", help="only this vehicle's sysid")
+    p.set_defaults(func=live["mode"])
+
+    p = sub.add_parser("secure", help="choose the secure stage's estimator on a running proxy, or 'off'")
+    p.add_argument("estimator", metavar="NAME", help="secekf, secopt, recap, rarse, l1, l0, milp, ekf, ls, or off")
+    p.add_argument("--vehicle", type=int, metavar="N", help="only this vehicle's sysid")
+    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="estimator parameter")
+    p.set_defaults(func=live["secure"])
 
     if live_options is not None:
         for name in LIVE_COMMANDS:

@@ -160,18 +160,30 @@ def _online(board: Board) -> str:
     return "online" if value is True else "offline" if value is False else "unknown"
 
 
+def _attack_verdict(sysid: int, state: dict[str, Any]) -> str:
+    if state.get("profile") is None:
+        return f"ok: v{sysid} cleared"
+    return f"ok: v{sysid} {state['profile']} (hash {str(state.get('hash'))[:12]})"
+
+
 async def _request(
-    client: aiomqtt.Client, board: Board, answers: dict[str, dict[str, Any]], args: argparse.Namespace, body: Any
+    client: aiomqtt.Client,
+    board: Board,
+    answers: dict[str, dict[str, Any]],
+    args: argparse.Namespace,
+    body: Any,
+    leaf: str = "attack",
+    verdict: Callable[[int, dict[str, Any]], str] = _attack_verdict,
 ) -> int:
-    """Send ``body`` to each target vehicle's ``attack/set`` and report each verdict; the worst exit code wins."""
+    """Send ``body`` to each target vehicle's ``<leaf>/set`` and report each verdict; the worst exit code wins."""
     if args.vehicle is not None:
         vehicles = [args.vehicle]
     else:
         await board.settle(args.timeout)
-        vehicles = board.vehicles()
+        vehicles = board.vehicles(f"{leaf}/state") or board.vehicles()
         if not vehicles:
             print(
-                f"secuav-attack: no proxy on the broker at {args.broker} (no retained {PREFIX}/+/attack/state); "
+                f"secuav-attack: no proxy on the broker at {args.broker} (no retained {PREFIX}/+/{leaf}/state); "
                 "is secuav-proxy running with this --broker?",
                 file=sys.stderr,
             )
@@ -181,7 +193,7 @@ async def _request(
         request_id = uuid.uuid4().hex
         pending[request_id] = sysid
         payload = json.dumps({"request_id": request_id, **body} if body is not None else {"request_id": request_id})
-        await client.publish(vehicle_topic(sysid, "attack/set"), payload.encode(), qos=1)
+        await client.publish(vehicle_topic(sysid, f"{leaf}/set"), payload.encode(), qos=1)
     await board.until(lambda: all(rid in answers for rid in pending), args.timeout)
 
     worst = EXIT_OK
@@ -197,10 +209,8 @@ async def _request(
         elif not state.get("ok"):
             print(f"secuav-attack: v{sysid}: rejected: {state.get('error')}", file=sys.stderr)
             worst = max(worst, EXIT_REJECTED)
-        elif state.get("profile") is None:
-            print(f"ok: v{sysid} cleared")
         else:
-            print(f"ok: v{sysid} {state['profile']} (hash {str(state.get('hash'))[:12]})")
+            print(verdict(sysid, state))
     return worst
 
 
@@ -217,6 +227,27 @@ def cmd_apply(args: argparse.Namespace) -> int:
 def cmd_clear(args: argparse.Namespace) -> int:
     topics = [f"{PREFIX}/+/attack/state", ONLINE_TOPIC]
     return _session(args, topics, lambda c, b, a: _request(c, b, a, args, None))
+
+
+def cmd_mode(args: argparse.Namespace) -> int:
+    """``mode on|bypass``: switch the attack stage, keeping its profile."""
+    topics = [f"{PREFIX}/+/attack/mode/state", f"{PREFIX}/+/attack/state", ONLINE_TOPIC]
+    return _session(args, topics, lambda c, b, a: _request(
+        c, b, a, args, {"mode": args.mode}, "attack/mode", lambda s, st: f"ok: v{s} attack {st.get('mode')}"
+    ))  # fmt: skip
+
+
+def cmd_secure(args: argparse.Namespace) -> int:
+    """``secure NAME|off``: choose the secure stage's estimator (with --param k=v), or bypass it."""
+    body: dict[str, Any] = {"estimator": args.estimator}
+    if args.param:
+        body["params"] = profiles_cli._params(args.param)
+
+    def verdict(sysid: int, state: dict[str, Any]) -> str:
+        return f"ok: v{sysid} secure {state.get('estimator') or 'off'}"
+
+    topics = [f"{PREFIX}/+/secure/state", f"{PREFIX}/+/attack/state", ONLINE_TOPIC]
+    return _session(args, topics, lambda c, b, a: _request(c, b, a, args, body, "secure", verdict))
 
 
 def _since(epoch_s: Any) -> str:
@@ -288,7 +319,10 @@ def cmd_status(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     return profiles_cli.main(
-        argv, live_handlers={"apply": cmd_apply, "clear": cmd_clear, "status": cmd_status}, live_options=add_options
+        argv,
+        live_handlers={"apply": cmd_apply, "clear": cmd_clear, "status": cmd_status, "mode": cmd_mode,
+                       "secure": cmd_secure},
+        live_options=add_options,
     )
 
 

@@ -57,6 +57,16 @@ async def _request(
     raise AssertionError("unreachable")
 
 
+async def _cli(*args: str) -> tuple[int, str]:
+    """Run ``secuav-attack`` without blocking the loop (the stream keeps flowing meanwhile)."""
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "mitm_proxy.attack_cli", *args,
+        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
+    )  # fmt: skip
+    out, _ = await asyncio.wait_for(proc.communicate(), 60)
+    return proc.returncode or 0, out.decode()
+
+
 async def _settled(seen: list[int], value: int) -> None:
     """Wait until the ground receives ``value`` several times in a row (event-based, generous timeout)."""
     async with asyncio.timeout(20):
@@ -92,6 +102,15 @@ async def test_bypass_and_on_over_mqtt_reach_the_wire(tmp_path: Path, udp_port: 
                                      "secuav/v1/attack/mode/state", lambda b: b.get("request_id") == "r2")  # fmt: skip
                 assert ack["ok"] and ack["mode"] == "on", ack
                 await _settled(seen, TRUE_CM + 100)
+            # The same from the command line: secuav-attack mode / secure, answering with the proxy's verdict.
+            code, out = await _cli("mode", "bypass", "--broker", f"mqtt://127.0.0.1:{broker_port}")
+            assert code == 0 and "ok: v1 attack bypass" in out, out
+            await _settled(seen, TRUE_CM)
+            code, out = await _cli("mode", "on", "--vehicle", "1", "--broker", f"mqtt://127.0.0.1:{broker_port}")
+            assert code == 0 and "ok: v1 attack on" in out, out
+            await _settled(seen, TRUE_CM + 100)
+            code, out = await _cli("secure", "secekf", "--broker", f"mqtt://127.0.0.1:{broker_port}")
+            assert code == 1 and "secure stage is not available" in out, out  # no scenario, no secure stage: said why
         finally:
             stop.set()
             await streamer
@@ -104,3 +123,35 @@ async def test_bypass_and_on_over_mqtt_reach_the_wire(tmp_path: Path, udp_port: 
                     proxy.kill()
                 log.close()
     assert proxy.returncode in (0, 130), (tmp_path / "proxy.log").read_text()
+
+
+async def test_secuav_attack_secure_switches_the_estimator(tmp_path: Path, udp_port: Callable[[], int]) -> None:
+    broker_port = free_tcp_port()
+    async with EmbeddedBroker(port=broker_port):
+        log = open(tmp_path / "proxy.log", "wb")  # noqa: SIM115 - the child writes to it until it stops
+        proxy = subprocess.Popen(
+            [sys.executable, "-m", "mitm_proxy", "--broker", f"mqtt://127.0.0.1:{broker_port}", "--scenario",
+             "wall_hover", "--vehicle", f"udpin://127.0.0.1:{udp_port()}", "--ground", f"udpout://127.0.0.1:{udp_port()}"],
+            stdout=log, stderr=subprocess.STDOUT,
+        )  # fmt: skip
+        try:
+            broker = f"mqtt://127.0.0.1:{broker_port}"
+            async with aiomqtt.Client("127.0.0.1", broker_port) as client:  # the proxy is up once it says so
+                await client.subscribe("secuav/v1/secure/state")
+                async with asyncio.timeout(30):
+                    async for _message in client.messages:
+                        break
+            code, out = await _cli("secure", "secekf", "--param", "alpha=0.001", "--broker", broker, "--timeout", "20")
+            assert code == 0 and "ok: v1 secure secekf" in out, out
+            code, out = await _cli("secure", "nosuch", "--broker", broker, "--timeout", "20")
+            assert code == 1 and "nosuch" in out, out
+            code, out = await _cli("secure", "off", "--broker", broker, "--timeout", "20")
+            assert code == 0 and "ok: v1 secure off" in out, out
+        finally:
+            proxy.send_signal(signal.SIGINT)
+            try:
+                proxy.wait(10)
+            finally:
+                if proxy.poll() is None:
+                    proxy.kill()
+                log.close()
