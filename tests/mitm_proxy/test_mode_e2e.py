@@ -17,6 +17,7 @@ import subprocess
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import IO
 
 import aiomqtt
 import pytest
@@ -67,6 +68,17 @@ async def _cli(*args: str) -> tuple[int, str]:
     return proc.returncode or 0, out.decode()
 
 
+def _stop(proxy: subprocess.Popen[bytes], log: IO[bytes]) -> None:
+    """SIGINT (what Ctrl-C sends), then kill if it does not stop within 10 s."""
+    proxy.send_signal(signal.SIGINT)
+    try:
+        proxy.wait(10)
+    finally:
+        if proxy.poll() is None:
+            proxy.kill()
+        log.close()
+
+
 async def _settled(seen: list[int], value: int) -> None:
     """Wait until the ground receives ``value`` several times in a row (event-based, generous timeout)."""
     async with asyncio.timeout(20):
@@ -115,13 +127,7 @@ async def test_bypass_and_on_over_mqtt_reach_the_wire(tmp_path: Path, udp_port: 
             stop.set()
             await streamer
             gcs.close()
-            proxy.send_signal(signal.SIGINT)
-            try:
-                proxy.wait(10)
-            finally:
-                if proxy.poll() is None:
-                    proxy.kill()
-                log.close()
+            _stop(proxy, log)
     assert proxy.returncode in (0, 130), (tmp_path / "proxy.log").read_text()
 
 
@@ -148,10 +154,4 @@ async def test_secuav_attack_secure_switches_the_estimator(tmp_path: Path, udp_p
             code, out = await _cli("secure", "off", "--broker", broker, "--timeout", "20")
             assert code == 0 and "ok: v1 secure off" in out, out
         finally:
-            proxy.send_signal(signal.SIGINT)
-            try:
-                proxy.wait(10)
-            finally:
-                if proxy.poll() is None:
-                    proxy.kill()
-                log.close()
+            _stop(proxy, log)
