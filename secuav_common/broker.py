@@ -95,7 +95,12 @@ class EmbeddedBroker:
 
     async def __aenter__(self) -> EmbeddedBroker:
         if port_in_use(self.address.host, self.address.port):
-            log.info("broker.reuse", extra={"url": self.address.url})
+            # Someone else's broker (another proxy's, a mosquitto): it works, but it may not be the one meant.
+            log.warning("broker.reuse", extra={
+                "url": self.address.url,
+                "detail": "a broker already listens here and is used as it is (not started by this process); "
+                "give --broker mqtt://HOST:PORT to choose one",
+            })  # fmt: skip
             return self
         from amqtt.broker import Broker  # imported lazily: only the embedding process needs it
 
