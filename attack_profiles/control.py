@@ -11,8 +11,8 @@ from __future__ import annotations
 from typing import Any
 
 from attack_profiles import library
-from attack_profiles.profile import Profile, parse_profile
-from secuav_common.loading import InputError, parse_document
+from attack_profiles.profile import Profile, parse_profile, parse_text
+from secuav_common.loading import InputError
 
 
 def profile_from_payload(payload: Any, source: str = "<mqtt>") -> Profile | None:
@@ -34,5 +34,5 @@ def profile_from_payload(payload: Any, source: str = "<mqtt>") -> Profile | None
                 raise InputError(source, "parameters", params, "must be a mapping of parameter name to value")
             return library.load(name, **{str(k): v for k, v in params.items()})
     if isinstance(payload, str | bytes):  # profile text inside the message: from the network, so no YAML aliases
-        payload = parse_document(payload, source, trusted=False)
+        payload = parse_text(payload, source, trusted=False)
     return parse_profile(payload, source)

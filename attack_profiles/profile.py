@@ -192,15 +192,15 @@ def check_profile(profile: Profile, source: str) -> None:
         rule.check(f"rules[{i}]", source)
 
 
-def _parse_text(text: str | bytes, source: str) -> Any:
+def parse_text(text: str | bytes, source: str, trusted: bool = True) -> Any:
     """JSON first (what MQTT carries; the YAML parser mangles JSON's surrogate-pair escapes
-    of characters beyond the BMP), YAML for everything else."""
+    of characters beyond the BMP), YAML for everything else (without aliases unless ``trusted``)."""
     if len(text) <= MAX_DOCUMENT_BYTES:
         try:
             return json.loads(text)
         except (ValueError, RecursionError):
             pass
-    return parse_document(text, source)
+    return parse_document(text, source, trusted=trusted)
 
 
 def parse_profile(data_or_text: Any, source: str = "<mqtt>", **params: Any) -> Profile:
@@ -208,7 +208,7 @@ def parse_profile(data_or_text: Any, source: str = "<mqtt>", **params: Any) -> P
 
     ``params`` override the profile's declared parameters. Raises ``InputError``.
     """
-    data = _parse_text(data_or_text, source) if isinstance(data_or_text, str | bytes) else data_or_text
+    data = parse_text(data_or_text, source) if isinstance(data_or_text, str | bytes) else data_or_text
     if data is None:
         raise InputError(source, "profile", None, "document is empty")
     if not isinstance(data, dict):
