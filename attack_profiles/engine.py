@@ -12,7 +12,7 @@ carry (the names of clamped fields are in ``Action.clamped``).
 
 Offline (the evaluation)::
 
-    z_attacked = engine.apply_array(t_s, z_m, sensor_ids, true_pos_ned_m=truth)
+    z_attacked = engine.apply_array(t_s, z_m, sensor_ids, position_ned_m=attacker_view)
 
 in physical units, NaN for a missing or dropped sample.
 
@@ -37,8 +37,6 @@ import numpy as np
 from attack_profiles.action import FORWARD, Action, Direction
 from attack_profiles.primitives import PRIMITIVES, Context, Primitive, Sample
 from attack_profiles.primitives.base import Vec3
-from attack_profiles.primitives.coordinated_spoof import CoordinatedSpoof, CoordinatedSpoofRule
-from attack_profiles.primitives.garbage import GarbageRule
 from attack_profiles.profile import Profile
 from attack_profiles.rule import IdRange, RuleBase
 from attack_profiles.units import EPOCH_USEC_THRESHOLD, LOCAL_POSITION_NED_ID, MESSAGES, FieldSpec, MessageSpec
@@ -88,6 +86,7 @@ class _Compiled:
     ids: frozenset[int] | None
     field: str | None  # None: frame-level primitive
     spec: FieldSpec | None
+    needs_position: bool
 
 
 @dataclass(slots=True)
@@ -98,7 +97,47 @@ class _State:
     active_at_s: float | None = None
     vehicle_time_s: dict[int, float] = field(default_factory=dict)  # sysid -> last time_boot seen
     positions: dict[int, Vec3] = field(default_factory=dict)  # sysid -> last LOCAL_POSITION_NED
+    chains: dict[tuple[int, int, int, Direction], tuple[_Compiled, ...]] = field(default_factory=dict)
     sample: Sample = field(default_factory=Sample)
+
+
+_MAX_CACHED_CHAINS = 4096
+
+
+def _run_chain(rules: Sequence[_Compiled], s: Sample, working: dict[str, float]) -> tuple[int, ...]:
+    """The one rule chain, for live frames and offline arrays alike.
+
+    Each rule in its window rewrites ``s`` (its field's value comes from
+    ``working``, what earlier rules left, else from the message); stateful
+    rules also see samples outside their window. A drop ends the chain.
+    ``working`` ends with every rewritten field; returns the indices of the
+    rules that acted.
+    """
+    acted: list[int] = []
+    t = s.t_s
+    for r in rules:
+        tau = r.window.tau(t)
+        if tau is None and not r.stateful:
+            continue
+        name = r.field
+        if name is not None:
+            value = working.get(name)
+            if value is None:
+                raw = s.fields.get(name)
+                if raw is None:
+                    continue
+                value = raw * r.spec.scale  # type: ignore[union-attr]
+            s.value = value
+        r.prim.apply(s, tau)
+        if tau is None:
+            continue
+        if not acted or acted[-1] != r.index:  # frame-scope garbage is one rule over many fields
+            acted.append(r.index)
+        if s.drop:
+            break
+        if name is not None:
+            working[name] = s.value
+    return tuple(acted)
 
 
 def _rule_seed(profile_seed: int, engine_seed: int, index: int | str) -> int:
@@ -121,12 +160,12 @@ class Engine:
             self._anchors = {ANCHOR_BASE + k: pos for k, pos in scenario.anchor_positions().items()}
             self._noise = _noise_by_id(scenario)
         for i, rule in enumerate(profile.rules):
-            if isinstance(rule, CoordinatedSpoofRule) and scenario is None:
+            if rule.needs_anchors and scenario is None:
                 raise InputError(profile.source, f"rules[{i}].kind", rule.kind, "needs a scenario for anchor positions")
         self._msg_by_id: dict[int, MessageSpec] = {
             MESSAGES[r.target.message].msgid: MESSAGES[r.target.message] for r in profile.rules
         }
-        self._tracks_position = any(isinstance(r, CoordinatedSpoofRule) for r in profile.rules)
+        self._tracks_position = any(r.needs_position for r in profile.rules)
         ids = set(self._msg_by_id)
         if self._tracks_position:
             ids.add(LOCAL_POSITION_NED_ID)
@@ -151,7 +190,7 @@ class Engine:
                 continue
             vehicles = [v for v in scenario.vehicles if target.sysid in (None, v.sysid)]
             present = set().union(*(_sensor_ids(v, anchors) for v in vehicles))
-            if isinstance(rule, CoordinatedSpoofRule):
+            if rule.needs_anchors:
                 present &= anchors
             if isinstance(target.sensor_id, IdRange):
                 # A range is a shorthand ("the anchor links 10-49"): it must reach some sensor, not all.
@@ -193,58 +232,33 @@ class Engine:
         ``now_s`` is the caller's monotonic clock; the first call activates the
         profile if :meth:`activate` was not called.
         """
-        rules = self._live.plans.get(msgid)
-        if rules is None:
-            return FORWARD
         st = self._live
+        if msgid not in st.plans:
+            return FORWARD
         if self._tracks_position and msgid == LOCAL_POSITION_NED_ID:
             x, y, z = fields.get("x"), fields.get("y"), fields.get("z")
             if x is not None and y is not None and z is not None:
                 st.positions[sysid] = (x, y, z)
-            if not rules:
-                return FORWARD
-        msg = self._msg_by_id[msgid]
-        t = self._clock(st, now_s, msg, fields, sysid)
+        msg = self._msg_by_id.get(msgid)
+        if msg is None:  # watched only for the position
+            return FORWARD
+        t = self._clock(st, now_s, msg, fields, sysid)  # first: it also tracks the vehicle's clock
         if t is None:
             return FORWARD
         sid = fields.get(msg.id_field, -1) if msg.id_field is not None else -1
+        rules = self._chain(st, msgid, sysid, sid, direction)
+        if not rules:
+            return FORWARD
         s = st.sample
-        s.t_s = t
-        s.key = (sysid, sid)
-        s.drop = False
-        s.delay_s = 0.0
-        s.offline = False
-        s.true_pos_ned_m = st.positions.get(sysid)
+        s.t_s, s.key, s.fields = t, (sysid, sid), fields
+        s.drop, s.delay_s, s.offline = False, 0.0, False
+        s.position_ned_m = st.positions.get(sysid)
         working: dict[str, float] = {}
-        acted: list[int] = []
-        for r in rules:
-            if (r.sysid is not None and r.sysid != sysid) or direction not in r.directions:
-                continue
-            if r.ids is not None and sid not in r.ids:
-                continue
-            tau = r.window.tau(t)
-            if tau is None and not r.stateful:
-                continue
-            name = r.field
-            if name is not None:
-                if name in working:
-                    s.value = working[name]
-                else:
-                    raw = fields.get(name)
-                    if raw is None:
-                        continue
-                    s.value = raw * r.spec.scale  # type: ignore[union-attr]
-            r.prim.apply(s, tau)
-            if tau is None:
-                continue
-            if not acted or acted[-1] != r.index:  # frame-scope garbage is one rule over many fields
-                acted.append(r.index)
-            if s.drop:
-                return Action(drop=True, rules=tuple(acted))
-            if name is not None:
-                working[name] = s.value
+        acted = _run_chain(rules, s, working)
         if not acted:
             return FORWARD
+        if s.drop:
+            return Action(drop=True, rules=acted)
         changed: dict[str, Any] = {}
         clamped: list[str] = []
         for name, value in working.items():
@@ -253,7 +267,21 @@ class Engine:
                 clamped.append(name)
             if wire != fields.get(name):
                 changed[name] = wire
-        return Action(fields=changed or None, delay_s=s.delay_s, rules=tuple(acted), clamped=tuple(clamped))
+        return Action(fields=changed or None, delay_s=s.delay_s, rules=acted, clamped=tuple(clamped))
+
+    def _chain(self, st: _State, msgid: int, sysid: int, sid: int, direction: Direction) -> tuple[_Compiled, ...]:
+        """The rules that target this (message, vehicle, sensor, direction), in profile order; cached."""
+        key = (msgid, sysid, sid, direction)
+        rules = st.chains.get(key)
+        if rules is None:
+            rules = tuple(
+                r
+                for r in st.plans.get(msgid, ())
+                if r.sysid in (None, sysid) and direction in r.directions and (r.ids is None or sid in r.ids)
+            )
+            if len(st.chains) < _MAX_CACHED_CHAINS:  # ids come off the wire: bound what they can make us keep
+                st.chains[key] = rules
+        return rules
 
     def _clock(self, st: _State, now_s: float, msg: MessageSpec, fields: Mapping[str, Any], sysid: int) -> float | None:
         if self.profile.clock == "activation":
@@ -284,7 +312,7 @@ class Engine:
         field: str = "current_distance",
         *,
         sysid: int = 1,
-        true_pos_ned_m: np.ndarray | None = None,
+        position_ned_m: np.ndarray | None = None,
     ) -> np.ndarray:
         """Attack an offline stream: ``z[k, j]`` is sensor ``sensor_ids[j]`` at ``t_s[k]``.
 
@@ -292,7 +320,8 @@ class Engine:
         and stays missing; a dropped sample becomes NaN; delay shows the value
         from ``delay_s`` earlier. ``t_s`` is read on the profile's clock
         (seconds since activation, or vehicle boot time) and must not decrease.
-        ``true_pos_ned_m`` (T x 3) is needed by a coordinated spoof. Only rules
+        ``position_ned_m`` (T x 3) is the vehicle's position as the attacker
+        reads it, needed by rules that use it (the coordinated spoof). Only rules
         targeting ``message``/``field`` (or whole frames of ``message``) on the
         downlink of ``sysid`` apply. Values are clamped to the wire range.
         """
@@ -307,42 +336,36 @@ class Engine:
             raise ValueError(f"{message}.{field} is not an attackable field")
         spec = msg.fields[field]
         st = self._new_state()
-        chain = [
-            r
-            for r in st.plans.get(msg.msgid, ())
-            if r.field in (None, field) and Direction.DOWNLINK in r.directions and r.sysid in (None, sysid)
+        columns = [
+            tuple(
+                r for r in self._chain(st, msg.msgid, sysid, int(sid), Direction.DOWNLINK) if r.field in (None, field)
+            )
+            for sid in sensor_ids
         ]
-        columns = [[r for r in chain if r.ids is None or sid in r.ids] for sid in sensor_ids]
         positions: np.ndarray | None = None
-        for r in chain:
-            if isinstance(r.prim, CoordinatedSpoof) and any(r in col for col in columns):
-                if true_pos_ned_m is None:
-                    raise ValueError(f"rules[{r.index}] (coordinated_spoof) needs true_pos_ned_m")
-                positions = np.asarray(true_pos_ned_m, dtype=float)
+        for r in (r for col in columns for r in col):
+            if r.needs_position:
+                if position_ned_m is None:
+                    raise ValueError(f"rules[{r.index}] ({r.prim.kind}) needs position_ned_m")
+                positions = np.asarray(position_ned_m, dtype=float)
                 if positions.shape != (t_arr.size, 3):
-                    raise ValueError(f"true_pos_ned_m must be T x 3, got {positions.shape}")
+                    raise ValueError(f"position_ned_m must be T x 3, got {positions.shape}")
         lo, hi = sorted((spec.lo * spec.scale, spec.hi * spec.scale))
         out = z_arr.copy()
         s = st.sample
         s.offline = True
         for k in range(t_arr.size):
-            t = float(t_arr[k])
-            s.t_s = t
-            s.true_pos_ned_m = None if positions is None else tuple(positions[k])  # type: ignore[assignment]
+            s.t_s = float(t_arr[k])
+            s.position_ned_m = None if positions is None else tuple(positions[k])  # type: ignore[assignment]
             for j, rules in enumerate(columns):
                 value = z_arr[k, j]
                 if not rules or value != value:  # untargeted, or no sample: nothing to attack
                     continue
                 s.key = (sysid, int(sensor_ids[j]))
+                s.fields = {field: float(value) / spec.scale}
                 s.value = float(value)
-                s.drop = False
-                for r in rules:
-                    tau = r.window.tau(t)
-                    if tau is None and not r.stateful:
-                        continue
-                    r.prim.apply(s, tau)
-                    if tau is not None and s.drop:
-                        break
+                s.drop, s.delay_s = False, 0.0
+                _run_chain(rules, s, {field: s.value})
                 v = s.value
                 out[k, j] = math.nan if s.drop else (v if v != v else min(max(v, lo), hi))
         return out
@@ -354,7 +377,7 @@ class Engine:
         for i, rule in enumerate(self.profile.rules):
             msg = MESSAGES[rule.target.message]
             cls = PRIMITIVES[rule.kind]  # type: ignore[attr-defined]
-            for name in _fields_of(rule, msg):
+            for name in rule.fields_of(msg):
                 spec = msg.fields[name] if name is not None else None
                 seed = _rule_seed(self.profile.seed, self.seed, i if name is None else f"{i}.{name}")
                 ctx = Context(i, spec, random.Random(seed), self._anchors, self._noise)
@@ -369,18 +392,10 @@ class Engine:
                         ids=rule.target.sensor_ids(),
                         field=name,
                         spec=spec,
+                        needs_position=rule.needs_position,
                     )
                 )
         return _State(plans={mid: tuple(rs) for mid, rs in plans.items()})
-
-
-def _fields_of(rule: RuleBase, msg: MessageSpec) -> list[str | None]:
-    """The fields one rule acts on: none for frame-level primitives, all for frame-scope garbage."""
-    if rule.frame_level:
-        return [None]
-    if isinstance(rule, GarbageRule) and rule.scope == "frame":
-        return list(msg.fields)
-    return [rule.target.field or msg.default_field]
 
 
 def _noise_by_id(scenario: Scenario) -> dict[int, float]:

@@ -12,7 +12,7 @@ from typing import Annotated, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from attack_profiles.units import MESSAGE_NAMES, MESSAGES
+from attack_profiles.units import MESSAGE_NAMES, MESSAGES, MessageSpec
 from secuav_common.loading import (
     _MISSING,  # the "no value to show" sentinel InputError understands
     InputError,
@@ -88,6 +88,16 @@ class RuleBase(Strict):
 
     # Drop, delay and intermittent act on whole frames: their target needs no field.
     frame_level: ClassVar[bool] = False
+    # The sample must carry the vehicle's position as the attacker reads it (the engine then
+    # decodes LOCAL_POSITION_NED too), or the scenario's anchor positions.
+    needs_position: ClassVar[bool] = False
+    needs_anchors: ClassVar[bool] = False
+
+    def fields_of(self, msg: MessageSpec) -> list[str | None]:
+        """The fields this rule rewrites (``[None]``: the frame as a whole)."""
+        if self.frame_level:
+            return [None]
+        return [self.target.field or msg.default_field]
 
     def check(self, where: str, source: str) -> None:
         """What the schema cannot express; raises ``InputError`` at ``where`` (``rules[2]``).

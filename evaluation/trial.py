@@ -84,10 +84,8 @@ def _attack(engine: Engine | None, stream: VehicleStream, z: np.ndarray, ids: li
     # A "vehicle" clock profile reads the boot clock; the live coordinated spoof tracks LOCAL_POSITION_NED,
     # so it sees what an attacker on the link reads: a log's LOCAL_POSITION_NED, a flight's vehicle estimate.
     t_s = stream.t_s + stream.boot_offset_s if engine.profile.clock == "vehicle" else stream.t_s
-    position = next(
-        p for p in (stream.local_ned_m, stream.attacker_view_ned_m, stream.truth_ned_m) if p is not None
-    )
-    return engine.apply_array(t_s, z, ids, sysid=stream.sysid, true_pos_ned_m=position)
+    position = next(p for p in (stream.local_ned_m, stream.attacker_view_ned_m, stream.truth_ned_m) if p is not None)
+    return engine.apply_array(t_s, z, ids, sysid=stream.sysid, position_ned_m=position)
 
 
 def _attacked_height(engine: Engine | None, stream: VehicleStream) -> VehicleStream:

@@ -3,7 +3,12 @@
 A primitive is built from its validated rule and a :class:`Context` (the field
 it acts on, its own seeded random generator, anchor positions) and has one
 method, :meth:`Primitive.apply`, that rewrites a :class:`Sample` in place: the
-value in physical units, or the frame-level decisions (drop, delay). The engine
+value in physical units, or the frame-level decisions (drop, delay). The sample
+also carries what an attacker on the link can know at that moment: the time,
+the sample's key, the vehicle's position as last read from its own
+LOCAL_POSITION_NED (rules whose model sets ``needs_position``) and the other
+fields of the message. The live path and the offline arrays fill the sample the
+same way and run the same rule chain, so a new attack is one module. The engine
 calls it only for samples the rule's target matches, with ``tau_s`` = time since
 the current window occurrence began, or ``None`` outside the window; only
 ``stateful`` primitives are called outside their window, to watch the clean stream.
@@ -13,8 +18,9 @@ from __future__ import annotations
 
 import random
 from abc import ABC, abstractmethod
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import ClassVar
+from typing import Any, ClassVar
 
 from attack_profiles.rule import RuleBase
 from attack_profiles.units import FieldSpec
@@ -37,7 +43,9 @@ class Sample:
     drop: bool = False
     delay_s: float = 0.0
     offline: bool = False  # True on the array path: delay acts on the value stream
-    true_pos_ned_m: Vec3 | None = None  # for the coordinated spoof
+    # What the attacker on the link knows besides the value (the engine fills these for every rule):
+    position_ned_m: Vec3 | None = None  # the vehicle's position as the attacker last read it, None before
+    fields: Mapping[str, Any] = field(default_factory=dict)  # the message's fields as received (wire units)
 
 
 @dataclass(frozen=True, slots=True)

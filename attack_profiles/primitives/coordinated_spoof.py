@@ -15,16 +15,16 @@ a residual test over the attacked links alone sees nothing wrong: the hardest
 case for a secure estimator, which has to notice that the attacked set and the
 clean set disagree.
 
-Where ``p_true`` comes from: on the array path the caller passes the true
-trajectory; on the live path the engine uses the latest LOCAL_POSITION_NED the
-same vehicle sent (the position an attacker on the link can read). Until one has
-been seen, ranges pass unchanged.
+Where ``p_true`` comes from: the sample's ``position_ned_m``, the position the
+attacker reads (live: the latest LOCAL_POSITION_NED the same vehicle sent; on
+the array path what the caller passes, the vehicle's own estimate in the
+evaluation). Until one has been seen, ranges pass unchanged.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Literal
 
 from pydantic import Field
 
@@ -41,6 +41,8 @@ class CoordinatedSpoofRule(RuleBase):
     """Target: DISTANCE_SENSOR ``current_distance`` of anchor links (ids 10-49). Needs a scenario."""
 
     kind: Literal["coordinated_spoof"] = "coordinated_spoof"
+    needs_position: ClassVar[bool] = True
+    needs_anchors: ClassVar[bool] = True
     velocity_ned_m_s: Vec3Param = (0.0, 0.0, 0.0)
     offset_ned_m: Vec3Param = (0.0, 0.0, 0.0)
     mirror_ne_m: tuple[tuple[Finite, Finite], tuple[Finite, Finite]] | None = None
@@ -89,7 +91,7 @@ class CoordinatedSpoof(Primitive):
         return (n + o[0] + v[0] * tau_s, e + o[1] + v[1] * tau_s, true_pos[2] + o[2] + v[2] * tau_s)
 
     def apply(self, s: Sample, tau_s: float | None) -> None:
-        true_pos = s.true_pos_ned_m
+        true_pos = s.position_ned_m
         anchor = self.anchors.get(s.key[1])
         if true_pos is None or anchor is None:
             return

@@ -6,6 +6,7 @@ from typing import Literal
 
 from attack_profiles.primitives.base import Context, Primitive, Sample
 from attack_profiles.rule import RuleBase
+from attack_profiles.units import MessageSpec
 from secuav_common.loading import InputError
 
 
@@ -17,6 +18,9 @@ class GarbageRule(RuleBase):
 
     kind: Literal["garbage"] = "garbage"
     scope: Literal["field", "frame"] = "field"
+
+    def fields_of(self, msg: MessageSpec) -> list[str | None]:
+        return list(msg.fields) if self.scope == "frame" else super().fields_of(msg)
 
     def check(self, where: str, source: str) -> None:
         super().check(where, source)

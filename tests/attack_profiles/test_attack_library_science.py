@@ -30,7 +30,7 @@ def _clean(scenario: Scenario, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarr
 def _offsets(name: str, scenario: Scenario, seconds: float = 30.0, **params: object) -> tuple[np.ndarray, np.ndarray]:
     t, z, pos = _clean(scenario, int(seconds * RATE_HZ))
     engine = Engine(library.load(name, **params), seed=1, scenario=scenario)
-    return t, engine.apply_array(t, z, IDS, true_pos_ned_m=pos) - z
+    return t, engine.apply_array(t, z, IDS, position_ned_m=pos) - z
 
 
 def _col(sid: int) -> int:

@@ -142,7 +142,7 @@ def test_coordinated_spoof_offline_ranges_match_the_fake_position() -> None:
     truth = np.column_stack([2.5 + 0.01 * t, 2.5 - 0.02 * t, np.full_like(t, -2.5)])
     ids = list(range(10, 18))
     clean = np.column_stack([np.linalg.norm(truth - ANCHOR_POS[i], axis=1) for i in ids])
-    out = engine.apply_array(t, clean, ids, true_pos_ned_m=truth)
+    out = engine.apply_array(t, clean, ids, position_ned_m=truth)
     tau = np.clip(t - 1.0, 0.0, None)[:, None]
     fake = truth + np.array([0.3, 0.0, 0.0]) + np.array([0.1, -0.2, 0.05]) * tau
     active = t >= 1.0
@@ -158,7 +158,7 @@ def test_coordinated_spoof_attacked_links_agree_with_one_position() -> None:
     truth = np.array([[2.5, 2.5, -2.5]] * 2)
     ids = [11, 14]
     clean = np.array([[np.linalg.norm(truth[0] - ANCHOR_POS[i]) for i in ids]] * 2)
-    out = engine.apply_array(np.array([0.0, 6.0]), clean, ids, true_pos_ned_m=truth)
+    out = engine.apply_array(np.array([0.0, 6.0]), clean, ids, position_ned_m=truth)
     fake = truth[1] + np.array([0.2, 0.1, 0.0]) * 5.0
     residual = out[1] - np.array([np.linalg.norm(fake - ANCHOR_POS[i]) for i in ids])
     assert np.max(np.abs(residual)) < 1e-9
@@ -180,7 +180,7 @@ def test_coordinated_spoof_live_uses_the_latest_local_position() -> None:
 
 def test_coordinated_spoof_offline_needs_the_truth() -> None:
     engine = _spoof_engine((0.1, 0.0, 0.0))
-    with pytest.raises(ValueError, match=r"rules\[0\].*true_pos_ned_m"):
+    with pytest.raises(ValueError, match=r"rules\[0\].*position_ned_m"):
         engine.apply_array(np.zeros(2), np.ones((2, 1)), [11])
     # A stream the rule does not target does not need it.
     np.testing.assert_array_equal(engine.apply_array(np.zeros(2), np.ones((2, 1)), [12]), np.ones((2, 1)))
