@@ -24,7 +24,9 @@ paper's algorithm box was not readable):
    buffer of the last T steps.
 3. ``E_j = sum of eps_j over the window``; filter j is consistent when
    ``E_j <= chi2.ppf(1 - alpha, sum of dof)``. The winner is the consistent
-   filter with the most readings, then the smallest E_j. No consistent filter:
+   filter with the most readings, then the least accumulated evidence (a
+   CUSUM of each step's standardised NIS, ``subsets.Evidence``, never cleared),
+   then the smallest E_j. No consistent filter:
    alarm (more than s attacked), output the least-bad filter.
 4. Attacked sensors: those outside the winner's subset whose own normalised
    residual ``(z_i - h_i(x))^2 / (sigma_i^2 + H_i P H_i^T)`` exceeds
@@ -32,7 +34,8 @@ paper's algorithm box was not readable):
    fewer are attacked).
 5. Hygiene: inconsistent filters (they fed on attacked data) are re-seeded from
    the winner with an inflated covariance and their window cleared, so they can
-   win again when the attack moves.
+   win again when the attack moves; their accumulated evidence stays, so a
+   re-seeded filter does not win a tie against one that was clean all along.
 Defaults: alpha = 0.01, T = 10 steps, q = 0.5 m/s^2. The full bank runs every
 step (no "lazy" single-filter mode), vectorised over subsets.
 """
@@ -44,7 +47,7 @@ import numpy as np
 from estimators.bank import EkfBank, subset_masks
 from estimators.base import Estimate, Estimator
 from estimators.models import Known, MeasurementModel
-from estimators.subsets import choose, secure_snapshot
+from estimators.subsets import Evidence, choose, secure_snapshot
 
 
 class SecEkf(Estimator):
@@ -62,6 +65,7 @@ class SecEkf(Estimator):
         n_sub = self.masks.shape[0]
         self.nis_buf = np.zeros((self.window, n_sub))
         self.dof_buf = np.zeros((self.window, n_sub), dtype=int)
+        self.evidence = Evidence(n_sub)
         self.k = 0
         self.P0 = P0
         self.started = x0 is not None
@@ -94,7 +98,8 @@ class SecEkf(Estimator):
         self.dof_buf[slot] = dof
         stat, total_dof = self.nis_buf.sum(axis=0), self.dof_buf.sum(axis=0)
         finite = np.all(np.isfinite(self.bank.x), axis=1)
-        choice = choose(stat, total_dof, dof, finite & (dof >= self.model.min_sensors), self.chi)
+        evidence = self.evidence.update(np.where(finite, nis, 0.0), np.where(finite, dof, 0))
+        choice = choose(stat, total_dof, dof, finite & (dof >= self.model.min_sensors), self.chi, evidence)
         j = choice.index
         x, P = self.bank.x[j].copy(), self.bank.P[j].copy()
         use = self.masks[j] & avail

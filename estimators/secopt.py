@@ -21,7 +21,9 @@ per-sensor chi2_1 test. The winner's snapshot fix and its covariance
 ``(H^T W H)^-1`` then update a constant-velocity Kalman filter (position as a
 direct measurement), which supplies velocity and smooths the output.
 
-RECON: the subset enumeration, the window sum of snapshot costs (we drop the
+Ties among consistent subsets go to the one with the least accumulated
+evidence against it (``subsets.Evidence``, a CUSUM of each step's standardised
+cost that is never cleared). RECON: the subset enumeration, the window sum of snapshot costs (we drop the
 process-model coupling between the window's states that a full window MLE
 would have; the dynamics enter only through the output filter), the dof, the
 selection rule and the output filter are ours. Defaults: T = 5, n_iter = 6,
@@ -35,7 +37,7 @@ import numpy as np
 from estimators.bank import gauss_newton, inv_small, subset_masks
 from estimators.base import Estimate, Estimator
 from estimators.models import Known, MeasurementModel
-from estimators.subsets import choose
+from estimators.subsets import Evidence, choose
 
 
 class SecOpt(Estimator):
@@ -51,6 +53,7 @@ class SecOpt(Estimator):
         n_sub = self.masks.shape[0]
         self.cost_buf = np.zeros((self.window, n_sub))
         self.dof_buf = np.zeros((self.window, n_sub), dtype=int)
+        self.evidence = Evidence(n_sub)
         self.k = 0
         self.P0 = P0
         self.x = None if x0 is None else x0.copy()
@@ -71,7 +74,8 @@ class SecOpt(Estimator):
         self.cost_buf[slot] = fits.cost
         self.dof_buf[slot] = np.maximum(fits.n_used - d, 0)
         valid = fits.n_used >= model.min_sensors
-        choice = choose(self.cost_buf.sum(axis=0), self.dof_buf.sum(axis=0), fits.n_used, valid, self.chi)
+        evidence = self.evidence.update(np.where(valid, fits.cost, 0.0), np.where(valid, self.dof_buf[slot], 0))
+        choice = choose(self.cost_buf.sum(axis=0), self.dof_buf.sum(axis=0), fits.n_used, valid, self.chi, evidence)
         j = choice.index
         use = self.masks[j] & avail
         if not valid[j]:
@@ -79,7 +83,8 @@ class SecOpt(Estimator):
         pos, cov = fits.pos[j], inv_small(fits.info[j])
         self._fuse(pos, cov)
         attacked = self._flag_resid(fits.raw[j], fits.jac[j], cov) & (~use | choice.alarm)
-        # Subsets that were inconsistent over the window are judged on fresh data after a change.
+        # Subsets that were inconsistent over the window are judged on fresh data after a change
+        # (their accumulated evidence stays).
         self.cost_buf[:, ~choice.passing & ~choice.alarm] = 0.0
         self.dof_buf[:, ~choice.passing & ~choice.alarm] = 0
         return self._estimate(t_s, self.x[:d], self.x[d:], self.P, attacked, choice.alarm, use)

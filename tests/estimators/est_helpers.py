@@ -36,6 +36,7 @@ class Run:
     alarm: np.ndarray  # per step
     attacked: list[frozenset[int]]
     offsets: np.ndarray  # (steps, p) what the attacker added
+    used: list[frozenset[int]]  # per step, the readings the estimate rests on
 
 
 def run_stream(
@@ -45,7 +46,7 @@ def run_stream(
     rng = np.random.default_rng(seed)
     est = estimators.create(name, model, **params)
     clean = model.h(truth)
-    errs, alarms, attacked, offsets = [], [], [], []
+    errs, alarms, attacked, offsets, used = [], [], [], [], []
     for k in range(steps):
         z = clean + model.sigma_m * rng.standard_normal(model.p)
         off = attack(k, z)
@@ -54,4 +55,5 @@ def run_stream(
         alarms.append(out.alarm)
         attacked.append(out.attacked)
         offsets.append(off)
-    return Run(np.array(errs), np.array(alarms), attacked, np.array(offsets))
+        used.append(frozenset(out.used))
+    return Run(np.array(errs), np.array(alarms), attacked, np.array(offsets), used)
