@@ -27,11 +27,10 @@ Defaults: T = 10, alpha = 0.01; refuses more than ``max_subsets`` subsets.
 from __future__ import annotations
 
 import itertools
-import math
 
 import numpy as np
 
-from estimators.bank import GnResult, gauss_newton, inv_small, subset_masks
+from estimators.bank import GnResult, gauss_newton, inv_small
 from estimators.base import Estimate, Estimator
 from estimators.models import Known, MeasurementModel
 
@@ -52,17 +51,17 @@ class L0Exact(Estimator):
 
     @classmethod
     def applies_to(cls, model: MeasurementModel) -> bool:
-        return math.comb(model.p, model.p - model.max_correctable) <= 500
+        return model.honest_subsets(model.max_correctable).shape[0] <= 500
 
     def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:
         model = self.model
-        count = math.comb(model.p, model.p - self.s)
+        self.masks = model.honest_subsets(self.s)
+        count = self.masks.shape[0]
         if count > self.max_subsets:
             raise ValueError(
-                f"l0: {count} subsets of {model.p - self.s} out of {model.p} sensors exceed "
+                f"l0: {count} subsets of {model.p} sensors (tolerance {self.s}) exceed "
                 f"max_subsets={self.max_subsets}; it is the exact reference for small p"
             )
-        self.masks = subset_masks(model.p, model.p - self.s)
         n_sub = self.masks.shape[0]
         self.cost_buf = np.zeros((self.window, n_sub))
         self.dof_buf = np.zeros((self.window, n_sub), dtype=int)

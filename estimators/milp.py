@@ -126,8 +126,10 @@ class Milp(Estimator):
             blocks += [fit, cap]
             var_lo[base + d + p : base + per] = 0.0
             var_hi[base + d + p : base + per] = np.where(have, self.k_sigma * model.sigma_m, 0.0)  # bounded noise
-        budget = np.zeros((1, n))
-        budget[0, :p] = 1.0  # at most s attacked
+        groups = model.tolerance_groups(self.s)
+        budget = np.zeros((len(groups), n))
+        for row, (idx, _) in enumerate(groups):
+            budget[row, list(idx)] = 1.0  # at most the group's tolerance attacked
         cost = np.zeros(n)
         cost[:p] = 1.0
         for t in range(steps):
@@ -135,7 +137,8 @@ class Milp(Estimator):
             cost[base + d + p : base + per] = self.eps / model.sigma_m
         integrality = np.zeros(n)
         integrality[:p] = 1
-        constraints = [LinearConstraint(np.vstack(blocks), lo, hi), LinearConstraint(budget, 0.0, float(self.s))]
+        caps = [float(k) for _, k in groups]
+        constraints = [LinearConstraint(np.vstack(blocks), lo, hi), LinearConstraint(budget, 0.0, caps)]
         res = milp(cost, constraints=constraints, integrality=integrality, bounds=Bounds(var_lo, var_hi),
                    options={"time_limit": 1.0})  # fmt: skip
         if res.x is None:

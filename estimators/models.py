@@ -14,16 +14,43 @@ gives none.
 ``max_correctable`` is the largest number of attacked sensors for which the
 state can still be recovered from one snapshot (2s-sparse observability, notes
 §1.4): deleting any 2s sensors must leave ``min_sensors`` of them.
+
+``honest_subsets(s)`` lists the hypotheses the subset estimators weigh ("these
+readings are honest"): every way of leaving ``s`` readings out, or, for a model
+made of groups that each must survive on its own (the formation: each vehicle's
+anchors), ``s`` out of each group.
 """
 
 from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
 Known = float | np.ndarray | None
+
+
+Groups = tuple[tuple[tuple[int, ...], int], ...]  # (reading indices, how many of them may be left out)
+
+
+@lru_cache(maxsize=64)
+def leave_out_masks(p: int, groups: Groups) -> np.ndarray:
+    """Every subset that leaves out exactly k readings of each group (k its tolerance: any k liars are covered by some
+    row); a group no larger than its tolerance (the single inter-vehicle range) is tried both with and without each
+    reading. Readings in no group are always kept. Read-only ``(n, p)`` boolean array."""
+    per_group = []
+    for idx, k in groups:
+        sizes = [k] if len(idx) > k else range(len(idx) + 1)
+        per_group.append([c for size in sizes for c in itertools.combinations(idx, size)])
+    rows = list(itertools.product(*per_group))
+    out = np.ones((len(rows), p), dtype=bool)
+    for j, dropped in enumerate(rows):
+        for idx in dropped:
+            out[j, list(idx)] = False
+    out.setflags(write=False)
+    return out
 
 
 def _as_sigma(sigma_m: float | np.ndarray | list[float], p: int) -> np.ndarray:
@@ -61,6 +88,20 @@ class MeasurementModel:
     @property
     def default_known(self) -> Known:
         return None
+
+    def tolerance_groups(self, s: int) -> Groups:
+        """Who may lie: by default any ``s`` of the p readings."""
+        return ((tuple(range(self.p)), s),)
+
+    def within_tolerance(self, left_out: np.ndarray, s: int) -> bool:
+        """Whether leaving out the readings marked in ``left_out`` stays within tolerance ``s`` in every group."""
+        return all(int(left_out[list(idx)].sum()) <= min(k, len(idx)) for idx, k in self.tolerance_groups(s))
+
+    def honest_subsets(self, s: int) -> np.ndarray:
+        """The subset hypotheses for tolerance ``s`` (module docstring), ``(n, p)`` bool."""
+        if not 0 <= s < self.p:
+            raise ValueError(f"tolerance s={s} outside 0..{self.p - 1}")
+        return leave_out_masks(self.p, self.tolerance_groups(s))
 
     def h(self, pos: np.ndarray, known: Known = None) -> np.ndarray:
         raise NotImplementedError
@@ -396,6 +437,12 @@ class TwoVehicleRanges(MeasurementModel):
     def max_correctable(self) -> int:
         # Each vehicle alone must survive: its anchors obey the 2-D bound (notes §1.4).
         return max(0, (self.n_anchors - 3) // 2)
+
+    def tolerance_groups(self, s: int) -> Groups:
+        """Each vehicle its own tolerance: ``s`` of its anchor links may lie, and so may the inter-vehicle
+        range; not ``s`` over all readings, which would let two lying links of one vehicle use up the other's."""
+        q = self.n_anchors
+        return ((tuple(range(q)), s), (tuple(range(q, 2 * q)), s), ((2 * q,), min(s, 1)))
 
     @property
     def default_known(self) -> Known:

@@ -21,7 +21,9 @@ Each step:
    chi2.ppf(1 - alpha, 1) (sigma_i^2 + tau^2)}``, tau the hypothesis' own
    uncertainty (default 2 sigma). Best: the largest consensus, ties by the
    smallest sum of normalised squared residuals over it.
-3. Need ``|I| >= available - s``; otherwise alarm and coast on the prediction.
+3. I may leave out at most s of the available readings (of each vehicle, in
+   the formation: ``model.within_tolerance``); otherwise alarm and coast on
+   the prediction.
 4. Refit by least squares on I and judge every reading by its studentised
    residual against the refit (a reading in I by its deleted residual
    ``r_i^2 / (sigma_i^2 (1 - l_i))``, leverage ``l_i = H_i C H_i^T / sigma_i^2``;
@@ -110,7 +112,9 @@ class Rarse(Estimator):
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
         """Backward elimination on the consensus; None if the kept set is inconsistent as a whole."""
         use = use0.copy()
-        for round_ in range(self.s + 1):  # one reading per round
+        avail = ~np.isnan(z)
+        rounds = sum(k for _, k in self.model.tolerance_groups(self.s)) + 1
+        for round_ in range(rounds):  # one reading per round
             first = at_pos if round_ == 0 else None
             refit = gauss_newton(self.model, z, use[None, :], pos, known, n_iter, at_start=first)
             pos, cov = refit.pos[0], inv_small(refit.info[0])
@@ -119,6 +123,9 @@ class Rarse(Estimator):
             if t[worst] <= self.gate1 or use.sum() <= need:
                 break
             use[worst] = False
+            if not self.model.within_tolerance(avail & ~use, self.s):  # each group may lose only its tolerance
+                use[worst] = True
+                break
         # The kept set must be consistent as a whole (a loose consensus can gather a fake position).
         if refit.cost[0] > self.chi(int(use.sum()) - self.model.d):
             return None
@@ -140,13 +147,13 @@ class Rarse(Estimator):
         inlier = t <= gate
         at_pred = model.h_jac(start, known) if self.started else None  # shared by three users below
         drifting = self._drifting(z, at_pred) if at_pred is not None else np.zeros(model.p, dtype=bool)
-        if 0 < drifting.sum() <= self.s:
+        if drifting.any() and model.within_tolerance(drifting, self.s):
             inlier &= ~drifting
         size = inlier.sum(axis=1)
         score = np.where(inlier, t, 0.0).sum(axis=1) - 1e12 * size
         best = int(np.argmin(score))
-        need = max(int(avail.sum()) - self.s, model.min_sensors)
-        if size[best] < need:
+        need = model.min_sensors
+        if size[best] < need or not model.within_tolerance(avail & ~inlier[best], self.s):
             return self._coast(t_s, z, known)
         # Refit from the prediction (one Gauss-Newton step is noise-level exact there); if that
         # fails, or on a cold start, iterate from the winning hypothesis instead.

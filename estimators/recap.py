@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimators.bank import EkfBank, gauss_newton, inv_small, solve_small, subset_masks
+from estimators.bank import EkfBank, gauss_newton, inv_small, solve_small
 from estimators.base import Estimate, Estimator
 from estimators.drift import InnovationWindow
 from estimators.models import Known, MeasurementModel
@@ -69,7 +69,7 @@ class Recap(Estimator):
         super().__init__(model, **params)
 
     def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:
-        self.masks = subset_masks(self.model.p, self.model.p - self.s)
+        self.masks = self.model.honest_subsets(self.s)
         self.ekf = EkfBank(self.model, np.ones((1, self.model.p), dtype=bool), self.q_mps2)
         self.P0 = P0
         self.started = x0 is not None
@@ -105,7 +105,7 @@ class Recap(Estimator):
         at_pred = self.model.h_jac(x_pred[:d], known)
         flagged = self._flag_resid(z - at_pred[0], at_pred[1], P_pred[:d, :d])
         drifting = self.drift.update(z, at_pred[0], at_pred[1], P_pred[:d, :d], self.model.sigma_m)
-        if not 0 < drifting.sum() <= self.s:
+        if not drifting.any() or not self.model.within_tolerance(drifting, self.s):
             drifting[:] = False  # more than s drifting: the prediction itself has moved, not s sensors
         if self.s <= 1 and (flagged | drifting).sum() <= self.s:
             omega, alarm = avail & ~(flagged | drifting), False

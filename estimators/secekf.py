@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimators.bank import EkfBank, subset_masks
+from estimators.bank import EkfBank
 from estimators.base import Estimate, Estimator
 from estimators.models import Known, MeasurementModel
 from estimators.subsets import Evidence, choose, secure_snapshot
@@ -60,7 +60,7 @@ class SecEkf(Estimator):
         super().__init__(model, **params)
 
     def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:
-        self.masks = subset_masks(self.model.p, self.model.p - self.s)
+        self.masks = self.model.honest_subsets(self.s)
         self.bank = EkfBank(self.model, self.masks, self.q_mps2)
         n_sub = self.masks.shape[0]
         self.nis_buf = np.zeros((self.window, n_sub))

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimators.bank import gauss_newton, inv_small, subset_masks
+from estimators.bank import gauss_newton, inv_small
 from estimators.base import Estimate, Estimator
 from estimators.models import Known, MeasurementModel
 from estimators.subsets import Evidence, choose
@@ -49,7 +49,7 @@ class SecOpt(Estimator):
         super().__init__(model, **params)
 
     def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:
-        self.masks = subset_masks(self.model.p, self.model.p - self.s)
+        self.masks = self.model.honest_subsets(self.s)
         n_sub = self.masks.shape[0]
         self.cost_buf = np.zeros((self.window, n_sub))
         self.dof_buf = np.zeros((self.window, n_sub), dtype=int)

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimators.bank import Chi2Table, GnResult, gauss_newton, inv_small, subset_masks
+from estimators.bank import Chi2Table, GnResult, gauss_newton, inv_small
 from estimators.models import Known, MeasurementModel
 
 
@@ -107,7 +107,7 @@ def secure_snapshot(
     Statistic: the subset's weighted residual sum of squares, chi-square with
     (readings used - d) dof when the subset is clean.
     """
-    masks = subset_masks(model.p, model.p - s)
+    masks = model.honest_subsets(s)
     fits = gauss_newton(model, z, masks, model.initial_pos() if start is None else start, known, n_iter)
     dof = fits.n_used - model.d
     choice = choose(fits.cost, dof, fits.n_used, fits.n_used >= model.min_sensors, chi)

@@ -98,10 +98,22 @@ def test_moving_leg_type_b_in_parallel_gives_the_serial_numbers(tmp_path: Path) 
     assert rarse["attack_detection_recall"] >= 0.9
 
 
-def test_over_attacked_formation_alarms_instead_of_guessing(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """type-a hits links 11 and 14 of both vehicles: 4 attacked readings, the two-vehicle model tolerates 2."""
-    args = ("--scenario", "formation", "--attack", "type-a", "--estimators", "ekf,secekf", "--duration", "8")
+def test_each_formation_vehicle_tolerates_two_of_its_own_anchors(tmp_path: Path) -> None:
+    """type-a hits links 11 and 14 of both vehicles: 4 attacked readings of 17, but only two of each vehicle's eight,
+    which each vehicle's geometry corrects on its own."""
+    args = ("--scenario", "formation", "--attack", "type-a", "--estimators", "ekf,secekf,rarse", "--duration", "8")
     assert main(["--trials", "1", "--out", str(tmp_path), *args]) == 0
+    rows = json.loads((tmp_path / "results.json").read_text())["estimators"]
+    for name in ("secekf", "rarse"):
+        assert rows[name]["estimate_fraction"] == 1.0 and rows[name]["rmse_m"] < 0.1, name
+    assert rows["ekf"]["rmse_m"] > 0.2  # confidently wrong
+
+
+def test_over_attacked_formation_alarms_instead_of_guessing(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Three of each vehicle's anchor links lie: beyond what either vehicle can correct."""
+    args = ("--scenario", "formation", "--attack", "anchors-overwhelm", "--estimators", "ekf,secekf", "--duration", "8")
+    params = ("--param", "links=[10,11,12]", "--param", "start_s=0")
+    assert main(["--trials", "1", "--out", str(tmp_path), *args, *params]) == 0
     assert "refuses to guess" in capsys.readouterr().out
     rows = json.loads((tmp_path / "results.json").read_text())["estimators"]
     assert rows["secekf"]["alarm_fraction"] == 1.0 and rows["secekf"]["estimate_fraction"] == 0.0

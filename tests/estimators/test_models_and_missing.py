@@ -178,3 +178,19 @@ def test_closed_form_trilateration_is_exact_on_clean_ranges() -> None:
     area = np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
     proper = area > 1e-6  # collinear triples have no unique fix
     np.testing.assert_allclose(fixes[proper], np.broadcast_to(truth, fixes[proper].shape), atol=1e-9)
+
+
+def test_the_formation_gives_each_vehicle_its_own_tolerance() -> None:
+    from estimators.scenario_models import anchor_model, two_vehicle_model
+    from secuav_common.scenario import load_scenario
+
+    single = anchor_model(load_scenario("anchors8"))
+    assert single.honest_subsets(2).shape == (28, 8)  # C(8, 2): any two of the eight may lie
+    pair = two_vehicle_model(load_scenario("formation"))
+    masks = pair.honest_subsets(2)
+    # Two of each vehicle's eight anchor links, and the inter-vehicle range in or out: 28 * 28 * 2.
+    assert masks.shape == (1568, 17)
+    left_out = ~masks
+    assert (left_out[:, :8].sum(axis=1) == 2).all() and (left_out[:, 8:16].sum(axis=1) == 2).all()
+    assert pair.within_tolerance(np.array([1, 1, 0, 0, 0, 0, 0, 0, 1, 1, 0, 0, 0, 0, 0, 0, 1], dtype=bool), 2)
+    assert not pair.within_tolerance(np.array([1, 1, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0], dtype=bool), 2)
