@@ -32,7 +32,7 @@ from attack_profiles import library
 from attack_profiles.profile import Profile, load_profile
 from mitm_proxy.attack import AttackStage
 from mitm_proxy.config import ProxyConfig
-from mitm_proxy.endpoints import DEFAULT_TAKEOVER_S, UdpEndpoint
+from mitm_proxy.endpoints import DEFAULT_TAKEOVER_S, BaseEndpoint, make_endpoint
 from mitm_proxy.link import GroundRouter, Link
 from mitm_proxy.pipeline import Pipeline
 from mitm_proxy.recording import Recorder
@@ -87,7 +87,7 @@ class Proxy:
             self.stats[link.sysid] = LinkStats(link.sysid)
             if self.scenario is not None:  # the estimators' models come from the scenario
                 self.secure[link.sysid] = SecureSlot(link.sysid, self.scenario, secure, self._publish_estimate, peers)
-        self.endpoints: dict[Endpoint, UdpEndpoint] = {}
+        self.endpoints: dict[Endpoint, BaseEndpoint] = {}
         self.links: list[Link] = []
         self.routers: list[GroundRouter] = []
         self.recorders: list[Recorder] = []
@@ -148,9 +148,9 @@ class Proxy:
                     role = "vehicle" if ep == link_cfg.vehicle_endpoint else "ground"
                     # A vehicle streams tens of frames a second: a second of silence means it restarted.
                     takeover = VEHICLE_TAKEOVER_S if role == "vehicle" else DEFAULT_TAKEOVER_S
-                    udp = UdpEndpoint(ep, f"{role}:{ep.port}", takeover)
-                    self.endpoints[ep] = udp
-                    await udp.open()
+                    opened = make_endpoint(ep, f"{role}:{ep.port}", role, takeover)
+                    self.endpoints[ep] = opened
+                    await opened.open()
         users: dict[Endpoint, list[Link]] = {}
         for i, link_cfg in enumerate(self.config.links):
             sysid = link_cfg.sysid

@@ -37,7 +37,8 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="URL",
         action="append",
         default=[],
-        help="vehicle side: udpin://HOST:PORT (default udpin://127.0.0.1:14560+i); "
+        help="vehicle side (default udpin://127.0.0.1:14560+i): udpin://, udpout://, tcp:// (e.g. ArduPilot SITL's "
+        "tcp://127.0.0.1:5760), tcpin://HOST:PORT or serial:///dev/ttyUSB0?baud=57600; "
         "once (link i uses PORT+i) or once per link",
     )
     p.add_argument(
@@ -45,7 +46,9 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="URL",
         action="append",
         default=[],
-        help="ground side, repeatable (default udpout://127.0.0.1:14540+i and :14550); "
+        help="ground side, repeatable (default udpout://127.0.0.1:14540+i and :14550); same schemes as --vehicle; "
+        "rules as URL options: ?listen_only=true, ?deny=DISTANCE_SENSOR,ATTITUDE (downlink), ?deny_up=, ?allow=, "
+        "?allow_sysid=, ?deny_compid_up=... (see docs/routes.md); "
         "with several links each URL is one endpoint shared by all",
     )
     p.add_argument(

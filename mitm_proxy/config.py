@@ -32,8 +32,17 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
-def _check_url(url: str) -> str:
-    parse_endpoint(url)  # ValueError names the bad part; pydantic turns it into a field error
+def _check_url(url: str, role: str = "ground") -> str:
+    ep = parse_endpoint(url)  # ValueError names the bad part; pydantic turns it into a field error
+    if ep.options:  # routing rules (mitm_proxy.routes); checked here so a bad one stops the start
+        from mitm_proxy.routes import rules_from_options
+
+        try:
+            rules = rules_from_options(ep)
+        except InputError as exc:
+            raise ValueError(exc.reason + (f" (got {exc.value!r})" if exc.value is not None else "")) from None
+        if rules.listen_only and role == "vehicle":
+            raise ValueError(f"{url}: listen_only is for ground endpoints (a vehicle endpoint must reach the vehicle)")
     return url
 
 
@@ -41,13 +50,14 @@ class LinkConfig(_Strict):
     """One vehicle: where its frames come from and which ground endpoints get them."""
 
     sysid: int = Field(ge=1, le=255)
-    vehicle: str = Field(description="udpin://HOST:PORT (listen) or udpout://HOST:PORT (fixed peer)")
+    vehicle: str = Field(description="udpin://, udpout://, tcp://, tcpin://HOST:PORT or serial:///DEV?baud=N; "
+                         "routing rules as URL options (?deny=..., see mitm_proxy.routes)")
     ground: list[str] = Field(min_length=1)
 
     @field_validator("vehicle")
     @classmethod
     def _vehicle_url(cls, v: str) -> str:
-        return _check_url(v)
+        return _check_url(v, "vehicle")
 
     @field_validator("ground")
     @classmethod
@@ -166,7 +176,9 @@ def override_endpoints(cfg: ProxyConfig, vehicle: list[str], ground: list[str], 
             base = eps[0]
             if base.port + n - 1 > 65535:
                 raise InputError(source, "vehicle", vehicle[0], f"port + {n - 1} links exceeds 65535")
-            eps = [Endpoint(base.mode, base.host, base.port + i) for i in range(n)]
+            if base.mode == "serial":
+                raise InputError(source, "vehicle", vehicle[0], f"one serial port cannot serve {n} links")
+            eps = [Endpoint(base.mode, base.host, base.port + i, base.options) for i in range(n)]
         if len(eps) != n:
             raise InputError(source, "vehicle", vehicle, f"give it once or once per link ({n})")
         links = [ln.model_copy(update={"vehicle": str(ep)}) for ln, ep in zip(links, eps, strict=True)]

@@ -1,4 +1,4 @@
-"""asyncio UDP endpoints as MAVSDK and mavlink-router write them.
+"""The proxy's endpoints: UDP here, TCP and serial in :mod:`mitm_proxy.streams`.
 
 ``udpin://HOST:PORT`` binds HOST:PORT and answers the peer that sent first. A
 datagram from anyone else is a stranger's: counted, logged once, dropped, so
@@ -7,20 +7,25 @@ commands. Only when the pinned peer has been silent for ``takeover_after_s``
 does a new sender take its place (a vehicle that restarts from a new source
 port is followed that way, and said so once);
 ``udpout://HOST:PORT`` sends to a fixed peer from an ephemeral port and takes
-replies on that port (how MAVSDK, QGroundControl and MAVProxy answer).
+replies on that port (how MAVSDK, QGroundControl and MAVProxy answer). A host
+name (``localhost``, a compose service name) is resolved once when the
+endpoint opens, IPv4 first; replies are compared with the resolved address.
 
-An endpoint only moves datagrams: the link above it decides what they mean.
-Faults of the network never close it: an ICMP "port unreachable" from a ground
-client that went away (reported by the kernel on the standard loop, see
-:func:`_reports_icmp`), a send buffer that fills, a datagram before anyone has
-sent to a ``udpin`` endpoint. Each is counted and logged once per kind (and
-again only after the endpoint saw it clear), never per datagram.
+An endpoint only moves bytes and applies its routing rules
+(:mod:`mitm_proxy.routes`: allow/deny lists, listen-only): the link above it
+decides what frames mean. Faults of the network never close it: an ICMP "port
+unreachable" from a ground client that went away (reported by the kernel on
+the standard loop, see :func:`_reports_icmp`), a send buffer that fills, a
+datagram before anyone has sent to a ``udpin`` endpoint. Each is counted and
+logged once per kind (and again only after the endpoint saw it clear), never
+per datagram.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import ipaddress
 import logging
 import math
 import socket
@@ -28,62 +33,167 @@ import sys
 import time
 from collections import Counter
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Literal
 
+from mitm_proxy import frames
+from mitm_proxy.routes import NO_RULES, EndpointGate, EndpointRules
 from secuav_common.urls import Endpoint
 
 log = logging.getLogger(__name__)
 
-Receiver = Callable[[bytes, float], None]  # datagram, monotonic arrival time
+Receiver = Callable[[bytes, float], None]  # bytes, monotonic arrival time
+Role = Literal["vehicle", "ground"]
 RCVBUF_BYTES = 4 * 1024 * 1024  # ride out bursts (the kernel may cap it at net.core.rmem_max)
 MAX_PENDING_SEND_BYTES = 1024 * 1024  # beyond this, drop rather than queue without bound
-_LOOPBACK_HOSTS = {"127.0.0.1", "localhost"}
 IP_RECVERR = 11  # Linux <linux/in.h>; Python's socket module does not export it
 # A udpin peer silent this long may be replaced by a new sender: a vehicle streams many times a
 # second and a GCS sends its HEARTBEAT at 1 Hz, so only a peer that has really gone is replaced.
 DEFAULT_TAKEOVER_S = 3.0
 
 
-class UdpEndpoint(asyncio.DatagramProtocol):
-    """One UDP socket of the proxy.
+class EndpointError(OSError):
+    """An endpoint could not open; the message names the endpoint, its URL and why."""
 
-    ``receiver`` is called with each datagram and its arrival time: the link's
+
+class BaseEndpoint:
+    """What every endpoint has: counters, fault bookkeeping and its routing rules.
+
+    ``receiver`` is called with what arrives and its arrival time: the link's
     (vehicle side) or a :class:`~mitm_proxy.link.GroundRouter` (ground side,
     which hands uplink to the link or links that share the endpoint).
-    ``faults`` counts what went wrong by kind; ``rx``/``tx`` count datagrams.
+    ``faults`` counts what went wrong by kind; ``rx``/``tx`` count reads and
+    writes; ``gate.dropped`` what the rules dropped.
     """
 
-    def __init__(self, endpoint: Endpoint, name: str, takeover_after_s: float = DEFAULT_TAKEOVER_S) -> None:
+    def __init__(self, endpoint: Endpoint, name: str, role: Role = "ground", rules: EndpointRules = NO_RULES) -> None:
         self.endpoint = endpoint
         self.name = name
-        self.takeover_after_s = takeover_after_s
-        self._peer_heard_s = -math.inf  # when the pinned peer last sent
+        self.role = role
+        self.gate = EndpointGate(rules)
+        self._inbound: Literal["down", "up"] = "down" if role == "vehicle" else "up"
+        self._outbound: Literal["down", "up"] = "up" if role == "vehicle" else "down"
         self.receiver: Receiver | None = None
-        self.peer: tuple[str, int] | None = endpoint.address if endpoint.mode == "udpout" else None
-        self._udpin = endpoint.mode == "udpin"
+        self.peer: Any = None
         self.local: tuple[str, int] | None = None
         self.rx = 0
         self.tx = 0
         self.faults: Counter[str] = Counter()
         self._reported: set[str] = set()
+        self._gated_in = self._gated_out = False
+        self.set_rules(rules)
+
+    def set_rules(self, rules: EndpointRules) -> None:
+        """Replace the routing rules (runtime route changes); counters stay."""
+        if rules.listen_only and self.role != "ground":
+            raise ValueError(f"{self.name}: listen_only is for ground endpoints")
+        self.gate.replace(rules)
+        self._gated_in = rules.listen_only or self.gate.filters(self._inbound)
+        self._gated_out = self.gate.filters(self._outbound)
+
+    async def open(self) -> BaseEndpoint:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def _write(self, data: bytes) -> bool:
+        raise NotImplementedError
+
+    def send(self, data: bytes) -> bool:
+        """Send towards the peer(s) what the rules let through; False (counted) when nothing left."""
+        if self._gated_out:
+            data = self.gate.apply(data, self._outbound)
+            if not data:
+                return False
+        return self._write(data)
+
+    def _deliver(self, data: bytes, rx_s: float) -> None:
+        """Hand what arrived to the receiver, through the inbound rules."""
+        if self._gated_in:
+            if self.gate.listen_only:
+                self._drop_listen_only(data)
+                return
+            data = self.gate.apply(data, self._inbound)
+            if not data:
+                return
+        if self.receiver is not None:
+            self.receiver(data, rx_s)
+
+    def _drop_listen_only(self, data: bytes) -> None:
+        """Count (per message: what did the spectator try to send?) and log once; nothing goes on."""
+        from mitm_proxy.codec import MAVLINK_MAP
+
+        split = frames.split(data)
+        for header, _frame in split.frames:
+            cls = MAVLINK_MAP.get(header.msgid)
+            name = cls.msgname if cls is not None else str(header.msgid)
+            self.gate.dropped["up.listen_only"] += 1
+            if name not in self.gate.listen_only_sent:  # each kind of message logged once
+                log.warning("endpoint.listen_only_drop", extra={"endpoint": self.name, "url": str(self.endpoint),
+                                                                "dropped": name})  # fmt: skip
+            self.gate.listen_only_sent[name] += 1
+
+    # -- fault bookkeeping ---------------------------------------------------------
+    def _fault(self, kind: str, detail: str) -> None:
+        self.faults[kind] += 1
+        if kind not in self._reported:
+            self._reported.add(kind)
+            log.warning(f"endpoint.{kind}", extra={"endpoint": self.name, "url": str(self.endpoint), "detail": detail})
+
+    def _cleared(self, kind: str) -> None:
+        """The condition ended: log it again if it comes back."""
+        if self._reported:
+            self._reported.discard(kind)
+
+    def snapshot(self) -> dict[str, Any]:
+        out = {"url": str(self.endpoint), "peer": _fmt(self.peer), "rx": self.rx, "tx": self.tx,
+               "faults": dict(self.faults)}  # fmt: skip
+        if self.gate.dropped or not self.gate.rules.empty:
+            out["dropped"] = dict(self.gate.dropped)
+        if self.gate.listen_only_sent:
+            out["listen_only_dropped"] = dict(self.gate.listen_only_sent)
+        return out
+
+
+class UdpEndpoint(BaseEndpoint, asyncio.DatagramProtocol):
+    """One UDP socket of the proxy (``udpin`` or ``udpout``, see the module doc)."""
+
+    def __init__(
+        self,
+        endpoint: Endpoint,
+        name: str,
+        takeover_after_s: float = DEFAULT_TAKEOVER_S,
+        role: Role = "ground",
+        rules: EndpointRules = NO_RULES,
+    ) -> None:
+        super().__init__(endpoint, name, role, rules)
+        self.takeover_after_s = takeover_after_s
+        self._peer_heard_s = -math.inf  # when the pinned peer last sent
+        self._udpin = endpoint.mode == "udpin"
         self._transport: asyncio.DatagramTransport | None = None
 
     async def open(self) -> UdpEndpoint:
-        """Bind the socket (``udpin``: HOST:PORT; ``udpout``: an ephemeral port). ``OSError`` if taken."""
+        """Resolve, then bind (``udpin``: HOST:PORT; ``udpout``: an ephemeral port); :class:`EndpointError` if not."""
         loop = asyncio.get_running_loop()
         ep = self.endpoint
-        if ep.mode == "udpin":
-            local: tuple[str, int] = (ep.host, ep.port)
+        family, addr = await resolve(ep, socket.SOCK_DGRAM, self.name)
+        if self._udpin:
+            local: tuple[Any, ...] = addr
         else:  # reply port on the interface that reaches the peer; loopback peers get a loopback socket
-            local = ("127.0.0.1" if ep.host in _LOOPBACK_HOSTS else "", 0)
-        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            self.peer = addr
+            loopback = ipaddress.ip_address(addr[0]).is_loopback
+            local = (("::1" if family == socket.AF_INET6 else "127.0.0.1") if loopback else "", 0)
+        sock = socket.socket(family, socket.SOCK_DGRAM)
         try:
             with contextlib.suppress(OSError):
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF_BYTES)
-            if _reports_icmp(loop):
+            if _reports_icmp(loop) and family == socket.AF_INET:
                 with contextlib.suppress(OSError):
                     sock.setsockopt(socket.IPPROTO_IP, IP_RECVERR, 1)
-            sock.bind(local)
+            try:
+                sock.bind(local)
+            except OSError as exc:
+                raise EndpointError(exc.errno, f"{self.name} {ep}: cannot bind {_fmt(local)}: {exc.strerror}") from exc
             sock.setblocking(False)
             transport, _ = await loop.create_datagram_endpoint(lambda: self, sock=sock)
         except BaseException:
@@ -106,25 +216,26 @@ class UdpEndpoint(asyncio.DatagramProtocol):
         if addr == self.peer:  # the common case, both modes: the peer we know
             self._peer_heard_s = rx_s
         elif self._udpin:
-            peer = (addr[0], addr[1])
             if self.peer is not None:
                 if rx_s - self._peer_heard_s < self.takeover_after_s:
-                    self._fault("stranger", f"datagram from {_fmt(peer)} while {_fmt(self.peer)} is the peer")
+                    self._fault("stranger", f"datagram from {_fmt(addr)} while {_fmt(self.peer)} is the peer")
                     return
                 self.faults["peer_changed"] += 1
                 log.info("endpoint.peer_changed",
-                         extra={"endpoint": self.name, "old": _fmt(self.peer), "new": _fmt(peer)})  # fmt: skip
+                         extra={"endpoint": self.name, "old": _fmt(self.peer), "new": _fmt(addr)})  # fmt: skip
                 self._reported.discard("stranger")  # a new peer: strangers to it are news again
-            self.peer = peer
+            self.peer = addr
             self._peer_heard_s = rx_s
-        elif not _same_host_port(addr, self.endpoint):
+        else:
             # A udpout socket is not connected (so a vanished peer cannot make it unusable); anything
             # from a stranger is not ours to forward.
             self._fault("foreign_sender", f"datagram from {_fmt(addr)}, expected {_fmt(self.peer)}")
             return
         if self._reported:
             self._reported.discard("unreachable")
-        if self.receiver is not None:
+        if self._gated_in:
+            self._deliver(data, rx_s)
+        elif self.receiver is not None:
             self.receiver(data, rx_s)
 
     def error_received(self, exc: Exception) -> None:
@@ -137,7 +248,7 @@ class UdpEndpoint(asyncio.DatagramProtocol):
             log.warning("endpoint.lost", extra={"endpoint": self.name, "error": str(exc)})
 
     # -- sending -----------------------------------------------------------------
-    def send(self, data: bytes) -> bool:
+    def _write(self, data: bytes) -> bool:
         """Send one datagram to the peer; False (counted) when there is none yet or the socket is backed up."""
         transport = self._transport
         if transport is None or self.peer is None:
@@ -152,20 +263,35 @@ class UdpEndpoint(asyncio.DatagramProtocol):
             self._fault("socket_error", str(exc))
             return False
         self.tx += 1
-        if self._reported:
-            self._reported.discard("no_peer")  # the condition ended: log it again if it comes back
+        self._cleared("no_peer")
         return True
 
-    # -- fault bookkeeping ---------------------------------------------------------
-    def _fault(self, kind: str, detail: str) -> None:
-        self.faults[kind] += 1
-        if kind not in self._reported:
-            self._reported.add(kind)
-            log.warning(f"endpoint.{kind}", extra={"endpoint": self.name, "url": str(self.endpoint), "detail": detail})
 
-    def snapshot(self) -> dict[str, Any]:
-        return {"url": str(self.endpoint), "peer": _fmt(self.peer), "rx": self.rx, "tx": self.tx,
-                "faults": dict(self.faults)}  # fmt: skip
+async def resolve(ep: Endpoint, socktype: int, name: str) -> tuple[int, tuple[Any, ...]]:
+    """``(family, sockaddr)`` of the endpoint's host, IPv4 first (``localhost`` is 127.0.0.1, not ::1)."""
+    loop = asyncio.get_running_loop()
+    try:
+        infos = await loop.getaddrinfo(ep.host, ep.port, type=socktype)
+    except socket.gaierror as exc:
+        raise EndpointError(exc.errno, f"{name} {ep}: cannot resolve {ep.host!r}: {exc.strerror}") from None
+    infos.sort(key=lambda info: info[0] != socket.AF_INET)
+    family, _, _, _, addr = infos[0]
+    return family, tuple(addr)
+
+
+def make_endpoint(
+    ep: Endpoint, name: str, role: Role, takeover_after_s: float = DEFAULT_TAKEOVER_S, source: str = "<url>"
+) -> BaseEndpoint:
+    """The endpoint class for the URL's scheme, with the rules its options give."""
+    from mitm_proxy.routes import rules_from_options
+
+    rules = rules_from_options(ep, source)
+    if ep.mode in ("udpin", "udpout"):
+        return UdpEndpoint(ep, name, takeover_after_s, role, rules)
+    from mitm_proxy import streams
+
+    cls = {"tcp": streams.TcpClientEndpoint, "tcpin": streams.TcpServerEndpoint, "serial": streams.SerialEndpoint}
+    return cls[ep.mode](ep, name, role, rules)
 
 
 def _reports_icmp(loop: asyncio.AbstractEventLoop) -> bool:
@@ -177,11 +303,6 @@ def _reports_icmp(loop: asyncio.AbstractEventLoop) -> bool:
     peer stays silent; forwarding is the same either way.
     """
     return type(loop).__module__.startswith("asyncio") and sys.platform == "linux"
-
-
-def _same_host_port(addr: Any, ep: Endpoint) -> bool:
-    """``localhost`` in the URL still matches replies from 127.0.0.1."""
-    return bool(addr[1] == ep.port and ep.host in _LOOPBACK_HOSTS and addr[0] in _LOOPBACK_HOSTS)
 
 
 def _fmt(addr: Any) -> str:

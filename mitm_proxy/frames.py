@@ -269,3 +269,69 @@ def split(datagram: bytes) -> SplitResult:
     if skip_start >= 0:
         out.bad.append(skip_reason)
     return out
+
+
+MAX_FRAME_LEN: Final = V2_HEADER_LEN + 255 + CRC_LEN + SIGNATURE_LEN
+
+
+class StreamFramer:
+    """Cut a byte stream (TCP, serial) into chunks that end where a frame ends.
+
+    A stream may cut a frame anywhere; the splitter above works on whole
+    datagrams. ``feed`` returns everything up to the first frame that has not
+    fully arrived and holds that tail (never more than one frame,
+    two frames' worth) for the next call. The walk resynchronises like
+    :func:`split` (a candidate that fails its check moves on by one byte), so
+    garbage only delays the frames behind it until enough bytes arrived to
+    show it is garbage.
+    """
+
+    __slots__ = ("_held",)
+
+    def __init__(self) -> None:
+        self._held = b""
+
+    @property
+    def held(self) -> int:
+        return len(self._held)
+
+    def feed(self, chunk: bytes) -> bytes:
+        data = self._held + chunk if self._held else bytes(chunk)
+        n = len(data)
+        i = 0
+        cut = n
+        while i < n:
+            a = data.find(b"\xfd", i)
+            b = data.find(b"\xfe", i)
+            if a < 0 and b < 0:
+                break
+            k = a if b < 0 else b if a < 0 else min(a, b)
+            header, end, reason = _candidate(data, k, n)
+            if reason is None and header.msgid not in CRC_EXTRA:
+                # An unknown id cannot be checked: as split() does, it is garbage if a known frame starts
+                # inside it, and while one that starts inside has not fully arrived, we cannot tell yet.
+                inside = _inside_unknown(data, k + 1, end, n)
+                if inside == "known":
+                    i = k + 1
+                    continue
+                if inside == "pending":
+                    reason = TRUNCATED
+            if reason == TRUNCATED:
+                cut = k
+                break
+            i = end if reason is None else k + 1
+        self._held = data[cut:]
+        return data if cut == n else data[:cut]
+
+
+def _inside_unknown(data: bytes, lo: int, hi: int, n: int) -> str | None:
+    """``"known"`` if a CRC-valid known frame starts in ``data[lo:hi]``, else ``"pending"`` if one may (cut off)."""
+    pending = False
+    for k in range(lo, hi):
+        if data[k] not in (STX_V1, STX_V2):
+            continue
+        header, _, reason = _candidate(data, k, n)
+        if reason is None and header.msgid in CRC_EXTRA:
+            return "known"
+        pending = pending or reason == TRUNCATED
+    return "pending" if pending else None

@@ -38,7 +38,7 @@ from pymavlink.dialects.v20 import ardupilotmega as dialect
 
 from attack_profiles.action import Direction
 from mitm_proxy import frames
-from mitm_proxy.endpoints import UdpEndpoint
+from mitm_proxy.endpoints import BaseEndpoint
 from mitm_proxy.pipeline import Outgoing, Pipeline
 from mitm_proxy.stats import LinkStats
 
@@ -78,8 +78,8 @@ class Link:
         sysid: int,
         pipeline: Pipeline,
         stats: LinkStats,
-        vehicle: UdpEndpoint,
-        grounds: Sequence[UdpEndpoint],
+        vehicle: BaseEndpoint,
+        grounds: Sequence[BaseEndpoint],
     ) -> None:
         self.index = index
         self.sysid = sysid
@@ -99,7 +99,7 @@ class Link:
     def from_ground(self, data: bytes, rx_s: float) -> None:
         self._feed(data, Direction.UPLINK, rx_s, (self.vehicle,))
 
-    def _feed(self, data: bytes, direction: Direction, rx_s: float, targets: Sequence[UdpEndpoint]) -> None:
+    def _feed(self, data: bytes, direction: Direction, rx_s: float, targets: Sequence[BaseEndpoint]) -> None:
         try:
             outs = self.pipeline.feed(data, direction, rx_s)
         except Exception:
@@ -116,7 +116,7 @@ class Link:
                 ep.send(out.data)
             self.stats.latency(time.monotonic() - (out.rx_s or rx_s))
 
-    def _schedule(self, out: Outgoing, targets: Sequence[UdpEndpoint], now: float) -> None:
+    def _schedule(self, out: Outgoing, targets: Sequence[BaseEndpoint], now: float) -> None:
         handle: asyncio.TimerHandle | None = None
 
         def fire() -> None:
@@ -141,7 +141,7 @@ class Link:
 class GroundRouter:
     """The receiver of one ground endpoint: hands uplink to the link(s) it belongs to (see module doc)."""
 
-    def __init__(self, endpoint: UdpEndpoint, links: Sequence[Link]) -> None:
+    def __init__(self, endpoint: BaseEndpoint, links: Sequence[Link]) -> None:
         self.endpoint = endpoint
         self.links = list(links)
         self._by_sysid = {ln.sysid: ln for ln in self.links}

@@ -129,9 +129,32 @@ def library_doc() -> str:
     return "\n".join(rows) + "\n"
 
 
+def _doc_text(doc: str | None) -> str:
+    """A module docstring as Markdown: reST double backticks become single, ``::`` blocks become code."""
+    text = (doc or "").strip().replace("``", "`")
+    out: list[str] = []
+    in_code = False
+    for line in text.splitlines():
+        if in_code and line and not line.startswith("    "):
+            if out[-1] == "":
+                out.pop()
+            out += ["```", ""]
+            in_code = False
+        if line.endswith("::"):
+            out += [line[:-1], "", "```sh"]
+            in_code = True
+            continue
+        out.append(line[4:] if in_code else line)
+    if in_code:
+        out.append("```")
+    return "\n".join(out).replace("```sh\n\n", "```sh\n") + "\n"
+
+
 def outputs() -> dict[str, str]:
     from attack_profiles.profile import Profile, profile_schema_text
+    from mitm_proxy import routes
     from mitm_proxy.config import ProxyConfig
+    from secuav_common import urls
     from secuav_common.scenario import Scenario
     from study.spec import Study
 
@@ -148,6 +171,10 @@ def outputs() -> dict[str, str]:
         "proxy-config.md": HEADER + "# Proxy config file (`secuav-proxy --config F`)\n\nSchema: "
         "[schema/proxy-config.schema.json](schema/proxy-config.schema.json). Flags given on the command line win.\n\n"
         + field_table(ProxyConfig, "ProxyConfig"),
+        "routes.md": HEADER + "# Endpoints and routing rules\n\nSchema: [schema/routes.schema.json]"
+        "(schema/routes.schema.json).\n\n## Endpoint URLs\n\n" + _doc_text(urls.__doc__)
+        + "\n## Rules\n\n" + _doc_text(routes.__doc__) + "\n" + field_table(routes.EndpointRules, "EndpointRules"),
+        "schema/routes.schema.json": schema(routes.EndpointRules),
         "schema/scenario.schema.json": schema(Scenario),
         "schema/profile.schema.json": profile_schema_text(),
         "schema/study.schema.json": schema(Study),

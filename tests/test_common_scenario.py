@@ -95,6 +95,6 @@ def test_endpoint_urls() -> None:
     ep = parse_endpoint("udpin://0.0.0.0:14540")
     assert (ep.mode, ep.host, ep.port) == ("udpin", "0.0.0.0", 14540)
     assert str(parse_endpoint("udpout://127.0.0.1:14550")) == "udpout://127.0.0.1:14550"
-    for bad in ["tcp://1.2.3.4:5", "udpin://host", "udpout://h:99999", "14540"]:
+    for bad in ["quic://1.2.3.4:5", "udpin://host", "udpout://h:99999", "14540"]:
         with pytest.raises(ValueError, match="endpoint"):
             parse_endpoint(bad)

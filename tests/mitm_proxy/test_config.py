@@ -65,7 +65,7 @@ def test_the_example_config_is_valid() -> None:
     [
         ("attack: maybe\n", "attack"),
         ("broker: amqp://x\n", "broker"),
-        ("links:\n  - {sysid: 1, vehicle: 'tcp://127.0.0.1:1', ground: ['udpout://127.0.0.1:2']}\n",
+        ("links:\n  - {sysid: 1, vehicle: 'quic://127.0.0.1:1', ground: ['udpout://127.0.0.1:2']}\n",
          "links[0].vehicle"),
         ("links:\n  - {sysid: 1, vehicle: 'udpin://127.0.0.1:1', ground: ['udpout://127.0.0.1:x']}\n",
          "links[0].ground"),
