@@ -80,6 +80,9 @@ def endpoints_for(urls: Sequence[str], scenario: Scenario) -> list[Endpoint]:
     if not urls:
         return [parse_endpoint(proxy_vehicle_url(i)) for i in range(n)]
     parsed = [parse_endpoint(u) for u in urls]
+    for url, ep in zip(urls, parsed, strict=True):
+        if ep.mode not in ("udpin", "udpout") or ep.options:
+            raise ValueError(f"--mavlink {url}: the simulator speaks UDP only (udpin://HOST:PORT or udpout://HOST:PORT)")
     if len(parsed) == n:
         return parsed
     if len(parsed) == 1:
@@ -102,7 +105,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         endpoints = endpoints_for(args.mavlink, scenario)
         broker = parse_broker_url(args.broker) if args.broker else None
         gcs = parse_endpoint(args.gcs) if args.gcs else None
-        if gcs is not None and gcs.mode != "udpout":
+        if gcs is not None and (gcs.mode != "udpout" or gcs.options):
             raise ValueError(f"--gcs {args.gcs}: must be udpout://HOST:PORT (the GCS listens there)")
     except (InputError, ValueError) as exc:
         return _fail(str(exc))

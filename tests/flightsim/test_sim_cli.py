@@ -44,7 +44,8 @@ def test_bad_input_is_one_line_naming_file_field_and_value_and_nothing_starts(tm
     cases = {
         (str(bad),): [str(bad), "vehicles[0].sensors.rangefinders[0].type", "'lidar'"],
         (str(tmp_path / "missing.yaml"),): ["missing.yaml"],
-        ("anchors8", "--mavlink", "udp://127.0.0.1:1"): ["udp://127.0.0.1:1", "scheme"],
+        ("anchors8", "--mavlink", "quic://127.0.0.1:1"): ["quic://127.0.0.1:1", "scheme"],
+        ("anchors8", "--mavlink", "tcp://127.0.0.1:1"): ["tcp://127.0.0.1:1", "UDP only"],
         ("formation", "--mavlink", "udpout://127.0.0.1:1", "--mavlink", "udpout://127.0.0.1:2", "--mavlink",
          "udpout://127.0.0.1:3"): ["--mavlink given 3 times"],
         ("anchors8", "--speed", "-2"): ["--speed -2"],
