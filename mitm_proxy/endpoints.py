@@ -36,7 +36,8 @@ from collections.abc import Callable
 from typing import Any, Literal
 
 from mitm_proxy import frames
-from mitm_proxy.routes import NO_RULES, EndpointGate, EndpointRules
+from mitm_proxy.codec import MAVLINK_MAP
+from mitm_proxy.routes import NO_RULES, Direction, EndpointGate, EndpointRules
 from secuav_common.urls import Endpoint
 
 log = logging.getLogger(__name__)
@@ -70,8 +71,8 @@ class BaseEndpoint:
         self.name = name
         self.role = role
         self.gate = EndpointGate(rules)
-        self._inbound: Literal["down", "up"] = "down" if role == "vehicle" else "up"
-        self._outbound: Literal["down", "up"] = "up" if role == "vehicle" else "down"
+        self._inbound: Direction = "down" if role == "vehicle" else "up"
+        self._outbound: Direction = "up" if role == "vehicle" else "down"
         self.receiver: Receiver | None = None
         self.peer: Any = None
         self.local: tuple[str, int] | None = None
@@ -121,8 +122,6 @@ class BaseEndpoint:
 
     def _drop_listen_only(self, data: bytes) -> None:
         """Count (per message: what did the spectator try to send?) and log once; nothing goes on."""
-        from mitm_proxy.codec import MAVLINK_MAP
-
         split = frames.split(data)
         for header, _frame in split.frames:
             cls = MAVLINK_MAP.get(header.msgid)
@@ -263,7 +262,8 @@ class UdpEndpoint(BaseEndpoint, asyncio.DatagramProtocol):
             self._fault("socket_error", str(exc))
             return False
         self.tx += 1
-        self._cleared("no_peer")
+        if self._reported:
+            self._reported.discard("no_peer")  # the condition ended: log it again if it comes back
         return True
 
 

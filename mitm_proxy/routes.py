@@ -113,8 +113,6 @@ def rules_from_options(endpoint: Endpoint, source: str = "<url>") -> EndpointRul
             data["listen_only"] = value.lower() in ("true", "1", "yes")
         elif base in _LISTS:
             data["up" if up else "down"][base] = [s.strip() for s in value.split(",") if s.strip()]
-        elif endpoint.mode == "serial" and key == "baud":
-            continue
         else:
             known = ", ".join(("listen_only", *_LISTS, *(f"{k}_up" for k in _LISTS)))
             raise InputError(source, f"{endpoint} option {key}", value, f"unknown option (known: {known})")
