@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import os
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any
@@ -34,6 +35,8 @@ async def broker_port(
             yield port
     else:
         if MOSQUITTO is None:
+            if os.environ.get("CI"):  # .ci/run installs it: missing there is a setup bug, not a reason to skip
+                pytest.fail("the mosquitto binary is not installed, but CI must test against it")
             pytest.skip("the mosquitto binary is not installed")
         with Mosquitto(port, tmp_path):
             yield port
