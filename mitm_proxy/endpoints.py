@@ -306,4 +306,7 @@ def _reports_icmp(loop: asyncio.AbstractEventLoop) -> bool:
 
 
 def _fmt(addr: Any) -> str:
-    return "-" if addr is None else f"{addr[0]}:{addr[1]}"
+    """``host:port`` of a socket address; a serial device's path as it is."""
+    if addr is None:
+        return "-"
+    return addr if isinstance(addr, str) else f"{addr[0]}:{addr[1]}"

@@ -127,8 +127,8 @@ class _Reconnecting(BaseEndpoint):
             self.connects += 1
             self._cleared("connect_failed")
             self._cleared("not_connected")
-            shown = _fmt(conn.peer) if conn.peer else self.endpoint.host
-            log.info("endpoint.connected", extra={"endpoint": self.name, "url": str(self.endpoint), "peer": shown})
+            log.info("endpoint.connected",
+                     extra={"endpoint": self.name, "url": str(self.endpoint), "peer": _fmt(self.peer)})  # fmt: skip
             up_s = time.monotonic()
             exc = await conn.lost
             self.connection = None

@@ -183,6 +183,8 @@ async def test_a_serial_radio_over_a_pty_pair(udp_port: Callable[[], int]) -> No
             while len(back) < len(command):
                 back += await asyncio.wait_for(loop.run_in_executor(None, os.read, master, 1024), 5)
             assert [f for _h, f in split(back).frames] == [command]
+            vehicle_side = proxy.stats_snapshot()[1]["endpoints"][proxy.links[0].vehicle.name]
+            assert vehicle_side["peer"] == path and vehicle_side["url"] == f"serial://{path}?baud=115200"
     finally:
         gcs.close()
         os.close(master)
