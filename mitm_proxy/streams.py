@@ -94,14 +94,6 @@ class _Reconnecting(BaseEndpoint):
         self._task = asyncio.create_task(self._run(), name=f"connect {self.name}")
         return self
 
-    async def connected(self, timeout_s: float) -> None:
-        """Wait until a connection is up (tests, and callers that must not send before it)."""
-        deadline = time.monotonic() + timeout_s
-        while self.connection is None:
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"{self.name} {self.endpoint}: not connected after {timeout_s} s")
-            await asyncio.sleep(0.01)
-
     async def _connect(self, factory: Any) -> None:
         raise NotImplementedError
 
