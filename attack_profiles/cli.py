@@ -29,7 +29,7 @@ from secuav_common.scenario import load_scenario
 
 Handler = Callable[[argparse.Namespace], int]
 OptionsHook = Callable[[str, argparse.ArgumentParser], None]  # (subcommand, its parser): add transport options
-LIVE_COMMANDS = ("apply", "clear", "status", "mode", "secure")
+LIVE_COMMANDS = ("apply", "clear", "status", "mode", "secure", "routes")
 
 
 def _params(pairs: Sequence[str]) -> dict[str, Any]:
@@ -151,9 +151,21 @@ def build_parser(
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="estimator parameter")
     p.set_defaults(func=live["secure"])
 
+    p = sub.add_parser("routes", help="show or change a running proxy's per-endpoint routing rules")
+    actions = p.add_subparsers(dest="routes_action", required=True, metavar="ACTION")
+    show = actions.add_parser("show", help="every endpoint of the proxy and its rules")
+    change = actions.add_parser("set", help="replace one endpoint's rules (the others keep theirs)")
+    change.add_argument("endpoint", metavar="ENDPOINT", help="as the stats name it (ground:14550) or its URL")
+    change.add_argument("rules", metavar="RULES",
+                        help="URL options as in docs/routes.md ('deny=ATTITUDE&listen_only=true'); 'none' lifts all")
+    for q in (show, change):
+        q.add_argument("--instance", metavar="NAME", help="the proxy instance (needed when several are online)")
+        q.set_defaults(func=live["routes"])
+
     if live_options is not None:
         for name in LIVE_COMMANDS:
-            live_options(name, sub.choices[name])
+            for q in (show, change) if name == "routes" else (sub.choices[name],):
+                live_options(name, q)
     return parser
 
 

@@ -21,7 +21,9 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import os
 import signal
+import socket
 from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
@@ -32,6 +34,7 @@ from attack_profiles import library
 from attack_profiles.profile import Profile, load_profile
 from mitm_proxy.attack import AttackStage
 from mitm_proxy.config import ProxyConfig
+from mitm_proxy.controls import Controls, RoutesControl, default_instance, vehicle_controls, vehicle_topic
 from mitm_proxy.endpoints import DEFAULT_TAKEOVER_S, BaseEndpoint, make_endpoint
 from mitm_proxy.link import GroundRouter, Link
 from mitm_proxy.pipeline import Pipeline
@@ -63,6 +66,7 @@ class Proxy:
 
     def __init__(self, config: ProxyConfig) -> None:
         self.config = config
+        self.instance = config.instance or default_instance()
         self.scenario: Scenario | None = load_scenario(config.scenario) if config.scenario else None
         self.signer: Signer | None = Signer.from_file(config.signing_key) if config.signing_key else None
         initial = resolve_profile(config.profile) if config.profile else None
@@ -104,16 +108,7 @@ class Proxy:
 
     def _publish_estimate(self, sysid: int, payload: dict[str, Any]) -> None:
         if self.control is not None:
-            from mitm_proxy.control import vehicle_topic
-
             self.control.publish_nowait(vehicle_topic(sysid, "estimate"), payload)
-
-    def _secure_set(self, sysid: int, payload: Any, request_id: str | None) -> dict[str, Any]:
-        return self.secure[sysid].offer_payload(payload, request_id)
-
-    def _secure_state(self, sysid: int) -> dict[str, Any] | None:
-        slot = self.secure.get(sysid)
-        return None if slot is None else slot.state
 
     # -- life cycle --------------------------------------------------------------
     async def __aenter__(self) -> Proxy:
@@ -131,7 +126,7 @@ class Proxy:
             "attack": self.config.attack, "profile": self.slots[self.links[0].sysid].state.profile or "none",
             "secure": next((s.stage.config.estimator for s in self.secure.values() if s.stage.config.estimator), "off")
             if self.secure else "unavailable (no --scenario)",
-            "broker": redact(self.config.broker), "record": self.config.record or "off",
+            "broker": redact(self.config.broker), "instance": self.instance, "record": self.config.record or "off",
             "signing": "on" if self.signer else "off",
         })  # fmt: skip
         return self
@@ -170,6 +165,18 @@ class Proxy:
                 users.setdefault(ep, []).append(link)
         self.routers = [GroundRouter(self.endpoints[ep], links) for ep, links in users.items()]
 
+    def build_controls(self) -> Controls:
+        """Every runtime switch of this process, registered once (``mitm_proxy.controls``)."""
+        controls = vehicle_controls(self.instance, self.slots, self.stages, self.secure)
+        controls.add_proxy(RoutesControl(self.instance, {ep.name: ep for ep in self.endpoints.values()}))
+        return controls
+
+    def _describe(self) -> dict[str, Any]:
+        """What the online record adds: where this proxy runs and what it connects."""
+        links = {f"v{ln.sysid}": {"vehicle": str(ln.vehicle.endpoint), "ground": [str(g.endpoint) for g in ln.grounds]}
+                 for ln in self.links}  # fmt: skip
+        return {"pid": os.getpid(), "host": socket.gethostname(), "links": links}
+
     async def _start_control(self) -> None:
         cfg = self.config
         if cfg.broker == "none":
@@ -184,9 +191,7 @@ class Proxy:
             url = cfg.broker
         parse_broker_url(url)
         ca = str(cfg.broker_tls_ca) if cfg.broker_tls_ca else None
-        plane = ControlPlane(url, self.slots, stats=self.stats_snapshot, attack_stages=self.stages,
-                             secure=self._secure_set if self.secure else None,
-                             secure_state=self._secure_state if self.secure else None,
+        plane = ControlPlane(url, self.build_controls(), stats=self.stats_snapshot, describe=self._describe,
                              username=cfg.broker_username, password=cfg.broker_password, tls_ca=ca)  # fmt: skip
         self.control = plane
         await self._stack.enter_async_context(plane)  # it connects, reconnects and publishes in its own task

@@ -1,4 +1,4 @@
-"""``secuav-attack apply|clear|status``: the live subcommands, over the proxy's MQTT control plane.
+"""``secuav-attack apply|clear|status|mode|secure|routes``: the live subcommands, over MQTT.
 
 The offline subcommands and every parser live in :mod:`attack_profiles.cli`;
 this module plugs in the three that talk to a running proxy. ``apply`` checks
@@ -8,7 +8,10 @@ waits for the ``attack/state`` that carries that id: the proxy's own verdict,
 not just the broker's receipt.
 
 Without ``--vehicle`` the command goes to every vehicle that has a retained
-``attack/state`` on the broker, i.e. every link of the running proxy.
+``attack/state`` on the broker, i.e. every link of the running proxies.
+``status`` lists every proxy instance on the broker and its vehicles
+(``--watch``: a live table); ``routes show|set`` reads and changes one
+instance's per-endpoint rules.
 
 Exit codes: 0 accepted; 1 bad input or rejected by the proxy (the reason on
 stderr); 2 usage; 3 no broker, no proxy, or no acknowledgement in time.
@@ -33,7 +36,7 @@ from typing import Any
 import aiomqtt
 
 from attack_profiles import cli as profiles_cli
-from mitm_proxy.control import MAX_PAYLOAD_BYTES, ONLINE_TOPIC, PREFIX, parse_vehicle_key, vehicle_topic
+from mitm_proxy.control import MAX_PAYLOAD_BYTES, ONLINE_TOPIC, PREFIX, parse_vehicle_key, proxy_topic, vehicle_topic
 from secuav_common.broker import parse_broker_url, read_secret
 from secuav_common.loading import InputError
 
@@ -52,8 +55,11 @@ def add_options(command: str, parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--username", metavar="NAME", help="broker user (or in the URL: mqtt://NAME@HOST)")
     parser.add_argument("--password-file", metavar="F", type=Path,
                         help="broker password from F (mode 600); SECUAV_BROKER_PASSWORD works too")  # fmt: skip
-    if command == "status":
+    if command in ("status", "routes"):
         parser.add_argument("--json", action="store_true", help="print what the broker holds as one JSON document")
+    if command == "status":
+        parser.add_argument("--watch", action="store_true", help="a live table, redrawn until Ctrl-C")
+        parser.add_argument("--interval", type=float, default=1.0, metavar="S", help="--watch redraw period (1 s)")
 
 
 @dataclass
@@ -61,6 +67,7 @@ class Board:
     """Everything seen on the subscribed topics, latest per topic, and who is waiting for what."""
 
     latest: dict[str, Any] = field(default_factory=dict)
+    arrivals: dict[str, float] = field(default_factory=dict)  # topic -> monotonic time of its latest message
     last_arrival_s: float = field(default_factory=time.monotonic)
     changed: asyncio.Event = field(default_factory=asyncio.Event)
 
@@ -72,6 +79,18 @@ class Board:
             if sysid is not None:
                 found.add(sysid)
         return sorted(found)
+
+    def instances(self) -> dict[str, dict[str, Any]]:
+        """Proxy instance -> its online record (``secuav/proxy/<instance>/online``)."""
+        found = {}
+        for topic, body in self.latest.items():
+            parts = topic.split("/")
+            if len(parts) == 4 and parts[1] == "proxy" and parts[3] == "online" and isinstance(body, dict):
+                found[parts[2]] = body
+        return dict(sorted(found.items()))
+
+    def online_instances(self) -> list[str]:
+        return [name for name, rec in self.instances().items() if rec.get("online") is True]
 
     async def settle(self, limit_s: float) -> None:
         """Wait until no message came for :data:`SETTLE_S` (the retained ones are in) or ``limit_s`` passed."""
@@ -102,7 +121,7 @@ async def _listen(client: aiomqtt.Client, board: Board, answers: dict[str, dict[
         except ValueError:
             continue
         board.latest[str(message.topic)] = body
-        board.last_arrival_s = time.monotonic()
+        board.last_arrival_s = board.arrivals[str(message.topic)] = time.monotonic()
         if isinstance(body, dict) and isinstance(body.get("request_id"), str):
             answers[body["request_id"]] = body
         board.changed.set()
@@ -271,6 +290,37 @@ def _stats_line(stats: dict[str, Any]) -> str:
     return "; ".join(parts) or json.dumps(stats, separators=(",", ":"))
 
 
+LEAVES = ("attack/state", "attack/mode/state", "secure/state", "stats")
+STATUS_TOPICS = [*(f"{PREFIX}/+/{leaf}" for leaf in LEAVES), ONLINE_TOPIC, proxy_topic("+", "online")]
+
+
+def _report(board: Board, vehicles: list[int]) -> dict[str, Any]:
+    """What ``status --json`` prints: the proxy instances and, per vehicle, every state the broker holds."""
+    report: dict[str, Any] = {"online": board.latest.get(ONLINE_TOPIC), "instances": board.instances(), "vehicles": {}}
+    for sysid in vehicles:
+        report["vehicles"][f"v{sysid}"] = {leaf: board.latest.get(vehicle_topic(sysid, leaf)) for leaf in LEAVES}
+    return report
+
+
+def _instance_lines(board: Board) -> list[str]:
+    """One line per proxy instance; a vehicle claimed by two online instances is said out loud."""
+    lines, owners = [], {}
+    for name, rec in board.instances().items():
+        vehicles = [v for v in rec.get("vehicles", []) if isinstance(v, int)]
+        where = f" pid {rec['pid']} on {rec.get('host')}" if rec.get("pid") else ""
+        state = "online" if rec.get("online") else "offline"
+        lines.append(f"proxy {name}: {state} since {_since(rec.get('since'))}{where}; "
+                     f"vehicles {', '.join(f'v{v}' for v in vehicles) or 'none'}")  # fmt: skip
+        if rec.get("online"):
+            for v in vehicles:
+                owners.setdefault(v, []).append(name)
+    for v, names in sorted(owners.items()):
+        if len(names) > 1:
+            lines.append(f"warning: v{v} is served by {len(names)} online proxies ({', '.join(names)}): "
+                         "requests reach all of them and their states overwrite each other")  # fmt: skip
+    return lines or [f"proxy: {_online(board)}"]
+
+
 async def _status(board: Board, args: argparse.Namespace) -> int:
     await board.settle(args.timeout)
     vehicles = board.vehicles()
@@ -282,16 +332,12 @@ async def _status(board: Board, args: argparse.Namespace) -> int:
         return EXIT_UNREACHABLE
     # Stats are not retained: give the proxy one publishing period (1 s) to send them.
     await board.until(lambda: all(vehicle_topic(v, "stats") in board.latest for v in vehicles), min(1.5, args.timeout))
-    report: dict[str, Any] = {"online": board.latest.get(ONLINE_TOPIC), "vehicles": {}}
-    for sysid in vehicles:
-        report["vehicles"][f"v{sysid}"] = {
-            leaf: board.latest.get(vehicle_topic(sysid, leaf))
-            for leaf in ("attack/state", "attack/mode/state", "secure/state", "stats")
-        }
+    report = _report(board, vehicles)
     if args.json:
         print(json.dumps(report, indent=2))
         return EXIT_OK
-    print(f"proxy: {_online(board)}")
+    for line in _instance_lines(board):
+        print(line)
     for key, entry in report["vehicles"].items():
         attack = entry["attack/state"] or {}
         active = f"{attack.get('profile')} (hash {str(attack.get('hash'))[:12]})" if attack.get("profile") else "none"
@@ -312,16 +358,109 @@ async def _status(board: Board, args: argparse.Namespace) -> int:
 
 
 def cmd_status(args: argparse.Namespace) -> int:
-    leaves = ("attack/state", "attack/mode/state", "secure/state", "stats")
-    topics = [*(f"{PREFIX}/+/{leaf}" for leaf in leaves), ONLINE_TOPIC]
-    return _session(args, topics, lambda c, b, a: _status(b, args))
+    if args.watch:
+        from mitm_proxy.watch import watch
+
+        return _session(args, STATUS_TOPICS, lambda c, b, a: watch(b, args))
+    return _session(args, STATUS_TOPICS, lambda c, b, a: _status(b, args))
+
+
+ROUTES_TOPICS = [proxy_topic("+", "routes/state"), proxy_topic("+", "online")]
+
+
+def _routes_of(board: Board) -> dict[str, dict[str, Any]]:
+    """Instance -> its retained ``routes/state``."""
+    found = {}
+    for topic, body in board.latest.items():
+        parts = topic.split("/")
+        if len(parts) == 5 and parts[1] == "proxy" and parts[3:] == ["routes", "state"] and isinstance(body, dict):
+            found[parts[2]] = body
+    return dict(sorted(found.items()))
+
+
+def _pick_instance(board: Board, args: argparse.Namespace) -> str | None:
+    """The instance a routes command addresses; prints why when there is none or the choice is ambiguous."""
+    known = _routes_of(board)
+    online = [n for n in board.online_instances() if n in known] or list(known)
+    if args.instance is not None:
+        if args.instance in known:
+            return args.instance
+        print(f"secuav-attack: no proxy instance {args.instance!r} on the broker at {args.broker} "
+              f"(instances: {', '.join(known) or 'none'})", file=sys.stderr)  # fmt: skip
+        return None
+    if len(online) == 1:
+        return online[0]
+    if not online:
+        print(f"secuav-attack: no proxy on the broker at {args.broker} (no retained {PREFIX}/proxy/+/routes/state)",
+              file=sys.stderr)  # fmt: skip
+    else:
+        print(f"secuav-attack: {len(online)} proxies are online ({', '.join(online)}): choose one with --instance",
+              file=sys.stderr)  # fmt: skip
+    return None
+
+
+def _print_routes(name: str, state: dict[str, Any]) -> None:
+    from mitm_proxy.routes import EndpointRules, rules_to_query
+
+    print(f"proxy {name}:")
+    for ep_name, ep in (state.get("endpoints") or {}).items():
+        try:
+            spelled = rules_to_query(EndpointRules.model_validate(ep.get("rules") or {})) or "no rules"
+        except ValueError:
+            spelled = json.dumps(ep.get("rules"))
+        print(f"  {ep_name:<16} {ep.get('role', '?'):<7} {ep.get('url')}  {spelled}")
+
+
+async def _routes(client: aiomqtt.Client, board: Board, answers: dict[str, dict[str, Any]],
+                  args: argparse.Namespace) -> int:  # fmt: skip
+    await board.settle(args.timeout)
+    if args.routes_action == "show" and args.json and args.instance is None:
+        print(json.dumps(_routes_of(board), indent=2))
+        return EXIT_OK
+    name = _pick_instance(board, args)
+    if name is None:
+        return EXIT_UNREACHABLE if not _routes_of(board) or args.instance else EXIT_USAGE
+    if args.routes_action == "show":
+        state = _routes_of(board)[name]
+        if args.json:
+            print(json.dumps(state, indent=2))
+        else:
+            _print_routes(name, state)
+        return EXIT_OK
+    rules = None if args.rules.strip().lower() in ("none", "") else _local_rules(args.rules)
+    request_id = uuid.uuid4().hex
+    body = {"request_id": request_id, "endpoints": {args.endpoint: rules}}
+    await client.publish(proxy_topic(name, "routes/set"), json.dumps(body).encode(), qos=1)
+    if not await board.until(lambda: request_id in answers, args.timeout):
+        print(f"secuav-attack: {name}: no acknowledgement within {args.timeout:g} s", file=sys.stderr)
+        return EXIT_UNREACHABLE
+    state = answers[request_id]
+    if not state.get("ok"):
+        print(f"secuav-attack: {name}: rejected: {state.get('error')}", file=sys.stderr)
+        return EXIT_REJECTED
+    print(f"ok: {name} {args.endpoint} {'no rules' if rules is None else args.rules}")
+    return EXIT_OK
+
+
+def _local_rules(query: str) -> dict[str, Any]:
+    """The rules checked here first, as the proxy will check them (a typo fails before anything is sent)."""
+    from mitm_proxy.routes import rules_from_query
+
+    return rules_from_query(query, "RULES").model_dump(exclude_defaults=True)
+
+
+def cmd_routes(args: argparse.Namespace) -> int:
+    """``routes show`` / ``routes set ENDPOINT RULES``: one instance's per-endpoint rules."""
+    if args.routes_action == "set" and args.rules.strip().lower() not in ("none", ""):
+        _local_rules(args.rules)  # InputError -> exit 1 with the option named, before any broker is involved
+    return _session(args, ROUTES_TOPICS, lambda c, b, a: _routes(c, b, a, args))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     return profiles_cli.main(
         argv,
         live_handlers={"apply": cmd_apply, "clear": cmd_clear, "status": cmd_status, "mode": cmd_mode,
-                       "secure": cmd_secure},
+                       "secure": cmd_secure, "routes": cmd_routes},
         live_options=add_options,
     )
 

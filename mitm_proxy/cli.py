@@ -78,6 +78,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--broker-password-file", metavar="F", type=Path,
                    help="read the broker password from F (mode 600); SECUAV_BROKER_PASSWORD works too")  # fmt: skip
     p.add_argument("--broker-tls-ca", metavar="F", type=Path, help="CA file for mqtts://")
+    p.add_argument("--instance", metavar="NAME",
+                   help="this proxy's name on the broker, unique per broker (default <host>-<pid>)")  # fmt: skip
     p.add_argument(
         "--record", metavar="DIR", type=Path, help="write DIR/v<sysid>/original.tlog, forwarded.tlog and index.json"
     )
@@ -100,7 +102,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 FLAG_KEYS = ("scenario", "vehicles", "profile", "attack", "secure", "broker", "broker_username", "broker_password",
-             "broker_tls_ca", "record", "signing_key", "seed", "stats_interval_s")  # fmt: skip
+             "broker_tls_ca", "instance", "record", "signing_key", "seed", "stats_interval_s")  # fmt: skip
 
 
 def config_from_args(args: argparse.Namespace) -> ProxyConfig:

@@ -92,6 +92,10 @@ class ProxyConfig(_Strict):
     broker_username: str | None = None
     broker_password: str | None = None
     broker_tls_ca: Path | None = None
+    instance: str | None = Field(
+        None, pattern=r"^[A-Za-z0-9_.-]{1,64}$",
+        description="name of this proxy on the broker (secuav/proxy/<instance>/...); default <host>-<pid>",
+    )  # fmt: skip
     stats_interval_s: float = Field(5.0, gt=0.0)
     seed: int = 0
 

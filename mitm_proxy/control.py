@@ -1,22 +1,21 @@
-"""The proxy's MQTT control plane (DESIGN.md "Control plane").
+"""The proxy's MQTT session (DESIGN.md "Control plane"): connect, serve, reconnect, publish.
 
-One background task keeps one MQTT session: it subscribes to
-``secuav/+/attack/set`` and ``secuav/+/secure/set``, hands each request to the
-vehicle's :class:`~mitm_proxy.slots.AttackSlot` (or to the secure stage's
-callable), and publishes what came of it on the retained ``.../state`` topic.
-``secuav/+/attack/mode/set`` (``"on"`` or ``"bypass"``) switches the attack
-stage at runtime, keeping its profile, as DESIGN.md's pipeline asks (acknowledged
-on the retained ``.../attack/mode/state``; the secure stage's bypass is its
-``secure/set`` ``"off"``). It also publishes each link's stats at 1 Hz, the retained
-``secuav/proxy/online`` flag (with a last will of ``false``), and whatever other
-producers hand to :meth:`ControlPlane.publish_nowait`.
+This module is the transport; what a request does is :mod:`mitm_proxy.controls`
+(one :class:`~mitm_proxy.controls.Control` per runtime switch, registered once
+in a :class:`~mitm_proxy.controls.Controls`). One background task keeps one
+MQTT session: it subscribes to every control's ``set`` topic, hands each
+decoded request to its control, and publishes the control's state on the
+retained ``.../state`` topic next to it. It also publishes each link's stats at
+1 Hz, the proxy instance's retained ``secuav/proxy/<instance>/online`` record
+(a last will says ``online: false`` if the process dies), the single-proxy
+``secuav/proxy/online`` flag, and whatever other producers hand to
+:meth:`ControlPlane.publish_nowait`.
 
 The data path never waits for MQTT: requests run between two frames on the
-event loop (installing a profile is one attribute assignment in the slot), and
-every outgoing message goes through an outbox that drops rather than blocks.
-When the broker goes away the plane logs it once, retries with a growing
-backoff, and on reconnect republishes every state, so a client that subscribes
-later still reads the truth.
+event loop, and every outgoing message goes through an outbox that drops
+rather than blocks. When the broker goes away the plane logs it once, retries
+with a growing backoff, and on reconnect republishes every state, so a client
+that subscribes later still reads the truth.
 """
 
 from __future__ import annotations
@@ -28,18 +27,26 @@ import hashlib
 import json
 import logging
 import math
-import os
 import re
 import time
 import uuid
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from types import TracebackType
-from typing import Any, Protocol
+from typing import Any
 
 import aiomqtt
 
-from mitm_proxy.slots import AttackSlot, SlotState
+from mitm_proxy.controls import (
+    PREFIX,
+    Controls,
+    RequestError,
+    Target,
+    default_instance,
+    parse_vehicle_key,
+    proxy_topic,
+    vehicle_topic,
+)
 from secuav_common.broker import parse_broker_url
 
 log = logging.getLogger(__name__)
@@ -48,38 +55,15 @@ _CLIENT_LOG = logging.getLogger(f"{__name__}.mqtt")
 if _CLIENT_LOG.level == logging.NOTSET:
     _CLIENT_LOG.setLevel(logging.INFO)
 
-PREFIX = "secuav"
-ONLINE_TOPIC = f"{PREFIX}/proxy/online"
+ONLINE_TOPIC = f"{PREFIX}/proxy/online"  # the single-proxy flag; fleets read each instance's online record
 MAX_PAYLOAD_BYTES = 64 * 1024
 DRAIN_BATCH = 64  # messages published concurrently by the outbox drain
 MAX_UNKNOWN_LOGGED = 100  # unknown vehicle keys logged (once each); junk topics cannot grow the set
-SecureHandler = Callable[[int, Any, "str | None"], dict[str, Any]]
-SecureState = Callable[[int], "dict[str, Any] | None"]
+__all__ = ["ONLINE_TOPIC", "PREFIX", "ControlPlane", "Outbox", "RequestError", "default_instance",
+           "parse_vehicle_key", "proxy_topic", "vehicle_topic"]  # fmt: skip
 
 # A request id the CLI puts first in its JSON, so an oversized or broken payload can still be answered.
 _REQUEST_ID_PREFIX = re.compile(rb'\A\s*\{\s*"request_id"\s*:\s*"([A-Za-z0-9_.:@/-]{1,100})"')
-_TOPIC = re.compile(rf"\A{PREFIX}/([^/]+)/(attack/mode|attack|secure)/set\Z")
-_VEHICLE_KEY = re.compile(r"\Av(\d{1,3})\Z")
-
-
-def vehicle_topic(sysid: int, leaf: str) -> str:
-    """``secuav/v<sysid>/<leaf>`` (leaf: ``attack/state``, ``stats``, ``estimate``...)."""
-    return f"{PREFIX}/v{sysid}/{leaf}"
-
-
-class RequestError(ValueError):
-    """A set request that never became a payload (too large, not UTF-8, not JSON)."""
-
-
-def parse_topic(topic: str) -> tuple[str, str] | None:
-    """``("v1", "attack")`` for ``secuav/v1/attack/set`` (kinds: attack, attack/mode, secure); else ``None``."""
-    m = _TOPIC.match(topic)
-    return (m.group(1), m.group(2)) if m else None
-
-
-def parse_vehicle_key(key: str) -> int | None:
-    m = _VEHICLE_KEY.match(key)
-    return int(m.group(1)) if m and int(m.group(1)) <= 255 else None
 
 
 def decode_payload(raw: bytes) -> tuple[Any, str | None]:
@@ -117,24 +101,6 @@ def salvage_request_id(raw: bytes) -> str | None:
     """The request id of a refused payload, when it leads the JSON object (as ``secuav-attack`` writes it)."""
     m = _REQUEST_ID_PREFIX.match(raw[:200])
     return m.group(1).decode() if m else None
-
-
-class Switch(Protocol):
-    """A stage that can be bypassed at runtime (``AttackStage``): ``enabled`` False is the seed's bypass."""
-
-    enabled: bool
-
-
-MODES = {"on": True, "bypass": False}
-BARE_MODES = frozenset(m.encode() for m in MODES)
-
-
-def parse_mode(payload: Any) -> bool:
-    """``"on"``/``"bypass"``, or ``{"mode": ..., "request_id": ...}``; True means on."""
-    value = payload.get("mode") if isinstance(payload, dict) else payload
-    if isinstance(value, str) and value in MODES:
-        return MODES[value]
-    raise RequestError(f'mode: must be "on" or "bypass" (got {json.dumps(value)[:40]})')
 
 
 class Outbox:
@@ -216,26 +182,23 @@ def _plain(value: Any) -> Any:
 
 
 class ControlPlane:
-    """``async with ControlPlane(url, slots, stats=...) as plane:`` runs the MQTT side in the background.
+    """``async with ControlPlane(url, controls, stats=...) as plane:`` runs the MQTT side in the background.
 
-    ``broker_url`` None disables MQTT (``--broker none``): the plane then does
-    nothing and :meth:`publish_nowait` discards. ``secure(sysid, payload,
-    request_id)`` handles ``secure/set`` and returns the state to publish;
-    ``secure_state(sysid)`` gives the initial one. ``attack_stages`` (sysid ->
-    the link's ``AttackStage``) enables ``attack/mode/set``. Username/password given here
-    win over those in the URL; ``tls_ca`` (a CA file) or an ``mqtts://`` URL
-    turns TLS on, ``tls_insecure`` skips the host name check.
+    ``controls`` is the registry of runtime switches (:mod:`mitm_proxy.controls`); the
+    plane only moves their requests and states. ``broker_url`` None disables MQTT
+    (``--broker none``): the plane then does nothing and :meth:`publish_nowait`
+    discards. ``describe()`` adds fields to the instance's online record.
+    Username/password given here win over those in the URL; ``tls_ca`` (a CA file)
+    or an ``mqtts://`` URL turns TLS on, ``tls_insecure`` skips the host name check.
     """
 
     def __init__(
         self,
         broker_url: str | None,
-        slots: Mapping[int, AttackSlot],
+        controls: Controls,
         *,
         stats: Callable[[], dict[int, dict[str, Any]]],
-        secure: SecureHandler | None = None,
-        secure_state: SecureState | None = None,
-        attack_stages: Mapping[int, Switch] | None = None,
+        describe: Callable[[], dict[str, Any]] | None = None,
         username: str | None = None,
         password: str | None = None,
         tls_ca: str | None = None,
@@ -246,12 +209,10 @@ class ControlPlane:
         keepalive_s: int = 10,
     ) -> None:
         self.address = parse_broker_url(broker_url) if broker_url is not None else None
-        self.slots = slots
+        self.controls = controls
+        self.instance = controls.instance
         self._stats = stats
-        self._secure = secure
-        self._secure_state = secure_state
-        self._stages = attack_stages
-        self._modes: dict[int, dict[str, Any]] = {}  # sysid -> the attack/mode/state last queued
+        self._describe = describe  # extra fields of the online record (endpoints, pid...)
         self._username = username if username is not None else (self.address.username if self.address else None)
         self._password = password if password is not None else (self.address.password if self.address else None)
         self._tls = self.address is not None and (self.address.tls or tls_ca is not None)
@@ -270,10 +231,11 @@ class ControlPlane:
         self._unencodable: set[str] = set()  # topics whose payload could not be made JSON (logged once)
         self._handled: dict[str, deque[bytes]] = {}  # topic -> digests of recent requests (retained replays)
         self._stats_failing = False
-        self._published: dict[int, SlotState] = {}  # the attack state last queued per vehicle
-        self._published_secure: dict[int, dict[str, Any]] = {}  # the secure state last queued per vehicle
+        self._published: dict[str, dict[str, Any]] = {}  # state topic -> the state last queued
+        self._online_since = time.time()
         self.state_poll_s = 0.2
-        self.identifier = f"secuav-proxy-{os.getpid()}-{uuid.uuid4().hex[:6]}"
+        self.online_topic = proxy_topic(self.instance, "online")
+        self.identifier = f"secuav-proxy-{self.instance}-{uuid.uuid4().hex[:6]}"
 
     # -- lifecycle ------------------------------------------------------------------------------------
 
@@ -322,7 +284,10 @@ class ControlPlane:
         client = self._client
         if client is not None and self.connected.is_set():
             with contextlib.suppress(aiomqtt.MqttError, asyncio.TimeoutError):
-                await asyncio.wait_for(client.publish(ONLINE_TOPIC, b"false", qos=1, retain=True), 0.5)
+                await asyncio.wait_for(asyncio.gather(
+                    client.publish(self.online_topic, self._online_record(False), qos=1, retain=True),
+                    client.publish(ONLINE_TOPIC, b"false", qos=1, retain=True),
+                ), 0.5)  # fmt: skip
         if self._task is not None:
             self._task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
@@ -350,16 +315,33 @@ class ControlPlane:
             return
         self.outbox.put(topic, data, retain)
 
-    def publish_state(self, sysid: int) -> None:
-        """Queue the retained ``attack/state`` of ``sysid`` (after a change made outside MQTT: file reload)."""
-        slot = self.slots.get(sysid)
-        if slot is not None:
-            self._published[sysid] = slot.state
-            self.publish_nowait(vehicle_topic(sysid, "attack/state"), slot.state.to_json(), retain=True)
+    def publish_states(self, force: bool = False) -> None:
+        """Queue every control's retained state that changed since it was last queued (all with ``force``).
 
-    def publish_estimate(self, sysid: int, payload: dict[str, Any]) -> None:
-        """``secuav/v<sysid>/estimate``, in the shape of the secure stage's ``publish`` callback."""
-        self.publish_nowait(vehicle_topic(sysid, "estimate"), payload)
+        A change made outside MQTT (the ``--profile`` file reload, ``--attack bypass`` at start) is
+        found this way too, without any wiring: :meth:`_state_loop` calls this a few times a second.
+        """
+        for target in self.controls.states():
+            try:
+                state = target.control.state()
+            except Exception:  # a control's bug: its set requests still get answers
+                log.debug("control.state_failed", extra={"topic": target.state_topic}, exc_info=True)
+                continue
+            if force or state != self._published.get(target.state_topic):
+                self._publish(target, state)
+
+    def _publish(self, target: Target, state: dict[str, Any]) -> None:
+        self._published[target.state_topic] = state
+        self.publish_nowait(target.state_topic, state, retain=True)
+
+    def _online_record(self, online: bool) -> bytes:
+        """``secuav/proxy/<instance>/online``: who this proxy is and which vehicles it serves."""
+        record: dict[str, Any] = {"instance": self.instance, "online": online, "since": self._online_since,
+                                  "vehicles": self.controls.vehicles}  # fmt: skip
+        if online and self._describe is not None:
+            with contextlib.suppress(Exception):
+                record.update(self._describe())
+        return _json_bytes(record)
 
     @property
     def dropped(self) -> int:
@@ -376,7 +358,7 @@ class ControlPlane:
             username=self._username,
             password=self._password,
             identifier=self.identifier,
-            will=aiomqtt.Will(ONLINE_TOPIC, b"false", qos=1, retain=True),
+            will=aiomqtt.Will(self.online_topic, self._online_record(False), qos=1, retain=True),
             keepalive=self._keepalive_s,
             timeout=5.0,
             tls_params=tls_params,
@@ -421,13 +403,10 @@ class ControlPlane:
             delay_s = min(delay_s * 2, self._backoff_s[1])
 
     async def _serve(self, client: aiomqtt.Client) -> None:
+        await client.publish(self.online_topic, self._online_record(True), qos=1, retain=True)
         await client.publish(ONLINE_TOPIC, b"true", qos=1, retain=True)
-        topics = [f"{PREFIX}/+/attack/set", f"{PREFIX}/+/attack/mode/set", f"{PREFIX}/+/secure/set"]
-        await client.subscribe([(t, 1) for t in topics])
-        for sysid in self.slots:
-            self.publish_state(sysid)
-            self._publish_initial_secure(sysid)
-            self._publish_mode(sysid, self._modes.get(sysid) or self._mode_state(sysid, None, None))
+        await client.subscribe([(t, 1) for t in self.controls.subscriptions()])
+        self.publish_states(force=True)
         self.connections += 1
         self.connected.set()
         log.info("mqtt.connected", extra={"url": self.address.url if self.address else None})
@@ -479,26 +458,9 @@ class ControlPlane:
                 self.publish_nowait(vehicle_topic(sysid, "stats"), body)
 
     async def _state_loop(self) -> None:
-        """Publish states changed outside MQTT (the ``--profile`` file reload, the app) without any wiring:
-        a slot replaces its frozen state on every change, so an identity check finds them."""
         while True:
             await asyncio.sleep(self.state_poll_s)
-            for sysid, slot in self.slots.items():
-                if slot.state is not self._published.get(sysid):
-                    self.publish_state(sysid)
-            for sysid, last in list(self._modes.items()):
-                stage = self._stages.get(sysid) if self._stages is not None else None
-                if stage is not None and last["mode"] != ("on" if stage.enabled else "bypass"):
-                    self._publish_mode(sysid, self._mode_state(sysid, None, None))  # switched elsewhere
-            if self._secure_state is not None:
-                for sysid in self.slots:
-                    try:
-                        state = self._secure_state(sysid)
-                    except Exception:  # the secure stage's bug; its set requests still get answers
-                        log.debug("secure.state_failed", exc_info=True)
-                        continue
-                    if state is not None and state != self._published_secure.get(sysid):
-                        self._publish_secure(sysid, state)
+            self.publish_states()
 
     async def _receive(self, client: aiomqtt.Client) -> None:
         async for message in client.messages:
@@ -513,15 +475,13 @@ class ControlPlane:
 
     def handle(self, topic: str, raw: bytes, retained: bool = False) -> None:
         """Apply one ``.../set`` message and queue the resulting state."""
-        parsed = parse_topic(topic)
-        if parsed is None:
+        target = self.controls.route(topic)
+        if target is None:
             return
-        key, kind = parsed
-        sysid = parse_vehicle_key(key)
-        if sysid is None or sysid not in self.slots:
-            if key not in self._unknown and len(self._unknown) < MAX_UNKNOWN_LOGGED:
-                self._unknown.add(key)
-                log.warning("control.unknown_vehicle", extra={"topic": topic, "known": sorted(self.slots)})
+        if isinstance(target, str):
+            if target not in self._unknown and len(self._unknown) < MAX_UNKNOWN_LOGGED:
+                self._unknown.add(target)
+                log.warning("control.unknown_vehicle", extra={"topic": topic, "known": self.controls.vehicles})
             return
         if len(raw) <= MAX_PAYLOAD_BYTES:  # an oversized one is refused below without reading it
             digest = hashlib.sha256(raw).digest()
@@ -532,110 +492,12 @@ class ControlPlane:
                 # whatever came later, so only a retained request we never saw counts.
                 return
             seen.append(digest)
-        if kind == "attack/mode" and raw.strip() in BARE_MODES:
+        control = target.control
+        if raw.strip() in control.bare_words:
             raw = json.dumps(raw.strip().decode()).encode()  # `mosquitto_pub -m bypass`: the word without quotes
         try:
             payload, request_id = decode_payload(raw)
         except RequestError as exc:
-            request_id = salvage_request_id(raw)
-            log.warning("control.refused", extra={"topic": topic, "error": str(exc), "request_id": request_id})
-            self._refuse(sysid, kind, str(exc), request_id)
+            self._publish(target, control.refuse(str(exc), salvage_request_id(raw)))
             return
-        if kind == "attack":
-            self._apply_attack(sysid, payload, request_id)
-        elif kind == "attack/mode":
-            self._apply_mode(sysid, payload, request_id)
-        else:
-            self._apply_secure(sysid, payload, request_id)
-
-    def _apply_attack(self, sysid: int, payload: Any, request_id: str | None) -> None:
-        slot = self.slots[sysid]
-        try:
-            state = slot.offer_payload(payload, request_id, source=vehicle_topic(sysid, "attack/set"))
-        except Exception as exc:  # a library bug must not end the control plane; the old profile stays
-            log.exception("attack.failed", extra={"sysid": sysid, "request_id": request_id})
-            state = slot.reject(f"internal error while loading the profile: {exc!r}", request_id)
-        if state.ok:
-            log.info("attack.applied", extra={"sysid": sysid, "profile": state.profile, "request_id": request_id})
-        else:
-            log.warning("attack.rejected", extra={"sysid": sysid, "error": state.error, "request_id": request_id})
-        self.publish_state(sysid)
-
-    def _apply_secure(self, sysid: int, payload: Any, request_id: str | None) -> None:
-        if self._secure is None:
-            self._publish_secure(sysid, self._secure_unavailable(sysid, request_id, asked=True))
-            return
-        try:
-            state = self._secure(sysid, payload, request_id)
-        except Exception as exc:  # the secure stage's bug is reported on its topic, not fatal here
-            log.error("secure.failed", extra={"sysid": sysid, "error": repr(exc)})
-            state = {"sysid": sysid, "ok": False, "error": f"secure stage failed: {exc!r}", "request_id": request_id}
-        self._publish_secure(sysid, state)
-
-    def _apply_mode(self, sysid: int, payload: Any, request_id: str | None) -> None:
-        """Switch the attack stage between active and bypass; the profile stays installed either way."""
-        stage = self._stages.get(sysid) if self._stages is not None else None
-        if stage is None:
-            self._refuse(sysid, "attack/mode", "runtime bypass is not available in this proxy", request_id)
-            return
-        try:
-            stage.enabled = parse_mode(payload)
-        except RequestError as exc:
-            self._refuse(sysid, "attack/mode", str(exc), request_id)
-            return
-        log.info("attack.mode", extra={"sysid": sysid, "enabled": stage.enabled, "request_id": request_id})
-        self._publish_mode(sysid, self._mode_state(sysid, request_id, None))
-
-    def _mode_state(self, sysid: int, request_id: str | None, error: str | None) -> dict[str, Any]:
-        """``attack/mode/state``: the mode now, since when, and the verdict on the last request."""
-        stage = self._stages.get(sysid) if self._stages is not None else None
-        mode = None if stage is None else ("on" if stage.enabled else "bypass")
-        last = self._modes.get(sysid)
-        changed = last is None or last["mode"] != mode
-        return {
-            "sysid": sysid,
-            "mode": mode,
-            "since": time.time() if changed else last["since"],  # type: ignore[index]
-            "request_id": request_id,
-            "ok": error is None,
-            "error": error,
-        }
-
-    def _publish_mode(self, sysid: int, state: dict[str, Any]) -> None:
-        self._modes[sysid] = state
-        self.publish_nowait(vehicle_topic(sysid, "attack/mode/state"), state, retain=True)
-
-    def _refuse(self, sysid: int, kind: str, error: str, request_id: str | None) -> None:
-        if kind == "attack":
-            self.slots[sysid].reject(error, request_id)
-            self.publish_state(sysid)
-        elif kind == "attack/mode":
-            self._publish_mode(sysid, self._mode_state(sysid, request_id, error))
-        else:
-            self._publish_secure(sysid, {"sysid": sysid, "ok": False, "error": error, "request_id": request_id})
-
-    def _secure_unavailable(self, sysid: int, request_id: str | None, asked: bool) -> dict[str, Any]:
-        return {
-            "sysid": sysid,
-            "available": False,
-            "estimator": None,
-            "ok": not asked,  # at start nothing was asked, so nothing failed
-            "error": "the secure stage is not available in this proxy",
-            "request_id": request_id,
-        }
-
-    def _publish_initial_secure(self, sysid: int) -> None:
-        if self._secure is None:
-            self._publish_secure(sysid, self._secure_unavailable(sysid, None, asked=False))
-        elif self._secure_state is not None:
-            try:
-                state = self._secure_state(sysid)
-            except Exception:  # the secure stage's bug: its set requests are still answered
-                log.exception("secure.state_failed", extra={"sysid": sysid})
-                return
-            if state is not None:
-                self._publish_secure(sysid, state)
-
-    def _publish_secure(self, sysid: int, state: dict[str, Any]) -> None:
-        self._published_secure[sysid] = state
-        self.publish_nowait(vehicle_topic(sysid, "secure/state"), state, retain=True)
+        self._publish(target, control.handle(payload, request_id))

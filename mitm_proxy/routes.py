@@ -15,6 +15,13 @@ the config file's ``vehicle:``/``ground:`` URLs::
     --ground 'udpout://127.0.0.1:14550?deny=DISTANCE_SENSOR,ATTITUDE'     # downlink
     --ground 'udpin://127.0.0.1:14551?allow_up=HEARTBEAT,76&deny_sysid_up=7'
 
+At runtime the rules of any endpoint are replaced over MQTT (``secuav/proxy/<instance>/routes/set``,
+acknowledged on ``.../routes/state``; a rejected set changes nothing) or from the command line::
+
+    secuav-attack routes show
+    secuav-attack routes set ground:14550 'deny=ATTITUDE&listen_only=true'
+    secuav-attack routes set ground:14550 none          # lift every rule
+
 Filtering a datagram splits it (the CRC-checked splitter, so bytes crafted to hide a frame from the
 filter are dropped rather than passed) and sends the frames that pass, in order; a datagram whose
 frames all pass goes on byte for byte. Every drop is counted under the rule that made it.
@@ -23,8 +30,10 @@ frames all pass goes on byte for byte. Every drop is counted under the rule that
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any, Literal
+from urllib.parse import parse_qsl
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
@@ -104,19 +113,44 @@ def rules_from_options(endpoint: Endpoint, source: str = "<url>") -> EndpointRul
 
     Unknown options and bad values raise :class:`InputError` naming the URL and the option.
     """
+    return rules_from_pairs(endpoint.options, f"{endpoint} option", source, f"{source} {endpoint.without_options()}")
+
+
+def rules_from_query(query: str, source: str) -> EndpointRules:
+    """The same rules written as a URL query alone (``deny=ATTITUDE&listen_only=true``; ``""`` is no rule)."""
+    try:
+        pairs = parse_qsl(query.lstrip("?"), keep_blank_values=True, strict_parsing=bool(query.strip("?")))
+    except ValueError:
+        raise InputError(source, "rules", query, "not KEY=VALUE pairs joined by &") from None
+    return rules_from_pairs(pairs, "option", source, source)
+
+
+def rules_from_pairs(pairs: Iterable[tuple[str, str]], what: str, source: str, where: str) -> EndpointRules:
     data: dict[str, Any] = {"down": {}, "up": {}}
-    for key, value in endpoint.options:
+    for key, value in pairs:
         base, up = (key[:-3], True) if key.endswith("_up") else (key, False)
         if key == "listen_only":
             if value.lower() not in ("true", "false", "1", "0", "yes", "no"):
-                raise InputError(source, f"{endpoint} option listen_only", value, "must be true or false")
+                raise InputError(source, f"{what} listen_only", value, "must be true or false")
             data["listen_only"] = value.lower() in ("true", "1", "yes")
         elif base in _LISTS:
             data["up" if up else "down"][base] = [s.strip() for s in value.split(",") if s.strip()]
         else:
             known = ", ".join(("listen_only", *_LISTS, *(f"{k}_up" for k in _LISTS)))
-            raise InputError(source, f"{endpoint} option {key}", value, f"unknown option (known: {known})")
-    return validate(EndpointRules, data, f"{source} {endpoint.without_options()}")
+            raise InputError(source, f"{what} {key}", value, f"unknown option (known: {known})")
+    return validate(EndpointRules, data, where)
+
+
+def rules_to_query(rules: EndpointRules) -> str:
+    """The URL-option spelling of ``rules`` (what ``secuav-attack routes show`` prints)."""
+    parts = ["listen_only=true"] if rules.listen_only else []
+    for direction, suffix in (("down", ""), ("up", "_up")):
+        flt: FrameFilter = getattr(rules, direction)
+        for name in _LISTS:
+            items = getattr(flt, name)
+            if items:
+                parts.append(f"{name}{suffix}={','.join(str(i) for i in items)}")
+    return "&".join(parts)
 
 
 @dataclass(frozen=True, slots=True)

@@ -17,6 +17,7 @@ from attack_profiles.profile import load_profile
 from mitm_proxy import attack_cli
 from mitm_proxy.attack import AttackStage
 from mitm_proxy.control import ControlPlane
+from mitm_proxy.controls import vehicle_controls
 from mitm_proxy.slots import AttackSlot
 from secuav_common.broker import EmbeddedBroker
 
@@ -49,7 +50,7 @@ async def bench(tcp_port: Callable[[], int]) -> AsyncIterator[Bench]:
     stages = {sysid: AttackStage(slot) for sysid, slot in slots.items()}
     async with EmbeddedBroker(port=port):
         url = f"mqtt://127.0.0.1:{port}"
-        async with ControlPlane(url, slots, stats=stats, attack_stages=stages) as plane:
+        async with ControlPlane(url, vehicle_controls("t", slots, stages), stats=stats) as plane:
             await plane.wait_connected(10)
             await asyncio.sleep(0.3)  # the initial retained states reach the broker
             yield Bench(url, slots, plane, stages)
@@ -109,7 +110,7 @@ async def test_clear_and_status(bench: Bench, capsys: pytest.CaptureFixture[str]
     assert (await cli(capsys, "apply", "distance-stuck", "--broker", bench.url))[0] == 0
     code, out, _ = await cli(capsys, "status", "--broker", bench.url)
     lines = out.splitlines()
-    assert code == 0 and lines[0] == "proxy: online"
+    assert code == 0 and lines[0].startswith("proxy t: online since ") and lines[0].endswith("; vehicles v1, v2")
     assert any(line.startswith("v1: attack distance-stuck (hash ") for line in lines)
     assert "v1: secure not available in this proxy" in lines
     stats_lines = [line for line in lines if line.startswith("v1: downlink 10 in/9 out, rewritten 3, dropped 1, bad 0")]
@@ -163,3 +164,18 @@ async def test_the_console_command_as_a_process(bench: Bench) -> None:
     assert proc.returncode == 0, err.decode()
     assert out.decode().startswith("ok: v1 gps-glitch (hash ")
     assert bench.slots[1].state.profile == "gps-glitch"
+
+
+def test_status_names_every_instance_and_warns_about_a_shared_sysid() -> None:
+    board = attack_cli.Board()
+    board.latest.update({
+        "secuav/proxy/lab-a/online": {"instance": "lab-a", "online": True, "since": 0, "vehicles": [1, 2], "pid": 7,
+                                      "host": "h"},
+        "secuav/proxy/lab-b/online": {"instance": "lab-b", "online": True, "since": 0, "vehicles": [2]},
+        "secuav/proxy/old/online": {"instance": "old", "online": False, "since": 0, "vehicles": [1]},
+    })  # fmt: skip
+    lines = attack_cli._instance_lines(board)
+    assert lines[0] == "proxy lab-a: online since 1970-01-01 00:00:00Z pid 7 on h; vehicles v1, v2"
+    assert lines[2].startswith("proxy old: offline")
+    assert lines[3].startswith("warning: v2 is served by 2 online proxies (lab-a, lab-b)")
+    assert len(lines) == 4  # v1's other claimant is offline: no warning

@@ -15,6 +15,7 @@ from test_control_support import MOSQUITTO, Mosquitto, Observer
 
 from attack_profiles import library
 from mitm_proxy.control import MAX_PAYLOAD_BYTES, ONLINE_TOPIC, ControlPlane
+from mitm_proxy.controls import vehicle_controls
 from mitm_proxy.slots import AttackSlot
 from secuav_common.broker import EmbeddedBroker
 
@@ -54,7 +55,7 @@ def slots() -> dict[int, AttackSlot]:
 async def test_library_profile_is_applied_acknowledged_and_retained(
     broker_port: int, slots: dict[int, AttackSlot]
 ) -> None:
-    plane = ControlPlane(f"mqtt://127.0.0.1:{broker_port}", slots, stats=fake_stats)
+    plane = ControlPlane(f"mqtt://127.0.0.1:{broker_port}", vehicle_controls("t", slots), stats=fake_stats)
     async with plane, Observer(broker_port, ["secuav/#"]) as obs:
         await plane.wait_connected(10)
         initial = await obs.wait_for(STATE1)
@@ -76,7 +77,7 @@ async def test_library_profile_is_applied_acknowledged_and_retained(
 
 
 async def test_rejected_profile_keeps_the_old_engine(broker_port: int, slots: dict[int, AttackSlot]) -> None:
-    async with ControlPlane(f"mqtt://127.0.0.1:{broker_port}", slots, stats=fake_stats) as plane:
+    async with ControlPlane(f"mqtt://127.0.0.1:{broker_port}", vehicle_controls("t", slots), stats=fake_stats) as plane:
         await plane.wait_connected(10)
         async with Observer(broker_port, ["secuav/v1/#"]) as obs:
             good = await obs.request(SET1, {"library": "distance-stuck"})
@@ -95,7 +96,7 @@ async def test_rejected_profile_keeps_the_old_engine(broker_port: int, slots: di
 
 
 async def test_null_and_an_empty_request_clear(broker_port: int, slots: dict[int, AttackSlot]) -> None:
-    async with ControlPlane(f"mqtt://127.0.0.1:{broker_port}", slots, stats=fake_stats) as plane:
+    async with ControlPlane(f"mqtt://127.0.0.1:{broker_port}", vehicle_controls("t", slots), stats=fake_stats) as plane:
         await plane.wait_connected(10)
         async with Observer(broker_port, ["secuav/v1/#"]) as obs:
             assert (await obs.request(SET1, {"library": "drift"}))["ok"]
@@ -111,7 +112,7 @@ async def test_null_and_an_empty_request_clear(broker_port: int, slots: dict[int
 
 
 async def test_oversized_binary_and_broken_payloads_are_refused(broker_port: int, slots: dict[int, AttackSlot]) -> None:
-    async with ControlPlane(f"mqtt://127.0.0.1:{broker_port}", slots, stats=fake_stats) as plane:
+    async with ControlPlane(f"mqtt://127.0.0.1:{broker_port}", vehicle_controls("t", slots), stats=fake_stats) as plane:
         await plane.wait_connected(10)
         async with Observer(broker_port, ["secuav/v1/#"]) as obs:
             assert (await obs.request(SET1, {"library": "drift"}))["ok"]
@@ -142,7 +143,7 @@ async def test_unknown_vehicle_is_logged_once(
     broker_port: int, slots: dict[int, AttackSlot], caplog: pytest.LogCaptureFixture
 ) -> None:
     caplog.set_level(logging.WARNING, logger="mitm_proxy.control")
-    async with ControlPlane(f"mqtt://127.0.0.1:{broker_port}", slots, stats=fake_stats) as plane:
+    async with ControlPlane(f"mqtt://127.0.0.1:{broker_port}", vehicle_controls("t", slots), stats=fake_stats) as plane:
         await plane.wait_connected(10)
         async with Observer(broker_port, ["secuav/#"]) as obs:
             for _ in range(3):
@@ -156,7 +157,7 @@ async def test_unknown_vehicle_is_logged_once(
 
 
 async def test_stats_are_published_about_once_a_second(broker_port: int, slots: dict[int, AttackSlot]) -> None:
-    plane = ControlPlane(f"mqtt://127.0.0.1:{broker_port}", slots, stats=fake_stats)
+    plane = ControlPlane(f"mqtt://127.0.0.1:{broker_port}", vehicle_controls("t", slots), stats=fake_stats)
     async with plane, Observer(broker_port, ["secuav/+/stats"]) as obs:
         await plane.wait_connected(10)
         await asyncio.sleep(3.3)
@@ -168,7 +169,7 @@ async def test_stats_are_published_about_once_a_second(broker_port: int, slots: 
 
 async def test_secure_set_without_and_with_a_secure_stage(broker_port: int, slots: dict[int, AttackSlot]) -> None:
     url = f"mqtt://127.0.0.1:{broker_port}"
-    async with ControlPlane(url, slots, stats=fake_stats) as plane:
+    async with ControlPlane(url, vehicle_controls("t", slots), stats=fake_stats) as plane:
         await plane.wait_connected(10)
         async with Observer(broker_port, ["secuav/v1/secure/#"]) as obs:
             initial = await obs.wait_for("secuav/v1/secure/state")
@@ -180,45 +181,57 @@ async def test_secure_set_without_and_with_a_secure_stage(broker_port: int, slot
             anonymous = await obs.wait_for("secuav/v1/secure/state", start=start)
             assert not anonymous["ok"] and anonymous["request_id"] is None
 
-    calls: list[tuple[int, Any, str | None]] = []
+    class BrokenSlot:  # a secure stage whose code raises: the plane reports it and keeps serving
+        def __init__(self) -> None:
+            self.state: dict[str, Any] = {"sysid": 2, "ok": True, "estimator": None, "request_id": None}
 
-    def secure(sysid: int, payload: Any, request_id: str | None) -> dict[str, Any]:
-        calls.append((sysid, payload, request_id))
-        if payload.get("estimator") == "broken":
+        def offer_payload(self, payload: Any, request_id: str | None) -> dict[str, Any]:
             raise RuntimeError("boom")
-        return {"sysid": sysid, "estimator": payload.get("estimator"), "ok": True, "request_id": request_id}
 
-    async with ControlPlane(url, slots, stats=fake_stats, secure=secure) as plane:
+        def reject(self, error: str, request_id: str | None) -> dict[str, Any]:
+            self.state = {**self.state, "ok": False, "error": error, "request_id": request_id}
+            return self.state
+
+    controls = vehicle_controls("t", slots, secure={2: BrokenSlot()})
+    async with ControlPlane(url, controls, stats=fake_stats) as plane:
         await plane.wait_connected(10)
-        async with Observer(broker_port, ["secuav/v2/secure/#"]) as obs:
-            state = await obs.request("secuav/v2/secure/set", {"estimator": "rarse"})
-            assert state["ok"] and state["estimator"] == "rarse"
-            assert calls[-1][0] == 2 and calls[-1][1]["estimator"] == "rarse"
-            failed = await obs.request("secuav/v2/secure/set", {"estimator": "broken"})
+        async with Observer(broker_port, ["secuav/v2/secure/#", STATE1]) as obs:
+            failed = await obs.request("secuav/v2/secure/set", {"estimator": "rarse"})
             assert not failed["ok"] and "boom" in failed["error"]
+            assert (await obs.request(SET1, {"library": "wall-spoof"}))["ok"]  # the plane still serves
+
+
+INSTANCE_ONLINE = "secuav/proxy/t/online"
 
 
 async def test_clean_stop_says_offline(broker_port: int, slots: dict[int, AttackSlot]) -> None:
-    async with Observer(broker_port, [ONLINE_TOPIC]) as obs:
-        async with ControlPlane(f"mqtt://127.0.0.1:{broker_port}", slots, stats=fake_stats) as plane:
+    async with Observer(broker_port, [ONLINE_TOPIC, INSTANCE_ONLINE]) as obs:
+        async with ControlPlane(f"mqtt://127.0.0.1:{broker_port}", vehicle_controls("t", slots), stats=fake_stats,
+                                describe=lambda: {"pid": 42}) as plane:  # fmt: skip
             await plane.wait_connected(10)
             await obs.wait_for(ONLINE_TOPIC, lambda b: b is True)
+            record = await obs.wait_for(INSTANCE_ONLINE, lambda b: b["online"])
+            assert record["instance"] == "t" and record["vehicles"] == [1, 2] and record["pid"] == 42
         await obs.wait_for(ONLINE_TOPIC, lambda b: b is False)
+        gone = await obs.wait_for(INSTANCE_ONLINE, lambda b: not b["online"])
+        assert gone["instance"] == "t" and gone["since"] == record["since"]
 
 
 async def test_last_will_fires_when_the_connection_dies(broker_port: int, slots: dict[int, AttackSlot]) -> None:
-    async with Observer(broker_port, [ONLINE_TOPIC]) as obs:
-        plane = ControlPlane(f"mqtt://127.0.0.1:{broker_port}", slots, stats=fake_stats, backoff_s=(30.0, 30.0))
+    async with Observer(broker_port, [INSTANCE_ONLINE]) as obs:
+        controls = vehicle_controls("t", slots)
+        plane = ControlPlane(f"mqtt://127.0.0.1:{broker_port}", controls, stats=fake_stats, backoff_s=(30.0, 30.0))
         async with plane:
             await plane.wait_connected(10)
-            await obs.wait_for(ONLINE_TOPIC, lambda b: b is True)
+            await obs.wait_for(INSTANCE_ONLINE, lambda b: b["online"] is True)
             start = len(obs.messages)
             # Cut the TCP connection under the client, as a crash or a pulled cable would:
             # the broker, not the plane, must announce that the proxy is gone.
             assert plane._client is not None
             sock = plane._client._client.socket()
             sock.shutdown(2)
-            await obs.wait_for(ONLINE_TOPIC, lambda b: b is False, start=start)
+            will = await obs.wait_for(INSTANCE_ONLINE, lambda b: b["online"] is False, start=start)
+            assert will["instance"] == "t" and will["vehicles"] == [1, 2]
             assert not plane.connected.is_set() or await _cleared(plane)
 
 
@@ -231,7 +244,7 @@ async def _cleared(plane: ControlPlane) -> bool:
 
 
 async def test_no_broker_means_no_mqtt_and_publish_is_a_no_op(slots: dict[int, AttackSlot]) -> None:
-    async with ControlPlane(None, slots, stats=fake_stats) as plane:
+    async with ControlPlane(None, vehicle_controls("t", slots), stats=fake_stats) as plane:
         plane.publish_nowait("secuav/v1/estimate", {"x": 1})
         assert not plane.connected.is_set() and plane.dropped == 0
         assert len(plane.outbox.queue) == 0
@@ -243,13 +256,8 @@ async def test_the_real_secure_slot_through_the_plane(broker_port: int) -> None:
 
     scenario = load_scenario("scenarios/wall_hover.yaml")
     secure_slots = {1: SecureSlot(1, scenario)}
-    plane = ControlPlane(
-        f"mqtt://127.0.0.1:{broker_port}",
-        {1: AttackSlot(1, scenario)},
-        stats=fake_stats,
-        secure=lambda sysid, payload, rid: secure_slots[sysid].offer_payload(payload, rid),
-        secure_state=lambda sysid: secure_slots[sysid].state,
-    )
+    controls = vehicle_controls("t", {1: AttackSlot(1, scenario)}, secure=secure_slots)
+    plane = ControlPlane(f"mqtt://127.0.0.1:{broker_port}", controls, stats=fake_stats)
     topic = "secuav/v1/secure/state"
     async with plane, Observer(broker_port, ["secuav/v1/secure/#"]) as obs:
         await plane.wait_connected(10)
@@ -270,7 +278,7 @@ async def test_attack_mode_switches_bypass_at_runtime_and_keeps_the_profile(
     from mitm_proxy.attack import AttackStage
 
     stages = {sysid: AttackStage(slot) for sysid, slot in slots.items()}
-    plane = ControlPlane(f"mqtt://127.0.0.1:{broker_port}", slots, stats=fake_stats, attack_stages=stages)
+    plane = ControlPlane(f"mqtt://127.0.0.1:{broker_port}", vehicle_controls("t", slots, stages), stats=fake_stats)
     mode_set, mode_state = "secuav/v1/attack/mode/set", "secuav/v1/attack/mode/state"
     async with plane, Observer(broker_port, ["secuav/v1/attack/#"]) as obs:
         await plane.wait_connected(10)
@@ -295,13 +303,3 @@ async def test_attack_mode_switches_bypass_at_runtime_and_keeps_the_profile(
         stages[1].enabled = False  # switched by someone else (the app): published all the same
         changed = await obs.wait_for(mode_state, lambda b: b["mode"] == "bypass", start=start)
         assert changed["request_id"] is None
-
-
-async def test_attack_mode_without_stages_says_it_is_not_available(
-    broker_port: int, slots: dict[int, AttackSlot]
-) -> None:
-    async with ControlPlane(f"mqtt://127.0.0.1:{broker_port}", slots, stats=fake_stats) as plane:
-        await plane.wait_connected(10)
-        async with Observer(broker_port, ["secuav/v2/attack/mode/#"]) as obs:
-            state = await obs.request("secuav/v2/attack/mode/set", {"mode": "bypass"})
-            assert not state["ok"] and state["mode"] is None and "not available" in state["error"]

@@ -20,6 +20,7 @@ from test_control_support import (
 
 from mitm_proxy import attack_cli
 from mitm_proxy.control import ControlPlane
+from mitm_proxy.controls import vehicle_controls
 from mitm_proxy.slots import AttackSlot
 
 pytestmark = [
@@ -52,7 +53,8 @@ async def test_tls_and_password_from_plane_to_cli(
 ) -> None:
     port, ca = secured
     slots = {1: AttackSlot(1)}
-    plane = ControlPlane(f"mqtts://127.0.0.1:{port}", slots, stats=no_stats, username="secuav", password="s3cret",
+    controls = vehicle_controls("t", slots)
+    plane = ControlPlane(f"mqtts://127.0.0.1:{port}", controls, stats=no_stats, username="secuav", password="s3cret",
                          tls_ca=str(ca))  # fmt: skip
     async with plane:
         await plane.wait_connected(15)
@@ -83,7 +85,8 @@ async def test_a_wrong_password_or_an_unknown_ca_never_connects_and_is_logged_on
     ]
     for options in cases:
         caplog.clear()
-        plane = ControlPlane(f"mqtts://127.0.0.1:{port}", {1: AttackSlot(1)}, stats=no_stats, backoff_s=(0.1, 0.2),
+        controls = vehicle_controls("t", {1: AttackSlot(1)})
+        plane = ControlPlane(f"mqtts://127.0.0.1:{port}", controls, stats=no_stats, backoff_s=(0.1, 0.2),
                              **options)  # type: ignore[arg-type]  # fmt: skip
         async with plane:
             await asyncio.sleep(1.5)  # several attempts

@@ -14,6 +14,7 @@ from test_control_support import Observer
 
 from attack_profiles.profile import load_profile
 from mitm_proxy.control import ControlPlane
+from mitm_proxy.controls import vehicle_controls
 from mitm_proxy.reload import REHASH_EVERY, ProfileWatcher
 from mitm_proxy.slots import AttackSlot, SlotState
 from secuav_common.broker import EmbeddedBroker
@@ -177,7 +178,10 @@ async def test_the_running_watcher_reloads_and_the_plane_acknowledges_on_mqtt(
     def stats() -> dict[int, dict[str, Any]]:
         return {}
 
-    async with EmbeddedBroker(port=port), ControlPlane(f"mqtt://127.0.0.1:{port}", slots, stats=stats) as plane:
+    async with (
+        EmbeddedBroker(port=port),
+        ControlPlane(f"mqtt://127.0.0.1:{port}", vehicle_controls("t", slots), stats=stats) as plane,
+    ):
         await plane.wait_connected(10)
         async with Observer(port, ["secuav/v1/attack/state"]) as obs, watcher:
             task = asyncio.create_task(watcher.run())

@@ -1,0 +1,102 @@
+"""``secuav-attack status --watch``: a live terminal table of every vehicle on the broker.
+
+The MQTT listener of :mod:`mitm_proxy.attack_cli` keeps the latest message per
+topic on a :class:`~mitm_proxy.attack_cli.Board`; this module only draws it,
+once per ``--interval``, until Ctrl-C. Frame rates come from the difference of
+two stats messages, so they are the proxy's own counts, not guesses.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+import time
+from typing import Any
+
+from mitm_proxy.controls import parse_vehicle_key, vehicle_topic
+
+COLUMNS = ("vehicle", "proxy", "attack", "mode", "secure", "down in/s", "out/s", "rewritten", "dropped", "bad",
+           "p50 ms", "p99 ms", "stats age")  # fmt: skip
+STALE_S = 3.0  # stats older than this: the proxy stopped publishing (the table says so)
+
+
+class Rates:
+    """Frames per second from consecutive stats snapshots of each vehicle."""
+
+    def __init__(self) -> None:
+        self._last: dict[int, tuple[float, int, int]] = {}  # sysid -> (arrival, frames_in, frames_out)
+        self.rates: dict[int, tuple[float, float]] = {}
+
+    def update(self, sysid: int, stats: dict[str, Any], arrived_s: float) -> None:
+        down = stats.get("downlink") or {}
+        now = (arrived_s, int(down.get("frames_in", 0)), int(down.get("frames_out", 0)))
+        last = self._last.get(sysid)
+        if last is not None and now[0] - last[0] > 0.2 and now[1] >= last[1]:
+            dt = now[0] - last[0]
+            self.rates[sysid] = ((now[1] - last[1]) / dt, (now[2] - last[2]) / dt)
+        if last is None or now[0] - last[0] > 0.2:
+            self._last[sysid] = now
+
+
+def table(board: Any, rates: Rates, now_s: float) -> list[str]:
+    """The rows to print (header first), from what the board holds now."""
+    owners: dict[int, list[str]] = {}  # two names: two proxies claim the sysid (status says so)
+    for name, rec in board.instances().items():
+        for v in rec.get("vehicles", []) if rec.get("online") else []:
+            owners.setdefault(v, []).append(name)
+    rows = [COLUMNS]
+    for sysid in _vehicles(board):
+        attack = board.latest.get(vehicle_topic(sysid, "attack/state")) or {}
+        mode = (board.latest.get(vehicle_topic(sysid, "attack/mode/state")) or {}).get("mode") or "-"
+        secure = board.latest.get(vehicle_topic(sysid, "secure/state")) or {}
+        stats = board.latest.get(vehicle_topic(sysid, "stats"))
+        arrived = board.arrivals.get(vehicle_topic(sysid, "stats"))
+        cells = [f"v{sysid}", ",".join(owners.get(sysid, ["?"])), attack.get("profile") or "none", mode,
+                 "n/a" if secure.get("available") is False else (secure.get("estimator") or "off")]  # fmt: skip
+        if isinstance(stats, dict) and arrived is not None:
+            rates.update(sysid, stats, arrived)
+            down, up, lat = stats.get("downlink") or {}, stats.get("uplink") or {}, stats.get("latency_ms") or {}
+            rate_in, rate_out = rates.rates.get(sysid, (None, None))
+            age = now_s - arrived
+            cells += [_num(rate_in), _num(rate_out),
+                      str(down.get("rewritten", 0) + up.get("rewritten", 0)),
+                      str(down.get("dropped", 0) + up.get("dropped", 0)),
+                      str(down.get("bad_total", 0) + up.get("bad_total", 0)),
+                      _num(lat.get("p50"), 3), _num(lat.get("p99"), 3),
+                      f"{age:.1f} s" + (" STALE" if age > STALE_S else "")]  # fmt: skip
+        else:
+            cells += ["-"] * 8
+        rows.append(tuple(cells))
+    widths = [max(len(str(r[i])) for r in rows) for i in range(len(COLUMNS))]
+    return ["  ".join(str(c).ljust(w) for c, w in zip(row, widths, strict=True)).rstrip() for row in rows]
+
+
+def _vehicles(board: Any) -> list[int]:
+    found = set()
+    for topic in board.latest:
+        parts = topic.split("/")
+        if len(parts) >= 3 and (sysid := parse_vehicle_key(parts[1])) is not None:
+            found.add(sysid)
+    return sorted(found)
+
+
+def _num(value: Any, digits: int = 0) -> str:
+    return "-" if not isinstance(value, int | float) else f"{value:.{digits}f}"
+
+
+async def watch(board: Any, args: argparse.Namespace) -> int:
+    """Redraw until Ctrl-C (exit 0); on a terminal the screen is cleared first, piped output gets blocks."""
+    rates = Rates()
+    tty = sys.stdout.isatty()
+    try:
+        while True:
+            lines = table(board, rates, time.monotonic())
+            stamp = time.strftime("%H:%M:%S")
+            header = f"secuav-attack status --watch  {args.broker}  {stamp}  (Ctrl-C to stop)"
+            text = "\n".join([header, *lines]) + "\n"
+            sys.stdout.write(("\x1b[H\x1b[2J" if tty else "\n") + text)
+            sys.stdout.flush()
+            await asyncio.sleep(args.interval)
+    except asyncio.CancelledError:
+        return 0
