@@ -38,6 +38,7 @@ from mitm_proxy.controls import Controls, RoutesControl, default_instance, vehic
 from mitm_proxy.endpoints import DEFAULT_TAKEOVER_S, BaseEndpoint, make_endpoint
 from mitm_proxy.link import GroundRouter, Link
 from mitm_proxy.pipeline import Pipeline
+from mitm_proxy.readings import ReadingsTap
 from mitm_proxy.recording import Recorder
 from mitm_proxy.secure_config import OFF, SecureConfig, config_from_payload
 from mitm_proxy.signing import Signer
@@ -51,6 +52,7 @@ from secuav_common.urls import Endpoint
 log = logging.getLogger("secuav-proxy")
 VEHICLE_TAKEOVER_S = 1.0  # a new vehicle source port is followed after this much silence from the old one
 STOP_BUDGET_S = 0.8  # what the control plane may take to say goodbye
+READINGS_PERIOD_S = 0.1  # secuav/v<N>/readings while a console watches
 
 
 def resolve_profile(name_or_path: str | Path) -> Profile:
@@ -98,6 +100,7 @@ class Proxy:
         self.control: Any = None  # the ControlPlane when a broker is configured
         self._stack = contextlib.AsyncExitStack()
         self._tasks: list[asyncio.Task[Any]] = []
+        self._readings_task: asyncio.Task[None] | None = None
 
     def _secure_config(self) -> SecureConfig:
         """``--secure`` / ``secure:``; the secure stage needs the scenario (sensor layout, anchors, noise)."""
@@ -177,6 +180,27 @@ class Proxy:
                  for ln in self.links}  # fmt: skip
         return {"pid": os.getpid(), "host": socket.gethostname(), "links": links}
 
+    def _watch(self, consoles: int) -> None:
+        """A console watches: give each pipeline a readings tap and publish it at 10 Hz; none: take them away."""
+        for link in self.links:
+            link.pipeline.readings = ReadingsTap(link.sysid) if consoles else None
+        if consoles and self._readings_task is None:
+            self._readings_task = asyncio.create_task(self._publish_readings(), name="readings")
+            self._tasks.append(self._readings_task)
+        elif not consoles and self._readings_task is not None:
+            self._readings_task.cancel()
+            self._tasks.remove(self._readings_task)
+            self._readings_task = None
+
+    async def _publish_readings(self) -> None:
+        while True:
+            await asyncio.sleep(READINGS_PERIOD_S)
+            for link in self.links:
+                tap = link.pipeline.readings
+                payload = tap.take() if tap is not None else None
+                if payload is not None and self.control is not None:
+                    self.control.publish_nowait(vehicle_topic(link.sysid, "readings"), payload)
+
     async def _start_control(self) -> None:
         cfg = self.config
         if cfg.broker == "none":
@@ -192,7 +216,8 @@ class Proxy:
         parse_broker_url(url)
         ca = str(cfg.broker_tls_ca) if cfg.broker_tls_ca else None
         plane = ControlPlane(url, self.build_controls(), stats=self.stats_snapshot, describe=self._describe,
-                             username=cfg.broker_username, password=cfg.broker_password, tls_ca=ca)  # fmt: skip
+                             on_watchers=self._watch, username=cfg.broker_username, password=cfg.broker_password,
+                             tls_ca=ca)  # fmt: skip
         self.control = plane
         await self._stack.enter_async_context(plane)  # it connects, reconnects and publishes in its own task
 

@@ -55,6 +55,7 @@ _CLIENT_LOG = logging.getLogger(f"{__name__}.mqtt")
 if _CLIENT_LOG.level == logging.NOTSET:
     _CLIENT_LOG.setLevel(logging.INFO)
 
+CONSOLE_ONLINE = f"{PREFIX}/console/+/online"  # a console's retained record: the proxy then publishes readings
 ONLINE_TOPIC = f"{PREFIX}/proxy/online"  # the single-proxy flag; fleets read each instance's online record
 MAX_PAYLOAD_BYTES = 64 * 1024
 DRAIN_BATCH = 64  # messages published concurrently by the outbox drain
@@ -199,6 +200,7 @@ class ControlPlane:
         *,
         stats: Callable[[], dict[int, dict[str, Any]]],
         describe: Callable[[], dict[str, Any]] | None = None,
+        on_watchers: Callable[[int], None] | None = None,
         username: str | None = None,
         password: str | None = None,
         tls_ca: str | None = None,
@@ -213,6 +215,8 @@ class ControlPlane:
         self.instance = controls.instance
         self._stats = stats
         self._describe = describe  # extra fields of the online record (endpoints, pid...)
+        self._on_watchers = on_watchers  # told how many consoles watch when that changes
+        self.watchers: set[str] = set()  # consoles whose retained online record says true
         self._username = username if username is not None else (self.address.username if self.address else None)
         self._password = password if password is not None else (self.address.password if self.address else None)
         self._tls = self.address is not None and (self.address.tls or tls_ca is not None)
@@ -405,7 +409,10 @@ class ControlPlane:
     async def _serve(self, client: aiomqtt.Client) -> None:
         await client.publish(self.online_topic, self._online_record(True), qos=1, retain=True)
         await client.publish(ONLINE_TOPIC, b"true", qos=1, retain=True)
-        await client.subscribe([(t, 1) for t in self.controls.subscriptions()])
+        topics = self.controls.subscriptions()
+        if self._on_watchers is not None:
+            topics.append(CONSOLE_ONLINE)
+        await client.subscribe([(t, 1) for t in topics])
         self.publish_states(force=True)
         self.connections += 1
         self.connected.set()
@@ -471,10 +478,25 @@ class ControlPlane:
             # over without yielding); let the datagrams that arrived meanwhile go first.
             await asyncio.sleep(0)
 
+    def _console(self, topic: str, raw: bytes) -> None:
+        """A console came or went (its retained record, or its last will)."""
+        try:
+            online = bool(json.loads(raw).get("online")) if raw and len(raw) < 4096 else False
+        except (ValueError, AttributeError):
+            online = False
+        before = len(self.watchers)
+        (self.watchers.add if online else self.watchers.discard)(topic)
+        if len(self.watchers) != before and self._on_watchers is not None:
+            log.info("console.watchers", extra={"count": len(self.watchers), "topic": topic})
+            self._on_watchers(len(self.watchers))
+
     # -- requests (sans-I/O: tests call handle() directly) ---------------------------------------------
 
     def handle(self, topic: str, raw: bytes, retained: bool = False) -> None:
         """Apply one ``.../set`` message and queue the resulting state."""
+        if topic.startswith(CONSOLE_ONLINE[:-8]) and topic.endswith("/online"):
+            self._console(topic, raw)
+            return
         target = self.controls.route(topic)
         if target is None:
             return

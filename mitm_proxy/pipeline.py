@@ -26,6 +26,7 @@ from typing import NamedTuple
 from mitm_proxy import codec
 from mitm_proxy.frames import split
 from mitm_proxy.packet import Direction, Header, Packet, Stage
+from mitm_proxy.readings import ReadingsTap
 from mitm_proxy.recording import Recorder
 from mitm_proxy.signing import Signer
 from mitm_proxy.stats import DirectionStats, LinkStats
@@ -70,6 +71,7 @@ class Pipeline:
         self.stats = stats
         self.recorder = recorder
         self.signer = signer
+        self.readings: ReadingsTap | None = None  # set while a console watches (mitm_proxy.readings)
         self._logged: set[str] = set()
         self._union_key: tuple[frozenset[int], ...] = ()
         self._union: frozenset[int] = _NOTHING
@@ -127,6 +129,11 @@ class Pipeline:
             st.bytes_out += len(datagram)
             if rec is not None:
                 rec.forwarded_frames(frames)
+            tap = self.readings
+            if tap is not None and direction is Direction.DOWNLINK:
+                for header, raw in frames:
+                    if header.msgid in tap.ids:
+                        tap.see(header.msgid, raw, raw)
             return [Outgoing(datagram, now_s, now_s, len(frames))]
         return self._slow(frames, direction, now_s, st, active, wanted, first)
 
@@ -142,6 +149,7 @@ class Pipeline:
     ) -> list[Outgoing]:
         signer = self.signer
         rec = self.recorder
+        tap = self.readings if direction is Direction.DOWNLINK else None
         now_parts: list[bytes] = []
         later: list[Outgoing] = []
         for j, (header, raw) in enumerate(frames, first):
@@ -154,6 +162,8 @@ class Pipeline:
                 now_parts.append(raw)
                 if rec is not None:
                     rec.forwarded(raw, header.msgid)
+                if tap is not None and header.msgid in tap.ids:
+                    tap.see(header.msgid, raw, raw)
                 continue
             pkt = Packet(raw, header, direction, self.link, now_s)
             try:
@@ -169,8 +179,12 @@ class Pipeline:
                 st.dropped += 1
                 if rec is not None:
                     rec.dropped(header.msgid, pkt, j)
+                if tap is not None and header.msgid in tap.ids:
+                    tap.see(header.msgid, raw, None)
             for p in pkts:
                 data = self._wire(p, st)
+                if tap is not None and p is pkt and header.msgid in tap.ids:
+                    tap.see(header.msgid, raw, data)
                 if p.release_s > now_s:
                     st.delayed += 1
                     st.frames_out += 1

@@ -3,11 +3,16 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
-# mosquitto is the broker a deployment would use; its tests run when it is installed.
-if ! command -v mosquitto >/dev/null 2>&1 && [ "$(id -u)" -eq 0 ] && command -v apt-get >/dev/null 2>&1; then
-  echo "test: installing mosquitto with apt" >&2
-  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq mosquitto) >/dev/null 2>&1 \
-    || echo "test: could not install mosquitto; its tests will be skipped" >&2
+# mosquitto is the broker a deployment would use; chromium drives the console's page. Their tests run
+# when they are installed (under CI=true a missing one fails them).
+missing=""
+command -v mosquitto >/dev/null 2>&1 || missing="$missing mosquitto"
+command -v chromedriver >/dev/null 2>&1 || missing="$missing chromium chromium-driver"
+if [ -n "$missing" ] && [ "$(id -u)" -eq 0 ] && command -v apt-get >/dev/null 2>&1; then
+  echo "test: installing$missing with apt" >&2
+  # shellcheck disable=SC2086  # one word per package
+  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $missing) >/dev/null 2>&1 \
+    || echo "test: could not install$missing; their tests will be skipped" >&2
 fi
 .venv/bin/ruff check .
 exec .venv/bin/python -m pytest -q "$@"

@@ -263,3 +263,26 @@ def test_fuzz_counters_balance_and_nothing_valid_is_lost(chunks: list[tuple[byte
     for kind, value in kept:
         if kind == "raw":
             assert value in raws
+
+
+def test_a_readings_tap_sees_each_watched_reading_as_it_came_and_as_it_left() -> None:
+    from mitm_proxy.readings import ReadingsTap
+
+    pipe, _, _ = make(bias(sensor_id=3, offset_m=1.0),
+                      {"target": {"message": "DISTANCE_SENSOR", "sensor_id": 4}, "kind": "drop"})  # fmt: skip
+    tap = pipe.readings = ReadingsTap(1)
+    now = time.monotonic()
+    pipe.feed(pack(distance(cm=250, sensor_id=3)) + pack(distance(cm=300, sensor_id=5)), DOWN, now)  # slow path
+    pipe.feed(pack(distance(cm=420, sensor_id=4)), DOWN, now)  # dropped by the attack
+    pipe.feed(pack(local_position()) + pack(heartbeat()), DOWN, now)  # fast path: nothing targeted
+    pipe.feed(pack(distance(cm=999, sensor_id=3)), UP, now)  # uplink: not a reading
+    got = tap.take()
+    assert got is not None and got["sysid"] == 1
+    assert got["sensors"] == {
+        "3": {"original_m": 2.5, "forwarded_m": 3.5, "flagged": False},
+        "4": {"original_m": 4.2, "forwarded_m": None, "flagged": False},
+        "5": {"original_m": 3.0, "forwarded_m": 3.0, "flagged": False},
+    }
+    pos = got["position"]
+    assert pos["original_ned_m"] == pos["forwarded_ned_m"] and len(pos["original_ned_m"]) == 3
+    assert tap.take() is None  # only what changed since

@@ -1,0 +1,5 @@
+import sys
+
+from webconsole.cli import main
+
+sys.exit(main())

@@ -1,0 +1,244 @@
+"""The console's HTTP side: the page, its JSON API and its live stream (Starlette, served by uvicorn).
+
+=========================================  ===================================================
+``GET /``                                  the page (static files, no CDN: works offline)
+``GET /api/vehicles``                      one row per vehicle (``Fleet.summary``)
+``GET /api/vehicles/{sysid}``              that row plus the scenario's world for the top view
+``GET /api/library``                       the library profiles with their parameters and defaults
+``GET /api/estimators``                    what ``secure`` accepts
+``POST /api/vehicles/{sysid}/attack``      ``{"profile": name | object | YAML text | null, "params": {}}``
+``POST /api/vehicles/{sysid}/attack/mode``  ``{"mode": "on" | "bypass"}``
+``POST /api/vehicles/{sysid}/secure``      ``{"estimator": name | "off", "params": {}}``
+``GET /api/stream?vehicle=N``              server-sent events, 10 per second: the fleet and N's new samples
+=========================================  ===================================================
+
+A POST answers with the proxy's own acknowledgement (``ok``, ``error``), or 422
+when the request never left the console (a profile that does not validate: the
+body names the ``field``), or 504 when no proxy answered in time. Profiles are
+checked here with the same pydantic model the proxy uses (the one the profile
+JSON Schema is generated from), so nothing invalid reaches the broker.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import binascii
+import hmac
+import json
+import time
+from collections.abc import AsyncIterator, Callable
+from pathlib import Path
+from typing import Any
+
+from sse_starlette.sse import EventSourceResponse
+from starlette.applications import Starlette
+from starlette.requests import Request
+from starlette.responses import FileResponse, JSONResponse, Response
+from starlette.routing import Mount, Route
+from starlette.staticfiles import StaticFiles
+from starlette.types import ASGIApp, Receive, Scope, Send
+
+from attack_profiles import library
+from attack_profiles.control import profile_from_payload
+from attack_profiles.profile import parse_profile, parse_text
+from secuav_common.loading import InputError, parse_document
+from webconsole.fleet import AckTimeout, Fleet, Session
+from webconsole.world import world_json
+
+STATIC = Path(__file__).resolve().parent / "static"
+STREAM_PERIOD_S = 0.1
+BACKFILL_S = 120.0  # a page that (re)connects gets this much history at once
+MAX_BODY = 256 * 1024
+
+
+def _error(status: int, error: str, field: str | None = None) -> JSONResponse:
+    return JSONResponse({"ok": False, "error": error, "field": field}, status_code=status)
+
+
+def profile_request(body: Any) -> dict[str, Any] | None:
+    """The ``attack/set`` payload for a page or API request, validated here; raises ``InputError``.
+
+    ``profile``: a library name (with ``params`` for its declared parameters), a profile object,
+    profile text (YAML or JSON, as pasted or uploaded), or ``null`` to clear.
+    """
+    if not isinstance(body, dict):
+        raise InputError("request", "", body, 'expected {"profile": ..., "params": {...}}')
+    profile, params = body.get("profile"), body.get("params") or {}
+    if not isinstance(params, dict):
+        raise InputError("request", "params", params, "must be a mapping of parameter name to value")
+    if profile is None:
+        return None
+    if isinstance(profile, str) and profile.strip() in library.names():
+        name = profile.strip()
+        library.load(name, **params)  # the same check the proxy makes
+        return {"library": name, "parameters": params}
+    if isinstance(profile, str):
+        text = profile.strip()
+        if "\n" not in text and ":" not in text:
+            raise InputError("profile", "", text, f"no such library profile (have: {', '.join(library.names())})")
+        data = parse_text(text, "profile", trusted=False)
+    elif isinstance(profile, dict):
+        data = profile
+    else:
+        raise InputError("request", "profile", profile, "a library name, a profile object or text, or null")
+    checked = parse_profile(data, "profile", **params)
+    payload = json.loads(checked.canonical_json())
+    profile_from_payload(payload, "profile")  # exactly what the proxy will run
+    return payload
+
+
+def library_json() -> list[dict[str, Any]]:
+    out = []
+    for name, description in library.describe():
+        data = parse_document(library.text(name), f"library:{name}")
+        params = data.get("parameters") or {} if isinstance(data, dict) else {}
+        out.append({"name": name, "description": description, "parameters": params, "text": library.text(name)})
+    return out
+
+
+class BasicAuth:
+    """HTTP Basic (any user name) or ``Authorization: Bearer`` with the console password; else 401."""
+
+    def __init__(self, app: ASGIApp, password: str) -> None:
+        self.app = app
+        self.password = password.encode()
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http" or self._allowed(dict(scope["headers"]).get(b"authorization", b"")):
+            await self.app(scope, receive, send)
+            return
+        response = Response("password required\n", status_code=401,
+                            headers={"WWW-Authenticate": 'Basic realm="secuav-console"'})  # fmt: skip
+        await response(scope, receive, send)
+
+    def _allowed(self, header: bytes) -> bool:
+        scheme, _, value = header.partition(b" ")
+        if scheme.lower() == b"bearer":
+            return hmac.compare_digest(value.strip(), self.password)
+        if scheme.lower() == b"basic":
+            try:
+                _, _, given = base64.b64decode(value.strip(), validate=True).partition(b":")
+            except (binascii.Error, ValueError):
+                return False
+            return hmac.compare_digest(given, self.password)
+        return False
+
+
+def build_app(fleet: Fleet, session: Session, password: str | None = None,
+              ack_timeout_s: float = 5.0) -> ASGIApp:  # fmt: skip
+    """The ASGI application; wrapped in :class:`BasicAuth` when a password is given."""
+    library_cache: list[dict[str, Any]] = []
+
+    async def json_body(request: Request) -> Any:
+        raw = await request.body()
+        if len(raw) > MAX_BODY:
+            raise InputError("request", "", f"{len(raw)} bytes", f"larger than {MAX_BODY} bytes")
+        try:
+            return json.loads(raw or b"null")
+        except ValueError as exc:
+            raise InputError("request", "", None, f"not JSON: {exc}") from None
+
+    def known(request: Request) -> int | None:
+        sysid = int(request.path_params["sysid"])
+        return sysid if sysid in fleet.vehicles else None
+
+    async def send(request: Request, leaf: str, build: Callable[[Any], dict[str, Any]]) -> Response:
+        sysid = known(request)
+        if sysid is None:
+            return _error(404, f"no vehicle {request.path_params['sysid']} on the broker")
+        try:
+            payload = build(await json_body(request))
+        except InputError as exc:
+            return _error(422, str(exc), exc.field or None)
+        try:
+            state = await session.request(f"secuav/v{sysid}/{leaf}/set", payload, ack_timeout_s)
+        except AckTimeout as exc:
+            return _error(504, str(exc))
+        return JSONResponse(state, status_code=200 if state.get("ok") else 409)
+
+    async def index(request: Request) -> Response:
+        return FileResponse(STATIC / "index.html")
+
+    async def vehicles(request: Request) -> Response:
+        return JSONResponse(fleet.summary())
+
+    async def vehicle(request: Request) -> Response:
+        sysid = known(request)
+        if sysid is None:
+            return _error(404, f"no vehicle {request.path_params['sysid']} on the broker")
+        row = next(r for r in fleet.summary() if r["sysid"] == sysid)
+        scenario = fleet.scenario_of(sysid)
+        return JSONResponse({**row, "world": world_json(scenario) if scenario is not None else None})
+
+    async def profiles(request: Request) -> Response:
+        if not library_cache:
+            library_cache.extend(library_json())
+        return JSONResponse(library_cache)
+
+    async def estimators_list(request: Request) -> Response:
+        import estimators  # numpy/scipy: only when asked
+
+        return JSONResponse(["off", *estimators.names()])
+
+    async def attack(request: Request) -> Response:
+        return await send(request, "attack", lambda body: profile_request(body) or {})
+
+    async def mode(request: Request) -> Response:
+        def build(body: Any) -> dict[str, Any]:
+            value = body.get("mode") if isinstance(body, dict) else body
+            if value not in ("on", "bypass"):
+                raise InputError("request", "mode", value, 'must be "on" or "bypass"')
+            return {"mode": value}
+
+        return await send(request, "attack/mode", build)
+
+    async def secure(request: Request) -> Response:
+        def build(body: Any) -> dict[str, Any]:
+            if not isinstance(body, dict) or not isinstance(body.get("estimator"), str):
+                raise InputError("request", "estimator", body, 'expected {"estimator": NAME or "off"}')
+            params = body.get("params") or {}
+            if not isinstance(params, dict):
+                raise InputError("request", "params", params, "must be a mapping")
+            return {"estimator": body["estimator"], **({"params": params} if params else {})}
+
+        return await send(request, "secure", build)
+
+    async def stream(request: Request) -> Response:
+        try:
+            watched = int(request.query_params.get("vehicle", "0"))
+        except ValueError:
+            return _error(400, "vehicle: must be a sysid")
+        return EventSourceResponse(_events(request, fleet, watched), ping=15)
+
+    routes = [
+        Route("/", index),
+        Route("/api/vehicles", vehicles),
+        Route("/api/vehicles/{sysid:int}", vehicle),
+        Route("/api/vehicles/{sysid:int}/attack", attack, methods=["POST"]),
+        Route("/api/vehicles/{sysid:int}/attack/mode", mode, methods=["POST"]),
+        Route("/api/vehicles/{sysid:int}/secure", secure, methods=["POST"]),
+        Route("/api/library", profiles),
+        Route("/api/estimators", estimators_list),
+        Route("/api/stream", stream),
+        Mount("/static", StaticFiles(directory=STATIC), name="static"),
+    ]
+    app: ASGIApp = Starlette(routes=routes)
+    return BasicAuth(app, password) if password else app
+
+
+async def _events(request: Request, fleet: Fleet, watched: int) -> AsyncIterator[dict[str, str]]:
+    """Ten updates a second: the fleet table, and the watched vehicle's samples since the last one."""
+    cursor, first = 0, True
+    while not await request.is_disconnected():
+        view = fleet.vehicles.get(watched)
+        samples: list[dict[str, Any]] = []
+        if view is not None:
+            samples = view.since(cursor, time.time() - BACKFILL_S if first else 0.0)
+            if samples:
+                cursor = samples[-1]["seq"]
+            first = False
+        payload = {"t": time.time(), "fleet": fleet.summary(), "vehicle": watched, "samples": samples}
+        yield {"event": "update", "data": json.dumps(payload, separators=(",", ":"), allow_nan=False, default=str)}
+        await asyncio.sleep(STREAM_PERIOD_S)
+

@@ -1,0 +1,153 @@
+"""``secuav-console``: the live web console (see ``webconsole.api`` for what it serves).
+
+    secuav-console                                   # 127.0.0.1:8080, embedded broker on 127.0.0.1:1883
+    secuav-console --scenario wall_hover --broker mqtt://127.0.0.1:1883
+    secuav-console --listen 0.0.0.0:8080 --password-file console.pw
+
+It binds 127.0.0.1 by default; on any other address it refuses to start
+without a password (``--password-file`` or ``SECUAV_CONSOLE_PASSWORD``), which
+the browser then asks for (HTTP Basic) and scripts send as a Bearer token.
+Stops cleanly on Ctrl-C or SIGTERM: the console's online record says offline
+and the proxies stop publishing readings.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import ipaddress
+import logging
+import os
+import signal
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from secuav_common.broker import EmbeddedBroker, parse_broker_url, read_secret, redact
+from secuav_common.loading import InputError
+from secuav_common.logs import add_common_flags, setup_logging
+from secuav_common.scenario import load_scenario
+
+PROG = "secuav-console"
+DEFAULT_LISTEN = "127.0.0.1:8080"
+log = logging.getLogger(PROG)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=PROG, description="Watch and steer SecUAV attacks live in a browser.")
+    add_common_flags(p)
+    p.add_argument("--listen", default=DEFAULT_LISTEN, metavar="HOST:PORT",
+                   help=f"where the page is served (default {DEFAULT_LISTEN}; another address needs a password)")
+    p.add_argument("--broker", default="embedded", metavar="URL",
+                   help="embedded (default: amqtt on 127.0.0.1:1883, or the broker already there) or mqtt://HOST:PORT")
+    p.add_argument("--broker-username", metavar="NAME")
+    p.add_argument("--broker-password-file", metavar="F", type=Path,
+                   help="broker password from F (mode 600); SECUAV_BROKER_PASSWORD works too")
+    p.add_argument("--scenario", action="append", default=[], metavar="F",
+                   help="scenario file or bundled name, for the top view and true readings (repeatable)")
+    p.add_argument("--password-file", metavar="F", type=Path,
+                   help="password for the page and API (mode 600); SECUAV_CONSOLE_PASSWORD works too")
+    p.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
+    p.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
+    return p  # fmt: skip
+
+
+def parse_listen(text: str) -> tuple[str, int]:
+    host, sep, port = text.rpartition(":")
+    if not sep or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(f"--listen {text!r}: expected HOST:PORT, e.g. {DEFAULT_LISTEN}")
+    return host.strip("[]") or "127.0.0.1", int(port)
+
+
+def is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def _secret(path: Path | None, env: str, what: str) -> str | None:
+    if path is not None:
+        return read_secret(path, what).decode("utf-8").strip()
+    return os.environ.get(env) or None
+
+
+async def serve(args: argparse.Namespace, host: str, port: int, password: str | None,
+                broker_password: str | None) -> int:  # fmt: skip
+    import uvicorn
+
+    from webconsole.api import build_app
+    from webconsole.fleet import Fleet, Session
+
+    scenarios = [load_scenario(s) for s in args.scenario]
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            loop.add_signal_handler(sig, stop.set)
+    async with contextlib.AsyncExitStack() as stack:
+        if args.broker == "embedded":
+            broker = await stack.enter_async_context(EmbeddedBroker())
+            address = broker.address
+        else:
+            address = parse_broker_url(args.broker)
+        url = f"http://{host if ':' not in host else f'[{host}]'}:{port}/"
+        fleet = Fleet(scenarios)
+        session = Session(address, fleet, url, username=args.broker_username, password=broker_password)
+        mqtt = asyncio.create_task(session.run(), name="console-mqtt")
+        config = uvicorn.Config(build_app(fleet, session, password), host=host, port=port, log_level="warning",
+                                access_log=False, lifespan="off")  # fmt: skip
+        server = uvicorn.Server(config)
+        server.install_signal_handlers = lambda: None  # type: ignore[method-assign]  # ours above
+        web = asyncio.create_task(server.serve(), name="console-http")
+        await asyncio.sleep(0)
+        while not server.started and not web.done():
+            await asyncio.sleep(0.05)
+        if web.done():  # the port was taken, or the address does not exist
+            mqtt.cancel()
+            return _fail(f"cannot serve on {host}:{port} (in use, or not an address of this machine)", 1)
+        log.info("console.ready", extra={"url": url, "broker": redact(address.url),
+                                         "auth": "password" if password else "none (loopback only)",
+                                         "scenarios": ",".join(s.name for s in scenarios) or "none"})  # fmt: skip
+        print(f"{PROG}: {url}", file=sys.stderr, flush=True)
+        await stop.wait()
+        await session.aclose()
+        server.should_exit = True
+        mqtt.cancel()
+        await asyncio.wait([web, mqtt], timeout=3.0)
+    return 0
+
+
+def _fail(message: str, code: int = 2) -> int:
+    print(f"{PROG}: error: {message}", file=sys.stderr)
+    return code
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        host, port = parse_listen(args.listen)
+        if args.broker != "embedded":
+            parse_broker_url(args.broker)
+        for name in args.scenario:
+            load_scenario(name)
+        password = _secret(args.password_file, "SECUAV_CONSOLE_PASSWORD", "--password-file")
+        broker_password = _secret(args.broker_password_file, "SECUAV_BROKER_PASSWORD", "--broker-password-file")
+    except (InputError, ValueError) as exc:
+        return _fail(str(exc))
+    if not is_loopback(host) and not password:
+        return _fail(f"--listen {args.listen}: serving beyond this machine needs a password "
+                     "(--password-file F or SECUAV_CONSOLE_PASSWORD)")  # fmt: skip
+    setup_logging(args.verbose, args.quiet, noisy=("aiomqtt", "asyncio", "amqtt", "transitions", "uvicorn"),
+                  json_lines=args.log_json)  # fmt: skip
+    try:
+        return asyncio.run(serve(args, host, port, password, broker_password))
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

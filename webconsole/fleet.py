@@ -1,0 +1,320 @@
+"""The console's view of the fleet, fed by MQTT alone, and its requests to the proxies.
+
+:class:`Fleet` is sans-I/O: :meth:`Fleet.on_message` takes each message the
+console's MQTT session receives (``secuav/v<N>/...`` and the proxies' online
+records) and keeps, per vehicle, the latest states and a bounded history of
+samples for the page: truth, the position the ground is sent, the secure
+estimate, and per sensor the reading as it came, as it left, what the secure
+estimate implies and what it would be in truth. :class:`Session` is the MQTT
+side: it connects (with backoff), announces the console on its retained
+``secuav/console/<id>/online`` record (the proxies publish ``readings`` only
+while a console is online), and sends requests, waiting for the proxy's own
+acknowledgement on the retained ``.../state`` that carries the request id.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import math
+import time
+import uuid
+from collections import deque
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import aiomqtt
+
+from secuav_common.broker import BrokerAddress
+from secuav_common.scenario import Scenario
+from webconsole.world import secure_reading, true_reading
+
+log = logging.getLogger("secuav-console")
+
+PREFIX = "secuav"
+LEAVES = ("attack/state", "attack/mode/state", "secure/state", "stats", "estimate", "truth", "readings")
+HISTORY = 30_000  # samples kept per vehicle: ten minutes at ~50 per second
+STALE_S = 3.0  # no stats for this long: the vehicle's proxy is gone or stuck
+MAX_PAYLOAD = 256 * 1024
+
+
+@dataclass
+class VehicleView:
+    """What the console knows of one vehicle."""
+
+    sysid: int
+    states: dict[str, Any] = field(default_factory=dict)  # leaf -> latest body (attack/state, stats, ...)
+    stats_at: float | None = None  # monotonic arrival of the latest stats
+    rate_in: float | None = None  # downlink frames/s from two stats messages
+    rate_out: float | None = None
+    _last_counts: tuple[float, int, int] | None = None
+    truth: list[float] | None = None  # latest true position, for the per-sensor truth
+    estimate: dict[str, Any] | None = None
+    samples: deque[dict[str, Any]] = field(default_factory=lambda: deque(maxlen=HISTORY))
+    seq: int = 0
+
+    def add(self, sample: dict[str, Any]) -> None:
+        self.seq += 1
+        sample["seq"] = self.seq
+        self.samples.append(sample)
+
+    def since(self, seq: int, not_before_t: float = 0.0) -> list[dict[str, Any]]:
+        """Samples after ``seq`` (and not older than ``not_before_t``), oldest first."""
+        if not self.samples or self.samples[-1]["seq"] <= seq:
+            return []
+        out = []
+        for sample in reversed(self.samples):
+            if sample["seq"] <= seq or sample["t"] < not_before_t:
+                break
+            out.append(sample)
+        out.reverse()
+        return out
+
+
+def _finite(value: Any) -> float | None:
+    return float(value) if isinstance(value, int | float) and math.isfinite(value) else None
+
+
+def _vec(value: Any) -> list[float] | None:
+    if isinstance(value, list | tuple) and value and all(_finite(v) is not None for v in value):
+        return [float(v) for v in value]
+    return None
+
+
+class Fleet:
+    """Every vehicle and proxy instance seen on the broker (see the module doc)."""
+
+    def __init__(self, scenarios: Iterable[Scenario] = ()) -> None:
+        self.scenarios = list(scenarios)
+        self.vehicles: dict[int, VehicleView] = {}
+        self.instances: dict[str, dict[str, Any]] = {}
+        self.changed = asyncio.Event()
+
+    def scenario_of(self, sysid: int) -> Scenario | None:
+        return next((s for s in self.scenarios if any(v.sysid == sysid for v in s.vehicles)), None)
+
+    def on_message(self, topic: str, body: Any, now: float | None = None) -> None:
+        """One decoded MQTT message; anything not understood is ignored."""
+        now = time.time() if now is None else now
+        parts = topic.split("/", 2)
+        if len(parts) < 3 or parts[0] != PREFIX:
+            return
+        if parts[1] == "proxy":
+            inst = parts[2].split("/")
+            if len(inst) == 2 and inst[1] == "online" and isinstance(body, dict):
+                self.instances[inst[0]] = body
+            return
+        key, leaf = parts[1], parts[2]
+        if not (key.startswith("v") and key[1:].isdigit()) or leaf not in LEAVES or not isinstance(body, dict):
+            return
+        sysid = int(key[1:])
+        if not 1 <= sysid <= 255:
+            return
+        view = self.vehicles.get(sysid)
+        if view is None:
+            if leaf in ("truth", "readings", "estimate"):  # streams alone do not make a vehicle: a proxy does
+                return
+            view = self.vehicles[sysid] = VehicleView(sysid)
+        handler = getattr(self, f"_on_{leaf.replace('/', '_')}", None)
+        if handler is not None:
+            handler(view, body, now)
+        else:
+            view.states[leaf] = body
+        self.changed.set()
+
+    def _on_stats(self, view: VehicleView, body: dict[str, Any], now: float) -> None:
+        view.states["stats"] = body
+        arrived = time.monotonic()
+        down = body.get("downlink") or {}
+        counts = (arrived, int(down.get("frames_in", 0) or 0), int(down.get("frames_out", 0) or 0))
+        last = view._last_counts
+        if last is not None and counts[0] - last[0] > 0.2 and counts[1] >= last[1]:
+            dt = counts[0] - last[0]
+            view.rate_in, view.rate_out = (counts[1] - last[1]) / dt, (counts[2] - last[2]) / dt
+        view._last_counts = counts
+        view.stats_at = arrived
+
+    def _on_truth(self, view: VehicleView, body: dict[str, Any], now: float) -> None:
+        pos = _vec(body.get("pos_ned_m"))
+        if pos is not None and len(pos) == 3:
+            view.truth = pos
+            view.add({"t": now, "kind": "truth", "pos": pos})
+
+    def _on_estimate(self, view: VehicleView, body: dict[str, Any], now: float) -> None:
+        view.estimate = body
+        attacked = [a for a in body.get("attacked") or [] if isinstance(a, int)]
+        sample: dict[str, Any] = {"t": now, "kind": "estimate", "estimator": body.get("estimator"),
+                                  "alarm": bool(body.get("alarm")), "valid": body.get("valid") is not False,
+                                  "attacked": attacked}  # fmt: skip
+        pos = _vec(body.get("position_ned_m"))
+        if pos is not None:
+            sample["pos"] = pos
+        if (d := _finite(body.get("distance_m"))) is not None:
+            sample["distance_m"] = d
+        view.add(sample)
+
+    def _on_readings(self, view: VehicleView, body: dict[str, Any], now: float) -> None:
+        scenario = self.scenario_of(view.sysid)
+        peers = {s: v.truth for s, v in self.vehicles.items() if v.truth is not None}
+        height = -view.truth[2] if view.truth is not None else None
+        sensors: dict[str, dict[str, Any]] = {}
+        for key, reading in (body.get("sensors") or {}).items():
+            if not (isinstance(reading, dict) and str(key).isdigit()):
+                continue
+            sensor = int(key)
+            entry: dict[str, Any] = {"original_m": _finite(reading.get("original_m")),
+                                     "forwarded_m": _finite(reading.get("forwarded_m")),
+                                     "flagged": bool(reading.get("flagged"))}  # fmt: skip
+            if scenario is not None and view.truth is not None:
+                entry["truth_m"] = true_reading(scenario, view.sysid, sensor, view.truth, peers)
+            if view.estimate is not None and view.estimate.get("estimator"):
+                entry["secure_m"] = secure_reading(scenario, sensor, view.estimate, height)
+            sensors[key] = entry
+        sample: dict[str, Any] = {"t": now, "kind": "readings", "sensors": sensors}
+        position = body.get("position")
+        if isinstance(position, dict):
+            sample["ground_pos"] = _vec(position.get("forwarded_ned_m"))
+            sample["original_pos"] = _vec(position.get("original_ned_m"))
+        view.add(sample)
+
+    # -- what the page and the API read ------------------------------------------------------------------
+
+    def owners(self) -> dict[int, list[str]]:
+        found: dict[int, list[str]] = {}
+        for name, rec in self.instances.items():
+            if rec.get("online"):
+                for v in rec.get("vehicles", []):
+                    if isinstance(v, int):
+                        found.setdefault(v, []).append(name)
+        return found
+
+    def summary(self) -> list[dict[str, Any]]:
+        """One row per vehicle: online, profile, mode, estimator, rates, counters, latency."""
+        owners = self.owners()
+        now = time.monotonic()
+        rows = []
+        for sysid, view in sorted(self.vehicles.items()):
+            attack = view.states.get("attack/state") or {}
+            mode = (view.states.get("attack/mode/state") or {}).get("mode")
+            secure = view.states.get("secure/state") or {}
+            stats = view.states.get("stats") or {}
+            down, up = stats.get("downlink") or {}, stats.get("uplink") or {}
+            latency = stats.get("latency_ms") or {}
+            fresh = view.stats_at is not None and now - view.stats_at < STALE_S
+            rows.append({
+                "sysid": sysid,
+                "instances": owners.get(sysid, []),
+                "online": bool(owners.get(sysid)) and fresh,
+                "profile": attack.get("profile"), "hash": attack.get("hash"), "since": attack.get("since"),
+                "attack_ok": attack.get("ok", True), "attack_error": attack.get("error"),
+                "mode": mode,
+                "secure": secure.get("estimator"), "secure_available": secure.get("available", True) is not False,
+                "frames_in_per_s": view.rate_in if fresh else None,
+                "frames_out_per_s": view.rate_out if fresh else None,
+                "rewritten": down.get("rewritten", 0) + up.get("rewritten", 0),
+                "dropped": down.get("dropped", 0) + up.get("dropped", 0),
+                "bad": down.get("bad_total", 0) + up.get("bad_total", 0),
+                "latency_p50_ms": latency.get("p50"), "latency_p99_ms": latency.get("p99"),
+                "flagged": sorted((view.estimate or {}).get("attacked") or []) if secure.get("estimator") else [],
+            })  # fmt: skip
+        return rows
+
+
+class AckTimeout(Exception):
+    """No acknowledgement from the proxy in time."""
+
+
+class Session:
+    """The console's MQTT session: feeds the fleet, announces the console, sends requests."""
+
+    def __init__(self, address: BrokerAddress, fleet: Fleet, url: str, *, username: str | None = None,
+                 password: str | None = None, backoff_s: tuple[float, float] = (0.2, 5.0)) -> None:  # fmt: skip
+        self.address = address
+        self.fleet = fleet
+        self.console_id = f"console-{uuid.uuid4().hex[:8]}"
+        self.online_topic = f"{PREFIX}/console/{self.console_id}/online"
+        self.url = url
+        self._username = username if username is not None else address.username
+        self._password = password if password is not None else address.password
+        self._backoff_s = backoff_s
+        self._client: aiomqtt.Client | None = None
+        self._waiting: dict[str, asyncio.Future[dict[str, Any]]] = {}
+        self.connected = asyncio.Event()
+        self.since = time.time()
+
+    def _record(self, online: bool) -> bytes:
+        return json.dumps({"id": self.console_id, "online": online, "url": self.url, "since": self.since}).encode()
+
+    async def run(self) -> None:
+        """Connect, subscribe, receive; on broker trouble log once and retry with backoff, until cancelled."""
+        delay = self._backoff_s[0]
+        down = False
+        while True:
+            try:
+                async with aiomqtt.Client(
+                    self.address.host, self.address.port, username=self._username, password=self._password,
+                    identifier=self.console_id, keepalive=10, timeout=5.0,
+                    will=aiomqtt.Will(self.online_topic, self._record(False), qos=1, retain=True),
+                    tls_params=aiomqtt.TLSParameters() if self.address.tls else None,
+                ) as client:  # fmt: skip
+                    self._client = client
+                    await client.subscribe([(f"{PREFIX}/+/{leaf}", 0) for leaf in LEAVES]
+                                           + [(f"{PREFIX}/proxy/+/online", 1)])  # fmt: skip
+                    await client.publish(self.online_topic, self._record(True), qos=1, retain=True)
+                    self.connected.set()
+                    if down:
+                        log.info("mqtt.reconnected", extra={"url": self.address.url})
+                    down, delay = False, self._backoff_s[0]
+                    async for message in client.messages:
+                        self._receive(str(message.topic), message.payload)
+            except aiomqtt.MqttError as exc:
+                if not down:
+                    log.warning("mqtt.unavailable", extra={"url": self.address.url, "error": str(exc)})
+                down = True
+            finally:
+                self._client = None
+                self.connected.clear()
+            await asyncio.sleep(delay)
+            delay = min(delay * 2, self._backoff_s[1])
+
+    def _receive(self, topic: str, payload: Any) -> None:
+        raw = payload if isinstance(payload, bytes | bytearray) else b""
+        if len(raw) > MAX_PAYLOAD:
+            return
+        try:
+            body = json.loads(raw) if raw else None
+        except ValueError:
+            return
+        if isinstance(body, dict) and isinstance(body.get("request_id"), str) and topic.endswith("/state"):
+            waiter = self._waiting.pop(body["request_id"], None)
+            if waiter is not None and not waiter.done():
+                waiter.set_result(body)
+        self.fleet.on_message(topic, body)
+
+    async def request(self, topic: str, body: dict[str, Any], timeout_s: float = 5.0) -> dict[str, Any]:
+        """Publish ``body`` (with a fresh request id first) on ``topic``; the proxy's state for it, or
+        :class:`AckTimeout`."""
+        client = self._client
+        if client is None:
+            raise AckTimeout(f"not connected to the broker at {self.address.url}")
+        request_id = f"console-{uuid.uuid4().hex}"
+        future: asyncio.Future[dict[str, Any]] = asyncio.get_running_loop().create_future()
+        self._waiting[request_id] = future
+        try:
+            await client.publish(topic, json.dumps({"request_id": request_id, **body}).encode(), qos=1)
+            return await asyncio.wait_for(future, timeout_s)
+        except TimeoutError:
+            state = f"{topic.removesuffix('/set')}/state"
+            raise AckTimeout(f"no acknowledgement on {state} within {timeout_s:g} s") from None
+        finally:
+            self._waiting.pop(request_id, None)
+
+    async def aclose(self) -> None:
+        """Say offline while we can (a clean disconnect does not fire the will)."""
+        client = self._client
+        if client is not None:
+            with contextlib.suppress(aiomqtt.MqttError, asyncio.TimeoutError):
+                await asyncio.wait_for(client.publish(self.online_topic, self._record(False), qos=1, retain=True), 0.5)

@@ -1,0 +1,389 @@
+// SecUAV console page: the fleet table, one vehicle's live view, and the controls.
+// Everything comes from the console's JSON API and its server-sent event stream;
+// buffers are trimmed by time so a long session stays smooth.
+"use strict";
+
+const PLOT_WINDOW_S = 60;   // seconds of readings on the plots
+const TRAIL_S = 15;         // seconds of trail on the top view
+const MAX_PLOTS = 4;        // sensor plots shown at once
+const $ = (id) => document.getElementById(id);
+
+const state = {
+  selected: null,           // sysid shown in the vehicle panel
+  source: null,             // EventSource
+  world: null,              // scenario geometry of the selected vehicle
+  library: [],
+  trails: { truth: [], ground: [], secure: [] },   // [t, north, east]
+  sensors: new Map(),       // id -> {t: [], original: [], forwarded: [], secure: [], truth: []}
+  flagged: new Set(),
+  picked: new Set(),        // sensor ids plotted
+  plots: new Map(),         // id -> uPlot
+  dirty: false,
+};
+
+// ---------------------------------------------------------------- API helpers
+async function api(path, body) {
+  const init = body === undefined ? {} : {
+    method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body),
+  };
+  const response = await fetch(path, init);
+  let data = null;
+  try { data = await response.json(); } catch (e) { data = { ok: false, error: response.statusText }; }
+  return { status: response.status, data };
+}
+
+function showAck(what, result) {
+  const box = $("ack");
+  const d = result.data || {};
+  const verdict = result.status === 200 ? "ok" : result.status === 422 ? "not sent" :
+    result.status === 504 ? "no answer" : "rejected";
+  box.className = "ack " + (result.status === 200 ? "ok" : "rejected");
+  const lines = [`${what}: ${verdict}`];
+  if (d.error) lines.push(d.error);
+  if (d.profile !== undefined) lines.push(`profile: ${d.profile || "none"}${d.hash ? " (hash " + d.hash.slice(0, 12) + ")" : ""}`);
+  if (d.mode) lines.push(`mode: ${d.mode}`);
+  if (d.estimator !== undefined && what.startsWith("secure")) lines.push(`estimator: ${d.estimator || "off"}`);
+  box.textContent = lines.join("\n");
+}
+
+// ---------------------------------------------------------------- fleet table
+function fmt(value, digits = 0) {
+  return typeof value === "number" ? value.toFixed(digits) : "-";
+}
+
+function renderFleet(rows) {
+  const body = document.querySelector("#fleet tbody");
+  $("fleet-empty").hidden = rows.length > 0;
+  body.replaceChildren(...rows.map((r) => {
+    const tr = document.createElement("tr");
+    tr.dataset.sysid = r.sysid;
+    if (r.sysid === state.selected) tr.className = "selected";
+    const cells = [
+      `v${r.sysid}`, r.instances.join(", ") || "?", null, r.profile || "none", r.mode || "-",
+      r.secure_available ? (r.secure || "off") : "n/a", fmt(r.frames_in_per_s), fmt(r.frames_out_per_s),
+      r.rewritten, r.dropped, r.bad, fmt(r.latency_p50_ms, 3), fmt(r.latency_p99_ms, 3),
+    ];
+    for (const c of cells) {
+      const td = document.createElement("td");
+      if (c === null) {
+        const badge = document.createElement("span");
+        badge.className = "badge " + (r.online ? "online" : "offline");
+        badge.textContent = r.online ? "online" : "offline";
+        td.append(badge);
+      } else {
+        td.textContent = String(c);
+      }
+      tr.append(td);
+    }
+    tr.addEventListener("click", () => select(r.sysid));
+    return tr;
+  }));
+  const mine = rows.find((r) => r.sysid === state.selected);
+  if (mine) {
+    $("mode-now").textContent = mine.mode || "-";
+    $("mode-now").className = "badge " + (mine.mode === "bypass" ? "bypass" : "on");
+    $("secure-now").textContent = mine.secure_available ? (mine.secure || "off") : "not available";
+    $("vehicle-title").textContent = `Vehicle v${mine.sysid}: ${mine.profile || "no attack"}` +
+      (mine.mode === "bypass" ? " (bypassed)" : "");
+  }
+  if (state.selected === null && rows.length > 0) select(rows[0].sysid);
+}
+
+// ---------------------------------------------------------------- live stream
+function connect() {
+  if (state.source) state.source.close();
+  const source = new EventSource(`/api/stream?vehicle=${state.selected || 0}`);
+  state.source = source;
+  source.addEventListener("open", () => { $("link-state").textContent = "live"; $("link-state").className = "badge on"; });
+  source.addEventListener("error", () => { $("link-state").textContent = "reconnecting…"; $("link-state").className = "badge off"; });
+  source.addEventListener("update", (event) => {
+    const update = JSON.parse(event.data);
+    renderFleet(update.fleet);
+    if (update.vehicle === state.selected) {
+      for (const sample of update.samples) ingest(sample);
+      state.dirty = true;
+    }
+  });
+}
+
+function push(trail, t, pos) {
+  if (Array.isArray(pos) && pos.length >= 2) trail.push([t, pos[0], pos[1]]);
+}
+
+function ingest(s) {
+  if (s.kind === "truth") push(state.trails.truth, s.t, s.pos);
+  else if (s.kind === "estimate") {
+    push(state.trails.secure, s.t, s.pos);
+    state.flagged = new Set(s.attacked || []);
+  } else if (s.kind === "readings") {
+    push(state.trails.ground, s.t, s.ground_pos);
+    for (const [id, r] of Object.entries(s.sensors || {})) {
+      let series = state.sensors.get(id);
+      if (!series) {
+        series = { t: [], original: [], forwarded: [], secure: [], truth: [] };
+        state.sensors.set(id, series);
+        if (state.picked.size < MAX_PLOTS) state.picked.add(id);
+        renderPicker();
+      }
+      series.t.push(s.t);
+      series.original.push(r.original_m ?? null);
+      series.forwarded.push(r.forwarded_m ?? null);
+      series.secure.push(r.secure_m ?? null);
+      series.truth.push(r.truth_m ?? null);
+    }
+  }
+}
+
+function trim(now) {
+  for (const trail of Object.values(state.trails)) {
+    let drop = 0;
+    while (drop < trail.length && trail[drop][0] < now - TRAIL_S) drop++;
+    if (drop) trail.splice(0, drop);
+  }
+  for (const series of state.sensors.values()) {
+    let drop = 0;
+    while (drop < series.t.length && series.t[drop] < now - PLOT_WINDOW_S) drop++;
+    if (drop) for (const key of Object.keys(series)) series[key].splice(0, drop);
+  }
+}
+
+// ---------------------------------------------------------------- the vehicle panel
+async function select(sysid) {
+  if (state.selected === sysid) return;
+  state.selected = sysid;
+  state.trails = { truth: [], ground: [], secure: [] };
+  state.sensors = new Map();
+  state.picked = new Set();
+  for (const plot of state.plots.values()) plot.destroy();
+  state.plots = new Map();
+  $("plots").replaceChildren();
+  $("sensor-picker").replaceChildren();
+  $("vehicle-panel").hidden = false;
+  const { data } = await api(`/api/vehicles/${sysid}`);
+  state.world = data && data.world ? data.world : null;
+  connect();
+}
+
+function renderPicker() {
+  const names = state.world && state.world.vehicles[String(state.selected)]
+    ? state.world.vehicles[String(state.selected)].sensors : {};
+  const ids = [...state.sensors.keys()].sort((a, b) => Number(a) - Number(b));
+  $("sensor-picker").replaceChildren(...ids.map((id) => {
+    const label = document.createElement("label");
+    const box = document.createElement("input");
+    box.type = "checkbox";
+    box.checked = state.picked.has(id);
+    box.dataset.sensor = id;
+    box.addEventListener("change", () => {
+      if (box.checked) state.picked.add(id); else state.picked.delete(id);
+      state.dirty = true;
+    });
+    label.append(box, ` ${id}${names[id] ? " (" + names[id] + ")" : ""}`);
+    return label;
+  }));
+}
+
+function plotFor(id) {
+  let plot = state.plots.get(id);
+  if (plot) return plot;
+  const holder = document.createElement("div");
+  holder.className = "plot";
+  holder.dataset.sensor = id;
+  $("plots").append(holder);
+  const opts = {
+    title: `sensor ${id} (m)`, width: 460, height: 220,
+    scales: { x: { time: true } },
+    series: [
+      {},
+      { label: "original", stroke: "#888", spanGaps: true },
+      { label: "forwarded", stroke: "#d62728", spanGaps: true },
+      { label: "secure", stroke: "#1f77b4", spanGaps: true },
+      { label: "truth", stroke: "#2e8b57", dash: [4, 4], spanGaps: true },
+    ],
+  };
+  plot = new uPlot(opts, [[], [], [], [], []], holder);
+  state.plots.set(id, plot);
+  return plot;
+}
+
+function renderPlots() {
+  for (const [id, plot] of state.plots) {
+    if (!state.picked.has(id)) {
+      plot.destroy();
+      state.plots.delete(id);
+      const holder = document.querySelector(`#plots .plot[data-sensor="${id}"]`);
+      if (holder) holder.remove();
+    }
+  }
+  for (const id of state.picked) {
+    const s = state.sensors.get(id);
+    if (s) plotFor(id).setData([s.t, s.original, s.forwarded, s.secure, s.truth]);
+  }
+}
+
+function renderFlags() {
+  const ids = [...state.sensors.keys()].sort((a, b) => Number(a) - Number(b));
+  $("flags").replaceChildren(...ids.map((id) => {
+    const chip = document.createElement("span");
+    chip.textContent = id;
+    chip.dataset.sensor = id;
+    if (state.flagged.has(Number(id))) chip.className = "flagged";
+    return chip;
+  }));
+}
+
+function drawTopView() {
+  const canvas = $("topview");
+  const ctx = canvas.getContext("2d");
+  ctx.clearRect(0, 0, canvas.width, canvas.height);
+  // What to fit: anchors, starts, walls' points and every trail point; north is up, east to the right.
+  const pts = [];
+  const world = state.world;
+  if (world) {
+    for (const a of world.anchors) pts.push([a.pos_ned_m[0], a.pos_ned_m[1]]);
+    for (const w of world.walls) pts.push([w.point_ned_m[0], w.point_ned_m[1]]);
+    for (const v of Object.values(world.vehicles)) pts.push([v.start_ned_m[0], v.start_ned_m[1]]);
+  }
+  for (const trail of Object.values(state.trails)) for (const p of trail) pts.push([p[1], p[2]]);
+  if (pts.length === 0) pts.push([0, 0]);
+  let [nMin, nMax, eMin, eMax] = [Infinity, -Infinity, Infinity, -Infinity];
+  for (const [n, e] of pts) { nMin = Math.min(nMin, n); nMax = Math.max(nMax, n); eMin = Math.min(eMin, e); eMax = Math.max(eMax, e); }
+  const span = Math.max(nMax - nMin, eMax - eMin, 4) * 1.2;
+  const cn = (nMin + nMax) / 2, ce = (eMin + eMax) / 2;
+  const scale = Math.min(canvas.width, canvas.height) / span;
+  const xy = (n, e) => [canvas.width / 2 + (e - ce) * scale, canvas.height / 2 - (n - cn) * scale];
+
+  ctx.font = "12px sans-serif";
+  if (world) {
+    ctx.strokeStyle = "#444"; ctx.lineWidth = 4;
+    for (const w of world.walls) {        // the wall's trace: through its point, across its normal
+      const [pn, pe] = w.point_ned_m, [nn, ne] = w.normal_ned;
+      const [dn, de] = [-ne, nn];
+      ctx.beginPath();
+      ctx.moveTo(...xy(pn - dn * span, pe - de * span));
+      ctx.lineTo(...xy(pn + dn * span, pe + de * span));
+      ctx.stroke();
+    }
+    ctx.fillStyle = "#555";
+    for (const a of world.anchors) {
+      const [x, y] = xy(a.pos_ned_m[0], a.pos_ned_m[1]);
+      ctx.fillRect(x - 4, y - 4, 8, 8);
+      ctx.fillText(`A${a.id}`, x + 6, y - 6);
+    }
+    ctx.strokeStyle = "#999"; ctx.lineWidth = 1;
+    for (const v of Object.values(world.vehicles)) {
+      const [x, y] = xy(v.start_ned_m[0], v.start_ned_m[1]);
+      ctx.beginPath(); ctx.moveTo(x - 5, y - 5); ctx.lineTo(x + 5, y + 5); ctx.moveTo(x + 5, y - 5); ctx.lineTo(x - 5, y + 5); ctx.stroke();
+    }
+  }
+  const colours = { truth: "#2e8b57", ground: "#d62728", secure: "#1f77b4" };
+  for (const [name, trail] of Object.entries(state.trails)) {
+    if (trail.length === 0) continue;
+    ctx.strokeStyle = colours[name]; ctx.lineWidth = 2;
+    ctx.beginPath();
+    trail.forEach((p, i) => { const [x, y] = xy(p[1], p[2]); if (i) ctx.lineTo(x, y); else ctx.moveTo(x, y); });
+    ctx.stroke();
+    const last = trail[trail.length - 1];
+    const [x, y] = xy(last[1], last[2]);
+    ctx.fillStyle = colours[name];
+    ctx.beginPath(); ctx.arc(x, y, 6, 0, 2 * Math.PI); ctx.fill();
+  }
+  ctx.fillStyle = "#333";
+  ctx.fillText(`N ↑   ${(1 / scale * 50).toFixed(2)} m per 50 px`, 8, canvas.height - 8);
+}
+
+function frame() {
+  if (state.dirty && state.selected !== null) {
+    state.dirty = false;
+    trim(Date.now() / 1000);
+    renderPlots();
+    renderFlags();
+    drawTopView();
+  }
+  requestAnimationFrame(frame);
+}
+
+// ---------------------------------------------------------------- controls
+function parseValue(text) {
+  try { return JSON.parse(text); } catch (e) { return text; }
+}
+
+function renderParams() {
+  const entry = state.library.find((p) => p.name === $("library").value);
+  $("library-description").textContent = entry ? entry.description : "";
+  const form = $("params");
+  form.replaceChildren(...Object.entries(entry ? entry.parameters : {}).map(([name, spec]) => {
+    const label = document.createElement("label");
+    const input = document.createElement("input");
+    input.name = name;
+    input.value = JSON.stringify(spec.default);
+    input.title = spec.description || "";
+    label.append(name, input);
+    return label;
+  }));
+  $("yaml").value = entry ? entry.text : "";
+}
+
+function params() {
+  const out = {};
+  const entry = state.library.find((p) => p.name === $("library").value);
+  for (const input of $("params").querySelectorAll("input")) {
+    input.classList.remove("invalid");
+    const given = parseValue(input.value);
+    const declared = entry && entry.parameters[input.name] ? entry.parameters[input.name].default : undefined;
+    if (JSON.stringify(given) !== JSON.stringify(declared)) out[input.name] = given;
+  }
+  return out;
+}
+
+async function applyLibrary() {
+  if (state.selected === null) return;
+  const result = await api(`/api/vehicles/${state.selected}/attack`, { profile: $("library").value, params: params() });
+  if (result.status === 422 && result.data.field) {
+    for (const input of $("params").querySelectorAll("input")) {
+      if (result.data.error.includes(input.name)) input.classList.add("invalid");
+    }
+  }
+  showAck(`attack ${$("library").value}`, result);
+}
+
+async function applyYaml() {
+  if (state.selected === null) return;
+  const error = $("yaml-error");
+  const result = await api(`/api/vehicles/${state.selected}/attack`, { profile: $("yaml").value });
+  const invalid = result.status === 422;
+  $("yaml").classList.toggle("invalid", invalid);
+  error.hidden = !invalid;
+  error.textContent = invalid ? (result.data.field ? `${result.data.field}: ` : "") + result.data.error : "";
+  error.dataset.field = invalid && result.data.field ? result.data.field : "";
+  showAck("attack (pasted profile)", result);
+}
+
+async function post(path, body, what) {
+  if (state.selected === null) return;
+  showAck(what, await api(`/api/vehicles/${state.selected}/${path}`, body));
+}
+
+async function init() {
+  const [library, estimators] = await Promise.all([api("/api/library"), api("/api/estimators")]);
+  state.library = library.data || [];
+  $("library").replaceChildren(...state.library.map((p) => new Option(p.name, p.name)));
+  $("estimator").replaceChildren(...(estimators.data || ["off"]).map((n) => new Option(n, n)));
+  $("library").addEventListener("change", renderParams);
+  renderParams();
+  $("apply-library").addEventListener("click", applyLibrary);
+  $("clear-attack").addEventListener("click", () => post("attack", { profile: null }, "attack cleared"));
+  $("apply-yaml").addEventListener("click", applyYaml);
+  $("upload").addEventListener("change", async (event) => {
+    const file = event.target.files[0];
+    if (file) $("yaml").value = await file.text();
+  });
+  $("mode-on").addEventListener("click", () => post("attack/mode", { mode: "on" }, "attack stage on"));
+  $("mode-bypass").addEventListener("click", () => post("attack/mode", { mode: "bypass" }, "attack stage bypass"));
+  $("apply-secure").addEventListener("click",
+    () => post("secure", { estimator: $("estimator").value }, `secure ${$("estimator").value}`));
+  connect();
+  requestAnimationFrame(frame);
+}
+
+init();
