@@ -1,0 +1,196 @@
+"""The console's JSON API over real HTTP (uvicorn on loopback) and a real broker, with the proxy's own
+control plane (``ControlPlane`` + ``vehicle_controls``) answering, as a script would use it."""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import contextlib
+import json
+import subprocess
+import sys
+import urllib.error
+import urllib.request
+from collections.abc import AsyncIterator
+from dataclasses import dataclass
+from typing import Any
+
+import pytest
+import uvicorn
+
+from mitm_proxy.attack import AttackStage
+from mitm_proxy.control import ControlPlane
+from mitm_proxy.controls import vehicle_controls
+from mitm_proxy.slots import AttackSlot
+from secuav_common.broker import BrokerAddress, EmbeddedBroker
+from secuav_common.scenario import load_scenario
+from tests.conftest import free_tcp_port
+from webconsole.api import build_app
+from webconsole.fleet import Fleet, Session
+
+pytestmark = pytest.mark.timeout(60)
+
+
+def _stats() -> dict[int, dict[str, Any]]:
+    return {1: {"downlink": {"frames_in": 10, "frames_out": 10}, "uplink": {}, "latency_ms": {"p50": 0.2}}}
+
+
+@dataclass
+class Bench:
+    base: str
+    fleet: Fleet
+    slots: dict[int, AttackSlot]
+    plane: ControlPlane
+
+
+def call(base: str, path: str, body: Any = None, auth: str | None = None) -> tuple[int, Any]:
+    """One HTTP request (in a worker thread: the server runs on this test's loop)."""
+    data = None if body is None else json.dumps(body).encode()
+    request = urllib.request.Request(base + path, data=data, method="GET" if body is None else "POST")
+    if auth:
+        request.add_header("Authorization", auth)
+    try:
+        with urllib.request.urlopen(request, timeout=10) as response:
+            return response.status, json.loads(response.read() or b"null")
+    except urllib.error.HTTPError as exc:
+        raw = exc.read()
+        try:
+            return exc.code, json.loads(raw)
+        except ValueError:
+            return exc.code, raw.decode()
+
+
+@contextlib.asynccontextmanager
+async def serve(fleet: Fleet, session: Session, password: str | None = None) -> AsyncIterator[str]:
+    port = free_tcp_port()
+    server = uvicorn.Server(uvicorn.Config(build_app(fleet, session, password, ack_timeout_s=2.0), host="127.0.0.1",
+                                           port=port, log_level="warning", lifespan="off"))  # fmt: skip
+    server.install_signal_handlers = lambda: None  # type: ignore[method-assign]
+    task = asyncio.create_task(server.serve())
+    while not server.started:
+        await asyncio.sleep(0.02)
+    try:
+        yield f"http://127.0.0.1:{port}"
+    finally:
+        server.should_exit = True
+        await task
+
+
+@pytest.fixture
+async def bench() -> AsyncIterator[Bench]:
+    port = free_tcp_port()
+    slots = {1: AttackSlot(1)}
+    async with EmbeddedBroker(port=port):
+        url = f"mqtt://127.0.0.1:{port}"
+        plane = ControlPlane(url, vehicle_controls("lab", slots, {1: AttackStage(slots[1])}), stats=_stats)
+        fleet = Fleet([load_scenario("wall_hover")])
+        session = Session(BrokerAddress("127.0.0.1", port), fleet, "http://test/")
+        mqtt = asyncio.create_task(session.run())
+        async with plane, serve(fleet, session) as base:
+            await plane.wait_connected(10)
+            await asyncio.wait_for(session.connected.wait(), 10)
+            for _ in range(100):  # the retained states, then one stats message
+                if 1 in fleet.vehicles and fleet.summary()[0]["online"]:
+                    break
+                await asyncio.sleep(0.1)
+            yield Bench(base, fleet, slots, plane)
+        mqtt.cancel()
+
+
+async def test_vehicles_library_and_a_profile_round_trip(bench: Bench) -> None:
+    status, rows = await asyncio.to_thread(call, bench.base, "/api/vehicles")
+    assert status == 200 and rows[0]["sysid"] == 1 and rows[0]["instances"] == ["lab"] and rows[0]["online"]
+    status, one = await asyncio.to_thread(call, bench.base, "/api/vehicles/1")
+    assert status == 200 and one["world"]["walls"][0]["name"] == "wall" and one["world"]["vehicles"]["1"]["sensors"]
+    status, lib = await asyncio.to_thread(call, bench.base, "/api/library")
+    spoof = next(p for p in lib if p["name"] == "wall-spoof")
+    assert spoof["parameters"]["rate_per_s"]["default"] == 0.2 and "rules:" in spoof["text"]
+
+    body = {"profile": "wall-spoof", "params": {"rate_per_s": 0.5}}
+    status, ack = await asyncio.to_thread(call, bench.base, "/api/vehicles/1/attack", body)
+    assert status == 200 and ack["ok"] and ack["profile"] == "wall-spoof"
+    assert bench.slots[1].engine is not None and bench.slots[1].state.hash == ack["hash"]
+
+    status, ack = await asyncio.to_thread(call, bench.base, "/api/vehicles/1/attack", {"profile": None})
+    assert status == 200 and ack["ok"] and ack["profile"] is None and bench.slots[1].engine is None
+
+    profile = {"name": "obj", "rules": [{"target": {"message": "DISTANCE_SENSOR", "sensor_id": 2}, "kind": "bias",
+                                         "offset_m": 0.5}]}  # fmt: skip
+    status, ack = await asyncio.to_thread(call, bench.base, "/api/vehicles/1/attack", {"profile": profile})
+    assert status == 200 and ack["profile"] == "obj"
+
+
+@pytest.mark.parametrize(
+    ("body", "field", "words"),
+    [
+        ({"profile": "wall-spooof"}, None, "no such library profile"),
+        ({"profile": "wall-spoof", "params": {"rate": 1}}, None, "rate"),
+        ({"profile": "name: x\nrules:\n  - target: {message: NOPE}\n    kind: bias\n    offset_m: 1\n"}, "rules[0]",
+         "NOPE"),
+        ({"profile": 7}, "profile", "library name"),
+    ],
+)
+async def test_a_bad_profile_never_leaves_the_console(bench: Bench, body: Any, field: str | None, words: str) -> None:
+    before = bench.slots[1].state
+    status, answer = await asyncio.to_thread(call, bench.base, "/api/vehicles/1/attack", body)
+    assert status == 422 and not answer["ok"] and words in answer["error"], answer
+    if field is not None:
+        assert str(answer["field"]).startswith(field)
+    await asyncio.sleep(0.3)
+    assert bench.slots[1].state is before  # the proxy saw nothing, not even a rejection
+
+
+async def test_mode_secure_unknown_vehicles_and_a_silent_proxy(bench: Bench) -> None:
+    status, ack = await asyncio.to_thread(call, bench.base, "/api/vehicles/1/attack/mode", {"mode": "bypass"})
+    assert status == 200 and ack["mode"] == "bypass"
+    status, ack = await asyncio.to_thread(call, bench.base, "/api/vehicles/1/attack/mode", {"mode": "off"})
+    assert status == 422 and ack["field"] == "mode"
+    status, ack = await asyncio.to_thread(call, bench.base, "/api/vehicles/1/secure", {"estimator": "secekf"})
+    assert status == 409 and "not available" in ack["error"]  # refused by the proxy: it has no scenario
+    status, ack = await asyncio.to_thread(call, bench.base, "/api/vehicles/9/attack", {"profile": None})
+    assert status == 404 and "no vehicle 9" in ack["error"]
+    await bench.plane.aclose()  # the proxy goes; the console still knows the vehicle
+    status, ack = await asyncio.to_thread(call, bench.base, "/api/vehicles/1/attack", {"profile": "wall-spoof"})
+    assert status == 504 and "no acknowledgement" in ack["error"]
+
+
+async def test_the_stream_sends_the_fleet_and_the_watched_vehicles_samples(bench: Bench) -> None:
+    bench.plane.publish_nowait("secuav/v1/truth", {"pos_ned_m": [0.5, 0.0, -2.5]})
+    bench.plane.publish_nowait("secuav/v1/readings", {"sysid": 1, "sensors": {"0": {"original_m": 2.5,
+                               "forwarded_m": 3.5, "flagged": False}}})  # fmt: skip
+
+    def read_events() -> list[dict[str, Any]]:
+        events = []
+        with urllib.request.urlopen(bench.base + "/api/stream?vehicle=1", timeout=10) as response:
+            for raw in response:
+                line = raw.decode().strip()
+                if line.startswith("data:"):
+                    events.append(json.loads(line[5:]))
+                    if sum(len(e["samples"]) for e in events) >= 2 or len(events) >= 30:
+                        break
+        return events
+
+    events = await asyncio.to_thread(read_events)
+    samples = [s for e in events for s in e["samples"]]
+    assert events[0]["fleet"][0]["sysid"] == 1
+    readings = next(s for s in samples if s["kind"] == "readings")
+    assert readings["sensors"]["0"]["original_m"] == 2.5 and readings["sensors"]["0"]["forwarded_m"] == 3.5
+    assert readings["sensors"]["0"]["truth_m"] == pytest.approx(4.5)  # 5 m wall, 0.5 m north of home
+    assert any(s["kind"] == "truth" for s in samples)
+
+
+async def test_a_password_guards_page_and_api(bench: Bench) -> None:
+    session = Session(BrokerAddress("127.0.0.1", 1), bench.fleet, "http://test/")
+    async with serve(bench.fleet, session, password="s3cret") as base:
+        status, _ = await asyncio.to_thread(call, base, "/api/vehicles")
+        assert status == 401
+        basic = "Basic " + base64.b64encode(b"anyone:s3cret").decode()
+        assert (await asyncio.to_thread(call, base, "/api/vehicles", None, basic))[0] == 200
+        assert (await asyncio.to_thread(call, base, "/api/vehicles", None, "Bearer s3cret"))[0] == 200
+        assert (await asyncio.to_thread(call, base, "/api/vehicles", None, "Bearer nope"))[0] == 401
+
+
+def test_serving_beyond_loopback_needs_a_password() -> None:
+    run = subprocess.run([sys.executable, "-m", "webconsole", "--listen", "0.0.0.0:18080", "--broker", "mqtt://127.0.0.1:1"],
+                         capture_output=True, text=True, timeout=30)  # fmt: skip
+    assert run.returncode == 2 and "needs a password" in run.stderr
