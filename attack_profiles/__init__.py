@@ -11,7 +11,7 @@ same profile files. See DESIGN.md "Attack profiles".
 
 from __future__ import annotations
 
-from attack_profiles.action import FORWARD, Action, Direction, Injected
+from attack_profiles.action import FORWARD, Action, Direction
 from attack_profiles.engine import Engine
 from attack_profiles.profile import Profile, load_profile, parse_profile, profile_json_schema
 
@@ -20,7 +20,6 @@ __all__ = [
     "Action",
     "Direction",
     "Engine",
-    "Injected",
     "Profile",
     "load_profile",
     "parse_profile",

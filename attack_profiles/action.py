@@ -21,22 +21,12 @@ class Direction(StrEnum):
 
 
 @dataclass(frozen=True, slots=True)
-class Injected:
-    """An extra message to send after the current one (or after ``delay_s``)."""
-
-    message: str  # MAVLink message name, e.g. "DISTANCE_SENSOR"
-    fields: dict[str, Any]  # complete field set in wire units
-    delay_s: float = 0.0
-
-
-@dataclass(frozen=True, slots=True)
 class Action:
     """Outcome for one message. The default instance means "forward unchanged".
 
     - ``drop``: do not forward the message (``fields`` and ``delay_s`` are then ignored);
     - ``fields``: changed fields only, wire units; ``None`` means unchanged;
     - ``delay_s``: hold the (possibly changed) message back this long;
-    - ``inject``: extra messages to emit;
     - ``rules``: indices of the rules that acted, for the recording index;
     - ``clamped``: names of fields whose attacked value was clamped to the wire range.
     """
@@ -44,13 +34,12 @@ class Action:
     drop: bool = False
     fields: dict[str, Any] | None = None
     delay_s: float = 0.0
-    inject: tuple[Injected, ...] = ()
     rules: tuple[int, ...] = ()
     clamped: tuple[str, ...] = field(default=())
 
     @property
     def untouched(self) -> bool:
-        return not (self.drop or self.fields or self.delay_s > 0.0 or self.inject)
+        return not (self.drop or self.fields or self.delay_s > 0.0)
 
 
 FORWARD = Action()

@@ -127,6 +127,23 @@ class FlightProgress:
         self._bar.close()
 
 
+CONSOLES = "secuav/console/+/online"
+_announced: set[str] = set()
+
+
+def announce_consoles(tap: Tap) -> None:
+    """A ``secuav-console`` on this broker: say where to watch (once per URL and run)."""
+    from tqdm import tqdm
+
+    for sample in tap.samples:
+        body = sample.payload
+        if sample.topic.startswith("secuav/console/") and isinstance(body, dict) and body.get("online"):
+            url = str(body.get("url"))
+            if url not in _announced:
+                _announced.add(url)
+                tqdm.write(f"    watch live: {url} (secuav-console)")
+
+
 def _dump(path: Path, rows: list[tuple[float, dict[str, Any]]]) -> None:
     path.write_text("".join(json.dumps({"wall_s": t, **d}) + "\n" for t, d in rows), encoding="utf-8")
 
@@ -141,6 +158,7 @@ async def fly(
     n = len(controllers)
     sysids = [c.sysid for c in controllers]
     topics = [f"secuav/v{s}/{t}" for s in sysids for t in ("truth", "estimate", "attack/state", "secure/state")]
+    topics.append(CONSOLES)
     seed = [] if opts.seed is None else ["--seed", str(opts.seed)]
     logs = {c.sysid: out / f"controller{c.sysid}.jsonl" for c in controllers}
     for path in logs.values():
@@ -163,6 +181,7 @@ async def fly(
                 sys.executable, "-m", c.module, "--url", f"udpin://127.0.0.1:{p.api + i}",
                 "--seconds", str(opts.seconds), "--log", str(logs[c.sysid]), *c.args,
             ])  # fmt: skip
+        announce_consoles(tap)
         bar.phase("taking off")
         holds = [await wait_for_event(logs[s], "holding", procs, f"controller{s}", 120.0) for s in sysids]
         bar.holding_since(max(holds))

@@ -25,7 +25,7 @@ import os
 import signal
 import socket
 from collections.abc import Callable
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -63,8 +63,20 @@ def resolve_profile(name_or_path: str | Path) -> Profile:
     return load_profile(path)
 
 
+@dataclass(slots=True)
+class VehicleParts:
+    """What the proxy holds for one vehicle (one link): its attack slot and stage, its counters,
+    and its secure slot when there is a scenario to model the sensors."""
+
+    sysid: int
+    slot: AttackSlot
+    stage: AttackStage
+    stats: LinkStats
+    secure: Any | None = None  # mitm_proxy.secure.SecureSlot
+
+
 class Proxy:
-    """The daemon as an async context manager; ``slots`` and ``links`` are keyed/ordered by vehicle."""
+    """The daemon as an async context manager; ``vehicles`` and ``links`` are keyed/ordered by vehicle."""
 
     def __init__(self, config: ProxyConfig) -> None:
         self.config = config
@@ -72,27 +84,23 @@ class Proxy:
         self.scenario: Scenario | None = load_scenario(config.scenario) if config.scenario else None
         self.signer: Signer | None = Signer.from_file(config.signing_key) if config.signing_key else None
         initial = resolve_profile(config.profile) if config.profile else None
-        secure = self._secure_config()
-        self.secure: dict[int, Any] = {}  # sysid -> SecureSlot, when there is a scenario to model the sensors
-        if self.scenario is not None:
-            from mitm_proxy.secure import PeerBoard, SecureSlot  # numpy/scipy estimators: only when they can run
+        sysids = [link.sysid for link in config.links]
+        secure: dict[int, Any] = {}
+        if self.scenario is not None:  # the estimators' models come from the scenario
+            from mitm_proxy.secure import make_slots  # numpy/scipy estimators: only when they can run
 
-            peers = PeerBoard()
-        self.slots: dict[int, AttackSlot] = {}
-        self.stages: dict[int, AttackStage] = {}
-        self.stats: dict[int, LinkStats] = {}
-        for link in config.links:
-            slot = AttackSlot(link.sysid, self.scenario, config.seed)
+            secure = make_slots(self.scenario, sysids, self._secure_config(), self._publish_estimate, "secure")
+        elif config_from_payload(config.secure, "secure").enabled:
+            raise InputError("secure", "estimator", config.secure, "the secure stage needs --scenario")
+        self.vehicles: dict[int, VehicleParts] = {}
+        for sysid in sysids:
+            slot = AttackSlot(sysid, self.scenario, config.seed)
             if initial is not None:
                 state = slot.offer(initial, request_id="--profile")
                 if not state.ok:
                     raise InputError(str(config.profile), "", None, state.error or "rejected")
-            self.slots[link.sysid] = slot
             stage = AttackStage(slot, active=config.attack == "on")
-            self.stages[link.sysid] = stage
-            self.stats[link.sysid] = LinkStats(link.sysid)
-            if self.scenario is not None:  # the estimators' models come from the scenario
-                self.secure[link.sysid] = SecureSlot(link.sysid, self.scenario, secure, self._publish_estimate, peers)
+            self.vehicles[sysid] = VehicleParts(sysid, slot, stage, LinkStats(sysid), secure.get(sysid))
         self.endpoints: dict[Endpoint, BaseEndpoint] = {}
         self.links: list[Link] = []
         self.routers: list[GroundRouter] = []
@@ -103,11 +111,22 @@ class Proxy:
         self._readings_task: asyncio.Task[None] | None = None
 
     def _secure_config(self) -> SecureConfig:
-        """``--secure`` / ``secure:``; the secure stage needs the scenario (sensor layout, anchors, noise)."""
+        """``--secure`` / ``secure:``, checked against the scenario by ``make_slots``."""
         cfg = config_from_payload(self.config.secure, "secure")
-        if cfg.enabled and self.scenario is None:
-            raise InputError("secure", "estimator", cfg.estimator, "the secure stage needs --scenario")
         return cfg if cfg.enabled else OFF
+
+    @property
+    def slots(self) -> dict[int, AttackSlot]:
+        return {s: v.slot for s, v in self.vehicles.items()}
+
+    @property
+    def stages(self) -> dict[int, AttackStage]:
+        return {s: v.stage for s, v in self.vehicles.items()}
+
+    @property
+    def secure(self) -> dict[int, Any]:
+        """sysid -> SecureSlot (empty without a scenario)."""
+        return {s: v.secure for s, v in self.vehicles.items() if v.secure is not None}
 
     def _publish_estimate(self, sysid: int, payload: dict[str, Any]) -> None:
         if self.control is not None:
@@ -156,13 +175,14 @@ class Proxy:
             if self.config.record is not None:
                 recorder = Recorder(Path(self.config.record) / f"v{sysid}", i)
                 self.recorders.append(recorder)
-            stages: list[Any] = [self.stages[sysid]]  # tap -> attack -> secure -> forward
-            if sysid in self.secure:
-                stages.append(self.secure[sysid].stage)
+            parts = self.vehicles[sysid]
+            stages: list[Any] = [parts.stage]  # tap -> attack -> secure -> forward
+            if parts.secure is not None:
+                stages.append(parts.secure.stage)
             signer = None if self.signer is None else self.signer.for_link()  # replay state per link
-            pipeline = Pipeline(i, stages, stats=self.stats[sysid], recorder=recorder, signer=signer)
+            pipeline = Pipeline(i, stages, stats=parts.stats, recorder=recorder, signer=signer)
             grounds = [self.endpoints[ep] for ep in link_cfg.ground_endpoints]
-            link = Link(i, sysid, pipeline, self.stats[sysid], self.endpoints[link_cfg.vehicle_endpoint], grounds)
+            link = Link(i, sysid, pipeline, parts.stats, self.endpoints[link_cfg.vehicle_endpoint], grounds)
             self.links.append(link)
             for ep in link_cfg.ground_endpoints:
                 users.setdefault(ep, []).append(link)
@@ -248,19 +268,21 @@ class Proxy:
         for rec in self.recorders:
             rec.close()
         self.recorders.clear()
-        for slot in self.secure.values():
-            slot.close()
+        for parts in self.vehicles.values():
+            if parts.secure is not None:
+                parts.secure.close()
 
     # -- what the control plane and the log show ------------------------------------
     def stats_snapshot(self) -> dict[int, dict[str, Any]]:
         out: dict[int, dict[str, Any]] = {}
         for link in self.links:
             snap = link.stats.snapshot()
-            snap["attack"] = "on" if self.stages[link.sysid].enabled else "bypass"
+            parts = self.vehicles[link.sysid]
+            snap["attack"] = "on" if parts.stage.enabled else "bypass"
             snap["pending_delayed"] = link.pending
             snap["pipeline_errors"] = link.pipeline_errors
             snap["endpoints"] = {ep.name: ep.snapshot() for ep in (link.vehicle, *link.grounds)}
-            secure = self.secure.get(link.sysid)
+            secure = parts.secure
             if secure is not None:
                 snap["secure"] = {"estimator": secure.stage.config.estimator, **asdict(secure.stage.counters)}
             out[link.sysid] = snap

@@ -7,11 +7,7 @@ engine's :class:`~attack_profiles.action.Action` maps onto the packet:
 - ``drop`` -> ``[]``;
 - ``fields`` -> merged into ``pkt.fields``, ``changed`` set (the pipeline re-packs
   with the original sysid, compid, seq and a fresh CRC);
-- ``delay_s`` -> ``release_s = now + delay_s``;
-- ``inject`` -> extra MAVLink 2 frames after this one, built with the sysid and
-  compid of the frame that triggered them (they join its stream) and its
-  sequence number (a copy of the frame, so a receiver counting sequence gaps
-  sees no loss it would not otherwise see).
+- ``delay_s`` -> ``release_s = now + delay_s``.
 
 Every acting rule is noted on the packet as ``attack:<profile>:rules[<i>]`` for the
 recording index. ``active = False`` is the seed's bypass; with no profile in
@@ -70,20 +66,4 @@ class AttackStage:
         if action.delay_s > 0.0:
             pkt.release_s = max(pkt.release_s, now_s + action.delay_s)
         pkt.notes.extend(notes)
-        out = [pkt]
-        for inj in action.inject:
-            extra = codec.build(
-                inj.message,
-                dict(inj.fields),
-                sysid=h.sysid,
-                compid=h.compid,
-                seq=h.seq,
-                direction=pkt.direction,
-                link=pkt.link,
-                now_s=pkt.rx_s,
-            )
-            if inj.delay_s > 0.0:
-                extra.release_s = now_s + inj.delay_s
-            extra.notes.extend(notes)
-            out.append(extra)
-        return out
+        return [pkt]

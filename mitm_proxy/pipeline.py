@@ -167,7 +167,7 @@ class Pipeline:
                 continue
             pkt = Packet(raw, header, direction, self.link, now_s)
             try:
-                pkts = self._run_stages(pkt, active, now_s)
+                pkts = self._run_stages(pkt, active, now_s, tap)
             except Exception as exc:  # a stage bug must not stop forwarding
                 st.add_bad(STAGE_ERROR)
                 self._log_once(
@@ -205,7 +205,7 @@ class Pipeline:
         out.extend(later)
         return out
 
-    def _run_stages(self, pkt: Packet, active: list[Stage], now_s: float) -> list[Packet]:
+    def _run_stages(self, pkt: Packet, active: list[Stage], now_s: float, tap: ReadingsTap | None) -> list[Packet]:
         signer = self.signer
         pkts = [pkt]
         for stage in active:
@@ -217,6 +217,10 @@ class Pipeline:
                 else:
                     nxt.append(p)
             pkts = nxt
+            if tap is not None and stage.name == "attack":  # what the attack made of it, before the secure stage
+                for p in pkts:
+                    if p.changed and p.fields is not None:
+                        tap.attacked(p.header.msgid, p.fields)
         return pkts
 
     def _wire(self, p: Packet, st: DirectionStats) -> bytes:

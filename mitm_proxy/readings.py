@@ -3,7 +3,9 @@
 While a console watches (a retained ``secuav/console/<id>/online`` record says
 so), each link's pipeline hands its :class:`ReadingsTap` the downlink frames of
 DISTANCE_SENSOR and LOCAL_POSITION_NED: the frame as the vehicle sent it and the
-frame as the ground got it (``None`` when the attack dropped it). The tap reads
+frame as the ground got it (``None`` when the attack dropped it), and, when the
+attack stage changed it, the value the attack made (the secure stage may have
+replaced it before it left). The tap reads
 the few fields it needs straight from the bytes (no decode), keeps the latest
 per sensor, and the proxy publishes what changed on ``secuav/v<N>/readings``
 ten times a second. With no console the pipeline has no tap and pays nothing.
@@ -46,12 +48,14 @@ class ReadingsTap:
     """The latest original and forwarded value per sensor of one link; see the module doc."""
 
     ids = frozenset({DISTANCE_SENSOR, LOCAL_POSITION_NED})
-    __slots__ = ("_position", "_sensors", "seen", "sysid")
+    __slots__ = ("_attacked", "_attacked_position", "_position", "_sensors", "seen", "sysid")
 
     def __init__(self, sysid: int) -> None:
         self.sysid = sysid
         self._sensors: dict[int, dict[str, Any]] = {}
         self._position: dict[str, Any] | None = None
+        self._attacked: dict[int, float] = {}  # sensor -> value after the attack stage, for the frame in flight
+        self._attacked_position: tuple[Any, ...] | None = None
         self.seen = 0
 
     def see(self, msgid: int, original: bytes, forwarded: bytes | None) -> None:
@@ -65,11 +69,27 @@ class ReadingsTap:
                 fwd_m, flagged = None, False
             else:
                 _, fwd_m, flagged = distance(forwarded)
-            self._sensors[sensor] = {"original_m": orig_m, "forwarded_m": fwd_m, "flagged": flagged}
+            entry = {"original_m": orig_m, "forwarded_m": fwd_m, "flagged": flagged}
+            attacked = self._attacked.pop(sensor, None)
+            if attacked is not None:
+                entry["attacked_m"] = attacked
+            self._sensors[sensor] = entry
         else:
             orig = position(original)
             fwd = orig if forwarded is original else (None if forwarded is None else position(forwarded))
             self._position = {"original_ned_m": orig, "forwarded_ned_m": fwd}
+            if self._attacked_position is not None:
+                self._position["attacked_ned_m"] = self._attacked_position
+                self._attacked_position = None
+
+    def attacked(self, msgid: int, fields: dict[str, Any]) -> None:
+        """The attack stage changed this frame: keep the value it made (the secure stage may replace it)."""
+        if msgid == DISTANCE_SENSOR:
+            sensor, cm = fields.get("id"), fields.get("current_distance")
+            if isinstance(sensor, int) and isinstance(cm, int | float):
+                self._attacked[sensor] = cm / 100.0
+        elif msgid == LOCAL_POSITION_NED:
+            self._attacked_position = (fields.get("x"), fields.get("y"), fields.get("z"))
 
     def take(self) -> dict[str, Any] | None:
         """What changed since the last call, as the ``readings`` payload; None when nothing did."""

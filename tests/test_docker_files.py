@@ -101,7 +101,13 @@ def test_every_command_is_a_console_script_whose_parser_accepts_its_arguments(
         module, func = scripts[cmd[0]].split(":")
         assert callable(getattr(importlib.import_module(module), func))
         ran[cmd[0]] = cmd[1:]
-    assert set(ran) == {"secuav-proxy", "secuav-sim"}
+    assert set(ran) == {"secuav-proxy", "secuav-sim", "secuav-console"}
+    assert compose["services"]["console"]["profiles"] == ["console"]  # it needs a password: opt in
+
+    from webconsole.cli import build_parser as console_parser
+
+    console_args = console_parser().parse_args(ran["secuav-console"])
+    assert console_args.listen == "0.0.0.0:8080" and console_args.broker == "mqtt://mosquitto:1883"
 
     from flightsim.cli import build_parser as sim_parser
     from flightsim.cli import endpoints_for

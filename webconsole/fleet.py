@@ -36,8 +36,9 @@ log = logging.getLogger("secuav-console")
 
 PREFIX = "secuav"
 LEAVES = ("attack/state", "attack/mode/state", "secure/state", "stats", "estimate", "truth", "readings")
-HISTORY = 30_000  # samples kept per vehicle: ten minutes at ~50 per second
-STALE_S = 3.0  # no stats for this long: the vehicle's proxy is gone or stuck
+HISTORY = 8_000  # samples kept per vehicle: over two minutes at ~50 per second, what a page backfills
+STALE_S = 3.0  # no stats for this long: the vehicle's proxy is gone or stuck (shown offline)
+GONE_S = 30.0  # offline this long with no proxy claiming it: left off the fleet (its retained states linger)
 MAX_PAYLOAD = 256 * 1024
 
 
@@ -168,6 +169,8 @@ class Fleet:
             entry: dict[str, Any] = {"original_m": _finite(reading.get("original_m")),
                                      "forwarded_m": _finite(reading.get("forwarded_m")),
                                      "flagged": bool(reading.get("flagged"))}  # fmt: skip
+            if (attacked := _finite(reading.get("attacked_m"))) is not None:
+                entry["attacked_m"] = attacked
             if scenario is not None and view.truth is not None:
                 entry["truth_m"] = true_reading(scenario, view.sysid, sensor, view.truth, peers)
             if view.estimate is not None and view.estimate.get("estimator"):
@@ -197,13 +200,16 @@ class Fleet:
         now = time.monotonic()
         rows = []
         for sysid, view in sorted(self.vehicles.items()):
+            age = None if view.stats_at is None else now - view.stats_at
+            if not owners.get(sysid) and (age is None or age > GONE_S):
+                continue  # its proxy stopped (or only retained states are left on the broker): gone
             attack = view.states.get("attack/state") or {}
             mode = (view.states.get("attack/mode/state") or {}).get("mode")
             secure = view.states.get("secure/state") or {}
             stats = view.states.get("stats") or {}
             down, up = stats.get("downlink") or {}, stats.get("uplink") or {}
             latency = stats.get("latency_ms") or {}
-            fresh = view.stats_at is not None and now - view.stats_at < STALE_S
+            fresh = age is not None and age < STALE_S
             rows.append({
                 "sysid": sysid,
                 "instances": owners.get(sysid, []),

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import struct
 import time
-from collections.abc import Mapping
 from typing import Any
 
 from hypothesis import HealthCheck, given, settings
@@ -15,12 +14,10 @@ from test_frames_support import (
     LOCAL_POSITION_NED,
     distance,
     frames,
-    mav,
     pack,
     parse_all,
 )
 
-from attack_profiles.action import Action, Injected
 from attack_profiles.engine import Engine
 from attack_profiles.profile import Profile, parse_profile
 from mitm_proxy.attack import AttackStage
@@ -117,35 +114,6 @@ def test_cleared_between_check_and_process_passes_the_frame() -> None:
     slot.offer(None)
     p = packet(pack(distance()))
     assert stage.process(p, time.monotonic()) == [p] and p.fields is None
-
-
-class EchoEngine(Engine):
-    """The real engine plus one injection per acted frame: no library primitive injects yet,
-    so this subclass exercises the stage's handling of ``Action.inject`` with real frames."""
-
-    def process(self, now_s: float, msgid: int, fields: Mapping[str, Any], direction: Direction, sysid: int,
-                compid: int) -> Action:  # fmt: skip
-        a = super().process(now_s, msgid, fields, direction, sysid, compid)
-        echo = dict(fields) | {"id": 77}
-        return Action(a.drop, a.fields, a.delay_s, (Injected("DISTANCE_SENSOR", echo, 0.0),
-                                                    Injected("DISTANCE_SENSOR", echo, 0.2)), a.rules)  # fmt: skip
-
-
-def test_injected_frames_follow_with_the_trigger_header_and_can_be_delayed() -> None:
-    slot = AttackSlot(1)
-    profile = prof(ds("bias", offset_m=1.0))
-    slot.engine = EchoEngine(profile)
-    slot.engine.activate(time.monotonic())
-    stats = LinkStats(1)
-    pipe = Pipeline(0, [AttackStage(slot)], stats=stats)
-    now = time.monotonic()
-    out = pipe.feed(pack(distance(cm=100), mav(sysid=4, compid=9, seq=33)), DOWN, now)
-    assert len(out) == 2 and out[1].release_s > now + 0.19
-    first = parse_all(out[0].data)
-    assert [(x.id, x.current_distance) for x in first] == [(0, 200), (77, 100)]
-    assert all((x.get_srcSystem(), x.get_srcComponent(), x.get_seq()) == (4, 9, 33) for x in first)
-    assert parse_all(out[1].data)[0].id == 77
-    assert stats[DOWN].injected == 2 and stats[DOWN].rewritten == 1 and stats[DOWN].delayed == 1
 
 
 def test_ramp_follows_the_profile_clock() -> None:

@@ -43,3 +43,17 @@ def test_streams_alone_make_no_vehicle_history_is_bounded_and_junk_is_ignored() 
     assert list(fleet.vehicles) == [3] and len(view.samples) == HISTORY  # the NaN truth was not kept
     row = fleet.summary()[0]
     assert row["sysid"] == 3 and not row["online"]  # no proxy instance record says it serves v3
+
+
+def test_a_vehicle_leaves_the_fleet_when_its_proxy_is_gone() -> None:
+    fleet = Fleet()
+    fleet.on_message("secuav/v1/attack/state", {"sysid": 1, "profile": None, "ok": True})  # retained, proxy long gone
+    assert fleet.summary() == []
+    fleet.on_message("secuav/proxy/lab/online", {"instance": "lab", "online": True, "vehicles": [1]})
+    fleet.on_message("secuav/v1/stats", {"downlink": {"frames_in": 5}})
+    assert [r["sysid"] for r in fleet.summary()] == [1] and fleet.summary()[0]["online"]
+    fleet.on_message("secuav/proxy/lab/online", {"instance": "lab", "online": False, "vehicles": [1]})
+    row = fleet.summary()[0]
+    assert not row["online"]  # just stopped: shown offline until its stats are GONE_S old
+    fleet.vehicles[1].stats_at = -1e9
+    assert fleet.summary() == []

@@ -83,8 +83,11 @@ function renderFleet(rows) {
     $("mode-now").textContent = mine.mode || "-";
     $("mode-now").className = "badge " + (mine.mode === "bypass" ? "bypass" : "on");
     $("secure-now").textContent = mine.secure_available ? (mine.secure || "off") : "not available";
-    $("vehicle-title").textContent = `Vehicle v${mine.sysid}: ${mine.profile || "no attack"}` +
-      (mine.mode === "bypass" ? " (bypassed)" : "");
+    const since = mine.since ? new Date(mine.since * 1000).toLocaleTimeString() : "";
+    $("vehicle-title").textContent = `Vehicle v${mine.sysid}: ` + (mine.profile
+      ? `${mine.profile} (hash ${String(mine.hash).slice(0, 12)}, since ${since})` : "no attack") +
+      (mine.mode === "bypass" ? ", attack stage bypassed" : "") +
+      (mine.attack_ok ? "" : ` (last request rejected: ${mine.attack_error})`);
   }
   if (state.selected === null && rows.length > 0) select(rows[0].sysid);
 }
@@ -120,13 +123,14 @@ function ingest(s) {
     for (const [id, r] of Object.entries(s.sensors || {})) {
       let series = state.sensors.get(id);
       if (!series) {
-        series = { t: [], original: [], forwarded: [], secure: [], truth: [] };
+        series = { t: [], original: [], attacked: [], forwarded: [], secure: [], truth: [] };
         state.sensors.set(id, series);
         if (state.picked.size < MAX_PLOTS) state.picked.add(id);
         renderPicker();
       }
       series.t.push(s.t);
       series.original.push(r.original_m ?? null);
+      series.attacked.push(r.attacked_m ?? null);
       series.forwarded.push(r.forwarded_m ?? null);
       series.secure.push(r.secure_m ?? null);
       series.truth.push(r.truth_m ?? null);
@@ -196,12 +200,13 @@ function plotFor(id) {
     series: [
       {},
       { label: "original", stroke: "#888", spanGaps: true },
+      { label: "attacked", stroke: "#ff7f0e", spanGaps: false },
       { label: "forwarded", stroke: "#d62728", spanGaps: true },
       { label: "secure", stroke: "#1f77b4", spanGaps: true },
       { label: "truth", stroke: "#2e8b57", dash: [4, 4], spanGaps: true },
     ],
   };
-  plot = new uPlot(opts, [[], [], [], [], []], holder);
+  plot = new uPlot(opts, [[], [], [], [], [], []], holder);
   state.plots.set(id, plot);
   return plot;
 }
@@ -217,7 +222,7 @@ function renderPlots() {
   }
   for (const id of state.picked) {
     const s = state.sensors.get(id);
-    if (s) plotFor(id).setData([s.t, s.original, s.forwarded, s.secure, s.truth]);
+    if (s) plotFor(id).setData([s.t, s.original, s.attacked, s.forwarded, s.secure, s.truth]);
   }
 }
 
@@ -270,6 +275,7 @@ function drawTopView() {
       ctx.fillRect(x - 4, y - 4, 8, 8);
       ctx.fillText(`A${a.id}`, x + 6, y - 6);
     }
+    drawTargets(ctx, world, xy, span);
     ctx.strokeStyle = "#999"; ctx.lineWidth = 1;
     for (const v of Object.values(world.vehicles)) {
       const [x, y] = xy(v.start_ned_m[0], v.start_ned_m[1]);
@@ -290,6 +296,33 @@ function drawTopView() {
   }
   ctx.fillStyle = "#333";
   ctx.fillText(`N ↑   ${(1 / scale * 50).toFixed(2)} m per 50 px`, 8, canvas.height - 8);
+}
+
+// The vehicles' targets: a hold point, or the line at the held distance from a wall.
+function drawTargets(ctx, world, xy, span) {
+  ctx.save();
+  ctx.strokeStyle = "#8a2be2"; ctx.fillStyle = "#8a2be2"; ctx.lineWidth = 1.5; ctx.setLineDash([6, 4]);
+  for (const [sysid, v] of Object.entries(world.vehicles)) {
+    const t = v.target;
+    if (!t) continue;
+    if (t.kind === "hold") {
+      const [x, y] = xy(t.pos_ned_m[0], t.pos_ned_m[1]);
+      ctx.beginPath(); ctx.arc(x, y, 7, 0, 2 * Math.PI); ctx.stroke();
+      ctx.fillText(`target v${sysid}`, x + 9, y + 4);
+    } else if (t.kind === "wall_distance") {
+      const wall = world.walls.find((w) => w.name === t.wall);
+      if (!wall) continue;
+      const [nn, ne] = wall.normal_ned, [dn, de] = [-ne, nn];
+      const pn = wall.point_ned_m[0] + nn * t.distance_m, pe = wall.point_ned_m[1] + ne * t.distance_m;
+      ctx.beginPath();
+      ctx.moveTo(...xy(pn - dn * span, pe - de * span));
+      ctx.lineTo(...xy(pn + dn * span, pe + de * span));
+      ctx.stroke();
+      const [x, y] = xy(pn, pe);
+      ctx.fillText(`target v${sysid}: ${t.distance_m} m from ${t.wall}`, x + 6, y - 6);
+    }  // keep_range: the range to the peer is a sensor (id 50+n) and has its own plot
+  }
+  ctx.restore();
 }
 
 function frame() {
