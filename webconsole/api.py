@@ -9,7 +9,7 @@
 ``POST /api/vehicles/{sysid}/attack``      ``{"profile": name | object | YAML text | null, "params": {}}``
 ``POST /api/vehicles/{sysid}/attack/mode``  ``{"mode": "on" | "bypass"}``
 ``POST /api/vehicles/{sysid}/secure``      ``{"estimator": name | "off", "params": {}}``
-``GET /api/stream?vehicle=N``              server-sent events, 10 per second: the fleet and N's new samples
+``GET /api/stream?vehicle=N``              server-sent events, 12.5 per second: the fleet and N's new samples
 =========================================  ===================================================
 
 A POST answers with the proxy's own acknowledgement (``ok``, ``error``), or 422
@@ -47,7 +47,7 @@ from webconsole.fleet import AckTimeout, Fleet, Session
 from webconsole.world import world_json
 
 STATIC = Path(__file__).resolve().parent / "static"
-STREAM_PERIOD_S = 0.1
+STREAM_PERIOD_S = 0.08  # 12.5 updates a second, on a fixed schedule (the issue asks for 10 or more)
 BACKFILL_S = 120.0  # a page that (re)connects gets this much history at once
 MAX_BODY = 256 * 1024
 
@@ -228,8 +228,10 @@ def build_app(fleet: Fleet, session: Session, password: str | None = None,
 
 
 async def _events(request: Request, fleet: Fleet, watched: int) -> AsyncIterator[dict[str, str]]:
-    """Ten updates a second: the fleet table, and the watched vehicle's samples since the last one."""
+    """12.5 updates a second: the fleet table, and the watched vehicle's samples since the last one."""
     cursor, first = 0, True
+    loop = asyncio.get_running_loop()
+    due = loop.time()
     while not await request.is_disconnected():
         view = fleet.vehicles.get(watched)
         samples: list[dict[str, Any]] = []
@@ -240,5 +242,6 @@ async def _events(request: Request, fleet: Fleet, watched: int) -> AsyncIterator
             first = False
         payload = {"t": time.time(), "fleet": fleet.summary(), "vehicle": watched, "samples": samples}
         yield {"event": "update", "data": json.dumps(payload, separators=(",", ":"), allow_nan=False, default=str)}
-        await asyncio.sleep(STREAM_PERIOD_S)
+        due = max(due + STREAM_PERIOD_S, loop.time())  # a fixed schedule: the time spent here does not add up
+        await asyncio.sleep(due - loop.time())
 

@@ -18,6 +18,7 @@ const state = {
   flagged: new Set(),
   picked: new Set(),        // sensor ids plotted
   plots: new Map(),         // id -> uPlot
+  formsFor: null,           // the vehicle whose state the forms were last filled from
   dirty: false,
 };
 
@@ -79,6 +80,14 @@ function renderFleet(rows) {
     return tr;
   }));
   const mine = rows.find((r) => r.sysid === state.selected);
+  if (mine && state.formsFor !== mine.sysid) {   // the controls start from what is in force
+    state.formsFor = mine.sysid;
+    if (mine.profile && state.library.some((p) => p.name === mine.profile)) {
+      $("library").value = mine.profile;
+      renderParams();
+    }
+    if (mine.secure_available) $("estimator").value = mine.secure || "off";
+  }
   if (mine) {
     $("mode-now").textContent = mine.mode || "-";
     $("mode-now").className = "badge " + (mine.mode === "bypass" ? "bypass" : "on");
