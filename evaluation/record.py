@@ -9,7 +9,7 @@ every frame as QGroundControl and MAVProxy do: an 8-byte big-endian wall-clock
 timestamp in microseconds, then the frame's bytes. With ``--attack`` the
 frames a profile targets are rewritten by the same attack_profiles engine the
 proxy uses (re-packed with their original sysid, compid and sequence number),
-dropped, held back or joined by injected ones, so a log can carry an attack the
+dropped or held back, so a log can carry an attack the
 way a proxy recording would. The profile's activation clock runs on the
 vehicle's boot time (``time_boot_ms``), not the wall clock, so a simulator run
 faster than real time is attacked at the same sim seconds as at 1x.
@@ -22,7 +22,7 @@ not a parked vehicle. (Those two commands are not written to the log.)
 
 Stops on SIGINT/SIGTERM, after ``--duration`` seconds, or ``--idle-stop``
 seconds after the last datagram (the simulator finished). Prints one summary
-line (frames in, written, rewritten, dropped, delayed, injected).
+line (frames in, written, rewritten, dropped, delayed).
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -63,7 +63,6 @@ class Counts:
     rewritten: int = 0
     dropped: int = 0
     delayed: int = 0
-    injected: int = 0
     bad: int = 0
 
 
@@ -97,11 +96,6 @@ class TlogWriter:
             return
         compid = msg.get_srcComponent()
         action = self.engine.process(now_s, msg.get_msgId(), msg.to_dict(), Direction.DOWNLINK, sysid, compid)
-        for extra in action.inject:
-            frame = _pack_new(extra.message, extra.fields, msg)
-            if frame is not None:
-                self.counts.injected += 1
-                self._hold_or_write(now_s + extra.delay_s, frame, extra.delay_s > 0.0)
         if action.drop:
             self.counts.dropped += 1
             return
@@ -134,16 +128,6 @@ def _repack(msg: mavlink.MAVLink_message) -> bytes:
     """Re-pack with the original sysid, compid and sequence number (CRC recomputed)."""
     mav = mavlink.MAVLink(None, srcSystem=msg.get_srcSystem(), srcComponent=msg.get_srcComponent())
     mav.seq = msg.get_seq()
-    return bytes(msg.pack(mav))
-
-
-def _pack_new(name: str, fields: dict[str, Any], like: mavlink.MAVLink_message) -> bytes | None:
-    cls = getattr(mavlink, f"MAVLink_{name.lower()}_message", None)
-    if cls is None:
-        return None
-    msg = cls(**{f: fields.get(f, 0) for f in cls.fieldnames})
-    mav = mavlink.MAVLink(None, srcSystem=like.get_srcSystem(), srcComponent=like.get_srcComponent())
-    mav.seq = like.get_seq()
     return bytes(msg.pack(mav))
 
 
