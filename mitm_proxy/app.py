@@ -229,7 +229,7 @@ class Proxy:
         from secuav_common.broker import EmbeddedBroker, parse_broker_url
 
         if cfg.broker == "embedded":
-            broker = await self._stack.enter_async_context(EmbeddedBroker())
+            broker = await self._stack.enter_async_context(EmbeddedBroker(process=True))  # off the forwarding loop
             url = broker.address.url
         else:
             url = cfg.broker

@@ -1,7 +1,8 @@
 """MQTT broker URLs and an embedded amqtt broker for the control plane.
 
-``secuav-proxy --broker embedded`` (and the demos, and tests) run an amqtt
-broker inside the process, bound to loopback. If something already listens on
+``secuav-proxy --broker embedded`` runs an amqtt broker bound to loopback in a
+child process (so MQTT traffic never takes the forwarding loop's time); the
+console, the demos and tests run it on their own loop. If something already listens on
 the port (a mosquitto, or another SecUAV process's embedded broker) we use that
 instead of failing, so two SecUAV processes can share one control plane.
 """
@@ -12,9 +13,11 @@ import asyncio
 import contextlib
 import logging
 import socket
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
+from typing import Any
 from urllib.parse import urlsplit
 
 from secuav_common.loading import InputError
@@ -81,17 +84,38 @@ def port_in_use(host: str, port: int) -> bool:
         return sock.connect_ex((host, port)) == 0
 
 
+def amqtt_config(host: str, port: int) -> dict[str, Any]:
+    """amqtt's configuration for one anonymous TCP listener on ``host:port``."""
+    return {
+        "listeners": {"default": {"type": "tcp", "bind": f"{host}:{port}"}},
+        "plugins": {"amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}},
+    }
+
+
+def quiet_amqtt() -> None:
+    """amqtt warns for every client that connects and leaves without a CONNECT (our own port probe,
+    health checks); that is not worth a line."""
+    for name in ("amqtt", "transitions"):
+        logging.getLogger(name).setLevel(logging.ERROR)
+
+
 class EmbeddedBroker:
     """``async with EmbeddedBroker(port=1883) as broker: ... broker.address``.
 
     Starts amqtt on ``host:port`` unless a broker already answers there, in
-    which case it is reused (``broker.started`` is then False).
+    which case it is reused (``broker.started`` is then False). With
+    ``process=True`` amqtt runs in a child process (:mod:`secuav_common.broker_main`),
+    as the proxy runs it: a flood of MQTT clients then cannot take time from the
+    caller's event loop. Otherwise it runs on the caller's loop (tests, the demo's
+    tap, the console: nothing there is time-critical).
     """
 
-    def __init__(self, host: str = LOOPBACK, port: int = MQTT_PORT) -> None:
+    def __init__(self, host: str = LOOPBACK, port: int = MQTT_PORT, *, process: bool = False) -> None:
         self.address = BrokerAddress(host, port)
         self.started = False
+        self.process = process
         self._broker: object | None = None
+        self._child: asyncio.subprocess.Process | None = None
 
     async def __aenter__(self) -> EmbeddedBroker:
         if port_in_use(self.address.host, self.address.port):
@@ -102,22 +126,37 @@ class EmbeddedBroker:
                 "give --broker mqtt://HOST:PORT to choose one",
             })  # fmt: skip
             return self
-        from amqtt.broker import Broker  # imported lazily: only the embedding process needs it
+        if self.process:
+            await self._start_child()
+        else:
+            from amqtt.broker import Broker  # imported lazily: only the embedding process needs it
 
-        # amqtt warns for every client that connects and leaves without a CONNECT
-        # (our own port probe, health checks); that is not worth a line.
-        for name in ("amqtt", "transitions"):
-            logging.getLogger(name).setLevel(logging.ERROR)
-        config = {
-            "listeners": {"default": {"type": "tcp", "bind": f"{self.address.host}:{self.address.port}"}},
-            "plugins": {"amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}},
-        }
-        broker = Broker(config)
-        await broker.start()
-        self._broker = broker
+            quiet_amqtt()
+            broker = Broker(amqtt_config(self.address.host, self.address.port))
+            await broker.start()
+            self._broker = broker
         self.started = True
-        log.info("broker.started", extra={"url": self.address.url})
+        where = "child process" if self.process else "this loop"
+        log.info("broker.started", extra={"url": self.address.url, "runs_in": where})
         return self
+
+    async def _start_child(self) -> None:
+        """Start the broker process and wait for its ``ready``; its stdin is our lifeline (closed: it stops)."""
+        child = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "secuav_common.broker_main", self.address.host, str(self.address.port),
+            stdin=asyncio.subprocess.PIPE, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+        )  # fmt: skip
+        assert child.stdout is not None and child.stderr is not None
+        try:
+            line = await asyncio.wait_for(child.stdout.readline(), timeout=30.0)
+        except TimeoutError:
+            line = b""
+        if line.strip() != b"ready":
+            with contextlib.suppress(ProcessLookupError):
+                child.kill()
+            err = (await child.stderr.read()).decode(errors="replace").strip().splitlines()
+            raise OSError(f"the embedded broker did not start on {self.address.url}: {err[-1] if err else 'no reason'}")
+        self._child = child
 
     async def __aexit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
@@ -126,3 +165,13 @@ class EmbeddedBroker:
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(self._broker.shutdown(), timeout=3.0)  # type: ignore[attr-defined]
             self._broker = None
+        child, self._child = self._child, None
+        if child is not None and child.returncode is None:
+            with contextlib.suppress(ProcessLookupError):
+                child.terminate()
+            try:
+                await asyncio.wait_for(child.wait(), timeout=3.0)
+            except TimeoutError:
+                with contextlib.suppress(ProcessLookupError):
+                    child.kill()
+                await child.wait()
