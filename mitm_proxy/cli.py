@@ -95,6 +95,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--loop", choices=("auto", "uvloop", "asyncio"), default="auto", help="event loop (auto: uvloop when installed)"
     )
+    p.add_argument("--print-config", action="store_true",
+                   help="print the configuration as it would run (file + flags, defaults, routing rules) and exit")
     p.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
     p.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
     add_common_flags(p)
@@ -171,6 +173,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         cfg = config_from_args(args)
+        if args.print_config:
+            import yaml
+
+            from mitm_proxy.config import effective
+
+            print(yaml.safe_dump(effective(cfg), sort_keys=False), end="")
+            return 0
         from mitm_proxy.app import Proxy, serve  # after the config: bad flags never pay for the imports
 
         proxy = Proxy(cfg)  # reads the scenario, profile and key: their errors come before any socket

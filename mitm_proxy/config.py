@@ -18,8 +18,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from mitm_proxy.routes import EndpointRules, rules_to_query
 from secuav_common.loading import InputError, load_model, validate
 from secuav_common.ports import GCS_PORT, GROUND_API_BASE, LOOPBACK, PROXY_VEHICLE_BASE
 from secuav_common.urls import Endpoint, parse_endpoint
@@ -46,35 +47,71 @@ def _check_url(url: str, role: str = "ground") -> str:
     return url
 
 
+class EndpointEntry(_Strict):
+    """The long form of an endpoint in the config file: its URL and its routing rules as a mapping.
+
+    ``{url: "tcpin://0.0.0.0:5760", rules: {listen_only: true, down: {deny: [ATTITUDE]}}}`` is the same
+    endpoint as ``tcpin://0.0.0.0:5760?listen_only=true&deny=ATTITUDE`` (docs/routes.md).
+    """
+
+    url: str = Field(description="the endpoint URL, without ?options")
+    rules: dict[str, Any] = Field(default_factory=dict, description="EndpointRules: listen_only, down, up")
+
+
+def _entry_url(entry: str | EndpointEntry) -> str:
+    """An entry as the one URL spelling the rest of the proxy reads (rules as URL options)."""
+    if isinstance(entry, str):
+        return entry
+    ep = parse_endpoint(entry.url)
+    if ep.options:
+        raise ValueError(f"{entry.url}: give the rules either as URL options or under rules:, not both")
+    try:
+        rules = EndpointRules.model_validate(entry.rules)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        where = ".".join(str(p) for p in err["loc"])
+        reason = err["msg"].removeprefix("Value error, ")
+        raise ValueError(f"rules.{where}: {reason} (got {err.get('input')!r})") from None
+    query = rules_to_query(rules)
+    return f"{ep}?{query}" if query else str(ep)
+
+
+Entry = str | EndpointEntry
+
+
 class LinkConfig(_Strict):
     """One vehicle: where its frames come from and which ground endpoints get them."""
 
     sysid: int = Field(ge=1, le=255)
-    vehicle: str = Field(description="udpin://, udpout://, tcp://, tcpin://HOST:PORT or serial:///DEV?baud=N; "
-                         "routing rules as URL options (?deny=..., see mitm_proxy.routes)")
-    ground: list[str] = Field(min_length=1)
+    vehicle: Entry = Field(description="udpin://, udpout://, tcp://, tcpin://HOST:PORT or serial:///DEV?baud=N; "
+                           "routing rules as URL options (?deny=..., docs/routes.md) or {url:, rules:}")
+    ground: list[Entry] = Field(min_length=1, description="ground endpoints, each a URL or {url:, rules:}")
 
     @field_validator("vehicle")
     @classmethod
-    def _vehicle_url(cls, v: str) -> str:
-        return _check_url(v, "vehicle")
+    def _vehicle_url(cls, v: Entry) -> str:
+        return _check_url(_entry_url(v), "vehicle")
 
     @field_validator("ground")
     @classmethod
-    def _ground_urls(cls, v: list[str]) -> list[str]:
-        for url in v:
-            _check_url(url)
-        if len(set(v)) != len(v):
+    def _ground_urls(cls, v: list[Entry]) -> list[str]:
+        urls = []
+        for i, entry in enumerate(v):
+            try:
+                urls.append(_check_url(_entry_url(entry)))
+            except ValueError as exc:
+                raise ValueError(f"[{i}]: {exc}") from None
+        if len({parse_endpoint(u).without_options() for u in urls}) != len(urls):
             raise ValueError("the same ground endpoint is listed twice")
-        return v
+        return urls
 
     @property
     def vehicle_endpoint(self) -> Endpoint:
-        return parse_endpoint(self.vehicle)
+        return parse_endpoint(_entry_url(self.vehicle))
 
     @property
     def ground_endpoints(self) -> list[Endpoint]:
-        return [parse_endpoint(u) for u in self.ground]
+        return [parse_endpoint(_entry_url(u)) for u in self.ground]
 
 
 class ProxyConfig(_Strict):
@@ -129,6 +166,25 @@ class ProxyConfig(_Strict):
                 if ep in other.ground_endpoints:
                     raise ValueError(f"links[{i}].vehicle: {ep} is also a ground endpoint of links[{j}]")
         return self
+
+
+def effective(cfg: ProxyConfig) -> dict[str, Any]:
+    """The whole configuration as the proxy will run it (``--print-config``): every default filled in,
+    and each endpoint with rules in the long form, its rules spelled out by direction."""
+    from mitm_proxy.routes import rules_from_options
+
+    def endpoint(url: str) -> str | dict[str, Any]:
+        ep = parse_endpoint(url)
+        rules = rules_from_options(ep)
+        return str(ep) if rules.empty else {"url": str(ep.without_options()),
+                                            "rules": rules.model_dump(mode="json", exclude_defaults=True)}  # fmt: skip
+
+    data = cfg.model_dump(mode="json")
+    data["links"] = [{"sysid": ln.sysid, "vehicle": endpoint(str(ln.vehicle)),
+                      "ground": [endpoint(str(g)) for g in ln.ground]} for ln in cfg.links]  # fmt: skip
+    if data.get("broker_password"):
+        data["broker_password"] = "***"
+    return data
 
 
 def plan_links(sysids: list[int]) -> list[LinkConfig]:

@@ -15,6 +15,13 @@ the config file's ``vehicle:``/``ground:`` URLs::
     --ground 'udpout://127.0.0.1:14550?deny=DISTANCE_SENSOR,ATTITUDE'     # downlink
     --ground 'udpin://127.0.0.1:14551?allow_up=HEARTBEAT,76&deny_sysid_up=7'
 
+In the config file an endpoint may also be written in the long form, rules as a mapping
+(``secuav-proxy --print-config`` shows every endpoint that way)::
+
+    ground:
+      - url: tcpin://0.0.0.0:5760
+        rules: {listen_only: true, down: {deny: [DISTANCE_SENSOR, ATTITUDE]}}
+
 At runtime the rules of any endpoint are replaced over MQTT (``secuav/proxy/<instance>/routes/set``,
 acknowledged on ``.../routes/state``; a rejected set changes nothing) or from the command line::
 

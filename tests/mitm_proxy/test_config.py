@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from mitm_proxy.cli import build_parser, config_from_args, main
-from mitm_proxy.config import ProxyConfig
+from mitm_proxy.config import ProxyConfig, build_config, load_config
 from secuav_common.loading import InputError
 
 REPO = Path(__file__).resolve().parents[2]
@@ -98,3 +98,56 @@ def test_cli_bad_input_exits_2_with_one_line(tmp_path: Path, capsys: pytest.Capt
     assert main(["--vehicles", "2", "--vehicle", "udpin://127.0.0.1:1", "--vehicle", "udpin://127.0.0.1:2",
                  "--vehicle", "udpin://127.0.0.1:3", "--broker", "none"]) == 2
     assert "once per link (2)" in capsys.readouterr().err
+
+
+def test_rules_in_the_long_form_are_the_same_rules_as_url_options(tmp_path: Path) -> None:
+    from mitm_proxy.routes import rules_from_options
+
+    path = tmp_path / "proxy.yaml"
+    path.write_text(
+        "links:\n"
+        "  - sysid: 1\n"
+        "    vehicle: udpin://127.0.0.1:14560\n"
+        "    ground:\n"
+        "      - url: tcpin://127.0.0.1:5760\n"
+        "        rules: {listen_only: true, down: {deny: [ATTITUDE]}, up: {allow_sysid: [255]}}\n"
+        "      - udpout://127.0.0.1:14550?listen_only=true&deny=ATTITUDE&allow_sysid_up=255\n"
+    )
+    cfg = build_config(load_config(path), {}, str(path))
+    long, short = cfg.links[0].ground_endpoints
+    assert rules_from_options(long) == rules_from_options(short)
+    assert rules_from_options(long).listen_only and long.port == 5760
+
+
+@pytest.mark.parametrize(
+    ("entry", "needle"),
+    [
+        ("{url: tcpin://127.0.0.1:5760, rules: {down: {deny: [NOPE]}}}", "[0]: rules.down.deny: 'NOPE' is not"),
+        ("{url: tcpin://127.0.0.1:5760, rules: {listen: true}}", "[0]: rules.listen: Extra inputs"),
+        ("{url: 'tcpin://127.0.0.1:5760?deny=ATTITUDE', rules: {listen_only: true}}", "not both"),
+        ("{url: tcpin://127.0.0.1:5760, rulez: {}}", "rulez"),
+    ],
+)
+def test_a_bad_long_form_names_the_entry_and_the_rule(tmp_path: Path, entry: str, needle: str) -> None:
+    path = tmp_path / "proxy.yaml"
+    path.write_text(f"links:\n  - sysid: 1\n    vehicle: udpin://127.0.0.1:14560\n    ground:\n      - {entry}\n")
+    with pytest.raises(InputError) as err:
+        build_config(load_config(path), {}, str(path))
+    assert str(path) in str(err.value) and "links[0].ground" in str(err.value) and needle in str(err.value)
+
+
+def test_print_config_shows_what_would_run_with_the_rules_spelled_out() -> None:
+    import subprocess
+    import sys
+
+    import yaml
+
+    run = subprocess.run([sys.executable, "-m", "mitm_proxy", "--vehicles", "2", "--print-config", "--ground",
+                          "tcpin://127.0.0.1:5760?listen_only=true&deny=ATTITUDE", "--broker-password", "hunter2"],
+                         capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    shown = yaml.safe_load(run.stdout)
+    assert [ln["sysid"] for ln in shown["links"]] == [1, 2] and shown["broker_password"] == "***"
+    ground = shown["links"][0]["ground"][0]
+    assert ground == {"url": "tcpin://127.0.0.1:5760", "rules": {"listen_only": True, "down": {"deny": ["ATTITUDE"]}}}
+    assert shown["links"][1]["vehicle"] == "udpin://127.0.0.1:14561"
