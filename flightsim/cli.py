@@ -49,7 +49,8 @@ def build_parser() -> argparse.ArgumentParser:
         action="append",
         metavar="URL",
         default=[],
-        help="udpout://HOST:PORT or udpin://HOST:PORT; once (vehicle i uses PORT+i) or once per vehicle; "
+        help="udpout://HOST:PORT, udpin://HOST:PORT or tcpin://HOST:PORT (a TCP server, as SITL's 5760); "
+        "once (vehicle i uses PORT+i) or once per vehicle; "
         "default udpout://127.0.0.1:14560+i (the proxy)",
     )
     p.add_argument(
@@ -81,8 +82,9 @@ def endpoints_for(urls: Sequence[str], scenario: Scenario) -> list[Endpoint]:
         return [parse_endpoint(proxy_vehicle_url(i)) for i in range(n)]
     parsed = [parse_endpoint(u) for u in urls]
     for url, ep in zip(urls, parsed, strict=True):
-        if ep.mode not in ("udpin", "udpout") or ep.options:
-            raise ValueError(f"--mavlink {url}: the simulator speaks UDP only (udpin://HOST:PORT or udpout://HOST:PORT)")
+        if ep.mode not in ("udpin", "udpout", "tcpin") or ep.options:
+            raise ValueError(f"--mavlink {url}: the simulator serves udpin://, udpout:// or tcpin://HOST:PORT "
+                             "(a TCP server like SITL's 5760)")  # fmt: skip
     if len(parsed) == n:
         return parsed
     if len(parsed) == 1:
@@ -107,6 +109,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         gcs = parse_endpoint(args.gcs) if args.gcs else None
         if gcs is not None and (gcs.mode != "udpout" or gcs.options):
             raise ValueError(f"--gcs {args.gcs}: must be udpout://HOST:PORT (the GCS listens there)")
+        if gcs is not None and any(ep.mode == "tcpin" for ep in endpoints):
+            raise ValueError(f"--gcs {args.gcs}: with --mavlink tcpin:// the GCS connects to that TCP port instead")
     except (InputError, ValueError) as exc:
         return _fail(str(exc))
     speed = 0.0 if args.fast else args.speed

@@ -21,6 +21,7 @@ from pathlib import Path
 from types import TracebackType
 
 from flightsim.mavlink import Px4Personality, UdpLink
+from flightsim.mavlink.tcp import TcpServerLink
 from flightsim.simulation import Simulation
 from flightsim.truth import CsvTruth, MqttTruth, TruthSample
 from secuav_common.broker import BrokerAddress
@@ -51,7 +52,7 @@ class RunConfig:
 @dataclass(slots=True)
 class VehicleLink:
     sysid: int
-    link: UdpLink
+    link: UdpLink | TcpServerLink
     personality: Px4Personality
 
 
@@ -93,7 +94,15 @@ class SimRunner:
                 vehicle = self.sim.vehicles[cfg.sysid]
                 holder: list[Px4Personality] = []
                 also = (self.config.gcs.address,) if self.config.gcs is not None else ()
-                link = UdpLink(endpoint, lambda data, now, h=holder: h[0].receive(data, now), also)
+
+                def receive(data: bytes, now: float, h: list[Px4Personality] = holder) -> None:
+                    h[0].receive(data, now)
+
+                link: UdpLink | TcpServerLink
+                if endpoint.mode == "tcpin":
+                    link = TcpServerLink(endpoint, receive)
+                else:
+                    link = UdpLink(endpoint, receive, also)
                 personality = Px4Personality(vehicle, link.send)
                 holder.append(personality)
                 # Answers (COMMAND_ACK, PARAM_VALUE) leave right away, not at the next tick.
