@@ -10,7 +10,6 @@ the image installs the project the way the README's setup does.
 from __future__ import annotations
 
 import importlib
-import ipaddress
 import re
 import shlex
 import sys
@@ -67,15 +66,12 @@ def test_compose_has_the_bench_services_ports_and_network(compose: dict[str, Any
     for name in ("proxy", "sim"):
         assert services[name]["build"] == {"context": "..", "dockerfile": "docker/Dockerfile"}
         assert (DOCKER / services[name]["build"]["context"] / services[name]["build"]["dockerfile"]).is_file()
-    subnet = ipaddress.ip_network(compose["networks"]["bench"]["ipam"]["config"][0]["subnet"])
-    fixed = {n: s for n, s in services.items() if isinstance(s["networks"], dict)}  # a scaled worker has no fixed IP
-    ips = {n: ipaddress.ip_address(s["networks"]["bench"]["ipv4_address"]) for n, s in fixed.items()}
-    assert all(ip in subnet for ip in ips.values()) and len(set(ips.values())) == len(ips)
-    # The simulator sends to the address the proxy listens on; the proxy's ground side is what is published.
-    vehicle = _flag(proxy["command"], "--vehicle")
-    assert vehicle == [f"udpin://{ips['proxy']}:14560"]
-    assert _flag(sim["command"], "--mavlink") == [f"udpout://{ips['proxy']}:14560"]
-    assert _flag(proxy["command"], "--ground") == [f"udpin://{ips['proxy']}:14540", f"udpin://{ips['proxy']}:14550"]
+    # Services find each other by name: the simulator sends to the proxy's service, whose ports are published.
+    assert all(svc["networks"] == ["bench"] for svc in services.values()) and "bench" in compose["networks"]
+    assert _flag(proxy["command"], "--vehicle") == ["udpin://0.0.0.0:14560"]
+    assert _flag(sim["command"], "--mavlink") == ["udpout://proxy:14560"]
+    assert _flag(proxy["command"], "--ground") == ["udpin://0.0.0.0:14540", "udpin://0.0.0.0:14550"]
+    assert "tcp://dask-scheduler:8786" in services["dask-worker"]["command"]
     assert _flag(proxy["command"], "--broker") == ["mqtt://mosquitto:1883"]
     assert proxy["depends_on"]["mosquitto"]["condition"] == "service_healthy"
     assert services["mosquitto"]["healthcheck"]["test"][3] == "$SYS/broker/uptime"  # "$$" escaped in the file
@@ -117,7 +113,7 @@ def test_every_command_is_a_console_script_whose_parser_accepts_its_arguments(
 
     sim_args = sim_parser().parse_args(ran["secuav-sim"])
     scenario = load_scenario(_host_path(sim_args.scenario))
-    assert [str(e) for e in endpoints_for(sim_args.mavlink, scenario)] == ["udpout://172.28.0.11:14560"]
+    assert [str(e) for e in endpoints_for(sim_args.mavlink, scenario)] == ["udpout://proxy:14560"]
     proxy_args = proxy_parser().parse_args(ran["secuav-proxy"])
     proxy_args.scenario = _host_path(str(proxy_args.scenario))
     cfg = config_from_args(proxy_args)

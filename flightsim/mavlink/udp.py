@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import socket
 import time
 from collections.abc import Callable
 
@@ -23,6 +24,16 @@ log = logging.getLogger(__name__)
 PEER_TIMEOUT_S = 10.0
 MAX_DATAGRAM = 1400  # fits an Ethernet MTU when the link leaves the machine
 Address = tuple[str, int]
+
+
+async def _lookup(addr: Address) -> Address:
+    """``(ip, port)`` for ``(host, port)``, IPv4 first; an unknown name is an ``OSError`` naming it."""
+    host, port = addr
+    try:
+        infos = await asyncio.get_running_loop().getaddrinfo(host, port, family=socket.AF_INET, type=socket.SOCK_DGRAM)
+    except socket.gaierror as exc:
+        raise OSError(f"cannot resolve {host!r}: {exc.strerror}") from None
+    return infos[0][4][0], port
 
 
 class UdpLink(asyncio.DatagramProtocol):
@@ -50,11 +61,16 @@ class UdpLink(asyncio.DatagramProtocol):
 
     async def open(self) -> UdpLink:
         loop = asyncio.get_running_loop()
+        # Names (localhost, a compose service) are looked up once, here: replies are compared with the
+        # address, and sending to a name would look it up again for every datagram.
+        if self._fixed is not None:
+            self._fixed = await _lookup(self._fixed)
+        self._also = tuple([await _lookup(a) for a in self._also])
         if self.endpoint.mode == "udpin":
             local: Address = self.endpoint.address
         else:
             # A socket bound to loopback cannot reach another host: bind wide only when a peer is elsewhere.
-            hosts = [self.endpoint.host, *(a[0] for a in self._also)]
+            hosts = [h for h in (self._fixed[0] if self._fixed else None, *(a[0] for a in self._also)) if h]
             local = ("127.0.0.1" if all(h.startswith("127.") for h in hosts) else "0.0.0.0", 0)
         await loop.create_datagram_endpoint(lambda: self, local_addr=local)
         return self

@@ -82,3 +82,35 @@ def test_a_ground_station_connects_over_tcp_directly_and_through_the_proxy(
             finally:
                 behind.close()
     assert "tcp.client" in (tmp_path / "sim.log").read_text()
+
+
+async def test_udp_host_names_are_looked_up_once_when_the_link_opens(udp_port: Callable[[], int]) -> None:
+    """``udpout://localhost:PORT`` (or a compose service name) works: sent to the address, replies matched to it."""
+    import asyncio
+    import socket
+
+    from flightsim.mavlink.udp import UdpLink
+    from secuav_common.urls import parse_endpoint
+
+    port = udp_port()
+    listener = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    listener.bind(("127.0.0.1", port))
+    listener.settimeout(5)
+    got: list[bytes] = []
+    link = await UdpLink(parse_endpoint(f"udpout://localhost:{port}"), lambda data, now: got.append(data)).open()
+    try:
+        link.send(b"hello")
+        link.flush()
+        data, addr = await asyncio.to_thread(listener.recvfrom, 100)
+        assert data == b"hello"
+        listener.sendto(b"reply", addr)
+        for _ in range(50):
+            if got:
+                break
+            await asyncio.sleep(0.05)
+        assert got == [b"reply"] and link._peers == {}  # the reply came from the fixed peer, not a new one
+    finally:
+        link.close()
+        listener.close()
+    with pytest.raises(OSError, match=r"cannot resolve 'no-such-host\.invalid'"):
+        await UdpLink(parse_endpoint("udpout://no-such-host.invalid:1"), lambda d, n: None).open()
