@@ -132,3 +132,31 @@ async def test_udpin_port_taken_is_an_oserror(udp_port: Callable[[], int]) -> No
             await UdpEndpoint(parse_endpoint(f"udpin://127.0.0.1:{port}"), "b").open()
     finally:
         first.close()
+
+
+async def test_an_oversize_datagram_is_dropped_unread_and_never_becomes_the_peer(
+    udp_port: Callable[[], int], caplog: pytest.LogCaptureFixture
+) -> None:
+    from mitm_proxy.endpoints import MAX_DATAGRAM_BYTES
+
+    caplog.set_level(logging.INFO, "mitm_proxy.endpoints")
+    port = udp_port()
+    got: list[bytes] = []
+    ep = await UdpEndpoint(parse_endpoint(f"udpin://127.0.0.1:{port}"), "ground").open()
+    ep.receiver = lambda data, rx_s: got.append(data)
+    hostile, honest = client(), client()
+    try:
+        crafted = b"\xfd" * 65000  # 6-20 ms to split; here one length comparison
+        for _ in range(5):
+            hostile.sendto(crafted, ("127.0.0.1", port))
+        await until(lambda: ep.faults["oversize"] == 5)
+        assert got == [] and ep.peer is None  # it was not read and did not claim the endpoint
+        hostile.sendto(b"x" * MAX_DATAGRAM_BYTES, ("127.0.0.1", port))  # at the limit: read as usual
+        honest.sendto(b"small", ("127.0.0.1", port))
+        await until(lambda: len(got) == 1)
+        assert got == [b"x" * MAX_DATAGRAM_BYTES] and ep.peer == hostile.getsockname()
+    finally:
+        ep.close()
+        hostile.close()
+        honest.close()
+    assert sum("endpoint.oversize" in r.message for r in caplog.records) == 1  # counted per datagram, logged once
