@@ -9,6 +9,8 @@
    - ``bare-asyncio`` / ``bare-uvloop``: a minimal asyncio UDP relay (the floor
      for any asyncio proxy);
    - ``mavproxy``: ``mavproxy.py --master=udpin:... --out=udpout:... --daemon``;
+   - ``mavlink-router``: ``mavlink-routerd -t 0 -e 127.0.0.1:OUT 127.0.0.1:IN`` (C++, the router most
+     deployments use), when built (``bash benchmarks/build_mavlink_router.sh``, or ``MAVLINK_ROUTERD``);
    - ``secuav-bypass-*``: ``secuav-proxy --attack bypass`` (asyncio, uvloop);
    - ``secuav-rewrite-*``: ``secuav-proxy`` with a bias on the DISTANCE_SENSOR
      ids that make up about 10 % of the stream.
@@ -25,7 +27,7 @@ MAVProxy measured in the same run. Nothing here asserts a time.
 
     .venv/bin/python benchmarks/proxy_bench.py [--quick] [--soak-s 600]
 
-MAVProxy is optional (``pip install MAVProxy``); without it its rows say so.
+MAVProxy is optional (``pip install MAVProxy``) and so is mavlink-router; without them their rows say so.
 """
 
 from __future__ import annotations
@@ -179,6 +181,10 @@ class Target:
     notes: list[str] = field(default_factory=list)
 
 
+ROUTERD = Path(os.environ.get("MAVLINK_ROUTERD")
+               or Path(__file__).resolve().parents[1] / "build/mavlink-router/build/src/mavlink-routerd")
+
+
 def targets(profile: Path, names: list[str] | None) -> list[Target]:
     me = [sys.executable, str(Path(__file__).resolve())]
     proxy = [sys.executable, "-m", "mitm_proxy", "--broker", "none", "-q", "--vehicle", "udpin://127.0.0.1:{inp}",
@@ -189,6 +195,7 @@ def targets(profile: Path, names: list[str] | None) -> list[Target]:
         Target("bare-uvloop", [*me, "--relay", "{inp}", "{out}", "uvloop"]),
         Target("mavproxy", [str(BIN / "mavproxy.py"), "--master=udpin:127.0.0.1:{inp}",
                             "--out=udpout:127.0.0.1:{out}", "--daemon", "--non-interactive"]),
+        Target("mavlink-router", [str(ROUTERD), "-t", "0", "-e", "127.0.0.1:{out}", "127.0.0.1:{inp}"]),
         Target("secuav-bypass-asyncio", [*proxy, "--attack", "bypass", "--loop", "asyncio"]),
         Target("secuav-bypass-uvloop", [*proxy, "--attack", "bypass", "--loop", "uvloop"]),
         Target("secuav-rewrite-asyncio", [*proxy, "--profile", str(profile), "--loop", "asyncio"]),
@@ -389,6 +396,9 @@ def main() -> int:
         if target.name == "mavproxy" and not (BIN / "mavproxy.py").exists() and not shutil.which("mavproxy.py"):
             rows.append({"name": target.name, "skip": "MAVProxy not installed (pip install MAVProxy)"})
             continue
+        if target.name == "mavlink-router" and not ROUTERD.is_file():
+            rows.append({"name": target.name, "skip": "not built (bash benchmarks/build_mavlink_router.sh)"})
+            continue
         inp, out = free_port(), free_port()
         recv_sock = udp_socket(out)
         row: dict[str, object] = {"name": target.name}
@@ -472,6 +482,15 @@ def report(rows: list[dict[str, object]], soak_s: float, cpu_rate: float) -> Non
                     if cpu else f"{'-':>8} {'-':>9} {'-':>7}")
         print(f"{r['name']:24} {cpu_cols} {lossless:12.0f} {xb:>7} {xm:>7} {p50:7.3f} {p99:7.3f} {added} {rss}  "
               f"{r.get('first_loss', 'none up to the top rate')}")
+    router = by.get("mavlink-router", {})
+    if router.get("cpu_us"):
+        r_cpu, r_loss = float(router["cpu_us"]), float(router.get("lossless") or 0.0)  # type: ignore[arg-type]
+        print(f"\nagainst mavlink-routerd ({r_cpu:.1f} us/frame, lossless {r_loss:.0f} f/s):")
+        for r in rows:
+            if str(r["name"]).startswith("secuav") and r.get("cpu_us"):
+                cpu, loss = float(r["cpu_us"]), float(r.get("lossless") or 0.0)  # type: ignore[arg-type]
+                print(f"  {r['name']:24} CPU per frame x{cpu / r_cpu:.1f}, lossless rate x{loss / r_loss:.2f}"
+                      if r_loss else f"  {r['name']:24} CPU per frame x{cpu / r_cpu:.1f}")
     if bare_cpu:
         print(f"\nCPU us/f: relay CPU time per frame forwarded while {cpu_rate:.0f} frames/s are offered "
               "(f/s/core = 1e6 / it; "

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from secuav_common.broker import parse_broker_url
 from secuav_common.loading import InputError
-from secuav_common.logs import add_common_flags, setup_logging
+from secuav_common.logs import add_common_flags, cli_error, setup_logging
 from secuav_common.ports import proxy_vehicle_url
 from secuav_common.scenario import DEFAULT_SCENARIO, Scenario, load_scenario
 from secuav_common.urls import Endpoint, parse_endpoint
@@ -96,8 +96,7 @@ def endpoints_for(urls: Sequence[str], scenario: Scenario) -> list[Endpoint]:
 
 
 def _fail(message: str, code: int = 2) -> int:
-    print(f"{PROG}: error: {message}", file=sys.stderr)
-    return code
+    return cli_error(PROG, message, code)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

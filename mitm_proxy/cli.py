@@ -21,7 +21,7 @@ from typing import Any
 
 from mitm_proxy.config import ProxyConfig, build_config, load_config, override_endpoints
 from secuav_common.loading import InputError
-from secuav_common.logs import add_common_flags, setup_logging
+from secuav_common.logs import add_common_flags, cli_error, setup_logging
 from secuav_common.urls import parse_endpoint
 
 PROG = "secuav-proxy"
@@ -152,8 +152,7 @@ def _links_from_flag(groups: list[list[str]], args: argparse.Namespace, file_val
 
 
 def _fail(message: str, code: int = 2) -> int:
-    print(f"{PROG}: error: {message}", file=sys.stderr)
-    return code
+    return cli_error(PROG, message, code)
 
 
 def new_event_loop(choice: str) -> asyncio.AbstractEventLoop:

@@ -88,3 +88,9 @@ def add_common_flags(parser: argparse.ArgumentParser, *, log_flags: bool = True)
     parser.add_argument("--version", action="version", version=f"%(prog)s {version()}")
     if log_flags:
         parser.add_argument("--log-json", action="store_true", help="log one JSON object per line (for log shippers)")
+
+
+def cli_error(prog: str, message: str, code: int = 2) -> int:
+    """Print ``PROG: error: MESSAGE`` on stderr (argparse's shape) and return ``code`` for ``main``."""
+    print(f"{prog}: error: {message}", file=sys.stderr)
+    return code

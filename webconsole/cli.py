@@ -26,7 +26,7 @@ from pathlib import Path
 
 from secuav_common.broker import EmbeddedBroker, parse_broker_url, read_secret, redact
 from secuav_common.loading import InputError
-from secuav_common.logs import add_common_flags, setup_logging
+from secuav_common.logs import add_common_flags, cli_error, setup_logging
 from secuav_common.scenario import load_scenario
 
 PROG = "secuav-console"
@@ -122,8 +122,7 @@ async def serve(args: argparse.Namespace, host: str, port: int, password: str | 
 
 
 def _fail(message: str, code: int = 2) -> int:
-    print(f"{PROG}: error: {message}", file=sys.stderr)
-    return code
+    return cli_error(PROG, message, code)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -3,7 +3,8 @@
 ``Mosquitto`` runs the real binary on a loopback port from a two-line config
 and can be stopped and started again on the same port (the broker-restart
 test); ``Observer`` is a plain aiomqtt client that records every message on
-its topics and waits for the one a test expects.
+its topics and waits for the one a test expects; ``attack_cli`` runs the real
+``secuav-attack`` as a user would.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import json
 import shutil
 import socket
 import subprocess
+import sys
 import time
 import uuid
 from collections.abc import Callable
@@ -186,3 +188,14 @@ def make_password_file(workdir: Path, user: str, password: str) -> Path:
     path = workdir / "passwd"
     subprocess.run([MOSQUITTO_PASSWD, "-b", "-c", str(path), user, password], check=True, capture_output=True)
     return path
+
+
+async def attack_cli(*args: str, timeout_s: float = 60) -> tuple[int, str]:
+    """Run ``secuav-attack`` as a subprocess without blocking the loop (streams keep flowing meanwhile);
+    its exit code and its stdout and stderr together."""
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "mitm_proxy.attack_cli", *args,
+        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
+    )  # fmt: skip
+    out, _ = await asyncio.wait_for(proc.communicate(), timeout_s)
+    return proc.returncode or 0, out.decode()

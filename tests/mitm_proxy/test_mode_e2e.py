@@ -22,6 +22,7 @@ from typing import IO
 import aiomqtt
 import pytest
 from pymavlink import mavutil
+from test_control_support import attack_cli
 
 from secuav_common.broker import EmbeddedBroker
 from tests.conftest import free_tcp_port
@@ -56,16 +57,6 @@ async def _request(
                 if want(body):
                     return body
     raise AssertionError("unreachable")
-
-
-async def _cli(*args: str) -> tuple[int, str]:
-    """Run ``secuav-attack`` without blocking the loop (the stream keeps flowing meanwhile)."""
-    proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "mitm_proxy.attack_cli", *args,
-        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
-    )  # fmt: skip
-    out, _ = await asyncio.wait_for(proc.communicate(), 60)
-    return proc.returncode or 0, out.decode()
 
 
 def _stop(proxy: subprocess.Popen[bytes], log: IO[bytes]) -> None:
@@ -115,13 +106,13 @@ async def test_bypass_and_on_over_mqtt_reach_the_wire(tmp_path: Path, udp_port: 
                 assert ack["ok"] and ack["mode"] == "on", ack
                 await _settled(seen, TRUE_CM + 100)
             # The same from the command line: secuav-attack mode / secure, answering with the proxy's verdict.
-            code, out = await _cli("mode", "bypass", "--broker", f"mqtt://127.0.0.1:{broker_port}")
+            code, out = await attack_cli("mode", "bypass", "--broker", f"mqtt://127.0.0.1:{broker_port}")
             assert code == 0 and "ok: v1 attack bypass" in out, out
             await _settled(seen, TRUE_CM)
-            code, out = await _cli("mode", "on", "--vehicle", "1", "--broker", f"mqtt://127.0.0.1:{broker_port}")
+            code, out = await attack_cli("mode", "on", "--vehicle", "1", "--broker", f"mqtt://127.0.0.1:{broker_port}")
             assert code == 0 and "ok: v1 attack on" in out, out
             await _settled(seen, TRUE_CM + 100)
-            code, out = await _cli("secure", "secekf", "--broker", f"mqtt://127.0.0.1:{broker_port}")
+            code, out = await attack_cli("secure", "secekf", "--broker", f"mqtt://127.0.0.1:{broker_port}")
             assert code == 1 and "secure stage is not available" in out, out  # no scenario, no secure stage: said why
         finally:
             stop.set()
@@ -147,11 +138,12 @@ async def test_secuav_attack_secure_switches_the_estimator(tmp_path: Path, udp_p
                 async with asyncio.timeout(30):
                     async for _message in client.messages:
                         break
-            code, out = await _cli("secure", "secekf", "--param", "alpha=0.001", "--broker", broker, "--timeout", "20")
+            at = ("--broker", broker, "--timeout", "20")
+            code, out = await attack_cli("secure", "secekf", "--param", "alpha=0.001", *at)
             assert code == 0 and "ok: v1 secure secekf" in out, out
-            code, out = await _cli("secure", "nosuch", "--broker", broker, "--timeout", "20")
+            code, out = await attack_cli("secure", "nosuch", "--broker", broker, "--timeout", "20")
             assert code == 1 and "nosuch" in out, out
-            code, out = await _cli("secure", "off", "--broker", broker, "--timeout", "20")
+            code, out = await attack_cli("secure", "off", "--broker", broker, "--timeout", "20")
             assert code == 0 and "ok: v1 secure off" in out, out
         finally:
             _stop(proxy, log)

@@ -24,20 +24,12 @@ from pathlib import Path
 import aiomqtt
 import pytest
 from pymavlink import mavutil
+from test_control_support import attack_cli
 
 from secuav_common.broker import EmbeddedBroker
 from tests.conftest import free_tcp_port
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
-
-
-async def _cli(*args: str) -> tuple[int, str]:
-    proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "mitm_proxy.attack_cli", *args,
-        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
-    )  # fmt: skip
-    out, _ = await asyncio.wait_for(proc.communicate(), 60)
-    return proc.returncode or 0, out.decode()
 
 
 def _proxy(broker: str, instance: str, vehicle: int, ground: int, log: Path, sysid: int) -> subprocess.Popen[bytes]:
@@ -119,16 +111,16 @@ async def test_routes_set_show_and_the_fleet_view_with_real_proxies(
             await stream.settle(lambda: stream.got["ATTITUDE"] > 50)
 
             # Two instances: a route set must say which one.
-            code, out = await _cli("routes", "set", ground, "deny=ATTITUDE", "--broker", broker)
+            code, out = await attack_cli("routes", "set", ground, "deny=ATTITUDE", "--broker", broker)
             assert code == 2 and "2 proxies are online (bench-a, bench-b)" in out, out
             at_a = ("--instance", "bench-a", "--broker", broker)
-            code, out = await _cli("routes", "set", ground, "deny=ATTITUDE", *at_a)
+            code, out = await attack_cli("routes", "set", ground, "deny=ATTITUDE", *at_a)
             assert code == 0 and out.strip() == f"ok: bench-a {ground} deny=ATTITUDE", out
             await asyncio.sleep(0.2)  # what was in flight
             seen = await stream.window(1.0)
             assert seen["ATTITUDE"] == 0 and seen["DISTANCE_SENSOR"] > 100, seen
 
-            code, out = await _cli("routes", "show", *at_a)
+            code, out = await attack_cli("routes", "show", *at_a)
             assert code == 0 and f"{ground}" in out and "deny=ATTITUDE" in out and "vehicle" in out, out
 
             # Rejected by the proxy (an endpoint it does not have): the rules in force stay.
@@ -146,7 +138,7 @@ async def test_routes_set_show_and_the_fleet_view_with_real_proxies(
             assert (await stream.window(0.5))["ATTITUDE"] == 0
 
             # A typo fails here, before anything is sent.
-            code, out = await _cli("routes", "set", ground, "deny=ATTITUDEX", *at_a)
+            code, out = await attack_cli("routes", "set", ground, "deny=ATTITUDEX", *at_a)
             assert code == 1 and "ATTITUDEX" in out and "not a MAVLink message name" in out, out
 
             # Swap the rules back and forth while 200 Hz flows: no DISTANCE_SENSOR frame is lost to a swap.
@@ -154,7 +146,7 @@ async def test_routes_set_show_and_the_fleet_view_with_real_proxies(
             stream.got.clear()
             for i in range(6):
                 rules = "none" if i % 2 == 0 else "deny=ATTITUDE"
-                code, out = await _cli("routes", "set", ground, rules, *at_a)
+                code, out = await attack_cli("routes", "set", ground, rules, *at_a)
                 assert code == 0, out
             stream.sending = False  # what is in flight arrives and is counted
             await asyncio.sleep(0.5)
@@ -165,7 +157,7 @@ async def test_routes_set_show_and_the_fleet_view_with_real_proxies(
             stream.sending = True
 
             # The fleet view: both instances and their vehicles.
-            code, out = await _cli("status", "--broker", broker)
+            code, out = await attack_cli("status", "--broker", broker)
             assert code == 0, out
             assert "proxy bench-a: online" in out and "vehicles v1\n" in out and "vehicles v7\n" in out, out
             assert "proxy bench-b: online" in out and "v7: attack none" in out, out
