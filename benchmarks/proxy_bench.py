@@ -225,9 +225,11 @@ def started(target: Target, inp: int, out: int, workdir: Path) -> Iterator[subpr
 
 
 # -- 3. load: a paced sender process and a receiving thread -----------------------------------------
-def _sender(port: int, datagrams: list[bytes], rate: float, seconds: float, stamps: object, done: object) -> None:
-    """Send ``rate`` datagrams/s for ``seconds``, cycling through ``datagrams``; note each send time."""
-    sock = udp_socket()
+def _sender(port: int, datagrams: list[bytes], rate: float, seconds: float, stamps: object, done: object,
+            src: int = 0) -> None:  # fmt: skip
+    """Send ``rate`` datagrams/s for ``seconds`` from port ``src``, cycling through ``datagrams``; note each send
+    time. One source port per target, as a vehicle has: the proxy follows the first vehicle address it hears."""
+    sock = udp_socket(src)
     n_total = int(rate * seconds)
     batch = max(1, int(rate / 1000))  # pace every millisecond
     t0 = time.monotonic()
@@ -271,7 +273,7 @@ def _receive(sock: socket.socket, stop: threading.Event, keep: bool, got: Receiv
 
 
 def offer(datagrams: list[bytes], inp: int, recv_sock: socket.socket, rate: float, seconds: float,
-          keep: bool = False) -> tuple[int, int, float, Received, list[float]]:  # fmt: skip
+          keep: bool = False, src: int = 0) -> tuple[int, int, float, Received, list[float]]:  # fmt: skip
     """Frames sent, frames received, achieved datagram rate, arrivals, send stamps (``rate`` is datagrams/s)."""
     n_total = int(rate * seconds)
     stamps = mp.Array("d", n_total if keep else 0, lock=False) if keep else None
@@ -280,7 +282,7 @@ def offer(datagrams: list[bytes], inp: int, recv_sock: socket.socket, rate: floa
     stop = threading.Event()
     th = threading.Thread(target=_receive, args=(recv_sock, stop, keep, got), daemon=True)
     th.start()
-    p = mp.Process(target=_sender, args=(inp, datagrams, rate, seconds, stamps, done))
+    p = mp.Process(target=_sender, args=(inp, datagrams, rate, seconds, stamps, done, src))
     p.start()
     p.join()
     time.sleep(0.4)  # what is in flight
@@ -292,9 +294,10 @@ def offer(datagrams: list[bytes], inp: int, recv_sock: socket.socket, rate: floa
     return sent_frames, got.frames, achieved, got, list(stamps) if stamps is not None else []
 
 
-def ready(datagrams: list[bytes], port: int, recv_sock: socket.socket, timeout_s: float = 20.0) -> bool:
+def ready(datagrams: list[bytes], port: int, recv_sock: socket.socket, timeout_s: float = 20.0,
+          src: int = 0) -> bool:  # fmt: skip
     """Send telemetry until the relay forwards some: it has finished starting (imports, sockets)."""
-    sock = udp_socket()
+    sock = udp_socket(src)
     recv_sock.settimeout(0.1)
     t_end = time.monotonic() + timeout_s
     try:
@@ -399,7 +402,7 @@ def main() -> int:
         if target.name == "mavlink-router" and not ROUTERD.is_file():
             rows.append({"name": target.name, "skip": "not built (bash benchmarks/build_mavlink_router.sh)"})
             continue
-        inp, out = free_port(), free_port()
+        inp, out, src = free_port(), free_port(), free_port()
         recv_sock = udp_socket(out)
         row: dict[str, object] = {"name": target.name}
         with started(target, inp, out, work) as proc:
@@ -408,16 +411,16 @@ def main() -> int:
                 rows.append({"name": target.name, "skip": f"exited with {proc.returncode}"})
                 recv_sock.close()
                 continue
-            if proc is not None and not ready(datagrams, dest, recv_sock):
+            if proc is not None and not ready(datagrams, dest, recv_sock, src=src):
                 rows.append({"name": target.name, "skip": "forwarded nothing within 20 s"})
                 recv_sock.close()
                 continue
-            offer(datagrams, dest, recv_sock, 500, 0.5)  # warm-up (MAVProxy waits for a heartbeat)
+            offer(datagrams, dest, recv_sock, 500, 0.5, src=src)  # warm-up (MAVProxy waits for a heartbeat)
             drain(recv_sock)
             best = 0.0
             for rate in rates:
                 for _try in range(args.tries):  # best of: other work on the machine causes stray losses
-                    sent, got, achieved, _r, _s = offer(datagrams, dest, recv_sock, rate, args.step_s)
+                    sent, got, achieved, _r, _s = offer(datagrams, dest, recv_sock, rate, args.step_s, src=src)
                     drain(recv_sock)
                     if got >= sent and achieved >= 0.95 * rate:
                         break
@@ -427,7 +430,8 @@ def main() -> int:
                     break
                 best = sent / args.step_s
             row["lossless"] = best
-            sent, got, _a, recv, stamps = offer(datagrams, dest, recv_sock, LATENCY_RATE, args.latency_s, keep=True)
+            sent, got, _a, recv, stamps = offer(datagrams, dest, recv_sock, LATENCY_RATE, args.latency_s, keep=True,
+                                                src=src)
             lat = latencies(datagrams, stamps, recv)
             row["p50_ms"], row["p99_ms"] = pct(lat, 0.5) * 1e3, pct(lat, 0.99) * 1e3
             row["lat_lost"] = sent - got
@@ -436,14 +440,14 @@ def main() -> int:
                 # machine. Last but the soak, so a relay that falls behind (MAVProxy) carries no backlog into
                 # the ladder or the latency figures.
                 c0 = cpu_s(proc.pid)
-                _sent, got, _a, _r, _s = offer(datagrams, dest, recv_sock, args.cpu_rate, args.cpu_s)
+                _sent, got, _a, _r, _s = offer(datagrams, dest, recv_sock, args.cpu_rate, args.cpu_s, src=src)
                 row["cpu_us"] = (cpu_s(proc.pid) - c0) / max(got, 1) * 1e6
                 drain(recv_sock)
             if proc is not None and target.name.startswith("secuav"):
                 drain(recv_sock)
-                offer(datagrams, dest, recv_sock, LATENCY_RATE, 1.0)
+                offer(datagrams, dest, recv_sock, LATENCY_RATE, 1.0, src=src)
                 before = rss_kb(proc.pid)
-                offer(datagrams, dest, recv_sock, LATENCY_RATE, args.soak_s)
+                offer(datagrams, dest, recv_sock, LATENCY_RATE, args.soak_s, src=src)
                 row["rss_mb"] = before / 1024
                 row["rss_growth_mb"] = (rss_kb(proc.pid) - before) / 1024
         recv_sock.close()
