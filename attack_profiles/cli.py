@@ -17,13 +17,13 @@ import argparse
 import json
 import sys
 from collections.abc import Callable, Mapping, Sequence
-from pathlib import Path
 from typing import Any
 
 from attack_profiles import library
 from attack_profiles.engine import Engine
-from attack_profiles.profile import Profile, load_profile, profile_schema_text
-from secuav_common.loading import InputError, parse_document
+from attack_profiles.profile import Profile, profile_schema_text
+from attack_profiles.resolve import parse_params, resolve_profile
+from secuav_common.loading import InputError
 from secuav_common.logs import add_common_flags
 from secuav_common.scenario import load_scenario
 
@@ -33,21 +33,11 @@ LIVE_COMMANDS = ("apply", "clear", "status", "mode", "secure", "routes")
 
 
 def _params(pairs: Sequence[str]) -> dict[str, Any]:
-    """``--param links=[11,14] --param offset_m=2`` -> typed values (YAML/JSON syntax)."""
-    out: dict[str, Any] = {}
-    for pair in pairs:
-        name, sep, raw = pair.partition("=")
-        if not sep or not name:
-            raise InputError("--param", "", pair, "expected NAME=VALUE")
-        out[name] = parse_document(raw, f"--param {name}") if raw else None
-    return out
+    return parse_params(pairs)
 
 
 def _resolve(ref: str, params: dict[str, Any]) -> Profile:
-    """A file path, or the name of a library profile."""
-    if Path(ref).exists() or Path(ref).suffix:
-        return load_profile(ref, **params)
-    return library.load(ref, **params)
+    return resolve_profile(ref, params, "profile")
 
 
 def cmd_validate(args: argparse.Namespace) -> int:

@@ -5,15 +5,14 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
-import json
 import logging
 import signal
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
-from typing import Any
 
+from attack_profiles.resolve import parse_params
 from demos import formation, localise, wall_hover
 from demos.flight import Case, Options
 from demos.report import plot, write_report
@@ -46,19 +45,6 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _params(pairs: Sequence[str]) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for pair in pairs:
-        key, sep, text = pair.partition("=")
-        if not sep or not key:
-            raise ValueError(f"--param {pair!r}: expected KEY=VALUE")
-        try:
-            out[key] = json.loads(text)
-        except ValueError:
-            out[key] = text
-    return out
-
-
 def cases(demo: ModuleType, attack: str | None, secure: str | None, matrix: bool) -> list[Case]:
     hit = None if attack == "none" else (attack or demo.DEFAULT_ATTACK)
     if not matrix:
@@ -74,7 +60,7 @@ async def _main(args: argparse.Namespace) -> int:
     matrix = args.matrix or (args.attack is None and args.secure is None)
     base = args.base_port
     ports = Ports() if base is None else Ports(base, base + 10, base + 20, base + 21)
-    params = {**getattr(demo, "DEFAULT_PARAMS", {}), **_params(args.param)}
+    params = {**getattr(demo, "DEFAULT_PARAMS", {}), **parse_params(args.param)}
     opts = Options(out=out, seconds=args.seconds, settle_s=args.settle, seed=args.seed, ports=ports,
                    attack_params=params, progress=not args.no_progress and sys.stderr.isatty())  # fmt: skip
     selected = cases(demo, args.attack, args.secure, matrix)

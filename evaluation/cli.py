@@ -32,12 +32,12 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
-import yaml
 from tqdm import tqdm
 
 import estimators
-from attack_profiles import Engine, library, load_profile
+from attack_profiles import Engine
 from attack_profiles.profile import Profile
+from attack_profiles.resolve import parse_params, resolve_profile
 from estimators.models import MeasurementModel
 from estimators.scenario_models import anchor_model, two_vehicle_model, wall_group_model
 from evaluation.report import plot, summarise, table, write_results
@@ -72,25 +72,9 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def parse_params(pairs: list[str]) -> dict[str, Any]:
-    out = {}
-    for pair in pairs:
-        key, sep, value = pair.partition("=")
-        if not sep or not key:
-            raise InputError("--param", pair, pair, "expected K=V")
-        out[key] = yaml.safe_load(value)
-    return out
-
-
-def resolve_profile(spec: str, params: dict[str, Any]) -> Profile | None:
-    if spec == "none":
-        return None
-    if Path(spec).exists() or Path(spec).suffix in (".yaml", ".yml", ".json"):
-        return load_profile(spec, **params)
-    if spec not in library.names():
-        known = ", ".join(library.names())
-        raise InputError("--attack", "", spec, f"no such file or library profile; library: {known}")
-    return library.load(spec, **params)
+def resolve_attack(spec: str, params: dict[str, Any]) -> Profile | None:
+    """``--attack``: ``none``, a profile file, or a library name."""
+    return None if spec == "none" else resolve_profile(spec, params, "--attack")
 
 
 def _check_scenario(scenario: Scenario, source: str) -> None:
@@ -125,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
             raise InputError("--truth/--rate", "", None, "only with --tlog")
         if args.rate is not None and not 0.1 <= args.rate <= 1000.0:
             raise InputError("--rate", "", args.rate, "must lie in 0.1..1000 Hz")
-        profile = resolve_profile(args.attack or "none", parse_params(args.param))
+        profile = resolve_attack(args.attack or "none", parse_params(args.param))
         if profile is not None:
             Engine(profile, scenario=scenario)  # checks the profile's sensor ids against the scenario
         fits = estimators.names(model_for(scenario))

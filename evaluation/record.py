@@ -7,12 +7,12 @@ Listens where a vehicle sends (``secuav-sim --mavlink udpout://127.0.0.1:PORT``
 sends vehicle i to PORT + i: give one ``--listen`` per vehicle) and writes
 every frame as QGroundControl and MAVProxy do: an 8-byte big-endian wall-clock
 timestamp in microseconds, then the frame's bytes. With ``--attack`` the
-frames a profile targets are rewritten by the same attack_profiles engine the
-proxy uses (re-packed with their original sysid, compid and sequence number),
-dropped or held back, so a log can carry an attack the
-way a proxy recording would. The profile's activation clock runs on the
-vehicle's boot time (``time_boot_ms``), not the wall clock, so a simulator run
-faster than real time is attacked at the same sim seconds as at 1x.
+frames a profile targets go through the proxy's own pipeline and attack stage
+(re-packed with their original sysid, compid and sequence number, dropped or
+held back), so a log carries an attack exactly as a proxy recording would.
+The profile's activation clock runs on the vehicle's boot time
+(``time_boot_ms``), not the wall clock, so a simulator run faster than real
+time is attacked at the same sim seconds as at 1x.
 
 ``--takeoff`` makes the recorder a minimal ground station: on each vehicle's
 first HEARTBEAT it sends arm (MAV_CMD_COMPONENT_ARM_DISARM) and take off
@@ -47,13 +47,16 @@ from pymavlink.dialects.v20 import common as mavlink
 from attack_profiles import Engine
 from attack_profiles.action import Direction
 from attack_profiles.profile import Profile
-from evaluation.cli import parse_params, resolve_profile
+from attack_profiles.resolve import parse_params
+from evaluation.cli import resolve_attack
+from mitm_proxy.attack import AttackStage
+from mitm_proxy.pipeline import Pipeline
+from mitm_proxy.slots import AttackSlot
+from mitm_proxy.stats import LinkStats
 from secuav_common.loading import InputError
 from secuav_common.logs import add_common_flags
 from secuav_common.scenario import load_scenario, resolve_scenario_path
 from secuav_common.urls import Endpoint, parse_endpoint
-
-TIME_FIELDS = ("time_boot_ms",)
 
 
 @dataclass
@@ -68,22 +71,45 @@ class Counts:
 
 @dataclass
 class TlogWriter:
-    """Frames to a .tlog, the attack (if any) applied on the way; delayed frames wait on the vehicle clock."""
+    """Frames to a .tlog, the attack (if any) applied on the way; delayed frames wait on the vehicle clock.
+
+    The attack runs through the proxy's own pipeline (attack stage, re-pack with the original header), one
+    per vehicle, fed with the vehicle's clock: a recording carries exactly what the proxy would forward.
+    """
 
     out: IO[bytes]
     engine: Engine | None = None
-    counts: Counts = field(default_factory=Counts)
+    bad: int = 0
+    _written: int = 0
+    _frames_in: int = 0
+    _pipes: dict[int, Pipeline] = field(default_factory=dict)
     _vehicle_s: dict[int, float] = field(default_factory=dict)
     _held: list[tuple[float, int, bytes]] = field(default_factory=list)
     _order: int = 0
 
+    @property
+    def counts(self) -> Counts:
+        stats = [p.stats[Direction.DOWNLINK] for p in self._pipes.values()]
+        return Counts(self._frames_in, self._written, sum(s.rewritten for s in stats), sum(s.dropped for s in stats),
+                      sum(s.delayed for s in stats), self.bad)  # fmt: skip
+
     def _write(self, frame: bytes) -> None:
         self.out.write(struct.pack(">Q", int(time.time() * 1e6)) + frame)
-        self.counts.written += 1
+        self._written += 1
+
+    def _pipeline(self, sysid: int) -> Pipeline | None:
+        if self.engine is None:
+            return None
+        pipe = self._pipes.get(sysid)
+        if pipe is None:
+            slot = AttackSlot(sysid)
+            slot.engine = self.engine  # the caller's engine and its clock, shared by the vehicles as before
+            pipe = self._pipes[sysid] = Pipeline(len(self._pipes), [AttackStage(slot)], stats=LinkStats(sysid))
+        return pipe
 
     def feed(self, msg: mavlink.MAVLink_message) -> None:
         """One decoded message (with its original bytes in ``get_msgbuf()``)."""
-        self.counts.frames_in += 1
+        self._frames_in += 1
         sysid = msg.get_srcSystem()
         boot_ms = getattr(msg, "time_boot_ms", None)
         if boot_ms is not None:
@@ -91,28 +117,16 @@ class TlogWriter:
         now_s = self._vehicle_s.get(sysid, 0.0)
         self._release(now_s)
         raw = bytes(msg.get_msgbuf())
-        if self.engine is None or msg.get_msgId() not in self.engine.message_ids:
+        pipe = self._pipeline(sysid)
+        if pipe is None:
             self._write(raw)
             return
-        compid = msg.get_srcComponent()
-        action = self.engine.process(now_s, msg.get_msgId(), msg.to_dict(), Direction.DOWNLINK, sysid, compid)
-        if action.drop:
-            self.counts.dropped += 1
-            return
-        if action.fields:
-            for name, value in action.fields.items():
-                setattr(msg, name, value)
-            raw = _repack(msg)
-            self.counts.rewritten += 1
-        self._hold_or_write(now_s + action.delay_s, raw, action.delay_s > 0.0)
-
-    def _hold_or_write(self, release_s: float, frame: bytes, hold: bool) -> None:
-        if not hold:
-            self._write(frame)
-            return
-        self.counts.delayed += 1
-        self._order += 1
-        heapq.heappush(self._held, (release_s, self._order, frame))
+        for out in pipe.feed(raw, Direction.DOWNLINK, now_s):
+            if out.release_s > now_s:
+                self._order += 1
+                heapq.heappush(self._held, (out.release_s, self._order, out.data))
+            else:
+                self._write(out.data)
 
     def _release(self, now_s: float) -> None:
         while self._held and self._held[0][0] <= now_s:
@@ -122,13 +136,6 @@ class TlogWriter:
         """Frames still held back leave at the end, in release order."""
         self._release(float("inf"))
         self.out.flush()
-
-
-def _repack(msg: mavlink.MAVLink_message) -> bytes:
-    """Re-pack with the original sysid, compid and sequence number (CRC recomputed)."""
-    mav = mavlink.MAVLink(None, srcSystem=msg.get_srcSystem(), srcComponent=msg.get_srcComponent())
-    mav.seq = msg.get_seq()
-    return bytes(msg.pack(mav))
 
 
 GCS_SYSID, GCS_COMPID = 255, 190  # what QGroundControl uses
@@ -156,7 +163,7 @@ class _Listener(asyncio.DatagramProtocol):
         self.seen.set()
         for msg in self.parser.parse_buffer(data) or []:
             if msg.get_type() == "BAD_DATA":
-                self.writer.counts.bad += 1
+                self.writer.bad += 1
                 continue
             if self.takeoff and msg.get_type() == "HEARTBEAT" and msg.get_srcSystem() not in self.commanded:
                 self._arm_and_take_off(msg.get_srcSystem(), msg.get_srcComponent(), addr)
@@ -243,7 +250,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _engine(args: argparse.Namespace) -> Engine | None:
-    profile: Profile | None = resolve_profile(args.attack, parse_params(args.param))
+    profile: Profile | None = resolve_attack(args.attack, parse_params(args.param))
     if profile is None:
         return None
     scenario = None if args.scenario is None else load_scenario(resolve_scenario_path(args.scenario))

@@ -30,8 +30,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
-from attack_profiles import library
-from attack_profiles.profile import Profile, load_profile
+from attack_profiles.resolve import resolve_profile
 from mitm_proxy.attack import AttackStage
 from mitm_proxy.config import ProxyConfig
 from mitm_proxy.controls import Controls, RoutesControl, default_instance, vehicle_controls, vehicle_topic
@@ -55,14 +54,6 @@ STOP_BUDGET_S = 0.8  # what the control plane may take to say goodbye
 READINGS_PERIOD_S = 0.1  # secuav/v<N>/readings while a console watches
 
 
-def resolve_profile(name_or_path: str | Path) -> Profile:
-    """``--profile``: a file, or the name of a library profile (``wall-spoof``)."""
-    path = Path(name_or_path)
-    if not path.exists() and str(name_or_path) in library.names():
-        return library.load(str(name_or_path))
-    return load_profile(path)
-
-
 @dataclass(slots=True)
 class VehicleParts:
     """What the proxy holds for one vehicle (one link): its attack slot and stage, its counters,
@@ -83,7 +74,7 @@ class Proxy:
         self.instance = config.instance or default_instance()
         self.scenario: Scenario | None = load_scenario(config.scenario) if config.scenario else None
         self.signer: Signer | None = Signer.from_file(config.signing_key) if config.signing_key else None
-        initial = resolve_profile(config.profile) if config.profile else None
+        initial = resolve_profile(config.profile) if config.profile else None  # a file or a library name
         sysids = [link.sysid for link in config.links]
         secure: dict[int, Any] = {}
         if self.scenario is not None:  # the estimators' models come from the scenario

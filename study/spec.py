@@ -28,7 +28,7 @@ from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, field_validato
 import estimators
 from attack_profiles import library
 from attack_profiles.profile import Profile
-from evaluation.cli import resolve_profile
+from evaluation.cli import resolve_attack
 from secuav_common.loading import InputError, dump_json, load_model, parse_document, validate
 from secuav_common.scenario import HoldTarget, Scenario, load_scenario, resolve_scenario_path
 
@@ -231,7 +231,7 @@ def expand(study: Study, source: str) -> list[Cell]:
             raise InputError(source, f"attacks[{i}].params", entry.params, str(exc)) from None
         for values in grid:
             try:
-                profile = resolve_profile(ref, values)
+                profile = resolve_attack(ref, values)
             except InputError as err:
                 raise InputError(source, f"attacks[{i}]", {"profile": entry.profile, **values}, str(err)) from None
             attacks.append((profile.name, ref, values, profile))
