@@ -61,13 +61,16 @@ class Stream:
         self.got: Counter[str] = Counter()
         self.counting = False
         self.sending = True
+        self.seq = 0  # each pair of frames carries its number in time_boot_ms
+        self.since = 0  # frames numbered below this are not counted (see mark())
         self.stop = asyncio.Event()
 
     async def run(self) -> None:
         while not self.stop.is_set():
             if self.sending:
-                self.veh.mav.distance_sensor_send(0, 5, 4000, 250, 0, 0, 0, 0)
-                self.veh.mav.attitude_send(0, 0.1, 0.2, 0.3, 0, 0, 0)
+                self.seq += 1
+                self.veh.mav.distance_sensor_send(self.seq, 5, 4000, 250, 0, 0, 0, 0)
+                self.veh.mav.attitude_send(self.seq, 0.1, 0.2, 0.3, 0, 0, 0)
                 if self.counting:
                     self.sent.update(["DISTANCE_SENSOR", "ATTITUDE"])
             self.drain()
@@ -75,8 +78,14 @@ class Stream:
 
     def drain(self) -> None:
         while (msg := self.gcs.recv_match(blocking=False)) is not None:
-            if self.counting:
+            if self.counting and getattr(msg, "time_boot_ms", 0) > self.since:
                 self.got[msg.get_type()] += 1
+
+    def mark(self) -> None:
+        """Count afresh from the next frame sent: one still in flight is not counted."""
+        self.since = self.seq
+        self.sent.clear()
+        self.got.clear()
 
     async def settle(self, want: Callable[[], bool], limit_s: float = 20) -> None:
         async with asyncio.timeout(limit_s):
@@ -142,8 +151,7 @@ async def test_routes_set_show_and_the_fleet_view_with_real_proxies(
             assert code == 1 and "ATTITUDEX" in out and "not a MAVLink message name" in out, out
 
             # Swap the rules back and forth while 200 Hz flows: no DISTANCE_SENSOR frame is lost to a swap.
-            stream.sent.clear()
-            stream.got.clear()
+            stream.mark()
             for i in range(6):
                 rules = "none" if i % 2 == 0 else "deny=ATTITUDE"
                 code, out = await attack_cli("routes", "set", ground, rules, *at_a)
