@@ -11,9 +11,10 @@ same profile files. See DESIGN.md "Attack profiles".
 
 from __future__ import annotations
 
-from attack_profiles.action import FORWARD, Action, Direction
+from attack_profiles.action import FORWARD, Action
 from attack_profiles.engine import Engine
 from attack_profiles.profile import Profile, load_profile, parse_profile, profile_json_schema
+from mavframe.packet import Direction
 
 __all__ = [
     "FORWARD",

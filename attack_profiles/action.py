@@ -9,15 +9,7 @@ physical-unit conversion itself.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import StrEnum
 from typing import Any
-
-
-class Direction(StrEnum):
-    """DOWNLINK: vehicle -> ground (telemetry). UPLINK: ground -> vehicle (commands)."""
-
-    DOWNLINK = "downlink"
-    UPLINK = "uplink"
 
 
 @dataclass(frozen=True, slots=True)

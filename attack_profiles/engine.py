@@ -34,12 +34,13 @@ from typing import Any
 
 import numpy as np
 
-from attack_profiles.action import FORWARD, Action, Direction
+from attack_profiles.action import FORWARD, Action
 from attack_profiles.primitives import PRIMITIVES, Context, Primitive, Sample
 from attack_profiles.primitives.base import Vec3
 from attack_profiles.profile import Profile
 from attack_profiles.rule import IdRange, RuleBase
 from attack_profiles.units import EPOCH_USEC_THRESHOLD, LOCAL_POSITION_NED_ID, MESSAGES, FieldSpec, MessageSpec
+from mavframe.packet import Direction
 from secuav_common.loading import InputError
 from secuav_common.scenario import Scenario, Vehicle
 from secuav_common.sensor_ids import ANCHOR_BASE, PEER_BASE

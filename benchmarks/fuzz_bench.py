@@ -35,7 +35,7 @@ from pathlib import Path
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from mitm_proxy.frames import split
+from mavframe.frames import split
 
 BIN = Path(sys.executable).parent
 
@@ -134,8 +134,10 @@ def main() -> None:
     print(f"datagrams sent: {args.datagrams} in {elapsed:.1f} s ({args.datagrams / elapsed:,.0f}/s)")
     print(f"valid frames: {len(sent_valid)} sent, {len(out_valid)} forwarded byte for byte "
           f"({'all, in order' if in_order else 'MISSING OR REORDERED'})")  # fmt: skip
-    print(f"other frames out: {len(received) - len(out_valid)} (unknown-id frames found in the noise, which a MAVLink "
-          "router forwards, and any CRC-valid look-alikes)")
+    print(
+        f"other frames out: {len(received) - len(out_valid)} (unknown-id frames found in the noise, which a MAVLink "
+        "router forwards, and any CRC-valid look-alikes)"
+    )
     print(f"proxy alive at the end: {alive}; exit code after SIGINT: {proxy.returncode}")
     tail = err.decode(errors="replace").strip().splitlines()[-3:]
     if tail:

@@ -30,11 +30,11 @@ from collections.abc import Callable
 from pymavlink.dialects.v20 import common as mavlink
 
 from attack_profiles.profile import parse_profile
+from mavframe.frames import split
+from mavframe.packet import Direction
+from mavframe.signing import Signer
 from mitm_proxy.attack import AttackStage
-from mitm_proxy.frames import split
-from mitm_proxy.packet import Direction
 from mitm_proxy.pipeline import Pipeline
-from mitm_proxy.signing import Signer
 from mitm_proxy.slots import AttackSlot
 from mitm_proxy.stats import LinkStats
 
@@ -106,7 +106,7 @@ def crc_figures(frames: list[bytes], repeat: int) -> None:
     """Cost of the frame CRC: what the splitter calls vs pymavlink's x25crc classes, on the same frames."""
     from pymavlink.generator.mavcrc import x25crc_fast, x25crc_slow
 
-    from mitm_proxy.frames import CRC_EXTRA, crc_of
+    from mavframe.frames import CRC_EXTRA, crc_of
 
     work = [(f, len(f) - 2, CRC_EXTRA[f[7] | f[8] << 8 | f[9] << 16]) for f in frames]
 

@@ -18,8 +18,8 @@ import time
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from attack_profiles.action import Direction
 from attack_profiles.profile import parse_profile
+from mavframe.packet import Direction
 from mitm_proxy.attack import AttackStage
 from mitm_proxy.pipeline import Pipeline
 from mitm_proxy.readings import ReadingsTap

@@ -27,7 +27,7 @@ import time
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
-from attack_profiles.action import Direction
+from mavframe.packet import Direction
 from mitm_proxy.pipeline import Pipeline
 from mitm_proxy.secure import SecureConfig, SecureStage
 from mitm_proxy.stats import LinkStats

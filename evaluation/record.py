@@ -34,7 +34,6 @@ import heapq
 import json
 import math
 import signal
-import struct
 import sys
 import time
 from collections.abc import Callable
@@ -45,10 +44,12 @@ from typing import IO
 from pymavlink.dialects.v20 import common as mavlink
 
 from attack_profiles import Engine
-from attack_profiles.action import Direction
 from attack_profiles.profile import Profile
 from attack_profiles.resolve import parse_params
 from evaluation.cli import resolve_attack
+from mavframe import codec, tlog
+from mavframe.frames import split
+from mavframe.packet import Direction, Header, Packet
 from mitm_proxy.attack import AttackStage
 from mitm_proxy.pipeline import Pipeline
 from mitm_proxy.slots import AttackSlot
@@ -57,6 +58,9 @@ from secuav_common.loading import InputError
 from secuav_common.logs import add_common_flags
 from secuav_common.scenario import load_scenario, resolve_scenario_path
 from secuav_common.urls import Endpoint, parse_endpoint
+
+# Messages that carry the vehicle's boot clock: the recorder's time base for delayed frames.
+_BOOT_CLOCKED = frozenset(mid for mid, cls in mavlink.mavlink_map.items() if "time_boot_ms" in cls.fieldnames)
 
 
 @dataclass
@@ -94,7 +98,7 @@ class TlogWriter:
                       sum(s.delayed for s in stats), self.bad)  # fmt: skip
 
     def _write(self, frame: bytes) -> None:
-        self.out.write(struct.pack(">Q", int(time.time() * 1e6)) + frame)
+        self.out.write(tlog.stamp(time.time()) + frame)
         self._written += 1
 
     def _pipeline(self, sysid: int) -> Pipeline | None:
@@ -107,16 +111,21 @@ class TlogWriter:
             pipe = self._pipes[sysid] = Pipeline(len(self._pipes), [AttackStage(slot)], stats=LinkStats(sysid))
         return pipe
 
-    def feed(self, msg: mavlink.MAVLink_message) -> None:
-        """One decoded message (with its original bytes in ``get_msgbuf()``)."""
+    def feed(self, datagram: bytes) -> None:
+        """The frames of one datagram as received; bytes that are no valid frame are counted in ``bad``."""
+        found = split(datagram)
+        self.bad += len(found.bad)
+        for header, raw in found.frames:
+            self._feed_frame(header, raw)
+
+    def _feed_frame(self, header: Header, raw: bytes) -> None:
         self._frames_in += 1
-        sysid = msg.get_srcSystem()
-        boot_ms = getattr(msg, "time_boot_ms", None)
-        if boot_ms is not None:
-            self._vehicle_s[sysid] = boot_ms * 1e-3
+        sysid = header.sysid
+        if header.msgid in _BOOT_CLOCKED:
+            fields = codec.decode(Packet(raw, header, Direction.DOWNLINK, 0, 0.0))
+            self._vehicle_s[sysid] = fields["time_boot_ms"] * 1e-3
         now_s = self._vehicle_s.get(sysid, 0.0)
         self._release(now_s)
-        raw = bytes(msg.get_msgbuf())
         pipe = self._pipeline(sysid)
         if pipe is None:
             self._write(raw)
@@ -142,13 +151,11 @@ GCS_SYSID, GCS_COMPID = 255, 190  # what QGroundControl uses
 
 
 class _Listener(asyncio.DatagramProtocol):
-    """One bound UDP port; its own parser so frames of different links never interleave."""
+    """One bound UDP port; each datagram is split on its own, as the proxy does."""
 
     def __init__(self, writer: TlogWriter, seen: asyncio.Event, takeoff: bool = False) -> None:
         self.writer = writer
         self.seen = seen
-        self.parser = mavlink.MAVLink(None)
-        self.parser.robust_parsing = True
         self.last_rx = time.monotonic()
         self.takeoff = takeoff
         self.commanded: set[int] = set()
@@ -161,13 +168,11 @@ class _Listener(asyncio.DatagramProtocol):
     def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
         self.last_rx = time.monotonic()
         self.seen.set()
-        for msg in self.parser.parse_buffer(data) or []:
-            if msg.get_type() == "BAD_DATA":
-                self.writer.bad += 1
-                continue
-            if self.takeoff and msg.get_type() == "HEARTBEAT" and msg.get_srcSystem() not in self.commanded:
-                self._arm_and_take_off(msg.get_srcSystem(), msg.get_srcComponent(), addr)
-            self.writer.feed(msg)
+        if self.takeoff:
+            for header, _ in split(data).frames:
+                if header.msgid == mavlink.MAVLINK_MSG_ID_HEARTBEAT and header.sysid not in self.commanded:
+                    self._arm_and_take_off(header.sysid, header.compid, addr)
+        self.writer.feed(data)
 
     def _arm_and_take_off(self, sysid: int, compid: int, addr: tuple[str, int]) -> None:
         if self.transport is None:

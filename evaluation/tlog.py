@@ -1,8 +1,8 @@
 """Measurement streams from a recorded MAVLink telemetry log (.tlog) and optional ground truth.
 
 A .tlog is what QGroundControl, MAVProxy and our recorder write: per frame an
-8-byte big-endian wall-clock timestamp in microseconds, then the MAVLink frame.
-pymavlink reads it. We take, per vehicle (sysid):
+8-byte big-endian wall-clock timestamp in microseconds, then the MAVLink frame
+(read with :mod:`mavframe.tlog`, CRC-checked). We take, per vehicle (sysid):
 
 - DISTANCE_SENSOR (#132): ``current_distance`` cm -> metres, keyed by sensor id
   (DESIGN.md: 0-9 rangefinders, 10 + k anchor k, 50 + n peer sysid n). A reading
@@ -28,15 +28,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from pymavlink import mavutil
 
 from evaluation.streams import VehicleStream
+from mavframe import codec
+from mavframe import tlog as mavframe_tlog
+from mavframe.packet import Direction, Packet
 from secuav_common.loading import InputError
 from secuav_common.sensor_ids import ANCHOR_BASE
 
 ORIENTATION_DOWN = 25  # MAV_SENSOR_ROTATION_PITCH_270
 QUALITY_INVALID = 1  # DISTANCE_SENSOR.signal_quality: 1 = invalid signal
 TRUTH_COLUMNS = ("t_s", "sysid", "north_m", "east_m", "down_m")
+_DISTANCE_SENSOR, _LOCAL_POSITION_NED = codec.message_id("DISTANCE_SENSOR"), codec.message_id("LOCAL_POSITION_NED")
 
 
 @dataclass
@@ -66,30 +69,26 @@ def read_tlog(path: Path) -> tuple[dict[int, VehicleLog], LogSummary]:
         raise InputError(str(path), "--tlog", str(path), "no such file")
     logs: dict[int, VehicleLog] = {}
     frames = invalid = 0
-    # No dialect argument: it would switch pymavlink's process-wide dialect; the default includes common.
-    conn = mavutil.mavlink_connection(str(path), robust_parsing=True)
-    try:
-        while True:
-            msg = conn.recv_match(type=["DISTANCE_SENSOR", "LOCAL_POSITION_NED"], blocking=False)
-            if msg is None:
-                break
-            frames += 1
-            sysid = msg.get_srcSystem()
-            log = logs.setdefault(sysid, VehicleLog(sysid))
-            t_s = msg.time_boot_ms * 1e-3
-            if msg.get_type() == "LOCAL_POSITION_NED":
-                log.local_ned.append((t_s, msg.x, msg.y, msg.z))
-                continue
-            cm = msg.current_distance
-            if cm < msg.min_distance or cm > msg.max_distance or msg.signal_quality == QUALITY_INVALID:
-                value = math.nan
-                invalid += 1
-            else:
-                value = cm * 0.01
-            log.readings[msg.id].append((t_s, value))
-            log.orientation[msg.id] = msg.orientation
-    finally:
-        conn.close()
+    reader = mavframe_tlog.read(path)
+    for entry in reader:
+        header = entry.header
+        if header.msgid not in (_DISTANCE_SENSOR, _LOCAL_POSITION_NED):
+            continue
+        msg = codec.decode(Packet(entry.raw, header, Direction.DOWNLINK, 0, entry.t_s))
+        frames += 1
+        log = logs.setdefault(header.sysid, VehicleLog(header.sysid))
+        t_s = msg["time_boot_ms"] * 1e-3
+        if header.msgid == _LOCAL_POSITION_NED:
+            log.local_ned.append((t_s, msg["x"], msg["y"], msg["z"]))
+            continue
+        cm = msg["current_distance"]
+        if cm < msg["min_distance"] or cm > msg["max_distance"] or msg["signal_quality"] == QUALITY_INVALID:
+            value = math.nan
+            invalid += 1
+        else:
+            value = cm * 0.01
+        log.readings[msg["id"]].append((t_s, value))
+        log.orientation[msg["id"]] = msg["orientation"]
     logs = {s: v for s, v in logs.items() if v.readings}
     if not logs:
         raise InputError(str(path), "DISTANCE_SENSOR", None, "no range readings in this log (is it a MAVLink .tlog?)")

@@ -31,6 +31,7 @@ from types import TracebackType
 from typing import Any
 
 from attack_profiles.resolve import resolve_profile
+from mavframe.signing import Signer
 from mitm_proxy.attack import AttackStage
 from mitm_proxy.config import ProxyConfig
 from mitm_proxy.controls import Controls, RoutesControl, default_instance, vehicle_controls, vehicle_topic
@@ -40,7 +41,6 @@ from mitm_proxy.pipeline import Pipeline
 from mitm_proxy.readings import ReadingsTap
 from mitm_proxy.recording import Recorder
 from mitm_proxy.secure_config import OFF, SecureConfig, config_from_payload
-from mitm_proxy.signing import Signer
 from mitm_proxy.slots import AttackSlot
 from mitm_proxy.stats import LinkStats
 from secuav_common.broker import redact

@@ -16,8 +16,8 @@ the slot the stage is inactive too, so the pipeline skips it for free.
 
 from __future__ import annotations
 
-from mitm_proxy import codec
-from mitm_proxy.packet import Packet
+from mavframe import codec
+from mavframe.packet import Packet
 from mitm_proxy.slots import AttackSlot
 
 __all__ = ["AttackStage"]

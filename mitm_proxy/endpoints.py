@@ -35,8 +35,8 @@ from collections import Counter
 from collections.abc import Callable
 from typing import Any, Literal
 
-from mitm_proxy import frames
-from mitm_proxy.codec import MAVLINK_MAP
+from mavframe import frames
+from mavframe.codec import MAVLINK_MAP
 from mitm_proxy.routes import NO_RULES, Direction, EndpointGate, EndpointRules
 from secuav_common.urls import Endpoint
 

@@ -36,8 +36,8 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as dialect
 
-from attack_profiles.action import Direction
-from mitm_proxy import frames
+from mavframe import frames
+from mavframe.packet import Direction
 from mitm_proxy.endpoints import BaseEndpoint
 from mitm_proxy.pipeline import Outgoing, Pipeline
 from mitm_proxy.stats import LinkStats

@@ -21,23 +21,44 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from typing import NamedTuple
+from typing import NamedTuple, Protocol
 
-from mitm_proxy import codec
-from mitm_proxy.frames import split
-from mitm_proxy.packet import Direction, Header, Packet, Stage
+from mavframe import codec
+from mavframe.frames import split
+from mavframe.packet import Direction, Header, Packet
+from mavframe.signing import Signer
 from mitm_proxy.readings import ReadingsTap
 from mitm_proxy.recording import Recorder
-from mitm_proxy.signing import Signer
 from mitm_proxy.stats import DirectionStats, LinkStats
 
-__all__ = ["Outgoing", "Pipeline"]
+__all__ = ["Outgoing", "Pipeline", "Stage"]
 
 log = logging.getLogger(__name__)
 
 _NOTHING: frozenset[int] = frozenset()
 STAGE_ERROR = "stage_error"
 ENCODE_ERROR = "encode_error"
+
+
+class Stage(Protocol):
+    """One step of the pipeline (tap, attack, secure).
+
+    ``active`` False is the seed's bypass: the pipeline skips the stage.
+    ``message_ids`` is the set of message ids the stage wants; the pipeline
+    hands it nothing else, so untargeted traffic costs one set lookup.
+    ``process`` returns the packets to pass on: ``[]`` drops, ``[pkt]`` passes
+    (changed or not), extra packets are injected after it.
+    """
+
+    name: str
+
+    @property
+    def active(self) -> bool: ...
+
+    @property
+    def message_ids(self) -> frozenset[int]: ...
+
+    def process(self, pkt: Packet, now_s: float) -> list[Packet]: ...
 
 
 class Outgoing(NamedTuple):

@@ -1,9 +1,8 @@
 """Record what a link received and what it forwarded, as .tlog files plus an index.
 
 ``DIR/original.tlog`` holds every valid frame as it arrived, ``DIR/forwarded.tlog``
-every frame as it left (both directions, interleaved in time), in the format
-pymavlink's ``mavlogdump.py`` and MAVExplorer read: for each frame an 8-byte
-big-endian count of microseconds since the UNIX epoch, then the frame bytes.
+every frame as it left (both directions, interleaved in time), in the .tlog
+format of :mod:`mavframe.tlog` that pymavlink's ``mavlogdump.py`` and MAVExplorer read.
 A delayed frame is stamped with the time it is due to leave.
 
 ``DIR/index.json`` is a JSON array, one object per frame a stage changed,
@@ -29,19 +28,18 @@ from __future__ import annotations
 import json
 import logging
 import queue
-import struct
 import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import IO
 
-from mitm_proxy.packet import Header, Packet
+from mavframe import tlog
+from mavframe.packet import Header, Packet
 
 __all__ = ["Recorder"]
 
 log = logging.getLogger(__name__)
-_STAMP = struct.Struct(">Q")
 QUEUE_CHUNKS = 20_000  # about a few seconds of a busy link; beyond that the recording, not the link, loses
 _ORIGINAL, _FORWARDED, _INDEX = 0, 1, 2
 _FLUSH, _STOP = -1, -2
@@ -112,7 +110,7 @@ class Recorder:
         if now - self._flushed_at >= self.FLUSH_EVERY_S:
             self._flushed_at = now
             self.flush()
-        return _STAMP.pack(int((now + delay_s) * 1e6))
+        return tlog.stamp(now + delay_s)
 
     def original(self, frames: list[tuple[Header, bytes]]) -> int:
         """Frames as received (one datagram's worth); returns the index of the first in original.tlog."""

@@ -44,8 +44,8 @@ from urllib.parse import parse_qsl
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from mitm_proxy import frames
-from mitm_proxy.codec import BY_NAME, MAVLINK_MAP
+from mavframe import frames
+from mavframe.codec import BY_NAME, MAVLINK_MAP
 from secuav_common.loading import InputError, validate
 from secuav_common.urls import Endpoint
 

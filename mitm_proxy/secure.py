@@ -50,8 +50,8 @@ from typing import Any
 
 import numpy as np
 
-from mitm_proxy import codec
-from mitm_proxy.packet import Direction, Packet
+from mavframe import codec
+from mavframe.packet import Direction, Packet
 from mitm_proxy.secure_config import OFF, SecureConfig, config_from_payload
 from mitm_proxy.secure_layout import (
     DISTANCE_SENSOR,
@@ -113,7 +113,7 @@ class _Counters:
 
 
 class SecureStage:
-    """Stage protocol of :mod:`mitm_proxy.packet`; see the module docstring."""
+    """Stage protocol of :mod:`mitm_proxy.pipeline`; see the module docstring."""
 
     name = "secure"
 

@@ -13,7 +13,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Final
 
-from attack_profiles.action import Direction
+from mavframe.packet import Direction
 
 __all__ = ["DirectionStats", "LatencyHistogram", "LinkStats"]
 

@@ -11,7 +11,7 @@ is a telemetry radio; a port that vanishes (USB unplugged) is reopened with
 the same backoff.
 
 A stream may cut a frame anywhere, so each connection has its own
-:class:`~mitm_proxy.frames.StreamFramer` and hands on only whole frames; the
+:class:`~mavframe.frames.StreamFramer` and hands on only whole frames; the
 link above sees the same shape as a UDP datagram. A client that cannot keep up
 (more than ``MAX_PENDING_SEND_BYTES`` waiting) loses frames, counted, rather
 than making the proxy buffer without bound.
@@ -25,8 +25,8 @@ import logging
 import time
 from typing import Any
 
+from mavframe.frames import StreamFramer
 from mitm_proxy.endpoints import MAX_PENDING_SEND_BYTES, BaseEndpoint, EndpointError, Role, _fmt
-from mitm_proxy.frames import StreamFramer
 from mitm_proxy.routes import NO_RULES, EndpointRules
 from secuav_common.urls import Endpoint
 

@@ -1,7 +1,7 @@
 """``tcpin://HOST:PORT``: the vehicle serves MAVLink on TCP, as ArduPilot and PX4 SITL do on 5760.
 
 Every client that connects gets the vehicle's stream and may command it. The
-byte stream is cut back into whole frames (:class:`mitm_proxy.frames.StreamFramer`)
+byte stream is cut back into whole frames (:class:`mavframe.frames.StreamFramer`)
 before the vehicle's datagram decoder sees it, so a frame split across two TCP
 segments is not lost. A client that stops reading is dropped once more than
 ``MAX_BUFFERED`` bytes wait for it, rather than holding the simulation back.
@@ -16,7 +16,7 @@ import logging
 import time
 from collections.abc import Callable
 
-from mitm_proxy.frames import StreamFramer
+from mavframe.frames import StreamFramer
 from secuav_common.urls import Endpoint
 
 log = logging.getLogger(__name__)

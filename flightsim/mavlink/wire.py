@@ -12,6 +12,8 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from mavframe.frames import split
+
 MAVLink = mavlink.MAVLink
 Message = mavlink.MAVLink_message
 
@@ -45,9 +47,11 @@ class DecodeStats:
 class Decoder:
     """Splits datagrams into decoded messages; garbage is counted, never raised.
 
-    Scans for frame starts itself instead of using pymavlink's stream parser:
-    after a corrupt frame the scan resumes one byte later, so a valid frame
-    hidden behind garbage in the same datagram is still found.
+    Frames are found and CRC-checked by :func:`mavframe.frames.split`, the same
+    splitter the proxy uses: after a corrupt frame the scan resumes one byte
+    later, so a valid frame hidden behind garbage in the same datagram is still
+    found. Only messages of the common dialect are decoded; others are counted
+    as malformed, as a PX4 would ignore them.
     """
 
     def __init__(self) -> None:
@@ -55,32 +59,15 @@ class Decoder:
         self.stats = DecodeStats()
 
     def decode(self, datagram: bytes) -> list[Message]:
+        found = split(datagram)
         out: list[Message] = []
-        buf = bytes(datagram)
-        n = len(buf)
-        i = 0
-        skipped = False
-        while i < n:
-            magic = buf[i]
-            if magic == _V2 and i + 3 <= n:
-                length = buf[i + 1] + _V2_OVERHEAD + (_SIGNATURE_LEN if buf[i + 2] & _SIGNED else 0)
-            elif magic == _V1 and i + 2 <= n:
-                length = buf[i + 1] + _V1_OVERHEAD
-            else:
-                i += 1
-                skipped = True
-                continue
-            if i + length > n:
-                skipped = True  # cut short by the end of the datagram; a later start may still fit
-                i += 1
-                continue
-            msg = self._decode_frame(buf[i : i + length])
+        skipped = bool(found.bad)
+        for header, raw in found.frames:
+            msg = self._decode_frame(raw) if header.msgid in mavlink.mavlink_map else None
             if msg is None:
                 skipped = True
-                i += 1
                 continue
             out.append(msg)
-            i += length
         if skipped:
             self.stats.malformed += 1
         self.stats.frames += len(out)
@@ -89,17 +76,11 @@ class Decoder:
     def _decode_frame(self, frame: bytes) -> Message | None:
         try:
             msg = self._mav.decode(bytearray(frame))
-        except Exception:  # bad CRC, unknown id, short payload: pymavlink raises several types
+        except Exception:  # a short payload or a signature pymavlink refuses: it raises several types
             return None
-        # Ids outside the common dialect decode as MAVLink_unknown without a CRC check: not trustworthy.
         if msg is None or isinstance(msg, _UNTRUSTED):
             return None
         return msg
 
 
 _UNTRUSTED = (mavlink.MAVLink_unknown, mavlink.MAVLink_bad_data)
-_V1, _V2 = 0xFE, 0xFD
-_V1_OVERHEAD = 8  # 6 header + 2 CRC
-_V2_OVERHEAD = 12  # 10 header + 2 CRC
-_SIGNED = 0x01
-_SIGNATURE_LEN = 13

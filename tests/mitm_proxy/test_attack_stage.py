@@ -8,7 +8,16 @@ from typing import Any
 
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from test_frames_support import (
+
+from attack_profiles.engine import Engine
+from attack_profiles.profile import Profile, parse_profile
+from mavframe.frames import split
+from mavframe.packet import Direction, Packet
+from mitm_proxy.attack import AttackStage
+from mitm_proxy.pipeline import Pipeline
+from mitm_proxy.slots import AttackSlot
+from mitm_proxy.stats import LinkStats
+from tests.mavframe.frames_support import (
     DISTANCE_SENSOR,
     HEARTBEAT,
     LOCAL_POSITION_NED,
@@ -17,15 +26,6 @@ from test_frames_support import (
     pack,
     parse_all,
 )
-
-from attack_profiles.engine import Engine
-from attack_profiles.profile import Profile, parse_profile
-from mitm_proxy.attack import AttackStage
-from mitm_proxy.frames import split
-from mitm_proxy.packet import Direction, Packet
-from mitm_proxy.pipeline import Pipeline
-from mitm_proxy.slots import AttackSlot
-from mitm_proxy.stats import LinkStats
 
 DOWN, UP = Direction.DOWNLINK, Direction.UPLINK
 

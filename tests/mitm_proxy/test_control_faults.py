@@ -149,9 +149,9 @@ async def test_in_the_real_proxy_a_flood_of_bad_requests_loses_no_frame_and_a_sw
 
     from pymavlink.dialects.v20 import common as mavlink2
 
+    from mavframe.frames import split
     from mitm_proxy.app import Proxy
     from mitm_proxy.config import LinkConfig, ProxyConfig
-    from mitm_proxy.frames import split
     from secuav_common.broker import EmbeddedBroker
 
     mqtt, veh = tcp_port(), udp_port()

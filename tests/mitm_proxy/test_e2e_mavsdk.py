@@ -30,9 +30,9 @@ from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 from mavsdk.plugins.telemetry import FlightMode
 
 from flightsim.runner import RunConfig, SimRunner
+from mavframe.frames import split
 from mitm_proxy.app import Proxy
 from mitm_proxy.config import LinkConfig, ProxyConfig
-from mitm_proxy.frames import split
 from secuav_common.scenario import load_scenario
 from secuav_common.urls import Endpoint
 

@@ -19,9 +19,9 @@ import pytest
 from pymavlink import mavutil
 from test_link import Peer, distance, heartbeat, packer
 
+from mavframe.frames import split
 from mitm_proxy.app import Proxy
 from mitm_proxy.config import LinkConfig, ProxyConfig
-from mitm_proxy.frames import split
 
 sys.path.insert(0, str(Path(__file__).parents[1] / "flightsim"))
 from live_sim import live_sim, until

@@ -15,9 +15,9 @@ from collections.abc import AsyncIterator, Callable
 import pytest
 from test_link import Peer, command, heartbeat, packer
 
+from mavframe.frames import split
 from mitm_proxy.app import Proxy
 from mitm_proxy.config import LinkConfig, ProxyConfig
-from mitm_proxy.frames import split
 from secuav_common.broker import EmbeddedBroker
 
 pytestmark = pytest.mark.timeout(40)

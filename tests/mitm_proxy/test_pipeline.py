@@ -8,7 +8,16 @@ from typing import Any
 import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
-from test_frames_support import (
+
+from attack_profiles.profile import parse_profile
+from mavframe import codec
+from mavframe.frames import CRC_EXTRA, split
+from mavframe.packet import Direction, Packet
+from mitm_proxy.attack import AttackStage
+from mitm_proxy.pipeline import Outgoing, Pipeline
+from mitm_proxy.slots import AttackSlot
+from mitm_proxy.stats import LinkStats
+from tests.mavframe.frames_support import (
     DISTANCE_SENSOR,
     HEARTBEAT,
     distance,
@@ -21,15 +30,6 @@ from test_frames_support import (
     parse_all,
     unknown_frame,
 )
-
-from attack_profiles.profile import parse_profile
-from mitm_proxy import codec
-from mitm_proxy.attack import AttackStage
-from mitm_proxy.frames import CRC_EXTRA, split
-from mitm_proxy.packet import Direction, Packet
-from mitm_proxy.pipeline import Outgoing, Pipeline
-from mitm_proxy.slots import AttackSlot
-from mitm_proxy.stats import LinkStats
 
 DOWN = Direction.DOWNLINK
 UP = Direction.UPLINK
@@ -256,6 +256,7 @@ def test_fuzz_counters_balance_and_nothing_valid_is_lost(chunks: list[tuple[byte
         kept.append(("raw", raw))
     now_out = split(out[0].data).frames if out and out[0].release_s == now else []
     delayed = [split(o.data).frames[0] for o in out if o.release_s > now]
+
     def beacon_made(h: Any, raw: bytes) -> bool:  # an input may be a DISTANCE_SENSOR with id 99 too: it is kept
         return h.msgid == DISTANCE_SENSOR and raw not in valid and parse_all(raw)[0].id == 99
 

@@ -10,16 +10,16 @@ from typing import Any
 
 import pytest
 from pymavlink import mavutil
-from test_frames_support import HEARTBEAT, distance, heartbeat, local_position, mav, pack
 
 from attack_profiles.profile import parse_profile
-from mitm_proxy import codec
+from mavframe import codec
+from mavframe.packet import Direction, Packet
 from mitm_proxy.attack import AttackStage
-from mitm_proxy.packet import Direction, Packet
 from mitm_proxy.pipeline import Pipeline
 from mitm_proxy.recording import Recorder
 from mitm_proxy.slots import AttackSlot
 from mitm_proxy.stats import LinkStats
+from tests.mavframe.frames_support import HEARTBEAT, distance, heartbeat, local_position, mav, pack
 
 
 def read_tlog(path: Path) -> list[Any]:

@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 from test_secure_support import StreamMaker, packet_of, wire_fields
 
 from attack_profiles import library
-from attack_profiles.action import Direction
 from attack_profiles.engine import Engine
+from mavframe.packet import Direction
 from mitm_proxy.pipeline import Pipeline
 from mitm_proxy.secure import SecureConfig, SecureSlot, SecureStage
 from mitm_proxy.stats import LinkStats
@@ -130,7 +130,7 @@ def test_pipeline_bypass_is_byte_exact_and_active_touches_only_the_group(wall: S
             out = pipe.feed(dgram, Direction.DOWNLINK, t)
             assert len(out) == 1 and out[0].data is dgram  # bypass: the very same datagram
         assert slot.offer_payload({"estimator": "secekf", "executor": "inline"}, "r1")["ok"]
-        from mitm_proxy.frames import split
+        from mavframe.frames import split
 
         rewritten = 0
         for t, dgram in _datagrams(wall, 14, 3.0):
@@ -300,7 +300,7 @@ def test_garbled_frames_never_break_the_stage(anchors8: Scenario, garbage: list[
     frame still re-packs within the wire ranges, and the estimator keeps stepping."""
     from pymavlink.dialects.v20 import common as mavlink
 
-    from mitm_proxy import codec
+    from mavframe import codec
 
     stage = SecureStage(SecureConfig(estimator="secekf", executor="inline"), anchors8, 1)
     maker = StreamMaker(anchors8, seed=30)

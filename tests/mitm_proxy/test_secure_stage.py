@@ -18,9 +18,9 @@ import pytest
 from test_secure_support import Frame, StreamMaker, packet_of, wire_fields
 
 from attack_profiles import library
-from attack_profiles.action import Direction
 from attack_profiles.engine import Engine
 from attack_profiles.profile import parse_profile
+from mavframe.packet import Direction
 from mitm_proxy.secure import FLAGGED_QUALITY, PeerBoard, SecureConfig, SecureStage
 from secuav_common.geo import geodetic_to_ned
 from secuav_common.scenario import Scenario, load_scenario

@@ -20,10 +20,9 @@ from typing import Any
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
-from attack_profiles.action import Direction
 from attack_profiles.engine import Engine
-from mitm_proxy import codec
-from mitm_proxy.packet import Header, Packet
+from mavframe import codec
+from mavframe.packet import Direction, Header, Packet
 from secuav_common.geo import ned_to_geodetic
 from secuav_common.scenario import KeepRangeTarget, Scenario, WallDistanceTarget
 from secuav_common.sensor_ids import ORIENTATION, SENSOR_TYPE

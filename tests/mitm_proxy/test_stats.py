@@ -9,7 +9,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from attack_profiles.action import Direction
+from mavframe.packet import Direction
 from mitm_proxy.stats import LatencyHistogram, LinkStats
 
 

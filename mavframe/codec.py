@@ -11,7 +11,7 @@ returns ``pkt.raw`` for an unchanged packet (byte-exact forwarding); for a
 changed one it re-packs the payload from ``pkt.fields`` and writes a header
 with the *original* version, flags, sequence, sysid and compid, a fresh CRC
 with the message's CRC_EXTRA, and a fresh signature when the original was
-signed and a :class:`~mitm_proxy.signing.Signer` is given.
+signed and a :class:`~mavframe.signing.Signer` is given.
 
 Fields are pymavlink's names and wire units (``current_distance`` in cm,
 ``lat`` in 1e7 deg); char arrays are ``str`` (as pymavlink gives them), other arrays lists.
@@ -29,9 +29,9 @@ from typing import Any, Final
 
 from pymavlink.dialects.v20 import ardupilotmega as dialect
 
-from mitm_proxy.frames import CRC_EXTRA, IFLAG_SIGNED, V1_HEADER_LEN, V2_HEADER_LEN, crc_of
-from mitm_proxy.packet import Direction, Header, Packet
-from mitm_proxy.signing import Signer
+from mavframe.frames import CRC_EXTRA, IFLAG_SIGNED, V1_HEADER_LEN, V2_HEADER_LEN, crc_of
+from mavframe.packet import Direction, Header, Packet
+from mavframe.signing import Signer
 
 __all__ = ["DecodeError", "EncodeError", "build", "decode", "encode", "message_class", "message_id", "sign_injected"]
 

@@ -40,7 +40,7 @@ from typing import Final
 from fastcrc import crc16
 from pymavlink.dialects.v20 import ardupilotmega as dialect
 
-from mitm_proxy.packet import Header
+from mavframe.packet import Header
 
 __all__ = [
     "BAD_CRC",
@@ -51,7 +51,9 @@ __all__ = [
     "SIGNATURE_LEN",
     "TRUNCATED",
     "SplitResult",
+    "StreamFramer",
     "crc_of",
+    "frame_at",
     "split",
 ]
 
@@ -141,6 +143,19 @@ def _candidate(data: bytes, i: int, n: int) -> tuple[Header, int, str | None]:
 
 
 _NO_HEADER: Final = Header(0, -1, 0, 0, 0, 0)
+
+
+def frame_at(data: bytes, i: int) -> tuple[Header, int] | None:
+    """The frame that starts exactly at ``data[i]`` and its end, or ``None`` if none does.
+
+    For readers of formats that say where a frame starts (a .tlog entry); a
+    frame of a message id the dialect does not know cannot be CRC-checked and is
+    accepted on its header alone.
+    """
+    if i >= len(data) or data[i] not in (STX_V1, STX_V2):
+        return None
+    header, end, reason = _candidate(data, i, len(data))
+    return None if reason is not None else (header, end)
 
 
 def _frame_starts_within(data: bytes, lo: int, hi: int, n: int) -> bool:

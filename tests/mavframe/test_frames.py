@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
-from test_frames_support import (
+
+from mavframe.frames import BAD_CRC, BAD_FLAGS, BAD_LENGTH, CRC_EXTRA, GARBAGE, TRUNCATED, crc_of, split
+from tests.mavframe.frames_support import (
     DISTANCE_SENSOR,
     distance,
     frames,
@@ -18,8 +20,6 @@ from test_frames_support import (
     statustext,
     unknown_frame,
 )
-
-from mitm_proxy.frames import BAD_CRC, BAD_FLAGS, BAD_LENGTH, CRC_EXTRA, GARBAGE, TRUNCATED, crc_of, split
 
 
 def test_one_v2_frame_is_the_datagram_itself() -> None:

@@ -8,7 +8,12 @@ from typing import Any
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from test_frames_support import (
+
+from mavframe import codec
+from mavframe.frames import CRC_EXTRA, crc_of, split
+from mavframe.packet import Direction, Packet
+from mavframe.signing import Signer
+from tests.mavframe.frames_support import (
     TEST_KEY,
     distance,
     frames,
@@ -21,11 +26,6 @@ from test_frames_support import (
     statustext,
     unknown_frame,
 )
-
-from mitm_proxy import codec
-from mitm_proxy.frames import CRC_EXTRA, crc_of, split
-from mitm_proxy.packet import Direction, Packet
-from mitm_proxy.signing import Signer
 
 
 def packet(frame: bytes) -> Packet:

@@ -1,8 +1,9 @@
-"""The unit that moves through the proxy's pipeline, and the shape of a stage.
+"""One MAVLink frame with what was peeked from it, and the direction it travels.
 
-This module is the contract between the frame layer (``frames``, ``codec``),
-the pipeline (``pipeline``), the stages (``attack``, ``secure``, tap/record)
-and the asyncio edges. It holds no logic beyond the two types.
+The types every user of the frame layer shares: :func:`mavframe.frames.split`
+gives a :class:`Header` per frame, :mod:`mavframe.codec` decodes and re-packs a
+:class:`Packet`, and the proxy's pipeline moves packets through its stages.
+It holds no logic beyond the types.
 
 A :class:`Packet` is one MAVLink frame as it arrived (``raw``), its peeked
 header, and what the stages did to it. Stages never touch ``raw``: a stage that
@@ -15,11 +16,17 @@ original sysid, compid and sequence number. A packet nobody changed leaves as
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from enum import StrEnum
+from typing import Any
 
-from attack_profiles.action import Direction
+__all__ = ["Direction", "Header", "Packet"]
 
-__all__ = ["Direction", "Header", "Packet", "Stage"]
+
+class Direction(StrEnum):
+    """DOWNLINK: vehicle -> ground (telemetry). UPLINK: ground -> vehicle (commands)."""
+
+    DOWNLINK = "downlink"
+    UPLINK = "uplink"
 
 
 @dataclass(frozen=True, slots=True)
@@ -50,24 +57,3 @@ class Packet:
     injected: bool = False  # built by a stage, not received
     release_s: float = 0.0  # monotonic time before which it must not be sent (delay)
     notes: list[str] = field(default_factory=list)  # who changed it and why, for the record index
-
-
-class Stage(Protocol):
-    """One step of the pipeline (tap, attack, secure).
-
-    ``active`` False is the seed's bypass: the pipeline skips the stage.
-    ``message_ids`` is the set of message ids the stage wants; the pipeline
-    hands it nothing else, so untargeted traffic costs one set lookup.
-    ``process`` returns the packets to pass on: ``[]`` drops, ``[pkt]`` passes
-    (changed or not), extra packets are injected after it.
-    """
-
-    name: str
-
-    @property
-    def active(self) -> bool: ...
-
-    @property
-    def message_ids(self) -> frozenset[int]: ...
-
-    def process(self, pkt: Packet, now_s: float) -> list[Packet]: ...
