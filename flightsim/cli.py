@@ -17,9 +17,10 @@ import logging
 import signal
 import sys
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
-from secuav_common.broker import parse_broker_url
+from secuav_common.broker import parse_broker_url, secret_or_env
 from secuav_common.loading import InputError
 from secuav_common.logs import add_common_flags, cli_error, setup_logging
 from secuav_common.ports import proxy_vehicle_url
@@ -60,6 +61,9 @@ def build_parser() -> argparse.ArgumentParser:
         "udpout://127.0.0.1:14550 when running without the proxy",
     )
     p.add_argument("--broker", metavar="URL", help="publish ground truth to mqtt://HOST[:PORT] (secuav/v<sysid>/truth)")
+    p.add_argument("--broker-username", metavar="NAME", help="broker account (or in the URL: mqtt://NAME@HOST)")
+    p.add_argument("--broker-password-file", metavar="F", type=Path,
+                   help="broker password from F (mode 600); SECUAV_BROKER_PASSWORD works too")  # fmt: skip
     p.add_argument("--truth-csv", metavar="FILE", type=Path, help="write ground truth to a CSV file")
     p.add_argument("--truth-hz", type=float, default=20.0, help="ground-truth sample rate (default 20 Hz)")
     p.add_argument(
@@ -105,6 +109,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         scenario = load_scenario(args.scenario)
         endpoints = endpoints_for(args.mavlink, scenario)
         broker = parse_broker_url(args.broker) if args.broker else None
+        if broker is not None:
+            username = args.broker_username or broker.username
+            password = secret_or_env(args.broker_password_file, "--broker-password-file") or broker.password
+            broker = replace(broker, username=username, password=password)
         gcs = parse_endpoint(args.gcs) if args.gcs else None
         if gcs is not None and (gcs.mode != "udpout" or gcs.options):
             raise ValueError(f"--gcs {args.gcs}: must be udpout://HOST:PORT (the GCS listens there)")

@@ -220,7 +220,8 @@ class Proxy:
         from secuav_common.broker import EmbeddedBroker, parse_broker_url
 
         if cfg.broker == "embedded":
-            broker = await self._stack.enter_async_context(EmbeddedBroker(process=True))  # off the forwarding loop
+            embedded = EmbeddedBroker(process=True, username=cfg.broker_username, password=cfg.broker_password)
+            broker = await self._stack.enter_async_context(embedded)  # in its own process: off the forwarding loop
             url = broker.address.url
         else:
             url = cfg.broker

@@ -221,7 +221,8 @@ async def _request(
         if state is None:
             print(
                 f"secuav-attack: v{sysid}: no acknowledgement within {args.timeout:g} s "
-                f"(proxy {_online(board)}; is vehicle {sysid} one of its links?)",
+                f"(proxy {_online(board)}; is vehicle {sysid} one of its links? may your broker account "
+                "publish requests? a broker drops what its ACL forbids, silently)",
                 file=sys.stderr,
             )
             worst = max(worst, EXIT_UNREACHABLE)

@@ -13,13 +13,13 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from mitm_proxy.config import ProxyConfig, build_config, load_config, override_endpoints
+from secuav_common.broker import secret_or_env
 from secuav_common.loading import InputError
 from secuav_common.logs import add_common_flags, cli_error, setup_logging
 from secuav_common.urls import parse_endpoint
@@ -72,7 +72,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="embedded (default: amqtt on 127.0.0.1:1883, or the broker already there), "
         "mqtt://[user:pass@]HOST[:PORT], mqtts://..., or none",
     )
-    p.add_argument("--broker-username", metavar="NAME")
+    p.add_argument("--broker-username", metavar="NAME",
+                   help="broker account; with --broker embedded that broker then admits this account only")
     p.add_argument("--broker-password", metavar="PASS",
                    help="visible to every user in ps: prefer --broker-password-file or SECUAV_BROKER_PASSWORD")
     p.add_argument("--broker-password-file", metavar="F", type=Path,
@@ -117,20 +118,11 @@ def config_from_args(args: argparse.Namespace) -> ProxyConfig:
             raise ValueError("--link cannot be combined with --vehicle/--ground")
         flags["links"] = _links_from_flag(args.link, args, file_values)
     if flags["broker_password"] is None:
-        flags["broker_password"] = _password(args.broker_password_file)
+        flags["broker_password"] = secret_or_env(args.broker_password_file, "--broker-password-file")
     cfg = build_config(file_values, flags, source)
     if args.vehicle or args.ground:
         cfg = override_endpoints(cfg, args.vehicle, args.ground, "<flags>")
     return cfg
-
-
-def _password(path: Path | None) -> str | None:
-    """From ``--broker-password-file`` (owner-readable only), else ``SECUAV_BROKER_PASSWORD``, else none."""
-    if path is not None:
-        from secuav_common.broker import read_secret
-
-        return read_secret(path, "--broker-password-file").decode("utf-8").strip()
-    return os.environ.get("SECUAV_BROKER_PASSWORD") or None
 
 
 def _links_from_flag(groups: list[list[str]], args: argparse.Namespace, file_values: dict[str, Any]) -> list[dict]:

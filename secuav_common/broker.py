@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import os
 import socket
 import sys
 from dataclasses import dataclass
@@ -78,18 +79,32 @@ def read_secret(path: str | Path, what: str) -> bytes:
     return data
 
 
+PASSWORD_VAR = "SECUAV_BROKER_PASSWORD"
+
+
+def secret_or_env(path: str | Path | None, flag: str, env: str = PASSWORD_VAR) -> str | None:
+    """A password from ``path`` (owner-readable only; ``flag`` names it in errors), else from ``env``, else none."""
+    if path is not None:
+        return read_secret(path, flag).decode("utf-8").strip()
+    return os.environ.get(env) or None
+
+
 def port_in_use(host: str, port: int) -> bool:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
         sock.settimeout(0.2)
         return sock.connect_ex((host, port)) == 0
 
 
-def amqtt_config(host: str, port: int) -> dict[str, Any]:
-    """amqtt's configuration for one anonymous TCP listener on ``host:port``."""
-    return {
-        "listeners": {"default": {"type": "tcp", "bind": f"{host}:{port}"}},
-        "plugins": {"amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}},
-    }
+def amqtt_config(host: str, port: int, username: str | None = None, password: str | None = None) -> dict[str, Any]:
+    """amqtt's configuration for one TCP listener on ``host:port``: anonymous, or one account when ``username``."""
+    if username:
+        auth = {"secuav_common.broker_auth.OneAccountAuthPlugin": {"username": username, "password": password or ""}}
+    else:
+        auth = {"amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}}
+    return {"listeners": {"default": {"type": "tcp", "bind": f"{host}:{port}"}}, "plugins": auth}
+
+
+PASSWORD_ENV = "SECUAV_EMBEDDED_BROKER_PASSWORD"  # how the broker process gets its password (never argv)
 
 
 def quiet_amqtt() -> None:
@@ -99,19 +114,41 @@ def quiet_amqtt() -> None:
         logging.getLogger(name).setLevel(logging.ERROR)
 
 
+async def accepts_anonymous(host: str, port: int, timeout_s: float = 5.0) -> bool:
+    """Whether the broker at ``host:port`` accepts a client with no username or password."""
+    import aiomqtt
+
+    try:
+        async with aiomqtt.Client(host, port, timeout=timeout_s):
+            return True
+    except aiomqtt.MqttError:
+        return False
+
+
 class EmbeddedBroker:
     """``async with EmbeddedBroker(port=1883) as broker: ... broker.address``.
 
     Starts amqtt on ``host:port`` unless a broker already answers there, in
-    which case it is reused (``broker.started`` is then False). With
+    which case it is reused (``broker.started`` is then False), except that a
+    broker letting anonymous clients in is refused when ``username`` is given.
+    With ``username`` the broker started has that one account (``password``)
+    and refuses anyone else. With
     ``process=True`` amqtt runs in a child process (:mod:`secuav_common.broker_main`),
     as the proxy runs it: a flood of MQTT clients then cannot take time from the
     caller's event loop. Otherwise it runs on the caller's loop (tests, the demo's
     tap, the console: nothing there is time-critical).
     """
 
-    def __init__(self, host: str = LOOPBACK, port: int = MQTT_PORT, *, process: bool = False) -> None:
-        self.address = BrokerAddress(host, port)
+    def __init__(
+        self,
+        host: str = LOOPBACK,
+        port: int = MQTT_PORT,
+        *,
+        process: bool = False,
+        username: str | None = None,
+        password: str | None = None,
+    ) -> None:
+        self.address = BrokerAddress(host, port, username, password)
         self.started = False
         self.process = process
         self._broker: object | None = None
@@ -119,6 +156,11 @@ class EmbeddedBroker:
 
     async def __aenter__(self) -> EmbeddedBroker:
         if port_in_use(self.address.host, self.address.port):
+            if self.address.username and await accepts_anonymous(self.address.host, self.address.port):
+                raise OSError(
+                    f"a broker already listens on {self.address.url} and lets anyone in without a password; "
+                    "refusing it because broker credentials are configured (stop it, or give another --broker)"
+                )
             # Someone else's broker (another proxy's, a mosquitto): it works, but it may not be the one meant.
             log.warning("broker.reuse", extra={
                 "url": self.address.url,
@@ -132,7 +174,8 @@ class EmbeddedBroker:
             from amqtt.broker import Broker  # imported lazily: only the embedding process needs it
 
             quiet_amqtt()
-            broker = Broker(amqtt_config(self.address.host, self.address.port))
+            a = self.address
+            broker = Broker(amqtt_config(a.host, a.port, a.username, a.password))
             await broker.start()
             self._broker = broker
         self.started = True
@@ -142,9 +185,12 @@ class EmbeddedBroker:
 
     async def _start_child(self) -> None:
         """Start the broker process and wait for its ``ready``; its stdin is our lifeline (closed: it stops)."""
+        a = self.address
+        account = [a.username] if a.username else []
+        env = {**os.environ, PASSWORD_ENV: a.password or ""} if a.username else None
         child = await asyncio.create_subprocess_exec(
-            sys.executable, "-m", "secuav_common.broker_main", self.address.host, str(self.address.port),
-            stdin=asyncio.subprocess.PIPE, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+            sys.executable, "-m", "secuav_common.broker_main", a.host, str(a.port), *account,
+            stdin=asyncio.subprocess.PIPE, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE, env=env,
         )  # fmt: skip
         assert child.stdout is not None and child.stderr is not None
         try:

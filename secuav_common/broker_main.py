@@ -1,27 +1,30 @@
-"""The embedded MQTT broker as its own process: ``python -m secuav_common.broker_main HOST PORT``.
+"""The embedded MQTT broker as its own process: ``python -m secuav_common.broker_main HOST PORT [USERNAME]``.
 
 A service that embeds the broker (``secuav-proxy --broker embedded``) runs it
 here, not on its own event loop: amqtt then cannot take the forwarding loop's
 time, however many clients flood it, and on a multi-core machine it runs beside
 the proxy. The process prints ``ready`` once it listens, and stops on SIGTERM,
 SIGINT, or when its standard input closes (the parent is gone, even killed).
+With a USERNAME only that account gets in, with the password from the
+environment variable ``SECUAV_EMBEDDED_BROKER_PASSWORD``.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
 import signal
 import sys
 
-from secuav_common.broker import amqtt_config, quiet_amqtt
+from secuav_common.broker import PASSWORD_ENV, amqtt_config, quiet_amqtt
 
 
-async def serve(host: str, port: int) -> int:
+async def serve(host: str, port: int, username: str | None = None) -> int:
     from amqtt.broker import Broker
 
     quiet_amqtt()
-    broker = Broker(amqtt_config(host, port))
+    broker = Broker(amqtt_config(host, port, username, os.environ.get(PASSWORD_ENV) if username else None))
     await broker.start()
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
@@ -42,15 +45,15 @@ async def serve(host: str, port: int) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
-    if len(args) != 2 or not args[1].isdigit():
-        print("usage: python -m secuav_common.broker_main HOST PORT", file=sys.stderr)
+    if len(args) not in (2, 3) or not args[1].isdigit():
+        print("usage: python -m secuav_common.broker_main HOST PORT [USERNAME]", file=sys.stderr)
         return 2
+    job = serve(args[0], int(args[1]), args[2] if len(args) == 3 else None)
     try:
         import uvloop
-
-        return uvloop.run(serve(args[0], int(args[1])))
     except ImportError:
-        return asyncio.run(serve(args[0], int(args[1])))
+        return asyncio.run(job)
+    return uvloop.run(job)
 
 
 if __name__ == "__main__":

@@ -18,13 +18,12 @@ import asyncio
 import contextlib
 import ipaddress
 import logging
-import os
 import signal
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from secuav_common.broker import EmbeddedBroker, parse_broker_url, read_secret, redact
+from secuav_common.broker import EmbeddedBroker, parse_broker_url, redact, secret_or_env
 from secuav_common.loading import InputError
 from secuav_common.logs import add_common_flags, cli_error, setup_logging
 from secuav_common.scenario import load_scenario
@@ -41,7 +40,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"where the page is served (default {DEFAULT_LISTEN}; another address needs a password)")
     p.add_argument("--broker", default="embedded", metavar="URL",
                    help="embedded (default: amqtt on 127.0.0.1:1883, or the broker already there) or mqtt://HOST:PORT")
-    p.add_argument("--broker-username", metavar="NAME")
+    p.add_argument("--broker-username", metavar="NAME",
+                   help="broker account; with --broker embedded that broker then admits this account only")
     p.add_argument("--broker-password-file", metavar="F", type=Path,
                    help="broker password from F (mode 600); SECUAV_BROKER_PASSWORD works too")
     p.add_argument("--scenario", action="append", default=[], metavar="F",
@@ -69,12 +69,6 @@ def is_loopback(host: str) -> bool:
         return False
 
 
-def _secret(path: Path | None, env: str, what: str) -> str | None:
-    if path is not None:
-        return read_secret(path, what).decode("utf-8").strip()
-    return os.environ.get(env) or None
-
-
 async def serve(args: argparse.Namespace, host: str, port: int, password: str | None,
                 broker_password: str | None) -> int:  # fmt: skip
     import uvicorn
@@ -90,7 +84,8 @@ async def serve(args: argparse.Namespace, host: str, port: int, password: str | 
             loop.add_signal_handler(sig, stop.set)
     async with contextlib.AsyncExitStack() as stack:
         if args.broker == "embedded":
-            broker = await stack.enter_async_context(EmbeddedBroker())
+            embedded = EmbeddedBroker(username=args.broker_username, password=broker_password)
+            broker = await stack.enter_async_context(embedded)
             address = broker.address
         else:
             address = parse_broker_url(args.broker)
@@ -133,8 +128,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             parse_broker_url(args.broker)
         for name in args.scenario:
             load_scenario(name)
-        password = _secret(args.password_file, "SECUAV_CONSOLE_PASSWORD", "--password-file")
-        broker_password = _secret(args.broker_password_file, "SECUAV_BROKER_PASSWORD", "--broker-password-file")
+        password = secret_or_env(args.password_file, "--password-file", "SECUAV_CONSOLE_PASSWORD")
+        broker_password = secret_or_env(args.broker_password_file, "--broker-password-file")
     except (InputError, ValueError) as exc:
         return _fail(str(exc))
     if not is_loopback(host) and not password:

@@ -81,13 +81,16 @@ def _stop(procs: list[subprocess.Popen[bytes]]) -> list[int | None]:
 
 
 def _sensor0_cm(gcs: mavutil.mavfile, seconds: float) -> list[int]:
-    """Sensor 0's readings the ground station received over the next ``seconds`` (the backlog dropped)."""
+    """Sensor 0's valid readings the ground station received over the next ``seconds`` (the backlog dropped).
+
+    The simulated rangefinder drops samples as real ones do, sending them as "no target" (beyond
+    ``max_distance``, PX4's convention): those say nothing about the range and are left out."""
     while gcs.recv_match(blocking=False) is not None:
         pass
     out, end = [], time.monotonic() + seconds
     while time.monotonic() < end:
         msg = gcs.recv_match(type="DISTANCE_SENSOR", blocking=True, timeout=0.2)
-        if msg is not None and msg.id == 0:
+        if msg is not None and msg.id == 0 and msg.min_distance <= msg.current_distance <= msg.max_distance:
             out.append(msg.current_distance)
     return out
 
