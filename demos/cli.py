@@ -17,6 +17,7 @@ from demos import formation, localise, wall_hover
 from demos.flight import Case, Options
 from demos.report import plot, write_report
 from demos.stack import Ports
+from secuav_common.extras import require
 from secuav_common.logs import add_common_flags
 
 DEMOS: dict[str, ModuleType] = {"wall-hover": wall_hover, "localise": localise, "formation": formation}
@@ -79,6 +80,7 @@ async def _main(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    require("secuav-demo")
     level = logging.INFO if args.verbose else logging.WARNING
     logging.basicConfig(level=level, format="%(levelname)s %(name)s %(message)s")
     loop = asyncio.new_event_loop()

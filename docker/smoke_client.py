@@ -4,7 +4,7 @@
 
 Sends a HEARTBEAT every second (the proxy's ground endpoint listens and answers
 whoever speaks first), reads for SECONDS, and prints one JSON line: messages by
-type and the mean DISTANCE_SENSOR reading in metres per sensor id.
+type and the mean valid DISTANCE_SENSOR reading in metres per sensor id.
 """
 
 from __future__ import annotations
@@ -32,8 +32,8 @@ def main() -> int:
         if msg is None or msg.get_type() == "BAD_DATA":
             continue
         counts[msg.get_type()] += 1
-        if msg.get_type() == "DISTANCE_SENSOR":
-            ranges[msg.id].append(msg.current_distance / 100.0)
+        if msg.get_type() == "DISTANCE_SENSOR" and msg.min_distance <= msg.current_distance <= msg.max_distance:
+            ranges[msg.id].append(msg.current_distance / 100.0)  # a dropout ("no target") is no range
     gcs.close()
     means = {str(k): round(sum(v) / len(v), 3) for k, v in sorted(ranges.items())}
     print(json.dumps({"messages": sum(counts.values()), "by_type": dict(counts.most_common(8)), "range_m": means}))

@@ -21,6 +21,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from secuav_common.broker import parse_broker_url, secret_or_env
+from secuav_common.extras import require
 from secuav_common.loading import InputError
 from secuav_common.logs import add_common_flags, cli_error, setup_logging
 from secuav_common.ports import proxy_vehicle_url
@@ -105,6 +106,7 @@ def _fail(message: str, code: int = 2) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    require("secuav-sim")
     try:
         scenario = load_scenario(args.scenario)
         endpoints = endpoints_for(args.mavlink, scenario)

@@ -25,6 +25,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from secuav_common.extras import require
 from secuav_common.loading import InputError
 from secuav_common.logs import add_common_flags
 
@@ -119,6 +120,7 @@ def _run(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    require("secuav-study")
     if args.command == "schema":
         from study.spec import Study
 

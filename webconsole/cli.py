@@ -24,6 +24,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from secuav_common.broker import EmbeddedBroker, parse_broker_url, redact, secret_or_env
+from secuav_common.extras import require
 from secuav_common.loading import InputError
 from secuav_common.logs import add_common_flags, cli_error, setup_logging
 from secuav_common.scenario import load_scenario
@@ -122,6 +123,7 @@ def _fail(message: str, code: int = 2) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    require("secuav-console")
     try:
         host, port = parse_listen(args.listen)
         if args.broker != "embedded":
