@@ -55,6 +55,7 @@ __all__ = [
     "crc_of",
     "frame_at",
     "split",
+    "tiles",
 ]
 
 STX_V1: Final = 0xFE
@@ -143,6 +144,25 @@ def _candidate(data: bytes, i: int, n: int) -> tuple[Header, int, str | None]:
 
 
 _NO_HEADER: Final = Header(0, -1, 0, 0, 0, 0)
+
+
+def tiles(data: bytes) -> bool:
+    """Whether ``data`` is, by its headers' length fields alone, nothing but back-to-back frames.
+
+    No CRC is checked (:func:`split` does that): this is the cheap test of whether a
+    datagram even looks like a sender's frames, one step per frame.
+    """
+    n = len(data)
+    i = 0
+    while i < n:
+        c = data[i]
+        if c == STX_V2 and n - i >= V2_HEADER_LEN:
+            i += data[i + 1] + V2_HEADER_LEN + CRC_LEN + (SIGNATURE_LEN if data[i + 2] & IFLAG_SIGNED else 0)
+        elif c == STX_V1 and n - i >= V1_HEADER_LEN:
+            i += data[i + 1] + V1_HEADER_LEN + CRC_LEN
+        else:
+            return False
+    return i == n
 
 
 def frame_at(data: bytes, i: int) -> tuple[Header, int] | None:

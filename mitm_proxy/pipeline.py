@@ -11,6 +11,13 @@ a set lookup per frame, nothing copied). Otherwise the frames that go out now
 are joined, in their original order, into one datagram, and each delayed frame
 is its own item.
 
+Hostile input is bounded per second as well as per datagram (the endpoints drop
+datagrams over 8 kB unread): once more than ``HOSTILE_BYTES_PER_S`` bytes of
+datagrams holding garbage arrived in one direction within a second, a datagram
+that is not back-to-back frames by its length fields (:func:`mavframe.frames.tiles`,
+one step per frame) is dropped unsplit for the rest of that second and counted
+under ``bad["over_budget"]``. A sender's frames always tile, so they still pass.
+
 A stage sees a frame only when it is active, the frame's message id is in its
 ``message_ids``, and the frame is not signed, unless the pipeline has the link's
 signing key. A stage that raises does not stop forwarding: the frame leaves as it
@@ -24,7 +31,7 @@ from collections.abc import Sequence
 from typing import NamedTuple, Protocol
 
 from mavframe import codec
-from mavframe.frames import split
+from mavframe.frames import split, tiles
 from mavframe.packet import Direction, Header, Packet
 from mavframe.signing import Signer
 from mitm_proxy.readings import ReadingsTap
@@ -38,6 +45,10 @@ log = logging.getLogger(__name__)
 _NOTHING: frozenset[int] = frozenset()
 STAGE_ERROR = "stage_error"
 ENCODE_ERROR = "encode_error"
+OVER_BUDGET = "over_budget"
+# Splitting crafted bytes runs at 2-6 MB/s (mavframe.frames): 256 kB of garbage a second costs at most
+# about a tenth of a core before the cheap check takes over.
+HOSTILE_BYTES_PER_S = 256 * 1024
 
 
 class Stage(Protocol):
@@ -96,6 +107,8 @@ class Pipeline:
         self._logged: set[str] = set()
         self._union_key: tuple[frozenset[int], ...] = ()
         self._union: frozenset[int] = _NOTHING
+        # Hostile-input budget per direction: [window start, dirty bytes in it, over budget until].
+        self._dirty: dict[Direction, list[float]] = {d: [-1.0, 0.0, -1.0] for d in Direction}
 
     def _wanted(self) -> tuple[list[Stage], frozenset[int]]:
         """Active stages and the union of their message ids, asked afresh per datagram (bypass and
@@ -117,9 +130,26 @@ class Pipeline:
             self._logged.add(key)
             log.warning(event, extra={"link": self.link, **extra})
 
+    def _spend(self, dirty: list[float], size: int, direction: Direction, now_s: float) -> None:
+        """Count a datagram that held garbage against this second's budget."""
+        if now_s - dirty[0] >= 1.0:
+            dirty[0], dirty[1] = now_s, 0.0
+        dirty[1] += size
+        if dirty[1] > HOSTILE_BYTES_PER_S:
+            dirty[2] = dirty[0] + 1.0
+            self._log_once(f"{OVER_BUDGET}:{direction}", "pipeline.over_budget", direction=str(direction),
+                           detail=f"more than {HOSTILE_BYTES_PER_S} bytes of garbage in a second: until the second "
+                           "ends, datagrams that are not whole frames are dropped unsplit")  # fmt: skip
+
     def feed(self, datagram: bytes, direction: Direction, now_s: float) -> list[Outgoing]:
         """Process one received datagram; return what to send to the other side."""
         st = self.stats.directions[direction]
+        dirty = self._dirty[direction]
+        if now_s < dirty[2] and not tiles(datagram):
+            st.datagrams_in += 1
+            st.bytes_in += len(datagram)
+            st.add_bad(OVER_BUDGET)
+            return []
         res = split(datagram)
         frames = res.frames
         st.datagrams_in += 1
@@ -127,8 +157,10 @@ class Pipeline:
         st.bytes_in += len(datagram)
         if res.unknown:
             st.unknown += res.unknown
-        for reason in res.bad:
-            st.add_bad(reason)
+        if res.bad:
+            for reason in res.bad:
+                st.add_bad(reason)
+            self._spend(dirty, len(datagram), direction, now_s)
         rec = self.recorder
         first = rec.original(frames) if rec is not None else 0
         active, wanted = self._wanted()

@@ -5,7 +5,7 @@ from __future__ import annotations
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from mavframe.frames import BAD_CRC, BAD_FLAGS, BAD_LENGTH, CRC_EXTRA, GARBAGE, TRUNCATED, crc_of, split
+from mavframe.frames import BAD_CRC, BAD_FLAGS, BAD_LENGTH, CRC_EXTRA, GARBAGE, TRUNCATED, crc_of, split, tiles
 from tests.mavframe.frames_support import (
     DISTANCE_SENSOR,
     distance,
@@ -207,3 +207,16 @@ def test_a_signature_cut_short_never_swallows_the_next_frame(
     assume(not any(h.msgid in CRC_EXTRA and raw not in parts for h, raw in res.frames))
     assert [raw for h, raw in res.frames if h.msgid in CRC_EXTRA] == parts
     assert TRUNCATED in res.bad
+
+
+@FUZZ
+@given(st.lists(frames(), min_size=0, max_size=8), st.binary(min_size=1, max_size=40))
+def test_fuzz_tiles_is_true_for_back_to_back_frames_and_false_once_bytes_are_cut_off(
+    chunks: list[bytes], tail: bytes
+) -> None:
+    data = b"".join(chunks)
+    assert tiles(data)
+    if chunks:
+        assert not tiles(data[:-1])  # the last frame cut short
+    if tail[0] not in (0xFD, 0xFE):
+        assert not tiles(tail + data)  # garbage in front

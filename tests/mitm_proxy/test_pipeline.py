@@ -14,7 +14,7 @@ from mavframe import codec
 from mavframe.frames import CRC_EXTRA, split
 from mavframe.packet import Direction, Packet
 from mitm_proxy.attack import AttackStage
-from mitm_proxy.pipeline import Outgoing, Pipeline
+from mitm_proxy.pipeline import HOSTILE_BYTES_PER_S, Outgoing, Pipeline
 from mitm_proxy.slots import AttackSlot
 from mitm_proxy.stats import LinkStats
 from tests.mavframe.frames_support import (
@@ -139,6 +139,26 @@ def test_garbage_is_stripped_counted_and_valid_frames_survive() -> None:
     assert pipe.feed(b"just garbage", DOWN, time.monotonic()) == []
     assert pipe.feed(b"", DOWN, time.monotonic()) == []
     assert stats[DOWN].datagrams_in == 3 and stats[DOWN].frames_out == 2
+
+
+def test_past_the_hostile_budget_garbage_is_dropped_unsplit_and_frames_still_pass() -> None:
+    pipe, stats, _ = make()
+    junk = bytes([0xFD, 9, 0, 0, 0, 1, 1, 0, 0, 0]) * 800  # 8 kB of overlapping HEARTBEAT headers, none valid
+    valid = pack(heartbeat()) + pack(distance())
+    t = 100.0
+    sent = 0
+    while sent <= HOSTILE_BYTES_PER_S:
+        assert pipe.feed(junk, DOWN, t) == []
+        sent += len(junk)
+    before = dict(stats[DOWN].bad)
+    assert "over_budget" not in before  # every one of those was split and counted by its reason
+    assert pipe.feed(junk, DOWN, t + 0.5) == []
+    (out,) = pipe.feed(valid, DOWN, t + 0.5)  # whole frames pass, budget or not
+    assert out.data == valid
+    assert stats[DOWN].bad["over_budget"] == 1 and dict(stats[DOWN].bad, over_budget=0) == {**before, "over_budget": 0}
+    assert stats[UP].bad == {}  # the other direction has its own budget
+    assert pipe.feed(junk, DOWN, t + 1.01) == []  # a new second: split (and counted by reason) again
+    assert stats[DOWN].bad["over_budget"] == 1 and sum(stats[DOWN].bad.values()) > sum(before.values()) + 1
 
 
 def test_unknown_ids_are_forwarded_and_counted() -> None:
