@@ -50,13 +50,8 @@ class Recorder:
 
     def __init__(self, directory: str | Path, link: int = 0, *, wall_clock: Callable[[], float] = time.time) -> None:
         self.directory = Path(directory)
-        self.directory.mkdir(parents=True, exist_ok=True)
         self.link = link
         self._clock = wall_clock
-        self._files: list[IO[bytes]] = [
-            open(self.directory / name, "wb")  # noqa: SIM115 - the writer thread closes them
-            for name in ("original.tlog", "forwarded.tlog", "index.json")
-        ]
         self._queue: queue.Queue[tuple[int, bytes]] = queue.Queue(QUEUE_CHUNKS)
         self._n_index = 0
         self.original_count = 0
@@ -65,9 +60,25 @@ class Recorder:
         self.failed: str | None = None  # why recording stopped, if it did
         self.closed = False
         self._flushed_at = self._clock()
+        self._files: list[IO[bytes]] = []
+        self._writer: threading.Thread | None = None
+        try:  # a directory that cannot be made or written: no recording, one error, the link still forwards
+            self.directory.mkdir(parents=True, exist_ok=True)
+            for name in ("original.tlog", "forwarded.tlog", "index.json"):
+                self._files.append(open(self.directory / name, "wb"))  # noqa: SIM115 - the writer thread closes them
+        except OSError as exc:
+            for f in self._files:
+                f.close()
+            self._fail(f"{exc.strerror or exc} ({exc.filename or self.directory})")
+            return
         self._put(_INDEX, b"[")
         self._writer = threading.Thread(target=self._write_loop, name=f"recorder-{link}", daemon=True)
         self._writer.start()
+
+    def _fail(self, reason: str) -> None:
+        self.failed = reason
+        log.error("record.failed", extra={"link": self.link, "dir": str(self.directory), "error": reason,
+                                          "effect": "recording stopped; forwarding goes on"})  # fmt: skip
 
     def _put(self, file: int, data: bytes) -> None:
         if self.failed is not None or self.closed:
@@ -92,9 +103,7 @@ class Recorder:
                 else:
                     self._files[file].write(data)
             except OSError as exc:
-                self.failed = f"{exc.strerror or exc} ({self._files[max(file, 0)].name})"
-                log.error("record.failed", extra={"link": self.link, "dir": str(self.directory), "error": self.failed,
-                                                  "effect": "recording stopped; forwarding goes on"})  # fmt: skip
+                self._fail(f"{exc.strerror or exc} ({self._files[max(file, 0)].name})")
         for f in self._files:
             try:
                 f.close()
@@ -171,6 +180,8 @@ class Recorder:
             return
         self._put(_INDEX, b"\n]\n")
         self.closed = True
+        if self._writer is None:  # it never started (the directory was unusable)
+            return
         try:
             self._queue.put((_STOP, b""), timeout=timeout_s)
         except queue.Full:  # the writer is stuck on a dead disk: leave it, it is a daemon thread
