@@ -48,7 +48,7 @@ COMMANDS: list[tuple[str, Callable[[], argparse.ArgumentParser]]] = [
     ("secuav-eval", _parser_of("evaluation.cli")),
     ("secuav-demo", _parser_of("demos.cli")),
     ("secuav-study", _parser_of("study.cli")),
-    ("secuav-record", _parser_of("evaluation.record", "_parser")),
+    ("secuav-record", _parser_of("mitm_proxy.record", "_parser")),
     ("secuav-console", _parser_of("webconsole.cli")),
 ]
 

@@ -1,6 +1,6 @@
 """Record a MAVLink stream to a .tlog, optionally through an attack, so ``secuav-eval --tlog`` has logs to read.
 
-    python -m evaluation.record --listen udpin://127.0.0.1:14560 --out flight.tlog \\
+    secuav-record --listen udpin://127.0.0.1:14560 --out flight.tlog \\
         [--attack type-a --scenario anchors8 [--param K=V] [--seed S]] [--duration S] [--idle-stop S]
 
 Listens where a vehicle sends (``secuav-sim --mavlink udpout://127.0.0.1:PORT``
@@ -45,8 +45,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from attack_profiles import Engine
 from attack_profiles.profile import Profile
-from attack_profiles.resolve import parse_params
-from evaluation.cli import resolve_attack
+from attack_profiles.resolve import parse_params, resolve_profile
 from mavframe import codec, tlog
 from mavframe.frames import split
 from mavframe.packet import Direction, Header, Packet
@@ -255,7 +254,8 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _engine(args: argparse.Namespace) -> Engine | None:
-    profile: Profile | None = resolve_attack(args.attack, parse_params(args.param))
+    params = parse_params(args.param)
+    profile: Profile | None = None if args.attack == "none" else resolve_profile(args.attack, params, "--attack")
     if profile is None:
         return None
     scenario = None if args.scenario is None else load_scenario(resolve_scenario_path(args.scenario))
