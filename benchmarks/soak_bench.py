@@ -33,6 +33,7 @@ import time
 from pathlib import Path
 
 import aiomqtt
+from proxy_bench import cpu_s, free_port, pct, rss_kb  # the same measures as the speed benchmark
 from pymavlink.dialects.v20 import common as mavlink
 
 from mavframe.frames import split
@@ -50,27 +51,10 @@ PROFILES = [
 _BOOT_MS = struct.Struct("<I")  # DISTANCE_SENSOR's first payload field, the frame number here
 
 
-def _free_port(kind: int = socket.SOCK_DGRAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
+def _free_tcp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
-
-
-def _proc(pid: int, key: str) -> int:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith(key):
-            return int(line.split()[1])
-    return 0
-
-
-def _cpu_s(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
-def _pct(values: list[float], q: float) -> float:
-    values = sorted(values)
-    return values[min(len(values) - 1, int(q * len(values)))] if values else float("nan")
 
 
 class Stream:
@@ -142,7 +126,7 @@ async def _swapper(port: int, every_s: float, stream: Stream, acks: dict[str, in
 
 
 async def run(args: argparse.Namespace) -> int:
-    veh, gcs_port, mqtt = _free_port(), _free_port(), _free_port(socket.SOCK_STREAM)
+    veh, gcs_port, mqtt = free_port(), free_port(), _free_tcp_port()
     gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     gcs.bind(("127.0.0.1", gcs_port))
     gcs.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)
@@ -163,25 +147,25 @@ async def run(args: argparse.Namespace) -> int:
             acks = {"sent": 0, "ok": 0, "refused": 0}
             swaps = asyncio.create_task(_swapper(mqtt, args.swap_s, stream, acks))
             t0 = time.monotonic()
-            cpu0 = _cpu_s(proxy.pid)
+            cpu0 = cpu_s(proxy.pid)
             rss_warm = 0
             next_report = 30.0
             while not stream.done.is_set():
                 await asyncio.sleep(1.0)
                 elapsed = time.monotonic() - t0
                 if not rss_warm and elapsed >= WARMUP_S:
-                    rss_warm = _proc(proxy.pid, "VmRSS:")
+                    rss_warm = rss_kb(proxy.pid)
                 if elapsed >= next_report:
                     next_report += 30.0
-                    rss_mb = _proc(proxy.pid, "VmRSS:") / 1024
+                    rss_mb = rss_kb(proxy.pid) / 1024
                     print(f"  {elapsed:4.0f} s: {len(stream.sent_at)} sent, {len(stream.got_at)} received, "
                           f"{acks['ok']} swaps ok, RSS {rss_mb:.1f} MB", file=sys.stderr)  # fmt: skip
             await swaps
             await asyncio.sleep(1.0)
             stream.stop_rx.set()
             threads[0].join()
-            cpu = _cpu_s(proxy.pid) - cpu0
-            rss_end = _proc(proxy.pid, "VmRSS:")
+            cpu = cpu_s(proxy.pid) - cpu0
+            rss_end = rss_kb(proxy.pid)
             alive = proxy.poll() is None
         finally:
             proxy.send_signal(signal.SIGINT)
@@ -194,7 +178,7 @@ async def run(args: argparse.Namespace) -> int:
     print(f"frames: {sent} sent, {sent - len(lost)} received, {len(lost)} lost"
           + (f" (first lost: {lost[:5]})" if lost else "") + f", {stream.duplicates} duplicated")  # fmt: skip
     print(f"swaps: {acks['sent']} published, {acks['ok']} acknowledged ok, {acks['refused']} refused")
-    print(f"latency ms: p50 {_pct(lat, 0.5):.3f}  p99 {_pct(lat, 0.99):.3f}  p99.9 {_pct(lat, 0.999):.3f}  "
+    print(f"latency ms: p50 {pct(lat, 0.5):.3f}  p99 {pct(lat, 0.99):.3f}  p99.9 {pct(lat, 0.999):.3f}  "
           f"max {max(lat, default=float('nan')):.3f}")  # fmt: skip
     print(f"proxy RSS: {rss_warm / 1024:.1f} MB after {WARMUP_S:.0f} s, {rss_end / 1024:.1f} MB at the end "
           f"(growth {(rss_end - rss_warm) / 1024:+.1f} MB); CPU {cpu / max(sent, 1) * 1e6:.1f} us per frame; "

@@ -54,6 +54,7 @@ __all__ = [
     "StreamFramer",
     "crc_of",
     "frame_at",
+    "next_magic",
     "split",
     "tiles",
 ]
@@ -99,6 +100,15 @@ class SplitResult:
     def clean(self) -> bool:
         """True when the datagram was nothing but valid frames."""
         return not self.bad
+
+
+def next_magic(data: bytes, lo: int, hi: int) -> int:
+    """Where the next MAVLink magic byte (v1 or v2) is in ``data[lo:hi]``, or ``hi``: two C-level searches."""
+    a = data.find(b"\xfd", lo, hi)
+    b = data.find(b"\xfe", lo, hi)
+    if a < 0:
+        return hi if b < 0 else b
+    return a if b < 0 or a < b else b
 
 
 def crc_of(frame: bytes | bytearray | memoryview, end: int, crc_extra: int) -> int:
@@ -186,9 +196,7 @@ def _frame_starts_within(data: bytes, lo: int, hi: int, n: int) -> bool:
     """
     j = lo
     while j < hi:
-        a = data.find(b"\xfd", j, hi)
-        b = data.find(b"\xfe", j, hi)
-        k = hi if a < 0 and b < 0 else (a if b < 0 else b if a < 0 else min(a, b))
+        k = next_magic(data, j, hi)
         if k >= hi:
             return False
         header, _, reason = _candidate(data, k, n)
@@ -219,9 +227,7 @@ class _KnownStarts:
         data, n = self.data, self.n
         j = max(start, self.scanned)
         while j < end:
-            a = data.find(b"\xfd", j, end)
-            b = data.find(b"\xfe", j, end)
-            k = end if a < 0 and b < 0 else (a if b < 0 else b if a < 0 else min(a, b))
+            k = next_magic(data, j, end)
             if k >= end:
                 break
             header, _, reason = _candidate(data, k, n)
@@ -295,12 +301,10 @@ def split(datagram: bytes) -> SplitResult:
                 skip_start, skip_reason = i, reason
             i += 1
             continue
-        # Jump to the next magic byte in one C-level search.
+        # Jump to the next magic byte.
         if skip_start < 0:
             skip_start, skip_reason = i, GARBAGE
-        a = data.find(b"\xfd", i)
-        b = data.find(b"\xfe", i)
-        i = n if a < 0 and b < 0 else (a if b < 0 else b if a < 0 else min(a, b))
+        i = next_magic(data, i, n)
     if skip_start >= 0:
         out.bad.append(skip_reason)
     return out
@@ -336,11 +340,9 @@ class StreamFramer:
         i = 0
         cut = n
         while i < n:
-            a = data.find(b"\xfd", i)
-            b = data.find(b"\xfe", i)
-            if a < 0 and b < 0:
+            k = next_magic(data, i, n)
+            if k >= n:
                 break
-            k = a if b < 0 else b if a < 0 else min(a, b)
             header, end, reason = _candidate(data, k, n)
             if reason is None and header.msgid not in CRC_EXTRA:
                 # An unknown id cannot be checked: as split() does, it is garbage if a known frame starts

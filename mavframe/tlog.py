@@ -21,7 +21,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Final, NamedTuple
 
-from mavframe.frames import CRC_EXTRA, STX_V1, STX_V2, frame_at
+from mavframe.frames import CRC_EXTRA, frame_at, next_magic
 from mavframe.packet import Header
 
 __all__ = ["STAMP_LEN", "TlogEntry", "TlogReader", "read", "stamp"]
@@ -73,17 +73,12 @@ class TlogReader:
         """The next entry start at or after ``lo``: a stamp followed by a valid frame of a known message."""
         data = self.data
         n = len(data)
-        k = lo + STAMP_LEN
+        k = next_magic(data, lo + STAMP_LEN, n)
         while k < n:
-            a = data.find(bytes((STX_V2,)), k)
-            b = data.find(bytes((STX_V1,)), k)
-            if a < 0 and b < 0:
-                return n
-            k = a if b < 0 else b if a < 0 else min(a, b)
             found = frame_at(data, k)
             if found is not None and found[0].msgid in CRC_EXTRA:
                 return k - STAMP_LEN
-            k += 1
+            k = next_magic(data, k + 1, n)
         return n
 
 

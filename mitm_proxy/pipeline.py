@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
 from mavframe import codec
@@ -72,6 +73,15 @@ class Stage(Protocol):
     def process(self, pkt: Packet, now_s: float) -> list[Packet]: ...
 
 
+@dataclass(slots=True)
+class _HostileBudget:
+    """One direction's garbage in the current one-second window (see the module doc)."""
+
+    window_s: float = -1.0  # when the window began
+    spent: int = 0  # bytes of datagrams that held garbage since then
+    over_until_s: float = -1.0  # until then, datagrams that are not whole frames are dropped unsplit
+
+
 class Outgoing(NamedTuple):
     """Bytes for the other side; not to be sent before ``release_s`` (monotonic).
 
@@ -107,8 +117,7 @@ class Pipeline:
         self._logged: set[str] = set()
         self._union_key: tuple[frozenset[int], ...] = ()
         self._union: frozenset[int] = _NOTHING
-        # Hostile-input budget per direction: [window start, dirty bytes in it, over budget until].
-        self._dirty: dict[Direction, list[float]] = {d: [-1.0, 0.0, -1.0] for d in Direction}
+        self._budget = {d: _HostileBudget() for d in Direction}
 
     def _wanted(self) -> tuple[list[Stage], frozenset[int]]:
         """Active stages and the union of their message ids, asked afresh per datagram (bypass and
@@ -130,13 +139,13 @@ class Pipeline:
             self._logged.add(key)
             log.warning(event, extra={"link": self.link, **extra})
 
-    def _spend(self, dirty: list[float], size: int, direction: Direction, now_s: float) -> None:
+    def _spend(self, budget: _HostileBudget, size: int, direction: Direction, now_s: float) -> None:
         """Count a datagram that held garbage against this second's budget."""
-        if now_s - dirty[0] >= 1.0:
-            dirty[0], dirty[1] = now_s, 0.0
-        dirty[1] += size
-        if dirty[1] > HOSTILE_BYTES_PER_S:
-            dirty[2] = dirty[0] + 1.0
+        if now_s - budget.window_s >= 1.0:
+            budget.window_s, budget.spent = now_s, 0
+        budget.spent += size
+        if budget.spent > HOSTILE_BYTES_PER_S:
+            budget.over_until_s = budget.window_s + 1.0
             self._log_once(f"{OVER_BUDGET}:{direction}", "pipeline.over_budget", direction=str(direction),
                            detail=f"more than {HOSTILE_BYTES_PER_S} bytes of garbage in a second: until the second "
                            "ends, datagrams that are not whole frames are dropped unsplit")  # fmt: skip
@@ -144,8 +153,8 @@ class Pipeline:
     def feed(self, datagram: bytes, direction: Direction, now_s: float) -> list[Outgoing]:
         """Process one received datagram; return what to send to the other side."""
         st = self.stats.directions[direction]
-        dirty = self._dirty[direction]
-        if now_s < dirty[2] and not tiles(datagram):
+        budget = self._budget[direction]
+        if now_s < budget.over_until_s and not tiles(datagram):
             st.datagrams_in += 1
             st.bytes_in += len(datagram)
             st.add_bad(OVER_BUDGET)
@@ -160,7 +169,7 @@ class Pipeline:
         if res.bad:
             for reason in res.bad:
                 st.add_bad(reason)
-            self._spend(dirty, len(datagram), direction, now_s)
+            self._spend(budget, len(datagram), direction, now_s)
         rec = self.recorder
         first = rec.original(frames) if rec is not None else 0
         active, wanted = self._wanted()

@@ -110,12 +110,13 @@ class TlogWriter:
             pipe = self._pipes[sysid] = Pipeline(len(self._pipes), [AttackStage(slot)], stats=LinkStats(sysid))
         return pipe
 
-    def feed(self, datagram: bytes) -> None:
-        """The frames of one datagram as received; bytes that are no valid frame are counted in ``bad``."""
+    def feed(self, datagram: bytes) -> list[tuple[Header, bytes]]:
+        """The frames of one datagram as received (returned); bytes that are no valid frame are counted in ``bad``."""
         found = split(datagram)
         self.bad += len(found.bad)
         for header, raw in found.frames:
             self._feed_frame(header, raw)
+        return found.frames
 
     def _feed_frame(self, header: Header, raw: bytes) -> None:
         self._frames_in += 1
@@ -167,11 +168,11 @@ class _Listener(asyncio.DatagramProtocol):
     def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
         self.last_rx = time.monotonic()
         self.seen.set()
+        frames = self.writer.feed(data)
         if self.takeoff:
-            for header, _ in split(data).frames:
+            for header, _ in frames:
                 if header.msgid == mavlink.MAVLINK_MSG_ID_HEARTBEAT and header.sysid not in self.commanded:
                     self._arm_and_take_off(header.sysid, header.compid, addr)
-        self.writer.feed(data)
 
     def _arm_and_take_off(self, sysid: int, compid: int, addr: tuple[str, int]) -> None:
         if self.transport is None:

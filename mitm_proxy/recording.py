@@ -109,8 +109,7 @@ class Recorder:
                 f.close()
             except OSError as exc:  # the last flush of a full disk
                 if self.failed is None:
-                    self.failed = f"{exc.strerror or exc} ({f.name})"
-                    log.error("record.failed", extra={"link": self.link, "error": self.failed})
+                    self._fail(f"{exc.strerror or exc} ({f.name})")
 
     FLUSH_EVERY_S = 1.0  # a crash or SIGKILL loses at most about this much of the recording
 

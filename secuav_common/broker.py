@@ -114,12 +114,14 @@ def quiet_amqtt() -> None:
         logging.getLogger(name).setLevel(logging.ERROR)
 
 
-async def accepts_anonymous(host: str, port: int, timeout_s: float = 5.0) -> bool:
-    """Whether the broker at ``host:port`` accepts a client with no username or password."""
+async def admits(
+    host: str, port: int, username: str | None = None, password: str | None = None, timeout_s: float = 5.0
+) -> bool:
+    """Whether the broker at ``host:port`` lets this client in (no ``username``: an anonymous one)."""
     import aiomqtt
 
     try:
-        async with aiomqtt.Client(host, port, timeout=timeout_s):
+        async with aiomqtt.Client(host, port, username=username, password=password, timeout=timeout_s):
             return True
     except aiomqtt.MqttError:
         return False
@@ -156,7 +158,7 @@ class EmbeddedBroker:
 
     async def __aenter__(self) -> EmbeddedBroker:
         if port_in_use(self.address.host, self.address.port):
-            if self.address.username and await accepts_anonymous(self.address.host, self.address.port):
+            if self.address.username and await admits(self.address.host, self.address.port):
                 raise OSError(
                     f"a broker already listens on {self.address.url} and lets anyone in without a password; "
                     "refusing it because broker credentials are configured (stop it, or give another --broker)"

@@ -6,7 +6,7 @@ import logging
 
 import pytest
 
-from secuav_common.broker import EmbeddedBroker
+from secuav_common.broker import EmbeddedBroker, admits
 from tests.conftest import free_tcp_port
 
 
@@ -64,25 +64,15 @@ async def test_the_proxys_broker_runs_in_its_own_process_and_dies_with_its_paren
         await asyncio.sleep(0.1)
 
 
-async def _admitted(port: int, username: str | None, password: str | None) -> bool:
-    import aiomqtt
-
-    try:
-        async with aiomqtt.Client("127.0.0.1", port, username=username, password=password, timeout=10):
-            return True
-    except aiomqtt.MqttError:
-        return False
-
-
 @pytest.mark.parametrize("process", [False, True], ids=["on-this-loop", "child-process"])
 async def test_with_an_account_only_that_account_gets_in(process: bool) -> None:
     port = free_tcp_port()
     async with EmbeddedBroker(port=port, process=process, username="op", password="two words") as broker:
         assert broker.started
-        assert not await _admitted(port, None, None)
-        assert not await _admitted(port, "op", "wrong")
-        assert not await _admitted(port, "other", "two words")
-        assert await _admitted(port, "op", "two words")
+        assert not await admits("127.0.0.1", port, None, None)
+        assert not await admits("127.0.0.1", port, "op", "wrong")
+        assert not await admits("127.0.0.1", port, "other", "two words")
+        assert await admits("127.0.0.1", port, "op", "two words")
 
 
 async def test_an_anonymous_broker_is_not_reused_when_credentials_are_configured() -> None:

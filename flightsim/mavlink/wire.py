@@ -74,13 +74,9 @@ class Decoder:
         return out
 
     def _decode_frame(self, frame: bytes) -> Message | None:
+        # split() checked the CRC and the id is in the common dialect, so pymavlink's decode cannot give an
+        # unknown-message placeholder here; it may still raise on a payload it refuses.
         try:
-            msg = self._mav.decode(bytearray(frame))
-        except Exception:  # a short payload or a signature pymavlink refuses: it raises several types
+            return self._mav.decode(bytearray(frame))
+        except Exception:  # pymavlink raises several types
             return None
-        if msg is None or isinstance(msg, _UNTRUSTED):
-            return None
-        return msg
-
-
-_UNTRUSTED = (mavlink.MAVLink_unknown, mavlink.MAVLink_bad_data)

@@ -16,7 +16,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from test_control_support import MOSQUITTO, Mosquitto
+from test_control_support import Mosquitto, needs_mosquitto
 
 from attack_profiles import library
 from attack_profiles.profile import load_profile
@@ -24,7 +24,7 @@ from attack_profiles.profile import load_profile
 pytestmark = [
     pytest.mark.timeout(120),
     pytest.mark.mosquitto,
-    pytest.mark.skipif(MOSQUITTO is None, reason="the mosquitto binary is not installed"),
+    needs_mosquitto,
 ]
 REPO = Path(__file__).resolve().parents[2]
 

@@ -22,12 +22,14 @@ from pathlib import Path
 import aiomqtt
 import pytest
 from pymavlink import mavutil
-from test_control_support import MOSQUITTO, Mosquitto, attack_cli
+from test_control_support import Mosquitto, attack_cli, needs_mosquitto
+
+from secuav_common.broker import admits
 
 pytestmark = [
     pytest.mark.timeout(120),
     pytest.mark.mosquitto,
-    pytest.mark.skipif(MOSQUITTO is None, reason="the mosquitto binary is not installed"),
+    needs_mosquitto,
 ]
 REPO = Path(__file__).resolve().parents[2]
 BIAS = {"name": "acl-bias", "rules": [{"target": {"message": "DISTANCE_SENSOR", "sensor_id": 0},
@@ -39,14 +41,6 @@ def _accounts(tmp_path: Path) -> Path:
     env = {**os.environ, "SECUAV_SECRETS_DIR": str(secrets)}
     subprocess.run(["bash", str(REPO / "docker" / "users.sh")], env=env, check=True, capture_output=True, timeout=60)
     return secrets
-
-
-async def _connects(port: int, user: str | None, password: str | None) -> bool:
-    try:
-        async with aiomqtt.Client("127.0.0.1", port, username=user, password=password, timeout=10):
-            return True
-    except aiomqtt.MqttError:
-        return False
 
 
 async def _ranges_cm(gcs: mavutil.mavfile, seconds: float) -> list[int]:
@@ -94,8 +88,8 @@ async def test_anonymous_viewer_and_sim_cannot_change_the_attack_and_the_operato
             async with asyncio.timeout(30):
                 while not await _ranges_cm(gcs, 0.3):
                     pass
-            assert not await _connects(port, None, None)
-            assert not await _connects(port, "operator", "not-the-password")
+            assert not await admits("127.0.0.1", port, None, None)
+            assert not await admits("127.0.0.1", port, "operator", "not-the-password")
 
             # The viewer sees the proxy's state but its request never reaches the proxy.
             async with aiomqtt.Client("127.0.0.1", port, username="viewer", password=pw["viewer"]) as viewer:

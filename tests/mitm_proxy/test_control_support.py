@@ -13,6 +13,7 @@ import asyncio
 import contextlib
 import getpass
 import json
+import os
 import shutil
 import socket
 import subprocess
@@ -28,7 +29,11 @@ import aiomqtt
 import pytest
 
 MOSQUITTO = shutil.which("mosquitto") or ("/usr/sbin/mosquitto" if Path("/usr/sbin/mosquitto").exists() else None)
-needs_mosquitto = pytest.mark.skipif(MOSQUITTO is None, reason="the mosquitto binary is not installed")
+# Skipped where mosquitto is missing, except in CI: .ci/run installs it, so missing there is a setup bug
+# and the test runs and fails (Mosquitto() says why) instead of passing as a skip.
+needs_mosquitto = pytest.mark.skipif(
+    MOSQUITTO is None and not os.environ.get("CI"), reason="the mosquitto binary is not installed"
+)
 
 
 def wait_port(port: int, up: bool, timeout_s: float = 10.0) -> None:
@@ -51,7 +56,7 @@ class Mosquitto:
     """
 
     def __init__(self, port: int, workdir: Path, extra: str = "") -> None:
-        assert MOSQUITTO is not None
+        assert MOSQUITTO is not None, "the mosquitto binary is not installed (apt-get install mosquitto)"
         self.port = port
         self.url = f"mqtt://127.0.0.1:{port}"
         self.config = workdir / "mosquitto.conf"
