@@ -15,6 +15,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from estimators.attribution import Namer, Trail, explain
 from estimators.bank import Chi2Table, cv_matrices, gauss_newton, inv_small
 from estimators.models import Known, MeasurementModel
 from estimators.subsets import secure_snapshot
@@ -28,14 +29,17 @@ class Estimate:
     group: the distance; two vehicles: n1, e1, n2, e2). ``velocity_mps`` is
     None for snapshot estimators. ``covariance`` is over ``[position, velocity]``
     when velocity is modelled, else over position. ``attacked`` and ``used`` are
-    indices into z. ``alarm``: the readings cannot single out an attacked set of
-    at most s sensors (more are attacked than tolerated, or the model is wrong).
-    ``ok`` is False while no estimate exists yet (position is NaN then).
-    ``valid`` is False when the estimate is degraded: beyond what the
-    estimator can correct, not to be trusted (an alarm that the readings of
-    this step confirm at a ten times smaller false-alarm level: no p - s of them
-    agree on one position). An alarm that
-    they do not confirm (a filter surprised by a manoeuvre) leaves it valid.
+    indices into z; ``attacked`` is decided for every secure estimator alike by
+    :mod:`estimators.attribution` (family-wise level alpha per step). ``alarm``:
+    the readings cannot single out an attacked set of at most s sensors (more
+    are attacked than tolerated, or the model is wrong). ``ok`` is False while
+    no estimate exists yet (position is NaN then). ``valid`` is False when the
+    estimate is degraded: beyond what the estimator can correct, not to be
+    trusted (an alarm that the readings of this step confirm at a ten times
+    smaller false-alarm level: no p - s of them agree on one position); the
+    position is then the fewest-liars explanation's where one exists
+    (``attribution.explain``), else the estimator's own. An alarm that the
+    readings do not confirm (a filter surprised by a manoeuvre) leaves it valid.
     """
 
     t_s: float
@@ -79,7 +83,7 @@ class Estimator:
         self.chi = Chi2Table(alpha, 4 * model.p)
         # Confirming an alarm from one step's readings alone: ten times stricter, so noise alone seldom degrades.
         self.chi_confirm = Chi2Table(alpha / 10.0, 4 * model.p)
-        self.gate1 = float(self.chi(1))  # per-sensor test threshold, used every step
+        self.gate1 = float(self.chi(1))  # one reading's test at level alpha (the detectors' own decisions)
         self.q_mps2 = q_mps2
         self.p0_pos_m = p0_pos_m
         self.p0_vel_mps = p0_vel_mps
@@ -96,6 +100,8 @@ class Estimator:
     def reset(self, x0: np.ndarray | None = None, t_s: float = 0.0, P0: np.ndarray | None = None) -> None:
         """Forget the past. ``x0``: position (d) or position+velocity (2d); None = bootstrap from data."""
         self.t_s = None if x0 is None else float(t_s)
+        self.namer = Namer(self.model, self.alpha)  # naming attacked readings at a family-wise alpha
+        self.trail = Trail(self.model.d, self.q_mps2, self.p0_vel_mps)  # last known position, for explanations
         x = None
         if x0 is not None:
             x0 = np.asarray(x0, dtype=float).reshape(-1)
@@ -114,17 +120,36 @@ class Estimator:
         self.t_s = float(t_s)
         kn = self.model.default_known if known is None else known
         est = self._step(float(t_s), dt_s, zv, kn)
-        if est.alarm and est.ok and self.secure:
-            object.__setattr__(est, "valid", self._readings_agree(zv, est.position_m, kn))
+        if est.ok and self.secure:
+            self._attribute(zv, est, kn, dt_s)
         # The Estimate is frozen for its readers; stamping our own fresh instance costs far less than replace().
         object.__setattr__(est, "step_time_s", time.perf_counter() - t0)
         return est
 
-    def _readings_agree(self, z: np.ndarray, near: np.ndarray, known: Known) -> bool:
-        """Whether some p - s of this step's readings agree on one position (the one-step l0 test)."""
-        if int((~np.isnan(z)).sum()) < self.model.min_sensors:
-            return True  # too few readings to test anything: the alarm is not confirmed
-        return not secure_snapshot(self.model, z, self.s, self.chi_confirm, near, known).alarm
+    def _attribute(self, z: np.ndarray, est: Estimate, known: Known, dt_s: float) -> None:
+        """Name the attacked readings and judge an alarm (``attribution``); fills in ``est`` (our fresh instance)."""
+        d, p = self.model.d, self.model.p
+        cov = np.zeros((d, d)) if est.covariance is None else est.covariance[:d, :d]
+        outside = np.ones(p, dtype=bool)
+        outside[list(est.used)] = False
+        named = self.namer.name(z, est.position_m, cov, outside, known)
+        prior = self.trail.predict(dt_s)
+        if est.alarm and int((~np.isnan(z)).sum()) >= self.model.min_sensors:
+            snap = secure_snapshot(self.model, z, self.s, self.chi_confirm, est.position_m, known)
+            if not snap.alarm:
+                # Some p - s readings agree (a surprised filter, not liars beyond tolerance): accuse only
+                # readings that step's fit cannot explain.
+                named = self.namer.name_jumps(z, snap.pos, snap.cov, known) & ~snap.use
+            else:
+                found = explain(self.model, z, self.s, self.chi, est.position_m, known, prior, self.n_iter)
+                named = found.named
+                object.__setattr__(est, "valid", False)
+                if found.pos is not None and found.cov is not None:
+                    object.__setattr__(est, "position_m", found.pos)
+                    self.trail.correct(found.pos, found.cov)
+        if est.valid:
+            self.trail.set(est.position_m, est.velocity_mps, est.covariance)
+        object.__setattr__(est, "attacked", _indices(named))
 
     # -- for subclasses ---------------------------------------------------
     def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:
@@ -148,11 +173,6 @@ class Estimator:
         res = gauss_newton(self.model, z, use[None, :], begin, known, self.n_iter if n_iter is None else n_iter)
         cov = inv_small(res.info[0])
         return res.pos[0], cov, float(res.cost[0])
-
-    def _flag(self, z: np.ndarray, pos: np.ndarray, cov_pos: np.ndarray, known: Known) -> np.ndarray:
-        """Per-sensor test: normalised residual against ``pos`` exceeds chi2_{1, 1-alpha}."""
-        hx, jac = self.model.h_jac(pos, known)
-        return self._flag_resid(z - hx, jac, cov_pos)
 
     def _flag_resid(self, resid: np.ndarray, jac: np.ndarray, cov_pos: np.ndarray) -> np.ndarray:
         """The same test from residuals and Jacobian already at hand (NaN residual: not flagged)."""
@@ -178,7 +198,6 @@ class Estimator:
         pos: np.ndarray | None,
         vel: np.ndarray | None = None,
         cov: np.ndarray | None = None,
-        attacked: np.ndarray | None = None,
         alarm: bool = False,
         used: np.ndarray | None = None,
     ) -> Estimate:
@@ -189,7 +208,7 @@ class Estimator:
             position_m=np.full(d, np.nan) if pos is None else np.array(pos, dtype=float),
             velocity_mps=None if vel is None else np.array(vel, dtype=float),
             covariance=None if cov is None else np.array(cov, dtype=float),
-            attacked=frozenset() if attacked is None else _indices(attacked),
+            attacked=frozenset(),  # named by _attribute for the secure estimators
             alarm=alarm,
             step_time_s=0.0,
             used=frozenset() if used is None else _indices(used),

@@ -20,7 +20,7 @@ lazy evaluation, no evidence cleared. ``E_S* > chi2_{1-alpha}(dof)`` means no
 subset of p - s sensors is consistent: more than s are attacked (or the model
 is wrong), so the estimate is raised as an alarm (degraded, not to be trusted).
 Output: S*'s fix at the current step and its covariance ``(H^T W H)^-1``;
-attacked: sensors outside S* whose own residual fails ``chi2_{1, 1-alpha}``.
+attacked: sensors outside S* that fail the tests of ``attribution.py`` (family-wise alpha).
 Defaults: T = 10, alpha = 0.01; refuses more than ``max_subsets`` subsets.
 """
 
@@ -107,8 +107,7 @@ class L0Exact(Estimator):
         self.pos = best.pos[j].copy()
         cov = inv_small(best.info[j])
         use = self.masks[j] & ~np.isnan(z)
-        attacked = self._flag_resid(best.raw[j], best.jac[j], cov) & (~use | alarm)
-        return self._estimate(t_s, self.pos, cov=cov, attacked=attacked, alarm=alarm, used=use)
+        return self._estimate(t_s, self.pos, cov=cov, alarm=alarm, used=use)
 
 
 def _merge(a: GnResult, b: GnResult, take_b: np.ndarray) -> GnResult:

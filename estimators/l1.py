@@ -28,8 +28,8 @@ least squares (debiasing: the l1 solution alone is noisier than least squares
 on clean data). If fewer than s were set aside and a kept reading fails on its
 deleted residual, it is set aside too and the rest refitted once more. The
 kept readings must pass ``cost <= chi2.ppf(1 - alpha, kept - d)``, else alarm
-(more than s attacked). Attacked: set-aside readings that fail the per-sensor
-test against the refit.
+(more than s attacked). Attacked: set-aside readings that fail the tests of
+``attribution.py`` against the refit (family-wise alpha).
 
 RECON: IRLS instead of an LP/SOCP solver (same minimiser; faster, no extra
 dependency), the per-step snapshot window, the decode threshold and the
@@ -104,7 +104,5 @@ class L1Decoder(Estimator):
             cov = inv_small(fit.info[0])
         pos, cost = fit.pos[0], float(fit.cost[0])
         alarm = bool(use.sum() < model.min_sensors or cost > self.chi(int(use.sum()) - model.d))
-        flagged = self._flag_resid(fit.raw[0], fit.jac[0], cov)
-        bad = flagged if alarm else flagged & ~use
         self.pos = pos
-        return self._estimate(t_s, pos, cov=cov, attacked=bad, alarm=alarm, used=use)
+        return self._estimate(t_s, pos, cov=cov, alarm=alarm, used=use)

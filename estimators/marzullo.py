@@ -17,7 +17,8 @@ smallest interval holding all such points (Marzullo's fusion interval); the
 estimate is its midpoint and its width the guaranteed error bound. No point is
 covered by ``m - f`` intervals: more than f sensors lie, alarm, and the
 previous estimate is kept (degraded). Attacked: sensors whose interval does not
-meet the fused interval. Missing readings shrink m. Defaults: alpha = 0.01.
+meet the fused interval and that fail the tests of ``attribution.py``. Missing
+readings shrink m. Defaults: alpha = 0.01.
 """
 
 from __future__ import annotations
@@ -60,7 +61,7 @@ class Marzullo(Estimator):
         self.pos = np.array([(a + b) / 2.0])
         cov = np.array([[((b - a) / 2.0) ** 2 / self.gate1 + 1e-12]])  # the half-width as k standard deviations
         meets = avail & (hi >= a) & (lo <= b)
-        return self._estimate(t_s, self.pos, cov=cov, attacked=avail & ~meets, used=meets)
+        return self._estimate(t_s, self.pos, cov=cov, used=meets)
 
 
 def fusion_interval(lo: np.ndarray, hi: np.ndarray, need: int) -> tuple[float, float] | None:

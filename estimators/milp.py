@@ -20,7 +20,7 @@ current step's ``g + dx`` is the estimate; the guess is moved there and the
 program solved again (``passes``), because the ranges are not linear.
 Infeasible: no set of s sensors explains the readings; the estimate is raised
 as an alarm (degraded) at the last guess. Attacked: sensors with ``b_i = 1``
-whose own residual fails the chi2_1 test. A missing reading drops its rows.
+that fail the tests of ``attribution.py``. A missing reading drops its rows.
 RECON: the window with free per-step positions (no dynamics), the objective's
 noise term and the re-linearisation are ours. Defaults: T = 5, k = 3, M = 100 m (capped at twice the largest
 innovation in the window plus 1 m, which keeps the relaxation tight), one pass.
@@ -81,10 +81,9 @@ class Milp(Estimator):
         if result is None:
             return self._estimate(t_s, self.pos, alarm=True, used=avail)
         self.pos = guess
-        hx, jac = model.h_jac(guess, known)
+        jac = model.jac(guess, known)
         cov = _covariance(jac[avail & ~b], model.sigma_m[avail & ~b], model.d)
-        attacked = b & self._flag_resid(z - hx, jac, cov)
-        return self._estimate(t_s, self.pos, cov=cov, attacked=attacked, used=avail & ~b)
+        return self._estimate(t_s, self.pos, cov=cov, used=avail & ~b)
 
     def _solve(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The program over the window; (current step's dx, attacked mask), or None if infeasible."""

@@ -31,7 +31,7 @@ Each step:
    drop the worst failing reading of I and refit, while I keeps more than
    available - s readings (at most s + 1 rounds). The kept set must pass
    ``cost <= chi2.ppf(1 - alpha, |I| - d)`` as a whole, else alarm; then update a constant-velocity EKF with the
-   readings of I only. Attacked: readings outside I that fail the test.
+   readings of I only. Attacked: readings outside I that fail the tests of ``attribution.py``.
 5. Persistent small attacks (RECON, our addition, ``drift.py``): each sensor's
    innovation against the EKF prediction, normalised, goes into a window of T
    steps; a sensor whose window mean m over n readings fails
@@ -163,7 +163,6 @@ class Rarse(Estimator):
         if kept is None:
             return self._coast(t_s, z, known)
         use, pos, cov, t = kept
-        attacked = avail & ~use & ((t > gate) | drifting)
         if not self.started:
             P0 = self.P0.copy()
             P0[:d, :d] = cov + 1e-6 * np.eye(d)
@@ -173,11 +172,11 @@ class Rarse(Estimator):
             self.ekf.masks = use[None, :]
             self.ekf.update(z, known, at_pred)
         x, P = self.ekf.x[0], self.ekf.P[0]
-        return self._estimate(t_s, x[:d], x[d:], P, attacked, False, use)
+        return self._estimate(t_s, x[:d], x[d:], P, False, use)
 
     def _coast(self, t_s: float, z: np.ndarray, known: Known) -> Estimate:
         if not self.started:
             return self._estimate(t_s, None, alarm=True)
         d = self.model.d
         x, P = self.ekf.x[0], self.ekf.P[0]
-        return self._estimate(t_s, x[:d], x[d:], P, self._flag(z, x[:d], P[:d, :d], known), True, None)
+        return self._estimate(t_s, x[:d], x[d:], P, True)

@@ -43,8 +43,8 @@ Equations, all RECON (notes §3; the paper could not be read):
   test is kept out of Omega (if at most pa sensors fail). A slowly drifting
   coordinated spoof of a few sigma passes every single-step test; the window
   sees it.
-- Attacked: sensors outside Omega that fail the per-sensor chi2_1 test against
-  the updated state, or the window test.
+- Attacked: named by ``attribution.py`` as for every secure estimator
+  (outside Omega, failing the step or window test at a family-wise alpha).
 Defaults: alpha = 0.01, q = 0.5 m/s^2, reinit_after = 5, T = 10.
 """
 
@@ -98,7 +98,7 @@ class Recap(Estimator):
             self.started = self._init(z, known)
             if not self.started:
                 return self._estimate(t_s, None, alarm=True)
-            return self._output(t_s, z, known, self.omega, False)
+            return self._output(t_s, self.omega)
         self.ekf.predict(dt_s)
         x_pred, P_pred = self.ekf.x[0], self.ekf.P[0]
         # h and its Jacobian at the prediction serve the detector, the subset fits' first step and the update.
@@ -116,14 +116,14 @@ class Recap(Estimator):
         if alarm:
             self.alarms_in_row += 1
             if self.alarms_in_row >= self.reinit_after and self._init(z, known):
-                return self._output(t_s, z, known, self.omega, False)
+                return self._output(t_s, self.omega)
             x, P = self.ekf.x[0], self.ekf.P[0]
-            return self._estimate(t_s, x[:d], x[d:], P, self._flag(z, x[:d], P[:d, :d], known), True, None)
+            return self._estimate(t_s, x[:d], x[d:], P, True)
         self.alarms_in_row = 0
         self.omega = omega
         self.ekf.masks = omega[None, :]
         self.ekf.update(z, known, at_pred)
-        return self._output(t_s, z, known, omega, False, drifting)
+        return self._output(t_s, omega)
 
     def _search(
         self,
@@ -149,19 +149,7 @@ class Recap(Estimator):
         choice = choose(stat - 1e-9 * same, fits.n_used, fits.n_used, valid, self.chi)
         return self.masks[choice.index] & ~np.isnan(z), choice.alarm
 
-    def _output(
-        self,
-        t_s: float,
-        z: np.ndarray,
-        known: Known,
-        omega: np.ndarray,
-        alarm: bool,
-        drifting: np.ndarray | None = None,
-    ) -> Estimate:
+    def _output(self, t_s: float, omega: np.ndarray) -> Estimate:
         d = self.model.d
         x, P = self.ekf.x[0], self.ekf.P[0]
-        flagged = self._flag(z, x[:d], P[:d, :d], known)
-        if drifting is not None:
-            flagged |= drifting & ~np.isnan(z)
-        attacked = flagged & ~omega
-        return self._estimate(t_s, x[:d], x[d:], P, attacked, alarm, omega)
+        return self._estimate(t_s, x[:d], x[d:], P, False, omega)

@@ -1,6 +1,6 @@
 """``secekf``: SecEKF, the EKF half of SecSens, as a bank of subset EKFs.
 
-Paper: A. Alanwar, H. Etzlinger, F. Ferraz, J. Hespanha, M. Srivastava,
+Paper: A. Alanwar, B. Etzlinger, H. Ferraz, J. Hespanha, M. Srivastava,
 "SecSens: Secure State Estimation with Application to Localization and Time
 Synchronization", arXiv 1801.07132. Only its abstract could be read: two secure
 nonlinear estimators (EKF-based and optimisation-based) for noisy systems,
@@ -28,10 +28,10 @@ paper's algorithm box was not readable):
    CUSUM of each step's standardised NIS, ``subsets.Evidence``, never cleared),
    then the smallest E_j. No consistent filter:
    alarm (more than s attacked), output the least-bad filter.
-4. Attacked sensors: those outside the winner's subset whose own normalised
-   residual ``(z_i - h_i(x))^2 / (sigma_i^2 + H_i P H_i^T)`` exceeds
-   ``chi2.ppf(1 - alpha, 1)`` (the complement always has s members, even when
-   fewer are attacked).
+4. Attacked sensors: named by ``attribution.py`` as for every secure
+   estimator: outside the winner's subset and failing the per-reading step or
+   window test at a family-wise level alpha (the complement always has s
+   members, even when fewer are attacked).
 5. Hygiene: inconsistent filters (they fed on attacked data) are re-seeded from
    the winner with an inflated covariance and their window cleared, so they can
    win again when the attack moves; their accumulated evidence stays, so a
@@ -103,13 +103,10 @@ class SecEkf(Estimator):
         j = choice.index
         x, P = self.bank.x[j].copy(), self.bank.P[j].copy()
         use = self.masks[j] & avail
-        attacked = self._flag(z, x[:d], P[:d, :d], known) & ~use
-        if choice.alarm:
-            attacked = self._flag(z, x[:d], P[:d, :d], known)
-        else:
+        if not choice.alarm:
             stale = ~choice.passing | ~finite
             if stale.any():
                 self.bank.seed(x, self.reseed_inflation * P, stale)
                 self.nis_buf[:, stale] = 0.0
                 self.dof_buf[:, stale] = 0
-        return self._estimate(t_s, x[:d], x[d:], P, attacked, choice.alarm, use)
+        return self._estimate(t_s, x[:d], x[d:], P, choice.alarm, use)

@@ -17,7 +17,7 @@ box), then sum the minimised costs over a window of the last T steps:
 clean. Accepted: ``E_S <= chi2.ppf(1 - alpha, dof)``; winner: most readings,
 then smallest E_S (the l0 decoder: fewest sensors declared attacked). None
 accepted: alarm. Attacked sensors: outside the winner and failing the
-per-sensor chi2_1 test. The winner's snapshot fix and its covariance
+tests of ``attribution.py`` (family-wise alpha). The winner's snapshot fix and its covariance
 ``(H^T W H)^-1`` then update a constant-velocity Kalman filter (position as a
 direct measurement), which supplies velocity and smooths the output.
 
@@ -82,12 +82,11 @@ class SecOpt(Estimator):
             return self._coast(t_s, choice.alarm)
         pos, cov = fits.pos[j], inv_small(fits.info[j])
         self._fuse(pos, cov)
-        attacked = self._flag_resid(fits.raw[j], fits.jac[j], cov) & (~use | choice.alarm)
         # Subsets that were inconsistent over the window are judged on fresh data after a change
         # (their accumulated evidence stays).
         self.cost_buf[:, ~choice.passing & ~choice.alarm] = 0.0
         self.dof_buf[:, ~choice.passing & ~choice.alarm] = 0
-        return self._estimate(t_s, self.x[:d], self.x[d:], self.P, attacked, choice.alarm, use)
+        return self._estimate(t_s, self.x[:d], self.x[d:], self.P, choice.alarm, use)
 
     def _fuse(self, pos: np.ndarray, cov: np.ndarray) -> None:
         d = self.model.d
@@ -107,4 +106,4 @@ class SecOpt(Estimator):
         if self.x is None:
             return self._estimate(t_s, None, alarm=alarm)
         d = self.model.d
-        return self._estimate(t_s, self.x[:d], self.x[d:], self.P, None, alarm, None)
+        return self._estimate(t_s, self.x[:d], self.x[d:], self.P, alarm)

@@ -20,7 +20,7 @@ from estimators.models import AnchorRanges2D
 
 ONSET = 20  # attack starts at this step (2 s of clean hover first)
 SETTLE = 12  # steps after onset before judging (longer than the default windows)
-STEPS = 60
+STEPS = 100  # 68 judged steps: an alarm share is measured, not read off a handful
 PROPS = settings(max_examples=6, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
 
 pair = st.lists(st.integers(0, 7), min_size=2, max_size=2, unique=True)
