@@ -20,13 +20,15 @@ from estimators.models import (
     ScalarGroup,
     TwoVehicleRanges,
 )
+from estimators.poly import Polyhedral
 from estimators.rarse import Rarse
 from estimators.recap import Recap
 from estimators.registry import create, names, register
 from estimators.secekf import SecEkf
 from estimators.secopt import SecOpt
 
-for _cls in (LeastSquares, ExtendedKalman, L1Decoder, SecEkf, SecOpt, Recap, Rarse, L0Exact, Milp, Marzullo):
+_ALL = (LeastSquares, ExtendedKalman, L1Decoder, SecEkf, SecOpt, Recap, Rarse, Polyhedral, L0Exact, Milp, Marzullo)
+for _cls in _ALL:
     register(_cls)
 
 __all__ = [

@@ -54,6 +54,8 @@ from scipy.stats import chi2
 from estimators.bank import Chi2Table, cv_matrices, gauss_newton, inv_small, solve_small
 from estimators.models import Known, MeasurementModel
 
+MANOEUVRE_MPS2 = 5.0  # white-noise acceleration of the trail: braking or turning hard, as a multirotor can
+
 
 def _agree_gate(d: int) -> float:
     """Two fits name one position when each lies inside the other's 3-sigma ellipse (99.7 %)."""
@@ -117,10 +119,13 @@ class Trail:
     A constant-velocity Kalman filter on position fixes: set from every valid
     estimate, predicted across the alarm, and corrected by each step's chosen
     explanation, so the explanation a step picks has to continue the last one
-    (a coincidental consistent subset metres away does not).
+    (a coincidental consistent subset metres away does not). Its process noise
+    is a manoeuvre, not the estimators' tuning: a multirotor that brakes hard
+    (``MANOEUVRE_MPS2``) must stay inside the prior, or a surprised filter
+    would look like liars beyond tolerance.
     """
 
-    def __init__(self, d: int, q_mps2: float, vel_std_mps: float) -> None:
+    def __init__(self, d: int, vel_std_mps: float, q_mps2: float = MANOEUVRE_MPS2) -> None:
         self.d, self.q_mps2, self.vel_var = d, q_mps2, vel_std_mps**2
         self.x: np.ndarray | None = None
         self.P = np.eye(2 * d)
@@ -144,6 +149,14 @@ class Trail:
         self.x, self.P = f @ self.x, f @ self.P @ f.T + q
         return self.x[: self.d], self.P[: self.d, : self.d]
 
+    def distance(self, pos: np.ndarray, cov: np.ndarray) -> float:
+        """Squared Mahalanobis distance of a position (covariance ``cov``) from the predicted trail."""
+        if self.x is None:
+            return 0.0
+        d = self.d
+        gap = pos - self.x[:d]
+        return float(gap @ np.linalg.solve(self.P[:d, :d] + cov + 1e-12 * np.eye(d), gap))
+
     def correct(self, pos: np.ndarray, cov: np.ndarray) -> None:
         """Kalman update with a position fix (``H = [I 0]``)."""
         if self.x is None:
@@ -164,6 +177,50 @@ class Explanation:
     cov: np.ndarray | None
 
 
+@dataclass(frozen=True, eq=False)
+class Subsets:
+    """The subsets that leave out k readings and agree (with each other and, given one, with the prior)."""
+
+    masks: np.ndarray  # (J, p) the hypotheses of this level
+    passing: np.ndarray  # (J,) bool
+    stat: np.ndarray  # (J,) weighted residual sum (+ prior term)
+    pos: np.ndarray  # (J, d) fits
+    cov: np.ndarray  # (J, d, d) their covariances
+
+    def best(self) -> int:
+        """Index of the passing subset with the smallest statistic (call only when one passes)."""
+        idx = np.flatnonzero(self.passing)
+        return int(idx[np.argmin(self.stat[idx])])
+
+
+def agreeing(
+    model: MeasurementModel,
+    z: np.ndarray,
+    k: int,
+    chi: Chi2Table,
+    start: np.ndarray,
+    known: Known,
+    prior: tuple[np.ndarray, np.ndarray] | None = None,
+    n_iter: int = 6,
+) -> Subsets:
+    """Fit every subset leaving out k readings; a subset passes when its statistic is under ``chi``.
+
+    With a ``prior`` (position, covariance: the :class:`Trail`), a subset's fit
+    must also agree with it: the statistic gains ``(x_S - x0)^T (P0 + C_S)^-1
+    (x_S - x0)`` and d degrees of freedom, as in ReCaP's subset score.
+    """
+    masks = model.honest_subsets(k)
+    fits = gauss_newton(model, z, masks, start if prior is None else prior[0], known, n_iter)
+    stat, dof = fits.cost, fits.n_used - model.d
+    covs = inv_small(fits.info)
+    if prior is not None:
+        gap = fits.pos - prior[0]
+        stat = stat + np.einsum("jd,jd->j", gap, solve_small(prior[1] + covs, gap))
+        dof = dof + model.d
+    passing = (fits.n_used >= model.min_sensors) & (stat <= chi(dof))
+    return Subsets(masks, passing, stat, fits.pos, covs)
+
+
 def explain(
     model: MeasurementModel,
     z: np.ndarray,
@@ -175,36 +232,20 @@ def explain(
     n_iter: int = 6,
     budget: int = 2000,
 ) -> Explanation:
-    """Search k = s + 1, s + 2, ... liars for the smallest k that explains ``z`` (module docstring).
-
-    With a ``prior`` (position, covariance: the :class:`Trail`), a subset's fit
-    must also agree with it: the statistic gains ``(x_S - x0)^T (P0 + C_S)^-1
-    (x_S - x0)`` and d degrees of freedom, as in ReCaP's subset score.
-    """
+    """Search k = s + 1, s + 2, ... liars for the smallest k that explains ``z`` (module docstring)."""
     p, d = model.p, model.d
     avail = ~np.isnan(z)
-    nothing = Explanation(0, np.zeros(p, dtype=bool), None, None)
     for k in range(s + 1, p):
-        if int(avail.sum()) - k < model.min_sensors + 1:
+        if int(avail.sum()) - k < model.min_sensors + 1 or model.honest_subsets(k).shape[0] > budget:
             break
-        masks = model.honest_subsets(k)
-        if masks.shape[0] > budget:
-            break
-        fits = gauss_newton(model, z, masks, start if prior is None else prior[0], known, n_iter)
-        stat, dof = fits.cost, fits.n_used - d
-        covs = inv_small(fits.info)
-        if prior is not None:
-            gap = fits.pos - prior[0]
-            stat = stat + np.einsum("jd,jd->j", gap, solve_small(prior[1] + covs, gap))
-            dof = dof + d
-        passing = (fits.n_used >= model.min_sensors + 1) & (stat <= chi(dof))
-        if not passing.any():
+        level = agreeing(model, z, k, chi, start, known, prior, n_iter)
+        if not level.passing.any():
             continue
-        idx = np.flatnonzero(passing)
-        named = avail & ~np.any(masks[idx] & avail, axis=0)
-        best = int(idx[np.argmin(stat[idx])])
-        spread = fits.pos[idx] - fits.pos[best]
+        named = avail & ~np.any(level.masks[level.passing] & avail, axis=0)
+        best = level.best()
+        spread = level.pos[level.passing] - level.pos[best]
+        cov = level.cov[best]
         # The explanations agree on one position when each lies inside the best one's 3-sigma ellipse.
-        agree = bool(np.all(np.einsum("jd,de,je->j", spread, np.linalg.pinv(covs[best]), spread) <= _agree_gate(d)))
-        return Explanation(k, named, fits.pos[best] if agree else None, covs[best] if agree else None)
-    return nothing
+        agree = bool(np.all(np.einsum("jd,de,je->j", spread, np.linalg.pinv(cov), spread) <= _agree_gate(d)))
+        return Explanation(k, named, level.pos[best] if agree else None, cov if agree else None)
+    return Explanation(0, np.zeros(p, dtype=bool), None, None)

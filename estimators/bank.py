@@ -217,15 +217,16 @@ def _solve_general(m: np.ndarray, rhs: np.ndarray) -> np.ndarray:
 
 
 @lru_cache(maxsize=256)
-def cv_matrices(d: int, dt_s: float, q_mps2: float) -> tuple[np.ndarray, np.ndarray]:
-    """Constant-velocity model for state ``[pos(d), vel(d)]``: F and Q = q^2 G G^T (white acceleration).
+def cv_matrices(d: int, dt_s: float, q_mps2: float | tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Constant-velocity model for state ``[pos(d), vel(d)]``: F and Q = G diag(q^2) G^T (white acceleration;
+    ``q_mps2`` one value for every axis or one per axis).
 
-    Cached: the step interval repeats (10 Hz streams), so the matrices are built once.
+    Cached: the step interval repeats (10 Hz streams), so the matrices are built once (hence a tuple).
     """
     eye = np.eye(d)
     f = np.block([[eye, dt_s * eye], [np.zeros((d, d)), eye]])
     g = np.vstack([0.5 * dt_s**2 * eye, dt_s * eye])
-    q = q_mps2**2 * (g @ g.T)
+    q = (g * np.broadcast_to(np.asarray(q_mps2, dtype=float) ** 2, (d,))) @ g.T
     f.setflags(write=False)
     q.setflags(write=False)
     return f, q
@@ -234,7 +235,7 @@ def cv_matrices(d: int, dt_s: float, q_mps2: float) -> tuple[np.ndarray, np.ndar
 class EkfBank:
     """J constant-velocity EKFs, filter j reading only the sensors of ``masks[j]``."""
 
-    def __init__(self, model: MeasurementModel, masks: np.ndarray, q_mps2: float) -> None:
+    def __init__(self, model: MeasurementModel, masks: np.ndarray, q_mps2: float | tuple[float, ...]) -> None:
         self.model = model
         self.masks = np.asarray(masks, dtype=bool)
         self.q_mps2 = q_mps2

@@ -15,10 +15,9 @@ from typing import ClassVar
 
 import numpy as np
 
-from estimators.attribution import Namer, Trail, explain
+from estimators.attribution import Namer, Trail, agreeing, explain
 from estimators.bank import Chi2Table, cv_matrices, gauss_newton, inv_small
 from estimators.models import Known, MeasurementModel
-from estimators.subsets import secure_snapshot
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,6 +84,7 @@ class Estimator:
         self.chi_confirm = Chi2Table(alpha / 10.0, 4 * model.p)
         self.gate1 = float(self.chi(1))  # one reading's test at level alpha (the detectors' own decisions)
         self.q_mps2 = q_mps2
+        self.q_axes = model.axis_noise(q_mps2)  # per axis: a model may let one axis move faster (the climb)
         self.p0_pos_m = p0_pos_m
         self.p0_vel_mps = p0_vel_mps
         self.n_iter = n_iter
@@ -101,7 +101,7 @@ class Estimator:
         """Forget the past. ``x0``: position (d) or position+velocity (2d); None = bootstrap from data."""
         self.t_s = None if x0 is None else float(t_s)
         self.namer = Namer(self.model, self.alpha)  # naming attacked readings at a family-wise alpha
-        self.trail = Trail(self.model.d, self.q_mps2, self.p0_vel_mps)  # last known position, for explanations
+        self.trail = Trail(self.model.d, self.p0_vel_mps)  # last known position, for explanations
         x = None
         if x0 is not None:
             x0 = np.asarray(x0, dtype=float).reshape(-1)
@@ -134,16 +134,23 @@ class Estimator:
         outside[list(est.used)] = False
         named = self.namer.name(z, est.position_m, cov, outside, known)
         prior = self.trail.predict(dt_s)
-        if est.alarm and int((~np.isnan(z)).sum()) >= self.model.min_sensors:
-            snap = secure_snapshot(self.model, z, self.s, self.chi_confirm, est.position_m, known)
-            if not snap.alarm:
-                # Some p - s readings agree (a surprised filter, not liars beyond tolerance): accuse only
-                # readings that step's fit cannot explain.
-                named = self.namer.name_jumps(z, snap.pos, snap.cov, known) & ~snap.use
+        # An estimate that leaves the trail is judged like an alarm: beyond tolerance an estimator's own
+        # tests can accept a coincidental consistent subset far from where the vehicle is.
+        off_trail = prior is not None and self.trail.distance(est.position_m, cov) > self.chi_confirm(d)
+        if (est.alarm or off_trail) and int((~np.isnan(z)).sum()) >= self.model.min_sensors:
+            # Confirmed only if no p - s readings agree on a position where the vehicle can be (the trail).
+            level = agreeing(self.model, z, self.s, self.chi_confirm, est.position_m, known, prior, self.n_iter)
+            if level.passing.any():
+                if est.alarm:
+                    # Some do (a surprised filter, not liars beyond tolerance): accuse only readings their
+                    # fit cannot explain.
+                    j = level.best()
+                    named = self.namer.name_jumps(z, level.pos[j], level.cov[j], known) & ~level.masks[j]
             else:
                 found = explain(self.model, z, self.s, self.chi, est.position_m, known, prior, self.n_iter)
                 named = found.named
                 object.__setattr__(est, "valid", False)
+                object.__setattr__(est, "alarm", True)  # confirmed beyond tolerance, whoever noticed first
                 if found.pos is not None and found.cov is not None:
                     object.__setattr__(est, "position_m", found.pos)
                     self.trail.correct(found.pos, found.cov)
@@ -163,13 +170,13 @@ class Estimator:
         return np.diag([self.p0_pos_m**2] * d + [self.p0_vel_mps**2] * d)
 
     def _cv(self, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
-        return cv_matrices(self.model.d, dt_s, self.q_mps2)
+        return cv_matrices(self.model.d, dt_s, self.q_axes)
 
     def _snapshot_fix(
         self, z: np.ndarray, use: np.ndarray, start: np.ndarray | None, known: Known, n_iter: int | None = None
     ) -> tuple[np.ndarray, np.ndarray, float]:
         """Weighted LS fix on the sensors in ``use``: (position, covariance, cost)."""
-        begin = self.model.initial_pos() if start is None else start
+        begin = self.model.initial_guess(z, known) if start is None else start
         res = gauss_newton(self.model, z, use[None, :], begin, known, self.n_iter if n_iter is None else n_iter)
         cov = inv_small(res.info[0])
         return res.pos[0], cov, float(res.cost[0])

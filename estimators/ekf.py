@@ -26,7 +26,7 @@ class ExtendedKalman(Estimator):
     name = "ekf"
 
     def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:
-        self.bank = EkfBank(self.model, np.ones((1, self.model.p), dtype=bool), self.q_mps2)
+        self.bank = EkfBank(self.model, np.ones((1, self.model.p), dtype=bool), self.q_axes)
         self.started = x0 is not None
         self.P0 = P0
         if x0 is not None:

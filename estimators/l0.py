@@ -80,7 +80,7 @@ class L0Exact(Estimator):
 
     def _step(self, t_s: float, dt_s: float, z: np.ndarray, known: Known) -> Estimate:
         model, d = self.model, self.model.d
-        starts = self.starts if self.pos is None else [self.pos, *self.starts]
+        starts = [model.initial_guess(z, known), *self.starts] if self.pos is None else [self.pos, *self.starts]
         if d == 1:  # a scalar group: every reading is a start, so the global minimum is always among them
             starts = [*starts, *(np.array([v]) for v in z[~np.isnan(z)])]
         best = None

@@ -80,7 +80,7 @@ class L1Decoder(Estimator):
         avail = ~np.isnan(z)
         if avail.sum() < model.min_sensors:
             return self._estimate(t_s, self.pos, alarm=self.pos is None)
-        start = model.initial_pos() if self.pos is None else self.pos
+        start = model.initial_guess(z, known) if self.pos is None else self.pos
         # IRLS converges linearly: a cold start (far from the minimiser) gets fifteen times the budget.
         pos = self._irls(z, avail, start, known, self.n_irls if self.pos is not None else 15 * self.n_irls)
         at_pos = model.h_jac(pos, known)  # also the refit's first evaluation

@@ -121,6 +121,14 @@ class MeasurementModel:
         """Starting point for Gauss-Newton when nothing better is known."""
         return np.zeros(self.d)
 
+    def initial_guess(self, z: np.ndarray, known: Known = None) -> np.ndarray:
+        """Starting point for a cold start given this step's readings (default: :meth:`initial_pos`)."""
+        return self.initial_pos()
+
+    def axis_noise(self, q_mps2: float) -> tuple[float, ...]:
+        """The white-acceleration std of the constant-velocity model per axis (default: ``q_mps2`` on each)."""
+        return (float(q_mps2),) * self.d
+
     def clip(self, pos: np.ndarray) -> np.ndarray:
         """Project onto the admissible box (rejects mirror solutions outside the area)."""
         if self.bounds_m is None:
@@ -304,6 +312,85 @@ class AnchorRanges3D(MeasurementModel):
     def initial_pos(self) -> np.ndarray:
         c = self.anchors_ned_m.mean(axis=0)
         return c - np.array([0.0, 0.0, self.start_above_m])
+
+
+@dataclass(frozen=True, eq=False)
+class AnchorRangesHeight(AnchorRanges3D):
+    """UWB ranges to p anchors and the downward laser: full NED position estimated, the laser one more reading.
+
+    Readings: ``r_i = ||pos - a_i||`` for the p anchors, then the laser's
+    distance to flat ground, ``ground_down_m - pos_down`` (a level vehicle; the
+    laser's std should allow for the tilt, ``scenario_models.anchor_model``
+    does). In the 2-D model the laser's height is a known input, so a spoofed
+    laser moves every range model with no test able to catch it; here it is a
+    sensor like the ranges, which a secure estimator can outvote and name.
+    ``max_correctable`` counts the laser: (p + 1 - 4) // 2 (2 for 8 anchors).
+    """
+
+    ground_down_m: float = 0.0
+    # A take-off climbs at ~1.5 m/s within half a second: the vertical axis moves faster than a hover's q.
+    vertical_q_mps2: float = 3.0
+
+    @classmethod
+    def build_with_laser(
+        cls,
+        anchors_ned_m: np.ndarray | list[list[float]],
+        sigma_m: float | np.ndarray = 0.1,
+        laser_sigma_m: float = 0.03,
+        sensor_ids: tuple[int, ...] = (),
+        ground_down_m: float = 0.0,
+        margin_frac: float = 0.2,
+        ceiling_m: float = 30.0,
+    ) -> AnchorRangesHeight:
+        base = AnchorRanges3D.build(anchors_ned_m, sigma_m, margin_frac=margin_frac, ceiling_m=ceiling_m)
+        lo, hi = base.bounds_m if base.bounds_m is not None else (None, None)
+        # The laser tells above the anchors from below them (on the ground, before take-off), so the box
+        # reaches down to the ground instead of stopping at the anchor plane as ranges alone must.
+        return cls(
+            sigma_m=np.append(base.sigma_m, float(laser_sigma_m)),
+            sensor_ids=tuple(sensor_ids),
+            bounds_m=None if lo is None or hi is None else (lo, np.array([hi[0], hi[1], ground_down_m])),
+            anchors_ned_m=base.anchors_ned_m,
+            start_above_m=base.start_above_m,
+            ground_down_m=float(ground_down_m),
+        )
+
+    @property
+    def n_anchors(self) -> int:
+        return int(self.anchors_ned_m.shape[0])
+
+    def initial_pos(self) -> np.ndarray:
+        """On the ground amid the anchors: where a vehicle starts, and where its laser has no reading yet
+        (below its minimum range), so ranges alone must pick the ground-side mirror."""
+        c = self.anchors_ned_m.mean(axis=0)
+        return np.array([c[0], c[1], self.ground_down_m - 0.1])
+
+    def initial_guess(self, z: np.ndarray, known: Known = None) -> np.ndarray:
+        """Amid the anchors at the laser's height when it has a reading (the ranges' two mirror images lie
+        either side of the anchor plane: the laser says which), else on the ground (:meth:`initial_pos`)."""
+        start = self.initial_pos()
+        laser = float(z[self.n_anchors]) if z.shape[0] > self.n_anchors else float("nan")
+        if np.isfinite(laser):
+            start[2] = self.ground_down_m - laser
+        return start
+
+    def axis_noise(self, q_mps2: float) -> tuple[float, ...]:
+        """Horizontal ``q_mps2``; vertical at least ``vertical_q_mps2`` (the filters must follow a take-off, or
+        they leave the laser out while the ranges, blind to height at the anchor plane, pick the wrong side)."""
+        return (float(q_mps2), float(q_mps2), max(float(q_mps2), self.vertical_q_mps2))
+
+    def h(self, pos: np.ndarray, known: Known = None) -> np.ndarray:
+        ranges = super().h(pos, known)
+        return np.concatenate([ranges, (self.ground_down_m - pos[..., 2])[..., None]], axis=-1)
+
+    def jac(self, pos: np.ndarray, known: Known = None) -> np.ndarray:
+        return self.h_jac(pos, known)[1]
+
+    def h_jac(self, pos: np.ndarray, known: Known = None) -> tuple[np.ndarray, np.ndarray]:
+        ranges, jac = super().h_jac(pos, known)
+        laser_row = np.broadcast_to(np.array([0.0, 0.0, -1.0]), (*pos.shape[:-1], 1, 3))
+        h = np.concatenate([ranges, (self.ground_down_m - pos[..., 2])[..., None]], axis=-1)
+        return h, np.concatenate([jac, laser_row], axis=-2)
 
 
 @dataclass(frozen=True, eq=False)

@@ -82,7 +82,7 @@ class Rarse(Estimator):
             np.put_along_axis(self.minimal, picks, True, axis=1)
 
     def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:
-        self.ekf = EkfBank(self.model, np.ones((1, self.model.p), dtype=bool), self.q_mps2)
+        self.ekf = EkfBank(self.model, np.ones((1, self.model.p), dtype=bool), self.q_axes)
         self.P0 = P0
         self.started = x0 is not None
         self.drift = InnovationWindow(self.model.p, self.window, self.gate1)
@@ -136,7 +136,7 @@ class Rarse(Estimator):
         avail = ~np.isnan(z)
         if self.started:
             self.ekf.predict(dt_s)
-        start = self.ekf.x[0, :d] if self.started else model.initial_pos()
+        start = self.ekf.x[0, :d] if self.started else model.initial_guess(z, known)
         hyps = model.minimal_fixes(z, self.minimal, known)
         if hyps is None:
             # From the prediction a clean minimal set converges in a few steps; cold starts get the full budget.

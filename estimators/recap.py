@@ -70,7 +70,7 @@ class Recap(Estimator):
 
     def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:
         self.masks = self.model.honest_subsets(self.s)
-        self.ekf = EkfBank(self.model, np.ones((1, self.model.p), dtype=bool), self.q_mps2)
+        self.ekf = EkfBank(self.model, np.ones((1, self.model.p), dtype=bool), self.q_axes)
         self.P0 = P0
         self.started = x0 is not None
         self.omega = np.ones(self.model.p, dtype=bool)

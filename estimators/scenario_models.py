@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimators.models import AnchorRanges2D, AnchorRanges3D, ScalarGroup, TwoVehicleRanges
-from secuav_common.scenario import Scenario, Vehicle, WallDistanceTarget
+from estimators.models import AnchorRanges2D, AnchorRanges3D, AnchorRangesHeight, ScalarGroup, TwoVehicleRanges
+from secuav_common.scenario import Rangefinder, Scenario, Vehicle, WallDistanceTarget
 from secuav_common.sensor_ids import anchor_sensor_id, peer_sensor_id
 
 
@@ -21,21 +21,49 @@ def _uwb_anchor_ids(scenario: Scenario, vehicle: Vehicle) -> list[int]:
     return sorted(scenario.anchor_positions(uwb.anchors))
 
 
-def anchor_model(scenario: Scenario, sysid: int = 1, dims: int = 2) -> AnchorRanges2D | AnchorRanges3D:
-    """The vehicle's UWB anchor ranges; 2-D uses the hold altitude as the default known height."""
+# The downward laser measures along the body axis; a tilt of t lengthens it by 1/cos(t) - 1 (1.5 % at 10 deg).
+# Its std in the model allows for 1 % of the height on top of its own noise.
+LASER_TILT_FRACTION = 0.01
+
+
+def anchor_model(
+    scenario: Scenario, sysid: int = 1, dims: int = 3
+) -> AnchorRanges2D | AnchorRanges3D | AnchorRangesHeight:
+    """The vehicle's UWB anchor ranges.
+
+    ``dims=3`` (default): the full NED position, and the downward laser, if the
+    vehicle has one, is one more reading (its DISTANCE_SENSOR id last in
+    ``sensor_ids``), so a spoofed laser is outvoted like a spoofed range.
+    ``dims=2``: (north, east) with the height a known input (the seed's split;
+    the hold altitude is its default), which leaves the laser outside every test.
+    """
     vehicle = scenario.vehicle(sysid)
     ids = _uwb_anchor_ids(scenario, vehicle)
     table = scenario.anchor_positions(ids)
     anchors = np.array([table[k] for k in ids])
     sigma = vehicle.sensors.uwb.noise_std_m if vehicle.sensors.uwb else 0.1
     wire = tuple(anchor_sensor_id(k) for k in ids)
+    z = _hold_z(vehicle)
     if dims == 3:
-        return AnchorRanges3D.build(anchors, sigma, sensor_ids=wire)
-    target = vehicle.target
-    z = -2.5
-    if target is not None:
-        z = target.pos_ned_m[2] if hasattr(target, "pos_ned_m") else -target.altitude_m
+        laser = down_rangefinder(vehicle)
+        if laser is None:
+            return AnchorRanges3D.build(anchors, sigma, sensor_ids=wire)
+        laser_sigma = float(np.hypot(max(laser.noise_std_m, 1e-3), LASER_TILT_FRACTION * abs(z)))
+        return AnchorRangesHeight.build_with_laser(anchors, sigma, laser_sigma, sensor_ids=(*wire, laser.id))
     return AnchorRanges2D.build(anchors, sigma, vehicle_z_ned_m=z, sensor_ids=wire)
+
+
+def down_rangefinder(vehicle: Vehicle) -> Rangefinder | None:
+    """The vehicle's first downward-looking rangefinder (its height), if any."""
+    return next((r for r in vehicle.sensors.rangefinders if r.orientation == "down"), None)
+
+
+def _hold_z(vehicle: Vehicle) -> float:
+    """NED down of the vehicle's hold target (-2.5 m without one)."""
+    target = vehicle.target
+    if target is None:
+        return -2.5
+    return target.pos_ned_m[2] if hasattr(target, "pos_ned_m") else -target.altitude_m
 
 
 def wall_group_model(scenario: Scenario, sysid: int = 1) -> ScalarGroup:
@@ -63,10 +91,4 @@ def two_vehicle_model(scenario: Scenario, first: int = 1, second: int = 2) -> Tw
     sigma = np.array([sig_uwb] * (2 * len(ids)) + [sig_peer])
     wire = tuple(anchor_sensor_id(k) for k in ids) * 2 + (peer_sensor_id(second),)
 
-    def hold_z(v: Vehicle) -> float:
-        t = v.target
-        if t is None:
-            return -2.5
-        return t.pos_ned_m[2] if hasattr(t, "pos_ned_m") else -t.altitude_m
-
-    return TwoVehicleRanges.build(anchors, sigma, (hold_z(v1), hold_z(v2)), sensor_ids=wire)
+    return TwoVehicleRanges.build(anchors, sigma, (_hold_z(v1), _hold_z(v2)), sensor_ids=wire)

@@ -61,7 +61,7 @@ class SecEkf(Estimator):
 
     def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:
         self.masks = self.model.honest_subsets(self.s)
-        self.bank = EkfBank(self.model, self.masks, self.q_mps2)
+        self.bank = EkfBank(self.model, self.masks, self.q_axes)
         n_sub = self.masks.shape[0]
         self.nis_buf = np.zeros((self.window, n_sub))
         self.dof_buf = np.zeros((self.window, n_sub), dtype=int)

@@ -66,7 +66,7 @@ class SecOpt(Estimator):
             f, q = self._cv(dt_s)
             self.x = f @ self.x
             self.P = f @ self.P @ f.T + q
-        start = model.initial_pos() if self.x is None else self.x[:d]
+        start = model.initial_guess(z, known) if self.x is None else self.x[:d]
         # Warm start at the prediction: three steps suffice for a clean subset (attacked ones fail anyway).
         fits = gauss_newton(model, z, self.masks, start, known, self.n_iter if self.x is None else 3)
         slot = self.k % self.window

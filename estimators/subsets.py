@@ -108,7 +108,7 @@ def secure_snapshot(
     (readings used - d) dof when the subset is clean.
     """
     masks = model.honest_subsets(s)
-    fits = gauss_newton(model, z, masks, model.initial_pos() if start is None else start, known, n_iter)
+    fits = gauss_newton(model, z, masks, model.initial_guess(z, known) if start is None else start, known, n_iter)
     dof = fits.n_used - model.d
     choice = choose(fits.cost, dof, fits.n_used, fits.n_used >= model.min_sensors, chi)
     j = choice.index

@@ -59,6 +59,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=None, help="seconds per trial (default: the scenario's)")
     p.add_argument("--leg", choices=["hover", "moving"], default="hover", help="hold the target or swing about it")
     p.add_argument("--jobs", type=int, default=1, help="trials in parallel (processes)")
+    p.add_argument(
+        "--dims",
+        type=int,
+        choices=[2, 3],
+        default=3,
+        help="test case 1: 3 = full position, the downward laser one more reading; 2 = its height taken as known",
+    )
     p.add_argument("--out", required=True, type=Path)
     p.add_argument(
         "--tlog",
@@ -89,8 +96,9 @@ def _check_scenario(scenario: Scenario, source: str) -> None:
         raise InputError(source, "vehicles[1].sensors.uwb.anchors", None, reason)
 
 
-def _trial(args: tuple[Scenario, Profile | None, list[str], int, float, str]) -> TrialResult:
-    return run_trial(*args)  # type: ignore[arg-type]
+def _trial(args: tuple[Scenario, Profile | None, list[str], int, float, str, int]) -> TrialResult:
+    scenario, profile, names, seed, duration_s, leg, dims = args
+    return run_trial(scenario, profile, names, seed, duration_s, leg, dims=dims)  # type: ignore[arg-type]
 
 
 def _terminate(signum: int, frame: object) -> None:
@@ -112,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
         profile = resolve_attack(args.attack or "none", parse_params(args.param))
         if profile is not None:
             Engine(profile, scenario=scenario)  # checks the profile's sensor ids against the scenario
-        fits = estimators.names(model_for(scenario))
+        fits = estimators.names(model_for(scenario, args.dims))
         names = fits if args.estimators is None else [n.strip() for n in args.estimators.split(",") if n.strip()]
         unknown = [n for n in names if n not in fits]
         if unknown or not names:
@@ -125,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.tlog is not None:
         return _main_tlog(args, scenario, scenario_path, profile, names)
     duration = args.duration or scenario.duration_s
-    jobs = [(scenario, profile, names, args.seed + i, duration, args.leg) for i in range(args.trials)]
+    jobs = [(scenario, profile, names, args.seed + i, duration, args.leg, args.dims) for i in range(args.trials)]
     signal.signal(signal.SIGTERM, _terminate)
     try:
         if args.jobs == 1:
@@ -147,6 +155,7 @@ def main(argv: list[str] | None = None) -> int:
         "seed": args.seed,
         "duration_s": duration,
         "leg": args.leg,
+        "dims": args.dims,
         "rate_hz": RATE_HZ,
         "test_case": "wall" if is_wall(scenario) else 2 if is_formation(scenario) else 1,
         "note": "errors: the first vehicle's horizontal position (wall case: the wall distance); "
@@ -196,7 +205,7 @@ def _main_tlog(
     except InputError as err:
         print(f"secuav-eval: {err}", file=sys.stderr)
         return 2
-    trial = evaluate(scenario, streams, engine, names, from_log=True)
+    trial = evaluate(scenario, streams, engine, names, from_log=True, dims=args.dims)
     summary = summarise([trial])
     args.out.mkdir(parents=True, exist_ok=True)
     meta = {
@@ -232,14 +241,14 @@ def _main_tlog(
     return 0
 
 
-def model_for(scenario: Scenario) -> MeasurementModel:
+def model_for(scenario: Scenario, dims: int = 3) -> MeasurementModel:
     """The measurement model the evaluation runs the estimators on (see evaluation.trial)."""
     first = scenario.vehicles[0]
     if is_wall(scenario):
         return wall_group_model(scenario, first.sysid)
     if is_formation(scenario):
         return two_vehicle_model(scenario, first.sysid, scenario.vehicles[1].sysid)
-    return anchor_model(scenario, first.sysid)
+    return anchor_model(scenario, first.sysid, dims)
 
 
 def _model_ids(scenario: Scenario) -> tuple[int, ...]:

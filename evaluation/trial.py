@@ -1,7 +1,8 @@
 """One trial: fly, attack the streams with the attack_profiles engine, run every estimator.
 
-Test case 1 (one vehicle with UWB): the 2-D anchor model, height known from the
-downward laser; error = horizontal position error. Test case 2 (two vehicles
+Test case 1 (one vehicle with UWB): the anchor model with the downward laser as
+one more reading (``anchor_model``: the height is estimated, and a spoofed laser
+is a sensor attack like any other); error = horizontal position error. Test case 2 (two vehicles
 ranging each other): the two-vehicle model; errors for the first vehicle's
 position and for the inter-vehicle range. Wall hover (seed Fig. A.5, ReCaP's
 setting; no UWB, a wall_distance target): the redundant rangefinder group as
@@ -15,13 +16,14 @@ recorded log (:func:`evaluate` with ``from_log``, streams from
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
 import estimators
 from attack_profiles import Engine
 from attack_profiles.profile import Profile
-from estimators.models import MeasurementModel
+from estimators.models import AnchorRangesHeight, MeasurementModel
 from estimators.scenario_models import anchor_model, two_vehicle_model, wall_group_model
 from evaluation.streams import Leg, VehicleStream, fly
 from secuav_common.scenario import Scenario, WallDistanceTarget
@@ -98,12 +100,22 @@ def _attacked_height(engine: Engine | None, stream: VehicleStream) -> VehicleStr
 
 
 def run_trial(
-    scenario: Scenario, profile: Profile | None, names: list[str], seed: int, duration_s: float, leg: Leg
+    scenario: Scenario,
+    profile: Profile | None,
+    names: list[str],
+    seed: int,
+    duration_s: float,
+    leg: Leg,
+    params: dict[str, Any] | None = None,
+    dims: int = 3,
 ) -> TrialResult:
-    """Fly the scenario headless (seeded), attack its streams offline, run the estimators."""
+    """Fly the scenario headless (seeded), attack its streams offline, run the estimators (with ``params``).
+
+    ``dims`` picks test case 1's model (``anchor_model``): 3 estimates the height with the laser as a
+    reading, 2 takes the laser's height as known (the seed's split)."""
     streams = fly(scenario, seed, duration_s, RATE_HZ, leg)
     engine = None if profile is None else Engine(profile, seed=seed, scenario=scenario)
-    return evaluate(scenario, streams, engine, names)
+    return evaluate(scenario, streams, engine, names, params=params, dims=dims)
 
 
 def evaluate(
@@ -113,6 +125,8 @@ def evaluate(
     names: list[str],
     *,
     from_log: bool = False,
+    params: dict[str, Any] | None = None,
+    dims: int = 3,
 ) -> TrialResult:
     """Run the estimators on framed streams (a headless flight, or a recorded log).
 
@@ -123,10 +137,11 @@ def evaluate(
     attack added here (``engine``) is known, and errors cannot be scored at all.
     """
     first = scenario.vehicles[0].sysid
+    clean_laser = streams[first].laser_down_m
     streams = {sysid: _attacked_height(engine, st) for sysid, st in streams.items()}
     s1 = streams[first]
     if is_wall(scenario):
-        return _wall_trial(scenario, s1, engine, names, from_log)
+        return _wall_trial(scenario, s1, engine, names, from_log, params or {})
     if is_formation(scenario):
         second = scenario.vehicles[1].sysid
         model: MeasurementModel = two_vehicle_model(scenario, first, second)
@@ -142,17 +157,25 @@ def evaluate(
         truth_state = np.hstack([s1.truth_ned_m[:, :2], truth2[:, :2]])
         truth_known = np.column_stack([s1.truth_ned_m[:, 2], truth2[:, 2]])
     else:
-        model = anchor_model(scenario, first)
+        model = anchor_model(scenario, first, dims)
         ids = list(model.sensor_ids)
-        clean = _matrix(s1, ids)
-        z = _attack(engine, s1, clean, ids)
-        known = _height(s1)[:, None]
         truth2 = None
-        truth_state, truth_known = s1.truth_ned_m[:, :2], s1.truth_ned_m[:, 2:3]
-    # A missing laser reading: keep the last height (the model's default before the first one).
-    known = _hold_last(known, np.asarray(model.default_known, dtype=float).reshape(-1))
+        if isinstance(model, AnchorRangesHeight):
+            # The downward laser is the last reading: attacked already (_attacked_height), like every reading.
+            clean = np.column_stack([_matrix(s1, ids[:-1]), clean_laser])
+            z = np.column_stack([_attack(engine, s1, clean[:, :-1], ids[:-1]), s1.laser_down_m])
+            known = np.zeros((len(s1.t_s), 0))  # nothing is known: the height is estimated
+            truth_state, truth_known = s1.truth_ned_m, np.zeros((len(s1.t_s), 1))
+        else:
+            clean = _matrix(s1, ids)
+            z = _attack(engine, s1, clean, ids)
+            known = _height(s1)[:, None]
+            truth_state, truth_known = s1.truth_ned_m[:, :2], s1.truth_ned_m[:, 2:3]
+    if known.shape[1]:
+        # A missing laser reading: keep the last height (the model's default before the first one).
+        known = _hold_last(known, np.asarray(model.default_known, dtype=float).reshape(-1))
     local = None if s1.local_ned_m is None else s1.local_ned_m[:, :2]
-    traces = {name: _run_estimator(name, model, s1, z, known, truth2, local) for name in names}
+    traces = {name: _run_estimator(name, model, s1, z, known, truth2, local, params or {}) for name in names}
     n_anchor = len(scenario.anchor_positions())
     anchors = np.array([scenario.anchor_positions()[k] for k in sorted(scenario.anchor_positions())])[:n_anchor, :2]
     offsets, floor, scored_err, scored_det = _offsets(model, z, clean, engine, truth_state, truth_known, from_log)
@@ -196,7 +219,7 @@ def _offsets(
         expected = np.full(z.shape, np.nan)
         for k in np.flatnonzero(np.isfinite(truth_state).all(axis=1) & np.isfinite(truth_known).all(axis=1)):
             kn = float(truth_known[k, 0]) if truth_known.shape[1] == 1 else truth_known[k]
-            expected[k] = model.h(truth_state[k], kn)
+            expected[k] = model.h(truth_state[k], None if isinstance(model, AnchorRangesHeight) else kn)
         return z - expected, 3.0 * model.sigma_m, True, True
     return z - clean, None, False, engine is not None
 
@@ -219,8 +242,9 @@ def _run_estimator(
     known: np.ndarray,
     truth2: np.ndarray | None,
     local: np.ndarray | None = None,
+    params: dict[str, Any] | None = None,
 ) -> EstimatorTrace:
-    est = estimators.create(name, model)
+    est = estimators.create(name, model, **(params or {}))
     n = z.shape[0]
     err = np.full(n, np.nan)
     rerr = None if truth2 is None else np.full(n, np.nan)
@@ -231,7 +255,7 @@ def _run_estimator(
     nees = np.full(n, np.nan)
     degraded = np.zeros(n, dtype=bool)
     for k in range(n):
-        kn = float(known[k, 0]) if known.shape[1] == 1 else known[k]
+        kn = None if known.shape[1] == 0 else float(known[k, 0]) if known.shape[1] == 1 else known[k]
         out = est.step(float(s1.t_s[k]), z[k], kn)
         times[k] = out.step_time_s
         alarm[k], degraded[k] = out.alarm, not out.valid
@@ -261,7 +285,12 @@ def _nees(error: np.ndarray, cov: np.ndarray | None) -> float:
 
 
 def _wall_trial(
-    scenario: Scenario, s1: VehicleStream, engine: Engine | None, names: list[str], from_log: bool
+    scenario: Scenario,
+    s1: VehicleStream,
+    engine: Engine | None,
+    names: list[str],
+    from_log: bool,
+    params: dict[str, Any],
 ) -> TrialResult:
     target = scenario.vehicles[0].target
     assert isinstance(target, WallDistanceTarget)
@@ -274,7 +303,7 @@ def _wall_trial(
     true_d = (s1.truth_ned_m - np.asarray(wall.point_ned_m)) @ np.asarray(wall.normal_ned)
     traces = {}
     for name in names:
-        est = estimators.create(name, model)
+        est = estimators.create(name, model, **params)
         n = z.shape[0]
         d_est, times = np.full(n, np.nan), np.zeros(n)
         named, alarm = np.zeros(z.shape, dtype=bool), np.zeros(n, dtype=bool)

@@ -321,11 +321,12 @@ class SecureStage:
                 return  # nothing trustworthy to say yet: the frame passes as it came
             pos = _position_ned(layout, self._last_valid if degraded else res)
             lat, lon, alt = ned_to_geodetic(self._home, pos[0], pos[1], pos[2] if math.isfinite(pos[2]) else 0.0)
-            changed |= _set(fields, "lat", round(lat * 1e7))
-            changed |= _set(fields, "lon", round(lon * 1e7))
+            changed |= _set(fields, "lat", _int32(lat * 1e7))
+            changed |= _set(fields, "lon", _int32(lon * 1e7))
             if layout.position_dims == 3:
-                changed |= _set(fields, "alt", round(alt * 1000.0))
-                changed |= _set(fields, "relative_alt", round(-pos[2] * 1000.0))
+                # A home altitude from a garbled HOME_POSITION can be absurd; the field stays encodable.
+                changed |= _set(fields, "alt", _int32(alt * 1000.0))
+                changed |= _set(fields, "relative_alt", _int32(-pos[2] * 1000.0))
         self._note_change(pkt, changed)
 
     def _substitute_peer_range(self, layout: Layout, res: StepResult, fields: dict[str, Any], now_s: float) -> bool:
@@ -442,6 +443,11 @@ def _set(fields: dict[str, Any], name: str, value: Any) -> bool:
         return False
     fields[name] = value
     return True
+
+
+def _int32(v: float) -> int:
+    """``v`` rounded and held inside MAVLink's int32 range."""
+    return min(max(round(v), -(2**31)), 2**31 - 1)
 
 
 def _num(v: float) -> float | None:

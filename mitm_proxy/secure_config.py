@@ -35,7 +35,11 @@ class SecureConfig(BaseModel):
     noise_std_m: Annotated[float, Field(gt=0.0)] | None = Field(
         None, description="override the scenario's range noise std for the model"
     )
-    dims: Literal[2, 3] = Field(2, description="anchors: 2 = (north, east) with the height known, 3 = full NED")
+    dims: Literal[2, 3] = Field(
+        3,
+        description="anchors: 3 = full NED, the downward laser one more reading the estimator weighs; "
+        "2 = (north, east) with the laser's height taken as known",
+    )
     rate_hz: Annotated[float, Field(gt=0.0, le=1000.0)] | None = Field(
         None, description="step at this rate on the latest readings; None = step when a set is complete"
     )

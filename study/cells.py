@@ -38,6 +38,7 @@ def base_row(cell: Cell, estimator: str) -> dict[str, Any]:
         "params": as_json(cell.params),
         "seed": cell.seed,
         "estimator": estimator,
+        "estimator_params": as_json(cell.estimator_params) if cell.estimator_params else None,
     }
 
 
@@ -46,7 +47,9 @@ def run_offline(cell: Cell, names: list[str]) -> dict[str, dict[str, Any]]:
     from evaluation.trial import run_trial
     from study.metrics import trial_rows
 
-    trial = run_trial(cell.scenario, cell.profile, names, cell.seed, cell.duration_s, cell.leg)
+    trial = run_trial(
+        cell.scenario, cell.profile, names, cell.seed, cell.duration_s, cell.leg, cell.estimator_params, cell.dims
+    )
     return trial_rows(trial)
 
 

@@ -7,7 +7,10 @@ the engine changed it (its offset is non-zero), whatever the size.
   (or nothing was attacked).
 - false-alarm rate: the share of steps with an estimate at which the estimator
   names a reading that is not attacked at that step (on clean runs: any name).
-- recall (all): the share of attacked readings named, however small the attack.
+- recall (all): the share of attacked readings named, however small the attack;
+  precision (all): the share of named readings that are attacked at that step
+  (attribution: are the sensors named the ones that lie, above all under an
+  alarm).
 - valid fraction and valid error: the steps where the estimator claims a
   trustworthy estimate (one exists and it is not degraded: ``Estimate.valid``), and the error there;
   beyond what it can correct an estimator must say so rather than be wrong.
@@ -67,6 +70,7 @@ def detection_figures(trial: TrialResult, name: str) -> dict[str, Any]:
         "detection_delay_s": delay,
         "false_alarm_rate": float(wrong.sum() / n_est) if n_est else None,
         "recall_all": float((named & attacked).sum() / attacked.sum()) if attacked.any() else None,
+        "precision_all": float((named & attacked).sum() / named.sum()) if named.any() else None,
         "recall_by_sigma": by_bin,
         "attacked_fraction": float(attacked.any(axis=1).mean()) if t.size else 0.0,
         "valid_fraction": float(valid.mean()) if t.size else 0.0,

@@ -4,7 +4,8 @@ Per attack, magnitude and estimator: the mean over seeds with a 95 % bootstrap
 confidence interval (``scipy.stats.bootstrap``, percentile method, fixed
 random state so the same rows give the same report) of the RMSE, recall and
 detection delay; the worst error over seeds; the false-alarm rate on clean runs;
-and a summary laid out like the seed's Table 5.1. Rows that failed are listed,
+and a summary laid out like the seed's Table 5.1. A study that sweeps
+``estimator_params`` shows each grid point as its own estimator (``secekf alpha=0.001``). Rows that failed are listed,
 and every group whose estimate fraction is below 1 is named: a step without an
 estimate is never silently left out of an error figure.
 """
@@ -82,7 +83,8 @@ def summarise(frame: pd.DataFrame) -> pd.DataFrame:
     for key, g in frame.groupby(GROUP, dropna=False, sort=False):
         row = dict(zip(GROUP, key, strict=True))
         row["n"] = len(g)
-        for metric in ("rmse_m", "recall_all", "detection_delay_s", "false_alarm_rate", "valid_rmse_m", "nees_mean"):
+        for metric in ("rmse_m", "recall_all", "precision_all", "detection_delay_s", "false_alarm_rate", "valid_rmse_m",
+                       "nees_mean"):  # fmt: skip
             m, lo, hi, n = mean_ci(g[metric].tolist())
             row.update({metric: m, f"{metric}_lo": lo, f"{metric}_hi": hi, f"{metric}_n": n})
         worst = g["max_error_m"].dropna()
@@ -99,8 +101,8 @@ def _attack_section(name: str, s: pd.DataFrame, closed_loop: bool) -> list[str]:
     axis = _magnitude_axis(s)
     lines = [f"### {name}", ""]
     head = ["magnitude" if axis is None else axis, "estimator", "n", "RMSE [m] mean [95% CI]", "worst [m]"]
-    offline = ["recall (all attacked readings)", "detection delay [s] (detected/n)", "false alarms", "claimed valid",
-               "RMSE when claimed valid [m]"]  # fmt: skip
+    offline = ["recall (all attacked readings)", "precision (readings named)", "detection delay [s] (detected/n)",
+               "false alarms", "claimed valid", "RMSE when claimed valid [m]"]  # fmt: skip
     head += ["collided"] if closed_loop else offline
     for (leg, pos), block in s.groupby(["leg", "position"], dropna=False, sort=False):
         lines += [f"{_where(leg, pos if isinstance(pos, str) else None)}:", ""]
@@ -116,6 +118,7 @@ def _attack_section(name: str, s: pd.DataFrame, closed_loop: bool) -> list[str]:
                 delay = _fmt(r["detection_delay_s"], r["detection_delay_s_lo"], r["detection_delay_s_hi"], 2)
                 cells += [
                     _fmt(r["recall_all"], r["recall_all_lo"], r["recall_all_hi"]),
+                    _fmt(r["precision_all"], r["precision_all_lo"], r["precision_all_hi"]),
                     f"{delay} ({r['detection_delay_s_n']}/{r['n']})",
                     _fmt(r["false_alarm_rate"], r["false_alarm_rate_lo"], r["false_alarm_rate_hi"]),
                     "n/a" if _missing(r["valid_fraction"]) else f"{r['valid_fraction']:.0%}",
@@ -193,9 +196,23 @@ def _figures(out: Path, summary: pd.DataFrame) -> list[Path]:
     return paths
 
 
+def labelled(frame: pd.DataFrame) -> pd.DataFrame:
+    """The estimator column with its grid point of ``estimator_params`` (``secekf alpha=0.001``), if any."""
+    if "estimator_params" not in frame or frame["estimator_params"].isna().all():
+        return frame
+
+    def label(name: str, params: str | None) -> str:
+        if not isinstance(params, str) or not params:
+            return name
+        return name + " " + " ".join(f"{k}={v}" for k, v in json.loads(params).items())
+
+    pairs = zip(frame["estimator"], frame["estimator_params"], strict=True)
+    return frame.assign(estimator=[label(n, p) for n, p in pairs])
+
+
 def write_report(out: Path) -> Path:
     """(Re)write ``report.md`` and the figures from what ``results.parquet`` holds now."""
-    frame = load(out)
+    frame = labelled(load(out))
     study = saved_study(out) or {}
     ok = frame[frame["status"] == "ok"]
     failed = frame[frame["status"] != "ok"]

@@ -16,6 +16,7 @@ of lists (``links: [[11, 14], [12, 15]]``).
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import itertools
 import json
@@ -64,9 +65,16 @@ class Study(_Strict):
         None, description="hover points (north, east) in metres, scenario frame; default the scenario's target"
     )
     estimators: list[str] = Field(min_length=1, description="estimator names; closed loop also 'off'")
+    estimator_params: dict[str, Any] = Field(
+        default_factory=dict,
+        description="keyword parameters every estimator of a cell gets (alpha, s, ...); a list is a grid axis",
+    )
     seeds: int | list[int] = Field(description="a count (0..N-1) or an explicit list")
     attacks: list[AttackEntry] = Field(min_length=1)
     settle_s: PositiveFloat = Field(5.0, description="closed loop: hold before the attack and the scoring start")
+    dims: Literal[2, 3] = Field(
+        3, description="anchor scenarios: 3 = full position with the downward laser a reading; 2 = height known"
+    )
 
     @field_validator("estimators", mode="before")
     @classmethod
@@ -99,6 +107,8 @@ class Study(_Strict):
         if self.mode == "offline" and SECURE_OFF in self.estimators:
             raise ValueError(f"estimators: {SECURE_OFF!r} is for closed-loop studies only")
         if self.mode == "closed-loop":
+            if self.estimator_params or self.dims != 3:
+                raise ValueError("estimator_params, dims: closed-loop flights fly the demo's secure stage as it is")
             if self.legs != ["hover"]:
                 raise ValueError("legs: closed-loop flights hold the demo's target, so only [hover]")
             if self.positions is not None:
@@ -126,6 +136,8 @@ class Cell:
     profile: Profile | None
     seed: int
     settle_s: float
+    estimator_params: dict[str, Any] = dataclasses.field(default_factory=dict)  # one grid point of the study's
+    dims: int = 3  # test case 1's model (evaluation.trial.run_trial)
 
 
 def load_study(path: str | Path) -> Study:
@@ -205,7 +217,7 @@ def expand(study: Study, source: str) -> list[Cell]:
     from evaluation.cli import model_for
 
     if study.mode == "offline":
-        fits = estimators.names(model_for(scenario))
+        fits = estimators.names(model_for(scenario, study.dims))
         for i, name in enumerate(study.estimators):
             if name not in fits:
                 reason = f"does not run on scenario {scenario.name!r} (these do: {', '.join(fits)})"
@@ -235,20 +247,41 @@ def expand(study: Study, source: str) -> list[Cell]:
             except InputError as err:
                 raise InputError(source, f"attacks[{i}]", {"profile": entry.profile, **values}, str(err)) from None
             attacks.append((profile.name, ref, values, profile))
+    try:
+        tunings = _grid(study.estimator_params, set())
+    except ValueError as exc:
+        raise InputError(source, "estimator_params", study.estimator_params, str(exc)) from None
+    if study.mode == "offline":
+        _check_tunings(study, tunings, scenario, source)
     cells: list[Cell] = []
     seen: set[str] = set()
     scenario_hash = hashlib.sha256(dump_json(scenario).encode()).hexdigest()[:16]
-    for (name, ref, values, profile), leg, (pos, scen), seed in itertools.product(
-        attacks, study.legs, variants, study.seed_list()
+    for (name, ref, values, profile), tuning, leg, (pos, scen), seed in itertools.product(
+        attacks, tunings, study.legs, variants, study.seed_list()
     ):
         key = cell_key(
             mode=study.mode, scenario=scenario_hash, duration_s=duration, leg=leg, position=pos,
             attack=None if profile is None else profile.content_hash(), seed=seed,
             settle_s=study.settle_s if study.mode == "closed-loop" else None,
+            **({"estimator_params": tuning} if tuning else {}),  # absent when empty: older keys stay valid
+            **({"dims": study.dims} if study.dims != 3 else {}),
         )  # fmt: skip
         if key in seen:  # two attack entries that resolve to the same profile: one cell
             continue
         seen.add(key)
         cells.append(Cell(key, study.name, study.mode, scen, duration, leg, pos, name, ref, values, profile, seed,
-                          study.settle_s))  # fmt: skip
+                          study.settle_s, tuning, study.dims))  # fmt: skip
     return cells
+
+
+def _check_tunings(study: Study, tunings: list[dict[str, Any]], scenario: Scenario, source: str) -> None:
+    """Build every estimator with every grid point once, so a bad parameter fails the study file, not each cell."""
+    from evaluation.cli import model_for
+
+    model = model_for(scenario, study.dims)
+    for tuning in tunings:
+        for i, name in enumerate(study.estimators):
+            try:
+                estimators.create(name, model, **tuning)
+            except (TypeError, ValueError) as exc:
+                raise InputError(source, f"estimator_params ({study.estimators[i]})", tuning, str(exc)) from None

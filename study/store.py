@@ -30,12 +30,14 @@ SCHEMA = pa.schema([
     ("study", _S), ("cell", _S), ("scenario", _S), ("mode", _S), ("leg", _S),
     ("position", _S),  # JSON [north, east] in metres, or null for the scenario's own target
     ("attack", _S), ("attack_hash", _S), ("params", _S),  # params: JSON of this cell's parameter values
-    ("seed", _I), ("estimator", _S), ("status", _S), ("error", _S),
+    ("seed", _I), ("estimator", _S),
+    ("estimator_params", _S),  # JSON of the study's estimator_params grid point (null: the defaults)
+    ("status", _S), ("error", _S),
     ("rmse_m", _F), ("mean_error_m", _F), ("p95_error_m", _F), ("max_error_m", _F),
     ("range_rmse_m", _F), ("range_max_error_m", _F),
     ("estimate_fraction", _F), ("alarm_fraction", _F),
     ("attack_detection_precision", _F), ("attack_detection_recall", _F),
-    ("detection_delay_s", _F), ("false_alarm_rate", _F), ("recall_all", _F),
+    ("detection_delay_s", _F), ("false_alarm_rate", _F), ("recall_all", _F), ("precision_all", _F),
     ("recall_by_sigma", _S), ("attacked_fraction", _F),
     ("valid_fraction", _F), ("valid_rmse_m", _F), ("valid_max_error_m", _F), ("nees_mean", _F),
     ("step_time_us_median", _F), ("step_time_us_p99", _F),

@@ -122,13 +122,25 @@ def test_over_attacked_formation_alarms_instead_of_guessing(tmp_path: Path, caps
 
 
 def test_the_height_is_inside_the_attack_surface_offline() -> None:
-    """height-spoof ramps the downward laser: the height every range model takes as known is attacked too."""
+    """height-spoof ramps the downward laser. The laser is a reading of test case 1's model, so the attack
+    reaches it (its offset is scored), the secure estimator outvotes and names it, and the error stays at the
+    clean level (in the 2-D model, which takes the laser's height as known, it cost 0.2-1 m)."""
     from attack_profiles import library
+    from estimators.models import AnchorRangesHeight
+    from estimators.scenario_models import anchor_model
     from evaluation.trial import run_trial
     from secuav_common.scenario import load_scenario
 
     scenario = load_scenario("anchors8")
-    clean = run_trial(scenario, None, ["secekf"], 3, 15.0, "hover")
-    spoofed = run_trial(scenario, library.load("height-spoof", rate_per_s=0.3), ["secekf"], 3, 15.0, "hover")
+    model = anchor_model(scenario)
+    assert isinstance(model, AnchorRangesHeight) and model.ids()[-1] == 0  # the laser, DISTANCE_SENSOR id 0
+    spoof = library.load("height-spoof", rate_per_s=0.3)
+    clean = run_trial(scenario, None, ["secekf", "ekf"], 3, 15.0, "hover")
+    spoofed = run_trial(scenario, spoof, ["secekf", "ekf"], 3, 15.0, "hover")
     late = clean.t_s > 10.0
-    assert np.nanmean(spoofed.traces["secekf"].err_m[late]) > 3 * np.nanmean(clean.traces["secekf"].err_m[late])
+    laser = model.p - 1
+    assert np.all(spoofed.offsets_m[late, laser] > 1.0) and np.all(spoofed.offsets_m[late, :laser] == 0.0)
+    sec = spoofed.traces["secekf"]
+    assert sec.named[late, laser].mean() > 0.9 and not sec.named[late, :laser].any()
+    assert np.nanmean(sec.err_m[late]) < 1.5 * np.nanmean(clean.traces["secekf"].err_m[late])
+

@@ -13,7 +13,7 @@ ALL = tuple(estimators.names(AnchorRanges2D.build(ANCHORS8_NED_M)))
 
 
 def test_names_cover_the_issue() -> None:
-    every = {"ls", "ekf", "l1", "secekf", "secopt", "recap", "rarse", "l0", "milp", "marzullo"}
+    every = {"ls", "ekf", "l1", "secekf", "secopt", "recap", "rarse", "poly", "l0", "milp", "marzullo"}
     assert set(estimators.names()) == every
     assert set(ALL) == set(estimators.names()) - {"marzullo"}  # interval fusion needs one measured quantity
 
@@ -185,7 +185,7 @@ def test_the_formation_gives_each_vehicle_its_own_tolerance() -> None:
     from secuav_common.scenario import load_scenario
 
     single = anchor_model(load_scenario("anchors8"))
-    assert single.honest_subsets(2).shape == (28, 8)  # C(8, 2): any two of the eight may lie
+    assert single.honest_subsets(2).shape == (36, 9)  # C(9, 2): any two of the eight ranges and the laser
     pair = two_vehicle_model(load_scenario("formation"))
     masks = pair.honest_subsets(2)
     # Two of each vehicle's eight anchor links, and the inter-vehicle range in or out: 28 * 28 * 2.

@@ -10,11 +10,17 @@ from secuav_common.scenario import load_scenario
 
 
 def test_anchors8_model() -> None:
+    # Default: the full position, the downward laser (id 0) one more reading beside the eight anchors.
     model = anchor_model(load_scenario("anchors8"))
-    assert model.p == 8 and model.sensor_ids == tuple(range(10, 18))
-    assert model.vehicle_z_ned_m == -2.5 and np.allclose(model.sigma_m, 0.1)
+    assert model.p == 9 and model.d == 3 and model.sensor_ids == (*range(10, 18), 0)
+    assert np.allclose(model.sigma_m[:8], 0.1) and 0.02 < model.sigma_m[8] < 0.05  # laser noise + tilt allowance
     assert model.max_correctable == 2
-    assert anchor_model(load_scenario("anchors8"), dims=3).d == 3
+    truth = np.array([2.5, 2.5, -2.5])
+    assert model.h(truth)[8] == 2.5 and np.allclose(model.jac(truth)[8], [0.0, 0.0, -1.0])
+    # The seed's split: (north, east), the height known.
+    flat = anchor_model(load_scenario("anchors8"), dims=2)
+    assert flat.p == 8 and flat.sensor_ids == tuple(range(10, 18))
+    assert flat.vehicle_z_ned_m == -2.5 and np.allclose(flat.sigma_m, 0.1) and flat.max_correctable == 2
 
 
 def test_wall_group_model_runs_every_estimator() -> None:

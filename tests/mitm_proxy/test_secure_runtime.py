@@ -181,7 +181,7 @@ def test_secure_set_acknowledges_and_a_rejected_request_keeps_the_estimator(anch
         bad = [
             ({"estimator": "kalmanish"}, "estimator", "kalmanish"),
             ({"estimator": "secekf", "params": {"bogus": 1}}, "params", "bogus"),
-            ({"estimator": "secekf", "params": {"s": 8}}, "params", "s=8"),
+            ({"estimator": "secekf", "params": {"s": 9}}, "params", "s=9"),  # 9 readings: 8 anchors + laser
             ({"group": "wall"}, "group", "wall"),
             ({"rate_hz": -1}, "rate_hz", "-1"),
             ({"estimator": "secekf", "colour": "red"}, "colour", "red"),

@@ -154,3 +154,41 @@ def test_detection_delay_and_false_alarms_from_known_offsets() -> None:
 def test_bundled_studies_validate(path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["validate", str(path)]) == 0
     assert f"{path}: ok;" in capsys.readouterr().out
+
+
+def test_estimator_params_are_a_grid_axis_and_part_of_the_cell_key() -> None:
+    tuned = _cells(BASE + "estimator_params: {alpha: [0.001, 0.05]}\n")
+    plain = _cells(BASE)
+    assert len(tuned) == 2 * len(plain)
+    assert sorted({c.estimator_params["alpha"] for c in tuned}) == [0.001, 0.05]
+    assert not {c.key for c in plain} & {c.key for c in tuned}
+    # A fixed value is one grid point; the default (no estimator_params) keeps the keys it always had.
+    assert len(_cells(BASE + "estimator_params: {alpha: 0.02}\n")) == len(plain)
+
+
+def test_bad_estimator_params_and_dims_name_the_field() -> None:
+    with pytest.raises(InputError) as err:
+        _cells(BASE + "estimator_params: {alpha: [0.01, 1.5]}\n")
+    assert "estimator_params" in str(err.value) and "1.5" in str(err.value)
+    with pytest.raises(InputError) as err:
+        _cells(BASE + "estimator_params: {window_len: 3}\n")
+    assert "window_len" in str(err.value)
+    # poly runs on the seed's 2-D model only: with dims 3 (the default) the study file is refused.
+    two_d = BASE.replace("[ekf, secekf]", "[ekf, poly]")
+    with pytest.raises(InputError) as err:
+        _cells(two_d)
+    assert "estimators[1]" in str(err.value) and "poly" in str(err.value)
+    cells = _cells(two_d + "dims: 2\n")
+    assert all(c.dims == 2 for c in cells) and not {c.key for c in cells} & {c.key for c in _cells(BASE)}
+
+
+def test_a_cell_runs_its_estimators_with_the_grid_point() -> None:
+    from study.cells import run_cell
+
+    text = BASE.replace("duration_s: 5", "duration_s: 30").replace("seeds: 3", "seeds: 1")
+    cells = [c for c in _cells(text + "estimator_params: {alpha: [0.001, 0.3]}\n") if c.attack == "none"]
+    rows = {c.estimator_params["alpha"]: run_cell(c, ["secekf"])[0] for c in cells}
+    assert all(r["status"] == "ok" for r in rows.values())
+    assert rows[0.3]["estimator_params"] == '{"alpha":0.3}'
+    # Naming readings is a test at level alpha: a loose alpha names honest readings, a strict one hardly ever.
+    assert rows[0.3]["false_alarm_rate"] > rows[0.001]["false_alarm_rate"] + 0.05

@@ -1,0 +1,188 @@
+#!/usr/bin/env python
+"""Print the result tables of estimators/README.md from the stored study rows (nothing typed in by hand).
+
+Usage (after running the bundled studies into out/):
+    .venv/bin/python scripts/estimator_tables.py --out out
+
+Reads out/test-case-1, out/test-case-1-exact, out/test-case-1-2d, out/false-alarms,
+out/false-alarms-nlos and out/test-case-2 where they exist and prints one
+Markdown table each: means over seeds with 95 % bootstrap intervals where the
+study report gives them (study.report.mean_ci), and the l0 worst-case error
+bound of estimators.bounds at each hover point beside the measured worst case.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from estimators.bounds import l0_error_bound  # noqa: E402
+from estimators.scenario_models import anchor_model  # noqa: E402
+from secuav_common.scenario import load_scenario  # noqa: E402
+from study.report import labelled, mean_ci  # noqa: E402
+from study.store import load  # noqa: E402
+
+CENTRE = "[2.5,2.5]"
+Pick = Callable[[pd.DataFrame], pd.DataFrame]
+
+
+def _ok(out: Path) -> pd.DataFrame | None:
+    if not (out / "results.parquet").is_dir():
+        return None
+    frame = load(out)
+    return labelled(frame[frame["status"] == "ok"])
+
+
+def _params(frame: pd.DataFrame, **want: object) -> pd.DataFrame:
+    keep = [all(json.loads(p or "{}").get(k) == v for k, v in want.items()) for p in frame["params"]]
+    return frame[keep]
+
+
+def _cell(frame: pd.DataFrame, metric: str, digits: int = 3, ci: bool = True) -> str:
+    mean, lo, hi, n = mean_ci(frame[metric].tolist())
+    if mean is None:
+        return "n/a"
+    if not ci or lo is None or hi is None or n < 2:
+        return f"{mean:.{digits}f}"
+    return f"{mean:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
+
+
+def _share(frame: pd.DataFrame, metric: str) -> str:
+    values = frame[metric].dropna()
+    return "n/a" if not len(values) else f"{values.mean():.0%}"
+
+
+def _table(head: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def test_case_1(frame: pd.DataFrame) -> str:
+    """Centre hover: the attacks of a review, one column each."""
+    centre = frame[(frame["position"] == CENTRE) & (frame["leg"] == "hover")]
+    columns: list[tuple[str, Pick, str]] = [
+        ("clean RMSE [m]", lambda f: f[f["attack"] == "none"], "rmse_m"),
+        ("clean: honest named", lambda f: f[f["attack"] == "none"], "false_alarm_rate"),
+        ("clean NEES", lambda f: f[f["attack"] == "none"], "nees_mean"),
+        ("stealthy 2 sigma RMSE [m]", lambda f: _params(f[f["attack"] == "anchors-stealthy"], sigmas=2.0), "rmse_m"),
+        ("stealthy 3 sigma RMSE [m]", lambda f: _params(f[f["attack"] == "anchors-stealthy"], sigmas=3.0), "rmse_m"),
+        ("stealthy 3 sigma recall", lambda f: _params(f[f["attack"] == "anchors-stealthy"], sigmas=3.0), "recall_all"),
+        ("stealthy 10 sigma RMSE [m]", lambda f: _params(f[f["attack"] == "anchors-stealthy"], sigmas=10.0),
+         "rmse_m"),
+        ("mirror RMSE [m]", lambda f: f[f["attack"] == "anchors-mirror"], "rmse_m"),
+        ("height-spoof 0.1 m/s RMSE [m]", lambda f: _params(f[f["attack"] == "height-spoof"], rate_per_s=0.1),
+         "rmse_m"),
+    ]  # fmt: skip
+    over = lambda f: _params(f[f["attack"] == "anchors-overwhelm"], offset_m=1.0)  # noqa: E731
+    head = ["estimator", *[c[0] for c in columns], "4 of 8 links +1 m: claimed valid", "RMSE when valid [m]",
+            "precision of names", "step [ms]"]  # fmt: skip
+    rows = []
+    for est, g in centre.groupby("estimator", sort=False):
+        cells = [str(est)]
+        for _, pick, metric in columns:
+            digits = 2 if metric == "nees_mean" else 3
+            cells.append(_cell(pick(g), metric, digits, ci=metric != "nees_mean"))
+        o = over(g)
+        cells += [_share(o, "valid_fraction"), _cell(o, "valid_rmse_m"), _cell(o, "precision_all", 2)]
+        cells.append(f"{g['step_time_us_median'].median() / 1000:.3f}")
+        rows.append(cells)
+    return _table(head, rows)
+
+
+def recall_by_sigma(frame: pd.DataFrame) -> str:
+    """Stealthy bias on two links, centre hover: share of attacked readings named, per magnitude."""
+    f = frame[(frame["attack"] == "anchors-stealthy") & (frame["position"] == CENTRE) & (frame["leg"] == "hover")]
+    sigmas = sorted({json.loads(p)["sigmas"] for p in f["params"]})
+    rows = []
+    for est, g in f.groupby("estimator", sort=False):
+        cells = [str(est)]
+        for s in sigmas:
+            sel = _params(g, sigmas=s)
+            cells.append(f"{_cell(sel, 'recall_all', 2, ci=False)} / {_cell(sel, 'detection_delay_s', 1, ci=False)}")
+        rows.append(cells)
+    return _table(["estimator", *[f"{s:g} sigma: recall / delay [s]" for s in sigmas]], rows)
+
+
+def worst_case(frame: pd.DataFrame) -> str:
+    """Worst error over every attack within tolerance (not overwhelm) and seed, hover, per position, vs the bound."""
+    scenario = load_scenario("anchors8")
+    model = anchor_model(scenario)
+    within = frame[(frame["attack"] != "anchors-overwhelm") & (frame["leg"] == "hover")]
+    positions = list(dict.fromkeys(within["position"].dropna()))
+    bounds = {}
+    for pos in positions:
+        north, east = json.loads(pos)
+        bounds[pos] = l0_error_bound(model, np.array([north, east, -2.5]), 2, 3.0 * model.sigma_m, None, slice(0, 2))
+    rows = [["l0 bound (3 sigma noise box)", *[f"{bounds[p]:.2f}" for p in positions]]]
+    for est, g in within.groupby("estimator", sort=False):
+        rows.append([str(est), *[f"{g[g['position'] == p]['max_error_m'].max():.2f}" for p in positions]])
+    return _table(["worst error [m]", *positions], rows)
+
+
+def false_alarms(frames: dict[str, pd.DataFrame]) -> str:
+    rows = []
+    for noise, frame in frames.items():
+        for est, g in frame.groupby("estimator", sort=False):
+            rows.append([noise, str(est), _cell(g, "false_alarm_rate", 4), _cell(g, "alarm_fraction", 4, ci=False),
+                         _cell(g, "rmse_m", 3, ci=False), _cell(g, "nees_mean", 2, ci=False)])  # fmt: skip
+    return _table(["noise", "estimator", "honest reading named (share of steps)", "alarm", "RMSE [m]", "NEES"], rows)
+
+
+def by_attack(frame: pd.DataFrame, picks: list[tuple[str, str, dict[str, object]]]) -> str:
+    rows = []
+    for est, g in frame.groupby("estimator", sort=False):
+        cells = [str(est)]
+        for _, attack, params in picks:
+            sel = _params(g[g["attack"] == attack], **params)
+            cells.append(f"{_cell(sel, 'rmse_m', 3, ci=False)} / {_cell(sel, 'recall_all', 2, ci=False)}")
+        rows.append(cells)
+    return _table(["estimator", *[f"{label}: RMSE [m] / recall" for label, _, _ in picks]], rows)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--out", type=Path, default=ROOT / "out", help="where the studies were run (--out of each)")
+    args = ap.parse_args()
+    tc1 = _ok(args.out / "test-case-1")
+    if tc1 is not None:
+        print("## Test case 1, centre hover\n\n" + test_case_1(tc1) + "\n")
+        print("## Stealthy bias: recall and detection delay by magnitude\n\n" + recall_by_sigma(tc1) + "\n")
+        print("## Worst case within tolerance vs the l0 bound\n\n" + worst_case(tc1) + "\n")
+    exact = _ok(args.out / "test-case-1-exact")
+    if exact is not None:
+        print("## Exact baselines, centre\n\n" + test_case_1(exact) + "\n")
+        print(worst_case(exact) + "\n")
+    fa = {k: f for k in ("false-alarms", "false-alarms-nlos") if (f := _ok(args.out / k)) is not None}
+    if fa:
+        print("## False alarms on long clean runs\n\n" + false_alarms(fa) + "\n")
+    flat = _ok(args.out / "test-case-1-2d")
+    if flat is not None:
+        picks = [("clean", "none", {}), ("type-a 1 m", "type-a", {"offset_m": 1.0}),
+                 ("relay +1 m", "anchors-relay", {"excess_m": 1.0}), ("stealthy 3 sigma", "anchors-stealthy",
+                 {"sigmas": 3.0}), ("height-spoof 0.1 m/s", "height-spoof", {"rate_per_s": 0.1})]  # fmt: skip
+        centre = flat[flat["position"] == CENTRE]
+        print("## The seed's 2-D split (height known), centre\n\n" + by_attack(centre, picks) + "\n")
+    tc2 = _ok(args.out / "test-case-2")
+    if tc2 is not None:
+        picks = [("clean", "none", {}), ("type-a 1 m", "type-a", {"offset_m": 1.0}),
+                 ("stealthy 3 sigma", "anchors-stealthy", {"sigmas": 3.0}),
+                 ("relay +1 m", "anchors-relay", {"excess_m": 1.0})]  # fmt: skip
+        hover = tc2[tc2["leg"] == "hover"]
+        print("## Test case 2 (formation), hover\n\n" + by_attack(hover, picks) + "\n")
+        clean = hover[hover["attack"] == "none"]
+        print(false_alarms({"gaussian": clean}) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
