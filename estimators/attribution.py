@@ -26,11 +26,18 @@ alpha = 0.01 named an honest one on 7-9 % of clean steps.)
 
 Beyond tolerance (the alarm is confirmed: no ``p - s`` readings agree)
 -------------------------------------------------------------------
-The estimator cannot correct, but it can still say whom it suspects, and the
-suspicion should be right. :func:`explain` is the l0 decoder with a growing
-budget of liars: for k = s + 1, s + 2, ... it fits every subset that leaves
-out k readings (``model.honest_subsets(k)``) and keeps those whose weighted
-residual passes ``chi2.ppf(1 - alpha, readings - d)``. At the smallest k where
+Where the vehicle can be is the :class:`Trail`: a constant-velocity filter on
+the last valid position (corrected by each explanation below while degraded)
+that allows a hard manoeuvre. Its prediction is the prior of every test here:
+a subset agrees when its fit passes ``chi2.ppf(1 - level, readings - d + d)``
+with the prior's term added (:func:`agreeing`). An alarm, or an estimate that
+leaves the trail (beyond tolerance an estimator's own tests can accept a
+coincidental consistent subset far off), is confirmed when no ``p - s``
+readings agree at ``alpha / 10``. Then the estimator cannot correct, but it can
+still say whom it suspects, and the suspicion should be right. :func:`explain`
+is the l0 decoder with a growing budget of liars: for k = s + 1, s + 2, ... it
+fits every subset that leaves out k readings (``model.honest_subsets(k)``) and
+keeps those that agree at ``alpha``. At the smallest k where
 some pass, the readings named are those *every* passing subset leaves out: the
 sensors all explanations with the fewest liars agree are lying. Several
 explanations that disagree (a colluding attacker who built a second consistent
@@ -40,8 +47,8 @@ caller outputs *marked degraded* (``Estimate.valid`` False), never as valid.
 The search stops when a level has more than ``budget`` subsets or when a subset
 would keep fewer than ``min_sensors + 1`` readings (nothing left to test).
 
-RECON: the family-wise levels and the escalating search are ours; the papers
-name sensors by a per-sensor chi-square test (notes §2.1 step 6).
+RECON: the family-wise levels, the trail and the escalating search are ours;
+the papers name sensors by a per-sensor chi-square test (notes §2.1 step 6).
 """
 
 from __future__ import annotations

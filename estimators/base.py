@@ -35,10 +35,11 @@ class Estimate:
     no estimate exists yet (position is NaN then). ``valid`` is False when the
     estimate is degraded: beyond what the estimator can correct, not to be
     trusted (an alarm that the readings of this step confirm at a ten times
-    smaller false-alarm level: no p - s of them agree on one position); the
-    position is then the fewest-liars explanation's where one exists
-    (``attribution.explain``), else the estimator's own. An alarm that the
-    readings do not confirm (a filter surprised by a manoeuvre) leaves it valid.
+    smaller false-alarm level: no p - s of them agree on one position near the
+    trail of valid estimates); the position is then the fewest-liars
+    explanation's where one exists (``attribution.explain``), else the trail's
+    prediction. An alarm that the readings do not confirm (a filter surprised by
+    a manoeuvre) leaves it valid.
     """
 
     t_s: float
@@ -154,6 +155,10 @@ class Estimator:
                 if found.pos is not None and found.cov is not None:
                     object.__setattr__(est, "position_m", found.pos)
                     self.trail.correct(found.pos, found.cov)
+                elif prior is not None:
+                    # No single explanation this step: coast on the trail rather than output a fit the
+                    # readings have just shown to be beyond tolerance.
+                    object.__setattr__(est, "position_m", prior[0].copy())
         if est.valid:
             self.trail.set(est.position_m, est.velocity_mps, est.covariance)
         object.__setattr__(est, "attacked", _indices(named))
