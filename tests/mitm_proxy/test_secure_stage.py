@@ -367,3 +367,29 @@ def test_beyond_tolerance_the_substituted_data_is_marked_invalid(anchors8: Scena
             n, e, _ = geodetic_to_ned(home, o.fields["lat"] / 1e7, o.fields["lon"] / 1e7, 0.0)
             tn, te, _ = maker.truth(o.frame.t_s)
             assert math.hypot(n - tn, e - te) < 0.5
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("dims", [3, 2])
+def test_a_spoofed_downward_laser_is_outvoted_live(anchors8: Scenario, dims: int) -> None:
+    """height-spoof ramps the downward laser 0.3 m/s from 3 s. With the laser a reading (dims 3, the default)
+    the stage flags it, and LOCAL_POSITION_NED keeps the true height and position; with the height taken as
+    known (dims 2, the seed's split) nothing can test the laser: the ranges stop agreeing, so the stage can
+    only call its estimate degraded (position unknown, every range flagged) without naming the culprit."""
+    maker = StreamMaker(anchors8, engine=_engine("height-spoof", anchors8, rate_per_s=0.3, start_s=3.0), seed=9)
+    stage = SecureStage(SecureConfig(estimator="secekf", executor="inline", dims=dims), anchors8, 1)
+    outs = run(stage, maker, 15.0)
+    lpn, _gpi, _own = _position_errors(outs, 10.0, anchors8.world.home)
+    laser = [o for o in outs if o.msgid == DS and o.fields["id"] == 0 and o.frame.t_s >= 10.0]
+    spoofed = np.array([o.frame.attacked["current_distance"] - o.frame.clean["current_distance"] for o in laser]) / 100
+    assert np.all(spoofed > 2.0)  # the attack is on: the laser reads over 2 m long
+    if dims == 3:
+        assert np.mean([o.fields["signal_quality"] == FLAGGED_QUALITY for o in laser]) > 0.9
+        heights = [o.fields["z"] - maker.truth(o.frame.t_s)[2] for o in outs if o.msgid == LPN and o.frame.t_s >= 10]
+        assert np.sqrt(np.mean(np.square(heights))) < 0.1 and np.sqrt(np.mean(lpn**2)) < 0.15
+        assert stage.stats()["flagged_sensors"] == [0]
+    else:
+        assert all(o.raw_out == o.frame.raw for o in laser)  # not in the group: it passes as attacked
+        assert np.mean(np.isnan(lpn)) > 0.9
+        ranges = [o for o in outs if o.msgid == DS and o.fields["id"] >= 10 and o.frame.t_s >= 10.0]
+        assert np.mean([o.fields["signal_quality"] == FLAGGED_QUALITY for o in ranges]) > 0.9
