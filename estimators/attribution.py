@@ -7,18 +7,21 @@ hold each estimator's accusations to the level ``alpha`` it was given.
 
 Within tolerance (no alarm, or an alarm that one step's readings do not confirm)
 ----------------------------------------------------------------------------
-A reading is named only if the estimate does not rest on it (it is outside
-``Estimate.used``) and its residual against the estimate fails a test. Each
-step tests p readings, so the tests are a family: every per-reading test runs at
-the Sidak level ``a1 = 1 - (1 - alpha / 2)^(1 / p)``, which keeps the chance that
-any honest reading is named by it at one step at ``alpha / 2``. Two tests share
-the budget:
-- the step's own normalised residual ``r_i^2 / (sigma_i^2 + H_i P H_i^T) >
-  chi2.ppf(1 - a1, 1)`` (a jump);
+A reading is named only if the output does not rest on it (it is outside
+``Estimate.used``) and its residual fails a test. The residuals are taken
+against a least-squares fit of the readings the output rests on (a filter's
+own estimate lags in a turn, which would make honest readings look biased).
+Each step tests p readings, so the tests are a family: every per-reading test
+runs at the Sidak level ``a1 = 1 - (1 - alpha / 2)^(1 / p)``, which keeps the
+chance that any honest reading is named by it at one step at ``alpha / 2``. Two
+tests share the budget:
+- the step's own normalised residual ``r_i^2 / (sigma_i^2 + H_i C H_i^T) >
+  chi2.ppf(1 - a1, 1)`` (a jump), C the fit's covariance;
 - the window test: the mean residual m of the last T steps against its
-  variance, ``m^2 > chi2.ppf(1 - a1, 1) (sigma_i^2 / n + H_i P H_i^T)`` (a bias
-  of a few sigma that hides inside any single step's gate but not inside the
-  window's mean; see :class:`Namer` for the variance).
+  variance, ``m^2 > chi2.ppf(1 - a1, 1) (sigma_i^2 + H_i C H_i^T) / n``, the
+  current residual leaning the same way (a bias of a few sigma that hides
+  inside any single step's gate but not inside the window's mean; see
+  :class:`Namer`).
 On clean data a step therefore names an honest reading with probability at most
 about alpha, whatever p is. (Before this the per-reading gate was
 ``chi2.ppf(1 - alpha, 1)`` for each of the p readings: eight readings at
@@ -26,14 +29,16 @@ alpha = 0.01 named an honest one on 7-9 % of clean steps.)
 
 Beyond tolerance (the alarm is confirmed: no ``p - s`` readings agree)
 -------------------------------------------------------------------
-Where the vehicle can be is the :class:`Trail`: a constant-velocity filter on
-the last valid position (corrected by each explanation below while degraded)
-that allows a hard manoeuvre. Its prediction is the prior of every test here:
-a subset agrees when its fit passes ``chi2.ppf(1 - level, readings - d + d)``
-with the prior's term added (:func:`agreeing`). An alarm, or an estimate that
-leaves the trail (beyond tolerance an estimator's own tests can accept a
-coincidental consistent subset far off), is confirmed when no ``p - s``
-readings agree at ``alpha / 10``. Then the estimator cannot correct, but it can
+Where the vehicle can be is the :class:`Trail`: a constant-velocity tracker of
+the valid outputs (corrected by each explanation below while degraded) that
+allows a hard manoeuvre. Its prediction is the prior of every test here: a
+subset agrees when its fit, with the prior's term added, passes
+``chi2.ppf(1 - level, readings used)`` (:func:`agreeing`). An alarm, or an
+estimate that leaves the trail (beyond tolerance an estimator's own tests can
+accept a coincidental consistent subset far off), is confirmed when no ``p - s``
+readings agree at ``alpha / 10``. If some do, the output is theirs whenever the
+estimator's own disagrees with them (a least-bad filter after an attack, a
+coincidental subset), and stays valid. Then the estimator cannot correct, but it can
 still say whom it suspects, and the suspicion should be right. :func:`explain`
 is the l0 decoder with a growing budget of liars: for k = s + 1, s + 2, ... it
 fits every subset that leaves out k readings (``model.honest_subsets(k)``) and
@@ -62,10 +67,11 @@ from estimators.bank import Chi2Table, cv_matrices, gauss_newton, inv_small, sol
 from estimators.models import Known, MeasurementModel
 
 MANOEUVRE_MPS2 = 5.0  # white-noise acceleration of the trail: braking or turning hard, as a multirotor can
+MAX_SPEED_MPS = 5.0  # the trail's velocity spread before it has seen two fixes
 
 
 def _agree_gate(d: int) -> float:
-    """Two fits name one position when each lies inside the other's 3-sigma ellipse (99.7 %)."""
+    """A fit names the same position as the best one when it lies inside the best one's 3-sigma ellipse."""
     return float(chi2.ppf(0.997, d))
 
 
@@ -78,28 +84,47 @@ def sidak_gate(alpha: float, p: int) -> float:
 class Namer:
     """Names readings outside the estimate's support that fail the step or window test (module docstring).
 
-    The window test keeps the raw residuals of the last T steps against each
-    step's estimate. Their mean's variance is ``sigma_i^2 / n`` from the noise
-    plus up to ``H_i P H_i^T`` from the estimate's own error, which is nearly the
-    same over a short window (a filter's error is slow); judging the mean
-    against the sum keeps the test at its level instead of counting that shared
-    error n times.
+    Residuals are taken against a least-squares fit of this step's supporting
+    readings (``used``), not against the estimate itself: a filter's estimate
+    lags in a turn and would make honest readings look biased. A reading is
+    judged by ``r^2 / (sigma^2 + H C H^T)``, C the fit's covariance. The window
+    keeps the raw residuals of the last T steps; each step's fit has its own
+    noise, so their mean's variance is ``(sigma^2 + H C H^T) / n`` (against a
+    filter's estimate it would not be: its error is shared by nearby steps). A
+    reading the window holds
+    against must also lean the same way now, so a link whose attack has stopped
+    drops out within a step or two instead of after T.
     """
 
     def __init__(self, model: MeasurementModel, alpha: float, window: int = 10) -> None:
         self.model = model
         self.gate = sidak_gate(alpha / 2.0, model.p)
+        self.chi = Chi2Table(alpha, 4 * model.p)
         self.resid = np.zeros((int(window), model.p))
         self.seen = np.zeros((int(window), model.p), dtype=bool)
         self.k = 0
 
     def name(
-        self, z: np.ndarray, pos: np.ndarray, cov_pos: np.ndarray, outside: np.ndarray, known: Known
-    ) -> np.ndarray:
-        """Feed this step's residuals against ``pos`` to the window; return the readings named (bool, (p,))."""
-        hx, jac = self.model.h_jac(pos, known)
-        hph = np.einsum("pd,de,pe->p", jac, cov_pos, jac)
-        resid = z - hx
+        self, z: np.ndarray, used: np.ndarray, start: np.ndarray, cov_pos: np.ndarray, known: Known
+    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """Feed this step's residuals to the window: (readings named (bool, (p,)), the reference fit and its
+        covariance when the supporting readings agree at alpha, else None, None).
+
+        ``used``: the readings the output rests on; ``start``/``cov_pos``: the
+        output, the fallback reference when ``used`` is too few to fit.
+        """
+        model = self.model
+        support = used & ~np.isnan(z)
+        agreed = False
+        if int(support.sum()) > model.d:
+            fit = gauss_newton(model, z, support[None, :], start, known, 2)
+            ref, cov, resid, jac = fit.pos[0], inv_small(fit.info[0]), fit.raw[0], fit.jac[0]
+            agreed = bool(fit.cost[0] <= self.chi(int(support.sum()) - model.d))
+        else:
+            ref, cov = start, cov_pos
+            hx, jac = model.h_jac(ref, known)
+            resid = z - hx
+        hcov = np.einsum("pd,de,pe->p", jac, cov, jac)
         seen = ~np.isnan(resid)
         slot = self.k % self.resid.shape[0]
         self.k += 1
@@ -107,54 +132,48 @@ class Namer:
         self.seen[slot] = seen
         n = self.seen.sum(axis=0)
         mean = self.resid.sum(axis=0) / np.maximum(n, 1)
-        sig2 = self.model.sigma_m**2
-        persistent = (n >= 3) & (mean * mean > self.gate * (sig2 / np.maximum(n, 1) + hph))
-        jump = np.where(seen, resid * resid > self.gate * (sig2 + hph), False)
-        return outside & seen & (jump | persistent)
-
-    def name_jumps(self, z: np.ndarray, pos: np.ndarray, cov_pos: np.ndarray, known: Known) -> np.ndarray:
-        """The step test alone, against another fit (the window keeps the estimate's residuals)."""
-        hx, jac = self.model.h_jac(pos, known)
-        var = self.model.sigma_m**2 + np.einsum("pd,de,pe->p", jac, cov_pos, jac)
-        resid = z - hx
-        return np.where(np.isnan(resid), False, resid * resid > self.gate * var)
+        sig2 = model.sigma_m**2
+        leaning = np.where(seen, resid * mean > 0.0, False)
+        persistent = (n >= 3) & leaning & (mean * mean > self.gate * (sig2 + hcov) / np.maximum(n, 1))
+        jump = np.where(seen, resid * resid > self.gate * (sig2 + hcov), False)
+        named = ~used & seen & (jump | persistent)
+        return (named, ref, cov) if agreed else (named, None, None)
 
 
 class Trail:
-    """Where the vehicle was last known to be, carried forward: the prior an explanation must agree with.
+    """Where the vehicle can be: the prior that beyond-tolerance judgements must agree with.
 
-    A constant-velocity Kalman filter on position fixes: set from every valid
-    estimate, predicted across the alarm, and corrected by each step's chosen
-    explanation, so the explanation a step picks has to continue the last one
-    (a coincidental consistent subset metres away does not). Its process noise
-    is a manoeuvre, not the estimators' tuning: a multirotor that brakes hard
-    (``MANOEUVRE_MPS2``) must stay inside the prior, or a surprised filter
-    would look like liars beyond tolerance.
+    Its own constant-velocity Kalman filter, corrected each valid step by the
+    least-squares fit of the readings the output rests on when they agree (else
+    by the output itself, with its own covariance), and while degraded by each
+    explanation, so it learns the vehicle's velocity from the fixes rather than
+    trusting an estimator's: a snapshot estimator has none, and a filter's
+    estimate lags in a turn, which would drag the trail behind the vehicle and
+    make the honest readings look like liars. Its process
+    noise is a manoeuvre, not the estimators' tuning: a multirotor braking or
+    turning hard (``MANOEUVRE_MPS2``) stays inside it, while a coincidental
+    consistent subset a metre away in one step does not.
     """
 
-    def __init__(self, d: int, vel_std_mps: float, q_mps2: float = MANOEUVRE_MPS2) -> None:
+    def __init__(self, d: int, q_mps2: float = MANOEUVRE_MPS2, vel_std_mps: float = MAX_SPEED_MPS) -> None:
         self.d, self.q_mps2, self.vel_var = d, q_mps2, vel_std_mps**2
         self.x: np.ndarray | None = None
-        self.P = np.eye(2 * d)
+        self.P = np.zeros((2 * d, 2 * d))
+        self.t_s = 0.0
 
-    def set(self, pos: np.ndarray, vel: np.ndarray | None, cov: np.ndarray | None) -> None:
-        """Restart from an estimate that is valid (its own velocity and covariance where it has them)."""
-        d = self.d
-        self.x = np.concatenate([pos, np.zeros(d) if vel is None else vel])
-        P = np.diag([0.0] * d + [self.vel_var] * d)
-        if cov is not None and cov.shape[0] >= 2 * d:
-            P = cov[: 2 * d, : 2 * d].copy()
-        elif cov is not None:
-            P[:d, :d] = cov[:d, :d]
-        self.P = P
-
-    def predict(self, dt_s: float) -> tuple[np.ndarray, np.ndarray] | None:
-        """The prior (position, covariance) ``dt_s`` later; None before any valid estimate."""
+    def predict_to(self, t_s: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """The prior (position, covariance) at ``t_s``; None before the first fix."""
         if self.x is None:
             return None
-        f, q = cv_matrices(self.d, dt_s, self.q_mps2)
-        self.x, self.P = f @ self.x, f @ self.P @ f.T + q
+        dt = max(0.0, t_s - self.t_s)
+        if dt > 0.0:
+            f, q = cv_matrices(self.d, dt, self.q_mps2)
+            self.x, self.P = f @ self.x, f @ self.P @ f.T + q
+            self.t_s = t_s
         return self.x[: self.d], self.P[: self.d, : self.d]
+
+    def velocity(self) -> np.ndarray | None:
+        return None if self.x is None else self.x[self.d :].copy()
 
     def distance(self, pos: np.ndarray, cov: np.ndarray) -> float:
         """Squared Mahalanobis distance of a position (covariance ``cov``) from the predicted trail."""
@@ -164,24 +183,30 @@ class Trail:
         gap = pos - self.x[:d]
         return float(gap @ np.linalg.solve(self.P[:d, :d] + cov + 1e-12 * np.eye(d), gap))
 
-    def correct(self, pos: np.ndarray, cov: np.ndarray) -> None:
-        """Kalman update with a position fix (``H = [I 0]``)."""
-        if self.x is None:
-            return
+    def correct(self, pos: np.ndarray, cov: np.ndarray, t_s: float) -> None:
+        """Kalman update with a position fix (``H = [I 0]``); the first fix starts the trail at rest."""
         d = self.d
-        gain = np.linalg.solve(self.P[:d, :d] + cov, self.P[:d, :]).T
+        if self.x is None:
+            self.x = np.concatenate([pos, np.zeros(d)])
+            self.P = np.zeros((2 * d, 2 * d))
+            self.P[:d, :d] = cov
+            self.P[d:, d:] = self.vel_var * np.eye(d)
+            self.t_s = t_s
+            return
+        gain = np.linalg.solve(self.P[:d, :d] + cov + 1e-12 * np.eye(d), self.P[:d, :]).T
         self.x = self.x + gain @ (pos - self.x[:d])
         self.P = self.P - gain @ self.P[:d, :]
+        self.P = 0.5 * (self.P + self.P.T)
 
 
 @dataclass(frozen=True, eq=False)
 class Explanation:
     """The fewest-liars explanations of one step's readings when more than s lie (module docstring)."""
 
-    liars: int  # k: how many readings the passing subsets leave out (0: nothing passed within the budget)
     named: np.ndarray  # (p,) bool: left out by every passing subset
     pos: np.ndarray | None  # their common position, None if they disagree or none passed
     cov: np.ndarray | None
+    used: np.ndarray  # (p,) bool: the readings of the best explanation (none when pos is None)
 
 
 @dataclass(frozen=True, eq=False)
@@ -245,14 +270,16 @@ def explain(
     for k in range(s + 1, p):
         if int(avail.sum()) - k < model.min_sensors + 1 or model.honest_subsets(k).shape[0] > budget:
             break
-        level = agreeing(model, z, k, chi, start, known, prior, n_iter)
+        level = agreeing(model, z, k, chi, start, known, prior, n_iter)  # honest_subsets is cached
         if not level.passing.any():
             continue
         named = avail & ~np.any(level.masks[level.passing] & avail, axis=0)
         best = level.best()
         spread = level.pos[level.passing] - level.pos[best]
         cov = level.cov[best]
-        # The explanations agree on one position when each lies inside the best one's 3-sigma ellipse.
+        # The explanations agree on one position when every one lies inside the best one's 3-sigma ellipse.
         agree = bool(np.all(np.einsum("jd,de,je->j", spread, np.linalg.pinv(cov), spread) <= _agree_gate(d)))
-        return Explanation(k, named, level.pos[best] if agree else None, cov if agree else None)
-    return Explanation(0, np.zeros(p, dtype=bool), None, None)
+        if not agree:
+            return Explanation(named, None, None, np.zeros(p, dtype=bool))
+        return Explanation(named, level.pos[best], cov, level.masks[best] & avail)
+    return Explanation(np.zeros(p, dtype=bool), None, None, np.zeros(p, dtype=bool))

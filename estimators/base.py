@@ -58,6 +58,16 @@ def _indices(mask: np.ndarray) -> frozenset[int]:
     return frozenset(np.flatnonzero(mask).tolist())
 
 
+def _mahalanobis(gap: np.ndarray, cov: np.ndarray) -> float:
+    return float(gap @ np.linalg.solve(cov + 1e-12 * np.eye(gap.shape[0]), gap))
+
+
+def _mask(indices: frozenset[int], p: int) -> np.ndarray:
+    out = np.zeros(p, dtype=bool)
+    out[list(indices)] = True
+    return out
+
+
 class Estimator:
     """Common parameters and bookkeeping; see the module docstring."""
 
@@ -102,7 +112,7 @@ class Estimator:
         """Forget the past. ``x0``: position (d) or position+velocity (2d); None = bootstrap from data."""
         self.t_s = None if x0 is None else float(t_s)
         self.namer = Namer(self.model, self.alpha)  # naming attacked readings at a family-wise alpha
-        self.trail = Trail(self.model.d, self.p0_vel_mps)  # last known position, for explanations
+        self.trail = Trail(self.model.d)  # where the vehicle can be, for judging alarms and explanations
         x = None
         if x0 is not None:
             x0 = np.asarray(x0, dtype=float).reshape(-1)
@@ -122,46 +132,63 @@ class Estimator:
         kn = self.model.default_known if known is None else known
         est = self._step(float(t_s), dt_s, zv, kn)
         if est.ok and self.secure:
-            self._attribute(zv, est, kn, dt_s)
+            self._attribute(zv, est, kn)
         # The Estimate is frozen for its readers; stamping our own fresh instance costs far less than replace().
         object.__setattr__(est, "step_time_s", time.perf_counter() - t0)
         return est
 
-    def _attribute(self, z: np.ndarray, est: Estimate, known: Known, dt_s: float) -> None:
-        """Name the attacked readings and judge an alarm (``attribution``); fills in ``est`` (our fresh instance)."""
-        d, p = self.model.d, self.model.p
+    def _attribute(self, z: np.ndarray, est: Estimate, known: Known) -> None:
+        """Judge the output against the trail, name the attacked readings (``attribution``); fills in ``est``.
+
+        ``est`` is this step's fresh instance: its fields are replaced in place so that position, covariance,
+        velocity and ``used`` always describe the same answer.
+        """
+        model, d = self.model, self.model.d
+        prior = self.trail.predict_to(est.t_s)
         cov = np.zeros((d, d)) if est.covariance is None else est.covariance[:d, :d]
-        outside = np.ones(p, dtype=bool)
-        outside[list(est.used)] = False
-        named = self.namer.name(z, est.position_m, cov, outside, known)
-        prior = self.trail.predict(dt_s)
+        pos, used = est.position_m, _mask(est.used, model.p)
+        support = used  # the readings a reading is judged against and the trail is fed from
+        named = None
         # An estimate that leaves the trail is judged like an alarm: beyond tolerance an estimator's own
         # tests can accept a coincidental consistent subset far from where the vehicle is.
-        off_trail = prior is not None and self.trail.distance(est.position_m, cov) > self.chi_confirm(d)
-        if (est.alarm or off_trail) and int((~np.isnan(z)).sum()) >= self.model.min_sensors:
+        off_trail = prior is not None and self.trail.distance(pos, cov) > self.chi_confirm(d)
+        if (est.alarm or off_trail) and int((~np.isnan(z)).sum()) >= model.min_sensors:
             # Confirmed only if no p - s readings agree on a position where the vehicle can be (the trail).
-            level = agreeing(self.model, z, self.s, self.chi_confirm, est.position_m, known, prior, self.n_iter)
+            level = agreeing(model, z, self.s, self.chi_confirm, pos, known, prior, self.n_iter)
             if level.passing.any():
-                if est.alarm:
-                    # Some do (a surprised filter, not liars beyond tolerance): accuse only readings their
-                    # fit cannot explain.
-                    j = level.best()
-                    named = self.namer.name_jumps(z, level.pos[j], level.cov[j], known) & ~level.masks[j]
+                j = level.best()
+                support = level.masks[j] & ~np.isnan(z)  # a coasting filter's own support may be empty
+                if off_trail or _mahalanobis(pos - level.pos[j], level.cov[j] + cov) > self.chi_confirm(d):
+                    # Within tolerance after all, but the estimator's own answer is not where the agreeing
+                    # readings put the vehicle (a least-bad filter after an attack): theirs is the output.
+                    pos, cov, used = level.pos[j], level.cov[j], support
+                    self._replace(est, pos, cov, used)
             else:
-                found = explain(self.model, z, self.s, self.chi, est.position_m, known, prior, self.n_iter)
+                found = explain(model, z, self.s, self.chi, pos, known, prior, self.n_iter)
                 named = found.named
                 object.__setattr__(est, "valid", False)
                 object.__setattr__(est, "alarm", True)  # confirmed beyond tolerance, whoever noticed first
                 if found.pos is not None and found.cov is not None:
-                    object.__setattr__(est, "position_m", found.pos)
-                    self.trail.correct(found.pos, found.cov)
+                    pos, cov, used = found.pos, found.cov, found.used
+                    self._replace(est, pos, cov, used)
                 elif prior is not None:
                     # No single explanation this step: coast on the trail rather than output a fit the
                     # readings have just shown to be beyond tolerance.
-                    object.__setattr__(est, "position_m", prior[0].copy())
-        if est.valid:
-            self.trail.set(est.position_m, est.velocity_mps, est.covariance)
-        object.__setattr__(est, "attacked", _indices(named))
+                    pos, cov, used = prior[0].copy(), prior[1].copy(), np.zeros(model.p, dtype=bool)
+                    self._replace(est, pos, cov, used)
+                support = used
+        within, fix, fix_cov = self.namer.name(z, support, pos, cov, known)  # every step
+        if est.valid or support.any():  # a valid output, or an explanation (not a coast on the trail itself)
+            # The readings' own fit where they agree (a filter's output lags in a turn), else the output.
+            self.trail.correct(pos if fix is None else fix, cov if fix_cov is None else fix_cov, est.t_s)
+        object.__setattr__(est, "attacked", _indices(within if named is None else named))
+
+    def _replace(self, est: Estimate, pos: np.ndarray, cov: np.ndarray, used: np.ndarray) -> None:
+        """Make ``est`` another fit's answer: its position and covariance, the trail's velocity, its readings."""
+        object.__setattr__(est, "position_m", np.array(pos, dtype=float))
+        object.__setattr__(est, "covariance", np.array(cov, dtype=float))
+        object.__setattr__(est, "velocity_mps", self.trail.velocity())
+        object.__setattr__(est, "used", _indices(used))
 
     # -- for subclasses ---------------------------------------------------
     def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:

@@ -325,6 +325,14 @@ class AnchorRangesHeight(AnchorRanges3D):
     laser moves every range model with no test able to catch it; here it is a
     sensor like the ranges, which a secure estimator can outvote and name.
     ``max_correctable`` counts the laser: (p + 1 - 4) // 2 (2 for 8 anchors).
+
+    The limit of coplanar anchors: the ranges alone cannot tell a position from
+    its mirror image across the anchor plane. At the hover height (2.5 m over
+    anchors on 1 m posts) the mirror is underground, outside the box, and the
+    laser is one reading among nine. Below twice the anchors' height the mirror
+    lies above the ground and only the laser says which side the vehicle is on:
+    there (take-off, landing) a spoofed laser moves the height to the mirror and
+    no estimator on this layout can tell. Anchors at two heights remove it.
     """
 
     ground_down_m: float = 0.0

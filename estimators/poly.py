@@ -40,7 +40,8 @@ loosens its own polygon and is never caught (a shortened one empties the
 intersection and is dropped); the Chebyshev centre is a coarse point
 estimate (the lens the outer polygons leave is ~2 eps wide), which is why the
 seed's figures show RARSE noisier than the filters. Defaults: N = 16, k = 3,
-lam = 10, M = 50 m.
+lam = 10, M from the model's box (just large enough that a dropped reading's
+rows never bind inside it).
 """
 
 from __future__ import annotations
@@ -63,7 +64,7 @@ class Polyhedral(Estimator):
         faces: int = 16,
         k_sigma: float = 3.0,
         lam: float = 10.0,
-        big_m: float = 50.0,
+        big_m: float | None = None,
         **params,
     ) -> None:
         if not self.applies_to(model):
@@ -107,17 +108,26 @@ class Polyhedral(Estimator):
         spread = (self.k_sigma * float(np.mean(model.sigma_m[use]))) ** 2
         return self._estimate(t_s, self.pos, cov=np.linalg.inv(info) + spread * np.eye(2), used=use)
 
+    def _big_m(self, b: np.ndarray) -> float:
+        """Large enough that a dropped reading's rows never bind anywhere in the box, small enough to keep the
+        relaxation tight: the largest ``A x + t`` over the box's corners (t up to the box) less the smallest b."""
+        lo, hi = self.model.bounds_m if self.model.bounds_m is not None else (np.full(2, -1e3), np.full(2, 1e3))
+        corners = np.array([[x, y] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])])
+        reach = float(np.max(corners @ self.normals.T)) + float(np.max(hi - lo))
+        return max(reach - float(np.min(b)), 1.0) + 1.0
+
     def _solve(self, b: np.ndarray, have: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """Variables [x (2), t, b (p)]; None if infeasible."""
         p, faces = b.shape
         idx = np.flatnonzero(have)
+        big_m = self.big_m if self.big_m is not None else self._big_m(b[idx])
         n = 3 + p
         rows = np.zeros((idx.size * faces, n))
         for j, i in enumerate(idx):
             block = slice(j * faces, (j + 1) * faces)
             rows[block, :2] = self.normals
             rows[block, 2] = 1.0
-            rows[block, 3 + i] = -self.big_m
+            rows[block, 3 + i] = -big_m
         budget = np.zeros((1, n))
         budget[0, 3:] = 1.0
         cost = np.concatenate([[0.0, 0.0, -1.0], np.full(p, self.lam)])

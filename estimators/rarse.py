@@ -154,14 +154,14 @@ class Rarse(Estimator):
         best = int(np.argmin(score))
         need = model.min_sensors
         if size[best] < need or not model.within_tolerance(avail & ~inlier[best], self.s):
-            return self._coast(t_s, z, known)
+            return self._coast(t_s)
         # Refit from the prediction (one Gauss-Newton step is noise-level exact there); if that
         # fails, or on a cold start, iterate from the winning hypothesis instead.
         kept = self._eliminate(z, inlier[best], start, 1, need, known, at_pred) if self.started else None
         if kept is None:
             kept = self._eliminate(z, inlier[best], hyps[best], self.n_iter, need, known)
         if kept is None:
-            return self._coast(t_s, z, known)
+            return self._coast(t_s)
         use, pos, cov, t = kept
         if not self.started:
             P0 = self.P0.copy()
@@ -174,7 +174,7 @@ class Rarse(Estimator):
         x, P = self.ekf.x[0], self.ekf.P[0]
         return self._estimate(t_s, x[:d], x[d:], P, False, use)
 
-    def _coast(self, t_s: float, z: np.ndarray, known: Known) -> Estimate:
+    def _coast(self, t_s: float) -> Estimate:
         if not self.started:
             return self._estimate(t_s, None, alarm=True)
         d = self.model.d

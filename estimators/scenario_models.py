@@ -21,8 +21,9 @@ def _uwb_anchor_ids(scenario: Scenario, vehicle: Vehicle) -> list[int]:
     return sorted(scenario.anchor_positions(uwb.anchors))
 
 
-# The downward laser measures along the body axis; a tilt of t lengthens it by 1/cos(t) - 1 (1.5 % at 10 deg).
-# Its std in the model allows for 1 % of the height on top of its own noise.
+# The downward laser measures along the body axis; a tilt of t lengthens it by 1/cos(t) - 1 (0.4 % at 5 deg,
+# 1.5 % at 10 deg), a bias with the tilt. The model treats 1 % of the hold height as extra noise on top of the
+# laser's own.
 LASER_TILT_FRACTION = 0.01
 
 

@@ -46,6 +46,7 @@ class EstimatorTrace:
     # covariance or truth); a consistent estimator averages the number of position dimensions
     nees: np.ndarray | None = None
     degraded: np.ndarray | None = None  # (T,) bool: the estimate says it is not to be trusted (Estimate.valid False)
+    height_err_m: np.ndarray | None = None  # (T,) |estimated - true down| where the model estimates the height
 
 
 @dataclass(frozen=True, eq=False)
@@ -254,6 +255,7 @@ def _run_estimator(
     alarm = np.zeros(n, dtype=bool)
     nees = np.full(n, np.nan)
     degraded = np.zeros(n, dtype=bool)
+    herr = np.full(n, np.nan) if isinstance(model, AnchorRangesHeight) else None
     for k in range(n):
         kn = None if known.shape[1] == 0 else float(known[k, 0]) if known.shape[1] == 1 else known[k]
         out = est.step(float(s1.t_s[k]), z[k], kn)
@@ -264,12 +266,14 @@ def _run_estimator(
         xy[k] = pos[:2]
         err[k] = float(np.linalg.norm(pos[:2] - s1.truth_ned_m[k, :2]))
         nees[k] = _nees(pos[:2] - s1.truth_ned_m[k, :2], out.covariance)
+        if herr is not None:
+            herr[k] = abs(float(pos[2]) - float(s1.truth_ned_m[k, 2]))
         if truth2 is not None and rerr is not None:
             est_range = np.sqrt(np.sum((pos[0:2] - pos[2:4]) ** 2) + (kn[0] - kn[1]) ** 2)
             true_range = float(np.linalg.norm(s1.truth_ned_m[k] - truth2[k]))
             rerr[k] = abs(est_range - true_range)
     dev = None if local is None else np.linalg.norm(xy - local, axis=1)
-    return EstimatorTrace(err, rerr, xy, times, named, alarm, dev, nees, degraded)
+    return EstimatorTrace(err, rerr, xy, times, named, alarm, dev, nees, degraded, herr)
 
 
 def _nees(error: np.ndarray, cov: np.ndarray | None) -> float:

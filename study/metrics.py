@@ -18,6 +18,8 @@ the engine changed it (its offset is non-zero), whatever the size.
   whose covariance is honest averages the number of position dimensions).
 - recall by magnitude: attacked readings named, binned by |offset| in units of
   the sensor's noise sigma, so a small attack that is missed shows as missed.
+- height RMSE: where the model estimates the height (test case 1 with the
+  laser as a reading), the vertical error, which the horizontal errors hide.
 Only steps after the estimators' warm-up are scored, as in ``secuav-eval``.
 """
 
@@ -66,7 +68,10 @@ def detection_figures(trial: TrialResult, name: str) -> dict[str, Any]:
     for lo, hi in itertools.pairwise(SIGMA_BINS):
         sel = attacked & (in_sigma > lo) & (in_sigma <= hi)
         by_bin[_bin_label(lo, hi)] = float((named & sel).sum() / sel.sum()) if sel.any() else None
+    herr = None if trace.height_err_m is None else trace.height_err_m[keep]
+    herr = None if herr is None or not np.isfinite(herr).any() else herr[np.isfinite(herr)]
     return {
+        "height_rmse_m": None if herr is None else float(np.sqrt(np.mean(herr**2))),
         "detection_delay_s": delay,
         "false_alarm_rate": float(wrong.sum() / n_est) if n_est else None,
         "recall_all": float((named & attacked).sum() / attacked.sum()) if attacked.any() else None,

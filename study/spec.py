@@ -263,8 +263,9 @@ def expand(study: Study, source: str) -> list[Cell]:
             mode=study.mode, scenario=scenario_hash, duration_s=duration, leg=leg, position=pos,
             attack=None if profile is None else profile.content_hash(), seed=seed,
             settle_s=study.settle_s if study.mode == "closed-loop" else None,
-            **({"estimator_params": tuning} if tuning else {}),  # absent when empty: older keys stay valid
-            **({"dims": study.dims} if study.dims != 3 else {}),
+            # dims always: the default model changed from 2-D to 3-D (the laser a reading), so a directory of
+            # older rows must not pass for this model's. estimator_params only when set.
+            dims=study.dims, **({"estimator_params": tuning} if tuning else {}),
         )  # fmt: skip
         if key in seen:  # two attack entries that resolve to the same profile: one cell
             continue

@@ -34,7 +34,7 @@ SCHEMA = pa.schema([
     ("estimator_params", _S),  # JSON of the study's estimator_params grid point (null: the defaults)
     ("status", _S), ("error", _S),
     ("rmse_m", _F), ("mean_error_m", _F), ("p95_error_m", _F), ("max_error_m", _F),
-    ("range_rmse_m", _F), ("range_max_error_m", _F),
+    ("range_rmse_m", _F), ("range_max_error_m", _F), ("height_rmse_m", _F),
     ("estimate_fraction", _F), ("alarm_fraction", _F),
     ("attack_detection_precision", _F), ("attack_detection_recall", _F),
     ("detection_delay_s", _F), ("false_alarm_rate", _F), ("recall_all", _F), ("precision_all", _F),

@@ -143,4 +143,8 @@ def test_the_height_is_inside_the_attack_surface_offline() -> None:
     sec = spoofed.traces["secekf"]
     assert sec.named[late, laser].mean() > 0.9 and not sec.named[late, :laser].any()
     assert np.nanmean(sec.err_m[late]) < 1.5 * np.nanmean(clean.traces["secekf"].err_m[late])
+    # The height itself: held by the ranges, while the undefended EKF follows the spoofed laser.
+    assert sec.height_err_m is not None and np.sqrt(np.nanmean(sec.height_err_m[late] ** 2)) < 0.15
+    ekf = spoofed.traces["ekf"].height_err_m
+    assert ekf is not None and np.nanmean(ekf[late]) > 1.0
 

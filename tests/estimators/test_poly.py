@@ -24,7 +24,7 @@ def _attack(offsets: list[float]):
     xy=st.tuples(st.floats(0.5, 4.5), st.floats(0.5, 4.5)),
     noise=st.lists(st.floats(-0.3, 0.3), min_size=8, max_size=8),
 )
-def test_an_honest_reading_never_excludes_the_truth(anchors8: AnchorRanges2D, xy, noise) -> None:
+def test_an_honest_readings_polygon_contains_the_truth(anchors8: AnchorRanges2D, xy, noise) -> None:
     """Noise inside k sigma: the truth satisfies every reading's circumscribed polygon (the set guarantee)."""
     est = Polyhedral(anchors8)
     truth = np.array(xy)
