@@ -160,6 +160,7 @@ class Trail:
         self.x: np.ndarray | None = None
         self.P = np.zeros((2 * d, 2 * d))
         self.t_s = 0.0
+        self.last_fix: tuple[np.ndarray, np.ndarray] | None = None  # the last position it was corrected with
 
     def predict_to(self, t_s: float) -> tuple[np.ndarray, np.ndarray] | None:
         """The prior (position, covariance) at ``t_s``; None before the first fix."""
@@ -175,6 +176,14 @@ class Trail:
     def velocity(self) -> np.ndarray | None:
         return None if self.x is None else self.x[self.d :].copy()
 
+    def hold(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Where to say the vehicle is when nothing explains the readings: the last fix, with the covariance the
+        trail has grown since (extrapolating its velocity for seconds would run away from a hovering vehicle)."""
+        if self.last_fix is None:
+            return None
+        d = self.d
+        return self.last_fix[0].copy(), self.P[:d, :d].copy()
+
     def distance(self, pos: np.ndarray, cov: np.ndarray) -> float:
         """Squared Mahalanobis distance of a position (covariance ``cov``) from the predicted trail."""
         if self.x is None:
@@ -186,6 +195,7 @@ class Trail:
     def correct(self, pos: np.ndarray, cov: np.ndarray, t_s: float) -> None:
         """Kalman update with a position fix (``H = [I 0]``); the first fix starts the trail at rest."""
         d = self.d
+        self.last_fix = (np.array(pos, dtype=float), np.array(cov, dtype=float))
         if self.x is None:
             self.x = np.concatenate([pos, np.zeros(d)])
             self.P = np.zeros((2 * d, 2 * d))

@@ -37,8 +37,8 @@ class Estimate:
     trusted (an alarm that the readings of this step confirm at a ten times
     smaller false-alarm level: no p - s of them agree on one position near the
     trail of valid estimates); the position is then the fewest-liars
-    explanation's where one exists (``attribution.explain``), else the trail's
-    prediction. An alarm that the readings do not confirm (a filter surprised by
+    explanation's where one exists (``attribution.explain``), else the last
+    position the trail knew (held, not extrapolated). An alarm that the readings do not confirm (a filter surprised by
     a manoeuvre) leaves it valid.
     """
 
@@ -171,10 +171,10 @@ class Estimator:
                 if found.pos is not None and found.cov is not None:
                     pos, cov, used = found.pos, found.cov, found.used
                     self._replace(est, pos, cov, used)
-                elif prior is not None:
-                    # No single explanation this step: coast on the trail rather than output a fit the
-                    # readings have just shown to be beyond tolerance.
-                    pos, cov, used = prior[0].copy(), prior[1].copy(), np.zeros(model.p, dtype=bool)
+                elif (held := self.trail.hold()) is not None:
+                    # No single explanation this step: hold the last known position rather than output a fit
+                    # the readings have just shown to be beyond tolerance.
+                    pos, cov, used = held[0], held[1], np.zeros(model.p, dtype=bool)
                     self._replace(est, pos, cov, used)
                 support = used
         within, fix, fix_cov = self.namer.name(z, support, pos, cov, known)  # every step

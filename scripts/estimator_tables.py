@@ -44,7 +44,7 @@ def _ok(out: Path) -> pd.DataFrame | None:
 
 def _params(frame: pd.DataFrame, **want: object) -> pd.DataFrame:
     keep = [all(json.loads(p or "{}").get(k) == v for k, v in want.items()) for p in frame["params"]]
-    return frame[keep]
+    return frame.loc[np.array(keep, dtype=bool)]  # a boolean mask (an empty list would select columns)
 
 
 def _cell(frame: pd.DataFrame, metric: str, digits: int = 3, ci: bool = True) -> str:
