@@ -8,8 +8,10 @@ normalised by its predicted std ``sqrt(sigma_i^2 + H_i P_pos H_i^T)``, is
 ~N(0, 1) for an honest sensor, so the window mean m over n readings is
 ~N(0, 1/n) and ``n m^2`` is chi-square with one degree of freedom. A sensor
 fails when ``n m^2 > chi2.ppf(1 - alpha, 1)`` with at least 3 readings in the
-window; the caller leaves failing sensors out (only if at most s fail: more
-means the prediction itself has drifted) and reports them.
+window; the caller leaves failing sensors out of its estimate (only if at most
+s fail: more means the prediction itself has drifted). This decides what the
+estimate rests on, at each reading's own level alpha; who is *named* is decided
+separately, at a family-wise level, by ``attribution.py``.
 """
 
 from __future__ import annotations
