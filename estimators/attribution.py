@@ -43,8 +43,11 @@ still say whom it suspects, and the suspicion should be right. :func:`explain`
 is the l0 decoder with a growing budget of liars: for k = s + 1, s + 2, ... it
 fits every subset that leaves out k readings (``model.honest_subsets(k)``) and
 keeps those that agree at ``alpha``. At the smallest k where
-some pass, the readings named are those *every* passing subset leaves out: the
-sensors all explanations with the fewest liars agree are lying. Several
+some pass, the readings named are those *every* passing subset leaves out (the
+sensors all explanations with the fewest liars agree are lying) that also fail
+the within-tolerance tests against the best explanation's fit: with biases of a
+few sigma the fewest liars can be honest readings, and the tests keep them from
+being accused. Several
 explanations that disagree (a colluding attacker who built a second consistent
 picture) name only what they share, possibly nothing, and give no position;
 a single explanation (or several on one position) also gives its fit, which the

@@ -149,9 +149,10 @@ class Estimator:
         pos, used = est.position_m, _mask(est.used, model.p)
         support = used  # the readings a reading is judged against and the trail is fed from
         named = None
-        # An estimate that leaves the trail is judged like an alarm: beyond tolerance an estimator's own
-        # tests can accept a coincidental consistent subset far from where the vehicle is.
-        off_trail = prior is not None and self.trail.distance(pos, cov) > self.chi_confirm(d)
+        # An estimate that leaves the trail (at level alpha: judging costs a subset search, not a verdict) is
+        # judged like an alarm: beyond tolerance an estimator's own tests can accept a coincidental consistent
+        # subset far from where the vehicle is, and the step it jumps there must not drag the trail along.
+        off_trail = prior is not None and self.trail.distance(pos, cov) > self.chi(d)
         if (est.alarm or off_trail) and int((~np.isnan(z)).sum()) >= model.min_sensors:
             # Confirmed only if no p - s readings agree on a position where the vehicle can be (the trail).
             level = agreeing(model, z, self.s, self.chi_confirm, pos, known, prior, self.n_iter)
@@ -181,7 +182,10 @@ class Estimator:
         if est.valid or support.any():  # a valid output, or an explanation (not a coast on the trail itself)
             # The readings' own fit where they agree (a filter's output lags in a turn), else the output.
             self.trail.correct(pos if fix is None else fix, cov if fix_cov is None else fix_cov, est.t_s)
-        object.__setattr__(est, "attacked", _indices(within if named is None else named))
+        # Beyond tolerance a reading is named when every fewest-liars explanation leaves it out AND it fails the
+        # same family-wise tests against the explanation's fit: with small biases the fewest liars can be the
+        # wrong ones, and then the tests keep honest readings from being accused.
+        object.__setattr__(est, "attacked", _indices(within if named is None else named & within))
 
     def _replace(self, est: Estimate, pos: np.ndarray, cov: np.ndarray, used: np.ndarray) -> None:
         """Make ``est`` another fit's answer: its position and covariance, the trail's velocity, its readings."""
