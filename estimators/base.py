@@ -39,7 +39,10 @@ class Estimate:
     trail of valid estimates); the position is then the fewest-liars
     explanation's where one exists (``attribution.explain``), else the last
     position the trail knew (held, not extrapolated). An alarm that the readings do not confirm (a filter surprised by
-    a manoeuvre) leaves it valid.
+    a manoeuvre) leaves it valid. ``nis``: for estimators whose output is a Kalman filter's, that filter's
+    normalised innovation squared this step and its degrees of freedom, ``(nu^T S^-1 nu, readings used)``;
+    a consistent filter averages 1 per degree of freedom. None for snapshot estimators and steps without
+    an update.
     """
 
     t_s: float
@@ -52,6 +55,7 @@ class Estimate:
     used: frozenset[int] = frozenset()
     ok: bool = True
     valid: bool = True
+    nis: tuple[float, int] | None = None
 
 
 def _indices(mask: np.ndarray) -> frozenset[int]:
@@ -243,7 +247,10 @@ class Estimator:
         cov: np.ndarray | None = None,
         alarm: bool = False,
         used: np.ndarray | None = None,
+        nis: tuple[np.ndarray, np.ndarray] | None = None,
+        which: int = 0,
     ) -> Estimate:
+        """One step's answer; ``nis`` is an ``EkfBank.update`` result, of which filter ``which`` produced it."""
         d = self.model.d
         ok = pos is not None and bool(np.isfinite(pos).all())
         return Estimate(
@@ -256,4 +263,5 @@ class Estimator:
             step_time_s=0.0,
             used=frozenset() if used is None else _indices(used),
             ok=ok,
+            nis=None if nis is None or int(nis[1][which]) == 0 else (float(nis[0][which]), int(nis[1][which])),
         )

@@ -43,8 +43,9 @@ class ExtendedKalman(Estimator):
             P0[:d, :d] = cov + 1e-6 * np.eye(d)
             self.bank.seed(np.concatenate([pos, np.zeros(d)]), P0)
             self.started = True
+            nis = None
         else:
             self.bank.predict(dt_s)
-            self.bank.update(z, known)
+            nis = self.bank.update(z, known)
         x, P = self.bank.x[0], self.bank.P[0]
-        return self._estimate(t_s, x[:d], x[d:], P, used=avail)
+        return self._estimate(t_s, x[:d], x[d:], P, used=avail, nis=nis)

@@ -168,11 +168,12 @@ class Rarse(Estimator):
             P0[:d, :d] = cov + 1e-6 * np.eye(d)
             self.ekf.seed(np.concatenate([pos, np.zeros(d)]), P0)
             self.started = True
+            nis = None
         else:
             self.ekf.masks = use[None, :]
-            self.ekf.update(z, known, at_pred)
+            nis = self.ekf.update(z, known, at_pred)
         x, P = self.ekf.x[0], self.ekf.P[0]
-        return self._estimate(t_s, x[:d], x[d:], P, False, use)
+        return self._estimate(t_s, x[:d], x[d:], P, False, use, nis)
 
     def _coast(self, t_s: float) -> Estimate:
         if not self.started:

@@ -122,8 +122,7 @@ class Recap(Estimator):
         self.alarms_in_row = 0
         self.omega = omega
         self.ekf.masks = omega[None, :]
-        self.ekf.update(z, known, at_pred)
-        return self._output(t_s, omega)
+        return self._output(t_s, omega, self.ekf.update(z, known, at_pred))
 
     def _search(
         self,
@@ -149,7 +148,7 @@ class Recap(Estimator):
         choice = choose(stat - 1e-9 * same, fits.n_used, fits.n_used, valid, self.chi)
         return self.masks[choice.index] & ~np.isnan(z), choice.alarm
 
-    def _output(self, t_s: float, omega: np.ndarray) -> Estimate:
+    def _output(self, t_s: float, omega: np.ndarray, nis: tuple[np.ndarray, np.ndarray] | None = None) -> Estimate:
         d = self.model.d
         x, P = self.ekf.x[0], self.ekf.P[0]
-        return self._estimate(t_s, x[:d], x[d:], P, False, omega)
+        return self._estimate(t_s, x[:d], x[d:], P, False, omega, nis)

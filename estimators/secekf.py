@@ -91,7 +91,8 @@ class SecEkf(Estimator):
                 return self._estimate(t_s, None, alarm=True)
         else:
             self.bank.predict(dt_s)
-        nis, dof = self.bank.update(z, known)
+        innovation = self.bank.update(z, known)
+        nis, dof = innovation
         slot = self.k % self.window
         self.k += 1
         self.nis_buf[slot] = nis
@@ -109,4 +110,4 @@ class SecEkf(Estimator):
                 self.bank.seed(x, self.reseed_inflation * P, stale)
                 self.nis_buf[:, stale] = 0.0
                 self.dof_buf[:, stale] = 0
-        return self._estimate(t_s, x[:d], x[d:], P, choice.alarm, use)
+        return self._estimate(t_s, x[:d], x[d:], P, choice.alarm, use, innovation, j)

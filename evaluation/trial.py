@@ -23,6 +23,7 @@ import numpy as np
 import estimators
 from attack_profiles import Engine
 from attack_profiles.profile import Profile
+from estimators.base import Estimate
 from estimators.models import AnchorRangesHeight, MeasurementModel
 from estimators.scenario_models import anchor_model, two_vehicle_model, wall_group_model
 from evaluation.streams import Leg, VehicleStream, fly
@@ -47,6 +48,9 @@ class EstimatorTrace:
     nees: np.ndarray | None = None
     degraded: np.ndarray | None = None  # (T,) bool: the estimate says it is not to be trusted (Estimate.valid False)
     height_err_m: np.ndarray | None = None  # (T,) |estimated - true down| where the model estimates the height
+    # (T,) the output filter's normalised innovation squared per degree of freedom (Estimate.nis; NaN for
+    # snapshot estimators); a consistent filter averages 1. Needs no truth, so it is also there on logs.
+    nis: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -253,7 +257,7 @@ def _run_estimator(
     times = np.zeros(n)
     named = np.zeros(z.shape, dtype=bool)
     alarm = np.zeros(n, dtype=bool)
-    nees = np.full(n, np.nan)
+    nees, nis = np.full(n, np.nan), np.full(n, np.nan)
     degraded = np.zeros(n, dtype=bool)
     herr = np.full(n, np.nan) if isinstance(model, AnchorRangesHeight) else None
     for k in range(n):
@@ -266,6 +270,7 @@ def _run_estimator(
         xy[k] = pos[:2]
         err[k] = float(np.linalg.norm(pos[:2] - s1.truth_ned_m[k, :2]))
         nees[k] = _nees(pos[:2] - s1.truth_ned_m[k, :2], out.covariance)
+        nis[k] = _nis(out)
         if herr is not None:
             herr[k] = abs(float(pos[2]) - float(s1.truth_ned_m[k, 2]))
         if truth2 is not None and rerr is not None:
@@ -273,7 +278,12 @@ def _run_estimator(
             true_range = float(np.linalg.norm(s1.truth_ned_m[k] - truth2[k]))
             rerr[k] = abs(est_range - true_range)
     dev = None if local is None else np.linalg.norm(xy - local, axis=1)
-    return EstimatorTrace(err, rerr, xy, times, named, alarm, dev, nees, degraded, herr)
+    return EstimatorTrace(err, rerr, xy, times, named, alarm, dev, nees, degraded, herr, nis)
+
+
+def _nis(out: Estimate) -> float:
+    """The output filter's NIS per degree of freedom this step; NaN when there is none."""
+    return np.nan if out.nis is None else out.nis[0] / out.nis[1]
 
 
 def _nees(error: np.ndarray, cov: np.ndarray | None) -> float:
@@ -311,14 +321,15 @@ def _wall_trial(
         n = z.shape[0]
         d_est, times = np.full(n, np.nan), np.zeros(n)
         named, alarm = np.zeros(z.shape, dtype=bool), np.zeros(n, dtype=bool)
-        nees, degraded = np.full(n, np.nan), np.zeros(n, dtype=bool)
+        nees, nis, degraded = np.full(n, np.nan), np.full(n, np.nan), np.zeros(n, dtype=bool)
         for k in range(n):
             out = est.step(float(s1.t_s[k]), z[k])
             d_est[k], times[k], alarm[k], degraded[k] = out.position_m[0], out.step_time_s, out.alarm, not out.valid
             named[k, list(out.attacked)] = True
             nees[k] = _nees(np.array([d_est[k] - true_d[k]]), out.covariance)
+            nis[k] = _nis(out)
         traces[name] = EstimatorTrace(
-            np.abs(d_est - true_d), None, d_est[:, None], times, named, alarm, None, nees, degraded
+            np.abs(d_est - true_d), None, d_est[:, None], times, named, alarm, None, nees, degraded, None, nis
         )
     offsets, floor, scored_err, scored_det = _offsets(
         model, z, clean, engine, true_d[:, None], np.zeros((z.shape[0], 1)), from_log

@@ -116,26 +116,46 @@ def recall_by_sigma(frame: pd.DataFrame) -> str:
 
 
 def worst_case(frame: pd.DataFrame, with_bound: bool) -> str:
-    """Worst horizontal error over every attack within tolerance (not overwhelm) and seed, hover, per position.
+    """Worst horizontal error over every attack within tolerance (not overwhelm) and seed, per leg and point.
 
     With ``with_bound`` the l0 bound of estimators.bounds heads the table: it bounds the bounded-noise l0
     decoder (milp) on steps whose honest noise lies inside 3 sigma, and only that row is comparable with it.
     """
     scenario = load_scenario("anchors8")
     model = anchor_model(scenario)
-    within = frame[(frame["attack"] != "anchors-overwhelm") & (frame["leg"] == "hover")]
-    positions = list(dict.fromkeys(within["position"].dropna()))
+    within = frame[frame["attack"] != "anchors-overwhelm"]
+    places = _places(within)
     rows = []
     if with_bound:
         bound = []
-        for pos in positions:
+        for leg, pos in places:
             north, east = json.loads(pos)
             at = np.array([north, east, -2.5])
-            bound.append(f"{l0_error_bound(model, at, 2, 3.0 * model.sigma_m, None, slice(0, 2)):.2f}")
+            bound.append(f"{l0_error_bound(model, at, 2, 3.0 * model.sigma_m, None, slice(0, 2)):.2f}"
+                         if leg == "hover" else "n/a")  # fmt: skip
         rows.append(["l0 bound, 3-sigma noise box (bounds milp)", *bound])
     for est, g in within.groupby("estimator", sort=False):
-        rows.append([str(est), *[f"{g[g['position'] == p]['max_error_m'].max():.2f}" for p in positions]])
-    return _table(["worst horizontal error [m]", *positions], rows)
+        worst = [g[(g["leg"] == leg) & (g["position"] == pos)]["max_error_m"].max() for leg, pos in places]
+        rows.append([str(est), *[f"{w:.2f}" for w in worst]])
+    return _table(["worst horizontal error [m]", *[f"{leg} {pos}" for leg, pos in places]], rows)
+
+
+def _places(frame: pd.DataFrame) -> list[tuple[str, str]]:
+    """(leg, hover point) pairs in a stable order: hover before moving, centre first."""
+    pairs = {(leg, pos) for leg, pos in zip(frame["leg"], frame["position"], strict=True) if pos}
+    return sorted(pairs, key=lambda lp: (lp[0] != "hover", lp[1] != CENTRE, lp[1]))
+
+
+def by_place(frame: pd.DataFrame, attack: str, params: dict[str, object]) -> str:
+    """One attack at every hover point and on the moving leg: RMSE with its 95 % interval."""
+    f = _params(frame[frame["attack"] == attack], **params)
+    places = _places(f)
+    rows = []
+    for est, g in f.groupby("estimator", sort=False):
+        rows.append(
+            [str(est), *[_cell(g[(g["leg"] == leg) & (g["position"] == pos)], "rmse_m") for leg, pos in places]]
+        )
+    return _table(["RMSE [m]", *[f"{leg} {pos}" for leg, pos in places]], rows)
 
 
 def false_alarms(frames: dict[str, pd.DataFrame]) -> str:
@@ -145,9 +165,11 @@ def false_alarms(frames: dict[str, pd.DataFrame]) -> str:
         order = {name: i for i, name in enumerate(dict.fromkeys(n.split()[0] for n in frame["estimator"]))}
         for est in sorted(frame["estimator"].unique(), key=lambda label, order=order: _alpha_key(label, order)):
             g = frame[frame["estimator"] == est]
-            rows.append([noise, str(est), _cell(g, "false_alarm_rate", 4), _cell(g, "alarm_fraction", 4, ci=False),
-                         _cell(g, "rmse_m", 3, ci=False), _cell(g, "nees_mean", 2, ci=False)])  # fmt: skip
-    return _table(["noise", "estimator", "honest reading named (share of steps)", "alarm", "RMSE [m]", "NEES"], rows)
+            plain = [_cell(g, m, d, ci=False) for m, d in
+                     (("alarm_fraction", 4), ("rmse_m", 3), ("nees_mean", 2), ("nis_mean", 2))]  # fmt: skip
+            rows.append([noise, str(est), _cell(g, "false_alarm_rate", 4), *plain])
+    head = ["noise", "estimator", "honest reading named (share of steps)", "alarm", "RMSE [m]", "NEES", "NIS / dof"]
+    return _table(head, rows)
 
 
 def _alpha_key(label: str, order: dict[str, int]) -> tuple[int, float]:
@@ -177,6 +199,8 @@ def main() -> int:
         print("## Test case 1, centre hover\n\n" + test_case_1(tc1) + "\n")
         print("## Stealthy bias: recall and detection delay by magnitude\n\n" + recall_by_sigma(tc1) + "\n")
         print("## Worst case within tolerance\n\n" + worst_case(tc1, with_bound=False) + "\n")
+        for title, attack, params in (("clean", "none", {}), ("stealthy 3 sigma", "anchors-stealthy", {"sigmas": 3.0})):
+            print(f"## {title}, every place\n\n" + by_place(tc1, attack, params) + "\n")
     exact = _ok(args.out / "test-case-1-exact")
     if exact is not None:
         print("## Exact baselines, centre\n\n" + test_case_1(exact) + "\n")

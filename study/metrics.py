@@ -61,6 +61,8 @@ def detection_figures(trial: TrialResult, name: str) -> dict[str, Any]:
     valid_err = err[valid & np.isfinite(err)]
     nees = None if trace.nees is None else trace.nees[keep][valid]
     nees = None if nees is None or not np.isfinite(nees).any() else nees[np.isfinite(nees)]
+    nis = None if trace.nis is None else trace.nis[keep][valid]
+    nis = None if nis is None or not np.isfinite(nis).any() else nis[np.isfinite(nis)]
     wrong = (named & ~attacked).any(axis=1) & has_estimate
     n_est = int(has_estimate.sum())
     by_bin: dict[str, float | None] = {}
@@ -82,6 +84,7 @@ def detection_figures(trial: TrialResult, name: str) -> dict[str, Any]:
         "valid_rmse_m": float(np.sqrt(np.mean(valid_err**2))) if valid_err.size else None,
         "valid_max_error_m": float(valid_err.max()) if valid_err.size else None,
         "nees_mean": None if nees is None else float(np.mean(nees)),
+        "nis_mean": None if nis is None else float(np.mean(nis)),
     }
 
 

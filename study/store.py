@@ -40,6 +40,7 @@ SCHEMA = pa.schema([
     ("detection_delay_s", _F), ("false_alarm_rate", _F), ("recall_all", _F), ("precision_all", _F),
     ("recall_by_sigma", _S), ("attacked_fraction", _F),
     ("valid_fraction", _F), ("valid_rmse_m", _F), ("valid_max_error_m", _F), ("nees_mean", _F),
+    ("nis_mean", _F),  # the output filter's NIS per degree of freedom, over the steps claimed valid (1: consistent)
     ("step_time_us_median", _F), ("step_time_us_p99", _F),
     ("collided", pa.bool_()), ("min_distance_m", _F), ("flagged", _S),  # closed loop
     ("worker", _S), ("started_at", pa.timestamp("ms", tz="UTC")), ("wall_s", _F),
