@@ -38,7 +38,9 @@ estimate that leaves the trail (beyond tolerance an estimator's own tests can
 accept a coincidental consistent subset far off), is confirmed when no ``p - s``
 readings agree at ``alpha / 10``. If some do, the output is theirs whenever the
 estimator's own disagrees with them (a least-bad filter after an attack, a
-coincidental subset), and stays valid. Then the estimator cannot correct, but it can
+coincidental subset), and stays valid; after the estimator's own alarm its
+answer is judged by their fit's covariance alone (a coasting filter's
+covariance grows until any answer would "agree"). Then the estimator cannot correct, but it can
 still say whom it suspects, and the suspicion should be right. :func:`explain`
 is the l0 decoder with a growing budget of liars: for k = s + 1, s + 2, ... it
 fits every subset that leaves out k readings (``model.honest_subsets(k)``) and

@@ -163,7 +163,11 @@ class Estimator:
             if level.passing.any():
                 j = level.best()
                 support = level.masks[j] & ~np.isnan(z)  # a coasting filter's own support may be empty
-                if off_trail or _mahalanobis(pos - level.pos[j], level.cov[j] + cov) > self.chi_confirm(d):
+                # The estimator's answer is judged by the agreeing fit's covariance alone when it raised the
+                # alarm: by its own account it could not tell whom to trust, so its covariance (a coasting
+                # filter's grows without bound) says nothing about where its answer is.
+                own = np.zeros((d, d)) if est.alarm else cov
+                if off_trail or _mahalanobis(pos - level.pos[j], level.cov[j] + own) > self.chi_confirm(d):
                     # Within tolerance after all, but the estimator's own answer is not where the agreeing
                     # readings put the vehicle (a least-bad filter after an attack): theirs is the output.
                     pos, cov, used = level.pos[j], level.cov[j], support
