@@ -40,6 +40,16 @@ def _bin_label(lo: float, hi: float) -> str:
     return f"{lo:g}-{hi:g}" if np.isfinite(hi) else f">{lo:g}"
 
 
+def _finite(values: np.ndarray | None, *masks: np.ndarray) -> np.ndarray | None:
+    """The finite entries of a per-step trace after the masks are applied in turn; None if there are none."""
+    if values is None:
+        return None
+    for mask in masks:
+        values = values[mask]
+    finite = values[np.isfinite(values)]
+    return finite if finite.size else None
+
+
 def detection_figures(trial: TrialResult, name: str) -> dict[str, Any]:
     trace = trial.traces[name]
     keep = trial.t_s > WARMUP_S
@@ -59,10 +69,8 @@ def detection_figures(trial: TrialResult, name: str) -> dict[str, Any]:
     valid = has_estimate & ~degraded[keep]  # estimates that claim to be trustworthy
     err = trace.err_m[keep]
     valid_err = err[valid & np.isfinite(err)]
-    nees = None if trace.nees is None else trace.nees[keep][valid]
-    nees = None if nees is None or not np.isfinite(nees).any() else nees[np.isfinite(nees)]
-    nis = None if trace.nis is None else trace.nis[keep][valid]
-    nis = None if nis is None or not np.isfinite(nis).any() else nis[np.isfinite(nis)]
+    nees = _finite(trace.nees, keep, valid)
+    nis = _finite(trace.nis, keep, valid)
     wrong = (named & ~attacked).any(axis=1) & has_estimate
     n_est = int(has_estimate.sum())
     by_bin: dict[str, float | None] = {}
@@ -70,8 +78,7 @@ def detection_figures(trial: TrialResult, name: str) -> dict[str, Any]:
     for lo, hi in itertools.pairwise(SIGMA_BINS):
         sel = attacked & (in_sigma > lo) & (in_sigma <= hi)
         by_bin[_bin_label(lo, hi)] = float((named & sel).sum() / sel.sum()) if sel.any() else None
-    herr = None if trace.height_err_m is None else trace.height_err_m[keep]
-    herr = None if herr is None or not np.isfinite(herr).any() else herr[np.isfinite(herr)]
+    herr = _finite(trace.height_err_m, keep)
     return {
         "height_rmse_m": None if herr is None else float(np.sqrt(np.mean(herr**2))),
         "detection_delay_s": delay,
