@@ -5,7 +5,7 @@ Usage (after running the bundled studies into out/):
     .venv/bin/python scripts/estimator_tables.py --out out
 
 Reads out/test-case-1, out/test-case-1-exact, out/test-case-1-2d, out/false-alarms,
-out/false-alarms-nlos and out/test-case-2 where they exist and prints one
+out/false-alarms-nlos, out/test-case-2 and out/false-alarms-formation where they exist and prints one
 Markdown table each: means over seeds with 95 % bootstrap intervals where the
 study report gives them (study.report.mean_ci), and the l0 worst-case error
 bound of estimators.bounds at each hover point beside the measured worst case.
@@ -244,6 +244,10 @@ def main() -> int:
         print("## Test case 2 (formation), hover\n\n" + by_attack(hover, picks) + "\n")
         clean = hover[hover["attack"] == "none"]
         print(false_alarms({"gaussian": clean}) + "\n")
+    formation_fa = _ok(args.out / "false-alarms-formation")
+    if formation_fa is not None:
+        table = false_alarms({"gaussian": formation_fa})
+        print("## False alarms of the formation on long clean runs\n\n" + table + "\n")
     return 0
 
 
