@@ -19,6 +19,9 @@ from estimators.attribution import Namer, Trail, agreeing, explain
 from estimators.bank import Chi2Table, cv_matrices, gauss_newton, inv_small
 from estimators.models import Known, MeasurementModel
 
+EVIDENCE_STEPS = 10  # the evidence window: the last second at 10 Hz
+EVIDENCE_MIN = 2  # a reading counts as accused when named on at least this many of its steps
+
 
 @dataclass(frozen=True, eq=False)
 class Estimate:
@@ -38,7 +41,13 @@ class Estimate:
     smaller false-alarm level: no p - s of them agree on one position near the
     trail of valid estimates); the position is then the fewest-liars
     explanation's where one exists (``attribution.explain``), else the last
-    position the trail knew (held, not extrapolated). An alarm that the readings do not confirm (a filter surprised by
+    position the trail knew (held, not extrapolated). ``valid`` is also False (the answer unchanged) while the
+    evidence of the last second says more readings lie than are tolerated: in some tolerance group, more than its
+    tolerance were each named on at least ``EVIDENCE_MIN`` of the last ``EVIDENCE_STEPS`` steps. A few small
+    liars can take turns at looking honest (three relayed links at 5 sigma: one step leaves two of them out,
+    the next another two), so every step alone finds at most s liars and a consistent answer, which can be
+    further off than the plain EKF; the window sees all of them. An alarm that the readings do not confirm
+    (a filter surprised by
     a manoeuvre) leaves it valid. ``nis``: for estimators whose output is a Kalman filter's, that filter's
     normalised innovation squared this step and its degrees of freedom, ``(nu^T S^-1 nu, readings used)``;
     a consistent filter averages 1 per degree of freedom. None for snapshot estimators and steps without
@@ -117,6 +126,8 @@ class Estimator:
         self.t_s = None if x0 is None else float(t_s)
         self.namer = Namer(self.model, self.alpha)  # naming attacked readings at a family-wise alpha
         self.trail = Trail(self.model.d)  # where the vehicle can be, for judging alarms and explanations
+        self.accused = np.zeros((EVIDENCE_STEPS, self.model.p), dtype=bool)  # ring: who was named, last steps
+        self.accused_k = 0
         x = None
         if x0 is not None:
             x0 = np.asarray(x0, dtype=float).reshape(-1)
@@ -193,7 +204,15 @@ class Estimator:
         # Beyond tolerance a reading is named when every fewest-liars explanation leaves it out AND it fails the
         # same family-wise tests against the explanation's fit: with small biases the fewest liars can be the
         # wrong ones, and then the tests keep honest readings from being accused.
-        object.__setattr__(est, "attacked", _indices(within if named is None else named & within))
+        accused = within if named is None else named & within
+        object.__setattr__(est, "attacked", _indices(accused))
+        self.accused[self.accused_k % EVIDENCE_STEPS] = accused
+        self.accused_k += 1
+        if est.valid and not self.model.within_tolerance(self.accused.sum(axis=0) >= EVIDENCE_MIN, self.s):
+            # Evidence that builds up: more than s readings each named on several of the last steps lie
+            # together, whichever s of them this step's readings let the estimator leave out. The answer stays
+            # (it is the best the readings of this step allow); the claim that it can be trusted does not.
+            object.__setattr__(est, "valid", False)
 
     def _replace(self, est: Estimate, pos: np.ndarray, cov: np.ndarray, used: np.ndarray) -> None:
         """Make ``est`` another fit's answer: its position and covariance, the trail's velocity, its readings."""

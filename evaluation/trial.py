@@ -68,6 +68,8 @@ class TrialResult:
     scored_errors: bool = True  # False: no ground truth (a log without --truth)
     scored_detection: bool = True  # False: neither truth nor a known added attack
     local_xy_m: np.ndarray | None = None  # (T, 2) LOCAL_POSITION_NED of the first vehicle (logs)
+    readings_m: np.ndarray | None = None  # (T, p) what the estimators read (attacked; NaN = missing)
+    truth_down_m: np.ndarray | None = None  # (T,) the first vehicle's true NED down
 
 
 def is_wall(scenario: Scenario) -> bool:
@@ -196,6 +198,8 @@ def evaluate(
         scored_errors=scored_err,
         scored_detection=scored_det,
         local_xy_m=local,
+        readings_m=z,
+        truth_down_m=s1.truth_ned_m[:, 2],
     )
 
 
