@@ -20,7 +20,7 @@ from estimators.bank import Chi2Table, cv_matrices, gauss_newton, inv_small
 from estimators.models import Known, MeasurementModel
 
 EVIDENCE_STEPS = 10  # the evidence window: the last second at 10 Hz
-EVIDENCE_MIN = 2  # a reading counts as accused when named on at least this many of its steps
+EVIDENCE_MIN = 3  # a reading counts as accused when named on at least this many of its steps
 
 
 @dataclass(frozen=True, eq=False)
