@@ -18,6 +18,7 @@ import json
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -144,9 +145,7 @@ def worst_case(frame: pd.DataFrame, with_bound: bool) -> str:
 
 def beyond(frame: pd.DataFrame) -> str:
     """Beyond tolerance, every place and seed: the share of steps claimed valid and the worst error then."""
-    picks = [(a, json.loads(p)) for a, p in dict.fromkeys(zip(frame["attack"], frame["params"], strict=True))
-             if a in BEYOND]  # fmt: skip
-    picks.sort(key=lambda ap: (ap[0], sorted(ap[1].items())))
+    picks = _beyond_picks(frame)
     rows = []
     for est, g in frame.groupby("estimator", sort=False):
         cells = [str(est)]
@@ -155,8 +154,18 @@ def beyond(frame: pd.DataFrame) -> str:
             worst = sel["valid_max_error_m"].max()
             cells.append(f"{_share(sel, 'valid_fraction')} / {worst:.2f}" if pd.notna(worst) else "n/a")
         rows.append(cells)
-    head = [f"{a.removeprefix('anchors-')} {', '.join(f'{v:g}' for v in p.values())} m" for a, p in picks]
-    return _table(["claimed valid / worst then [m]", *head], rows)
+    return _table(["claimed valid / worst then [m]", *_beyond_head(picks)], rows)
+
+
+def _beyond_picks(frame: pd.DataFrame) -> list[tuple[str, dict[str, Any]]]:
+    """The beyond-tolerance (attack, parameters) columns present in ``frame``, by attack then magnitude."""
+    picks = [(a, json.loads(p)) for a, p in dict.fromkeys(zip(frame["attack"], frame["params"], strict=True))
+             if a in BEYOND]  # fmt: skip
+    return sorted(picks, key=lambda ap: (ap[0], sorted(ap[1].items())))
+
+
+def _beyond_head(picks: list[tuple[str, dict[str, Any]]]) -> list[str]:
+    return [f"{a.removeprefix('anchors-')} {', '.join(f'{v:g}' for v in p.values())} m" for a, p in picks]
 
 
 def against_ekf(frame: pd.DataFrame, valid_metric: str, ekf_metric: str, digits: int) -> str:
@@ -177,14 +186,11 @@ def against_ekf(frame: pd.DataFrame, valid_metric: str, ekf_metric: str, digits:
     clean = runs[runs["attack"] == "none"][["estimator", *keys, "gap"]].rename(columns={"gap": "clean_gap"})
     runs = runs.merge(clean, on=["estimator", *keys])
     runs["excess"] = runs["gap"] - runs["clean_gap"]
-    picks = [(a, json.loads(p)) for a, p in dict.fromkeys(zip(runs["attack"], runs["params"], strict=True))
-             if a in BEYOND]  # fmt: skip
-    picks.sort(key=lambda ap: (ap[0], sorted(ap[1].items())))
+    picks = _beyond_picks(runs)
     rows = []
     for est, g in runs.groupby("estimator", sort=False):
         rows.append([str(est), *[_cell(_params(g[g["attack"] == a], **p), "excess", digits) for a, p in picks]])
-    head = [f"{a.removeprefix('anchors-')} {', '.join(f'{v:g}' for v in p.values())} m" for a, p in picks]
-    return _table(["excess over the EKF, less clean [m]", *head], rows)
+    return _table(["excess over the EKF, less clean [m]", *_beyond_head(picks)], rows)
 
 
 def _places(frame: pd.DataFrame) -> list[tuple[str, str]]:

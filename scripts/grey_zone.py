@@ -42,6 +42,7 @@ sys.path.insert(0, str(ROOT))
 
 from estimators.attribution import agreeing  # noqa: E402
 from estimators.bank import Chi2Table  # noqa: E402
+from estimators.models import MeasurementModel  # noqa: E402
 from estimators.scenario_models import anchor_model  # noqa: E402
 from evaluation.trial import run_trial  # noqa: E402
 from study.spec import Cell, expand, load_study  # noqa: E402
@@ -64,10 +65,9 @@ class Tally:
     excess_m: float = 0.0  # the largest amount by which a valid step exceeded the EKF's worst
 
 
-def _decode(cell: Cell, z: np.ndarray, truth: np.ndarray, alpha: float) -> np.ndarray:
+def _decode(model: MeasurementModel, chi: Chi2Table, z: np.ndarray, truth: np.ndarray) -> np.ndarray:
     """Horizontal errors of the passing (p - s)-subset fits of one step's readings, best statistic first."""
-    model = anchor_model(cell.scenario, cell.scenario.vehicles[0].sysid, cell.dims)
-    level = agreeing(model, z, model.max_correctable, Chi2Table(alpha, 4 * model.p), truth, None)
+    level = agreeing(model, z, model.max_correctable, chi, truth, None)
     idx = np.flatnonzero(level.passing)
     idx = idx[np.argsort(level.stat[idx])]
     return np.linalg.norm(level.pos[idx, :2] - truth[:2], axis=1)
@@ -87,6 +87,8 @@ def tally_cell(cell: Cell, tallies: dict[str, Tally], alpha: float) -> None:
     ekf_worst = float(np.nanmax(trial.traces["ekf"].err_m))
     if trial.readings_m is None or trial.truth_down_m is None:
         raise ValueError(f"{cell.key}: the trial kept no readings to decode")
+    model = anchor_model(cell.scenario, cell.scenario.vehicles[0].sysid, cell.dims)
+    chi = Chi2Table(alpha, 4 * model.p)
     # The truth in the model's state: north, east and, with the laser as a reading, down.
     stream_truth = trial.truth_xy_m
     for name in SECURE:
@@ -97,7 +99,7 @@ def tally_cell(cell: Cell, tallies: dict[str, Tally], alpha: float) -> None:
             t.worse += 1
             t.excess_m = max(t.excess_m, float(tr.err_m[k] - ekf_worst))
             truth = np.append(stream_truth[k], trial.truth_down_m[k]) if cell.dims == 3 else stream_truth[k]
-            errs = _decode(cell, trial.readings_m[k], truth, alpha)
+            errs = _decode(model, chi, trial.readings_m[k], truth)
             t.l0_worse += bool(errs.size and errs[0] > ekf_worst)
             t.all_worse += bool(errs.size and np.all(errs > ekf_worst))
 
@@ -112,11 +114,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--alpha", type=float, default=0.01, help="the estimators' false-alarm level")
     args = ap.parse_args(argv)
     path = ROOT / "studies" / "test-case-1.yaml"
-    cells = [
-        c
-        for c in expand(load_study(path), str(path))
-        if (c.attack, c.params) in [(a, p) for a, p in GREY] and c.seed < args.seeds
-    ]
+    cells = [c for c in expand(load_study(path), str(path)) if (c.attack, c.params) in GREY and c.seed < args.seeds]
     print(f"{len(cells)} cells", file=sys.stderr)
     for attack, params in GREY:
         tallies = {name: Tally() for name in SECURE}
