@@ -50,6 +50,7 @@ __all__ = [
     "GARBAGE",
     "SIGNATURE_LEN",
     "TRUNCATED",
+    "MagicCursor",
     "SplitResult",
     "StreamFramer",
     "crc_of",
@@ -109,6 +110,37 @@ def next_magic(data: bytes, lo: int, hi: int) -> int:
     if a < 0:
         return hi if b < 0 else b
     return a if b < 0 or a < b else b
+
+
+class MagicCursor:
+    """The next magic byte at or after a position that only moves forward, over one buffer.
+
+    :func:`next_magic` searches for both magic bytes up to ``hi``; called from every
+    position of a buffer full of one magic byte and none of the other, it rescans to
+    the end each time (quadratic: 256 kB of ``fd 00`` took over a second). The cursor
+    remembers where each byte was last found, so each byte of the buffer is searched
+    at most once per magic byte, whatever the buffer holds.
+    """
+
+    __slots__ = ("_data", "_fd", "_fe", "_n")
+
+    def __init__(self, data: bytes, n: int) -> None:
+        self._data = data
+        self._n = n
+        self._fd = -1  # where 0xFD was last found (n: none left); below the asked position: search again
+        self._fe = -1
+
+    def at_or_after(self, lo: int) -> int:
+        """Where the next magic byte is in ``data[lo:]``, or ``n``; ``lo`` never decreases between calls."""
+        fd = self._fd
+        if fd < lo:
+            fd = self._data.find(b"\xfd", lo)
+            self._fd = fd = self._n if fd < 0 else fd
+        fe = self._fe
+        if fe < lo:
+            fe = self._data.find(b"\xfe", lo)
+            self._fe = fe = self._n if fe < 0 else fe
+        return fd if fd < fe else fe
 
 
 def crc_of(frame: bytes | bytearray | memoryview, end: int, crc_extra: int) -> int:
@@ -207,25 +239,27 @@ def _frame_starts_within(data: bytes, lo: int, hi: int, n: int) -> bool:
 
 
 class _KnownStarts:
-    """Where CRC-valid frames of known messages start in one datagram, found lazily, left to right.
+    """Where CRC-valid frames of known messages start in one buffer, found lazily, left to right.
 
     An unknown-id candidate is kept only if no such frame starts inside it. Each
-    position is examined at most once per datagram, so a datagram crafted as
+    position is examined at most once per buffer, so a buffer crafted as
     overlapping fake headers costs one check per magic byte, not one per fake
-    header covering it.
+    header covering it. ``pending`` are the starts of candidates cut off by the
+    buffer's end (a stream's next bytes may complete them).
     """
 
-    __slots__ = ("data", "n", "scanned", "starts")
+    __slots__ = ("data", "n", "pending", "scanned", "starts")
 
     def __init__(self, data: bytes, n: int) -> None:
         self.data = data
         self.n = n
         self.scanned = 0  # every position below this has been examined
         self.starts: list[int] = []
+        self.pending: list[int] = []
 
-    def inside(self, start: int, end: int) -> bool:
+    def _scan_to(self, end: int) -> None:
         data, n = self.data, self.n
-        j = max(start, self.scanned)
+        j = self.scanned
         while j < end:
             k = next_magic(data, j, end)
             if k >= end:
@@ -233,10 +267,25 @@ class _KnownStarts:
             header, _, reason = _candidate(data, k, n)
             if reason is None and header.msgid in CRC_EXTRA:
                 self.starts.append(k)
+            elif reason == TRUNCATED:
+                self.pending.append(k)
             j = k + 1
         self.scanned = max(self.scanned, end)
-        i = bisect_left(self.starts, start)
-        return i < len(self.starts) and self.starts[i] < end
+
+    def inside(self, start: int, end: int) -> bool:
+        """Whether a CRC-valid known frame starts in ``data[start:end]``; ``start`` never decreases."""
+        self.scanned = max(self.scanned, start)
+        self._scan_to(end)
+        return _any_in(self.starts, start, end)
+
+    def pending_inside(self, start: int, end: int) -> bool:
+        """Whether a candidate cut off by the buffer's end starts in ``data[start:end]`` (after :meth:`inside`)."""
+        return _any_in(self.pending, start, end)
+
+
+def _any_in(sorted_positions: list[int], start: int, end: int) -> bool:
+    i = bisect_left(sorted_positions, start)
+    return i < len(sorted_positions) and sorted_positions[i] < end
 
 
 def split(datagram: bytes) -> SplitResult:
@@ -250,6 +299,7 @@ def split(datagram: bytes) -> SplitResult:
     skip_start = -1  # start of the current run of skipped bytes
     skip_reason = ""
     known: _KnownStarts | None = None  # made on the first unknown-id candidate
+    magic: MagicCursor | None = None  # made on the first byte that is not a frame's start
     while i < n:
         c = data[i]
         if c == STX_V2 and n - i >= V2_HEADER_LEN:
@@ -304,7 +354,9 @@ def split(datagram: bytes) -> SplitResult:
         # Jump to the next magic byte.
         if skip_start < 0:
             skip_start, skip_reason = i, GARBAGE
-        i = next_magic(data, i, n)
+        if magic is None:
+            magic = MagicCursor(data, n)
+        i = magic.at_or_after(i)
     if skip_start >= 0:
         out.bad.append(skip_reason)
     return out
@@ -337,21 +389,24 @@ class StreamFramer:
     def feed(self, chunk: bytes) -> bytes:
         data = self._held + chunk if self._held else bytes(chunk)
         n = len(data)
+        magic = MagicCursor(data, n)
+        known: _KnownStarts | None = None
         i = 0
         cut = n
         while i < n:
-            k = next_magic(data, i, n)
+            k = magic.at_or_after(i)
             if k >= n:
                 break
             header, end, reason = _candidate(data, k, n)
             if reason is None and header.msgid not in CRC_EXTRA:
                 # An unknown id cannot be checked: as split() does, it is garbage if a known frame starts
                 # inside it, and while one that starts inside has not fully arrived, we cannot tell yet.
-                inside = _inside_unknown(data, k + 1, end, n)
-                if inside == "known":
+                if known is None:
+                    known = _KnownStarts(data, n)
+                if known.inside(k + 1, end):
                     i = k + 1
                     continue
-                if inside == "pending":
+                if known.pending_inside(k + 1, end):
                     reason = TRUNCATED
             if reason == TRUNCATED:
                 cut = k
@@ -359,16 +414,3 @@ class StreamFramer:
             i = end if reason is None else k + 1
         self._held = data[cut:]
         return data if cut == n else data[:cut]
-
-
-def _inside_unknown(data: bytes, lo: int, hi: int, n: int) -> str | None:
-    """``"known"`` if a CRC-valid known frame starts in ``data[lo:hi]``, else ``"pending"`` if one may (cut off)."""
-    pending = False
-    for k in range(lo, hi):
-        if data[k] not in (STX_V1, STX_V2):
-            continue
-        header, _, reason = _candidate(data, k, n)
-        if reason is None and header.msgid in CRC_EXTRA:
-            return "known"
-        pending = pending or reason == TRUNCATED
-    return "pending" if pending else None

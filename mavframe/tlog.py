@@ -21,7 +21,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Final, NamedTuple
 
-from mavframe.frames import CRC_EXTRA, frame_at, next_magic
+from mavframe.frames import CRC_EXTRA, MagicCursor, frame_at
 from mavframe.packet import Header
 
 __all__ = ["STAMP_LEN", "TlogEntry", "TlogReader", "read", "stamp"]
@@ -51,34 +51,35 @@ class TlogReader:
     def __iter__(self) -> Iterator[TlogEntry]:
         data = self.data
         n = len(data)
+        magic = MagicCursor(data, n)  # one per pass: a log with no v1 frame is searched for 0xFE once, not per resync
         i = 0
         while i + STAMP_LEN < n:
             found = frame_at(data, i + STAMP_LEN)
             if found is None:
                 self.skipped += 1
-                i = self._resync(i + 1)
+                i = self._resync(i + 1, magic)
                 continue
             header, end = found
             if header.msgid not in CRC_EXTRA and end < n and frame_at(data, end + STAMP_LEN) is None:
                 # An unknown id has no CRC to check: believe it only if the next entry starts where it ends.
                 self.skipped += 1
-                i = self._resync(i + 1)
+                i = self._resync(i + 1, magic)
                 continue
             yield TlogEntry(_STAMP.unpack_from(data, i)[0] * 1e-6, header, data[i + STAMP_LEN : end])
             i = end
         if i < n:  # a tail too short to hold a stamp and a frame
             self.skipped += 1
 
-    def _resync(self, lo: int) -> int:
+    def _resync(self, lo: int, magic: MagicCursor) -> int:
         """The next entry start at or after ``lo``: a stamp followed by a valid frame of a known message."""
         data = self.data
         n = len(data)
-        k = next_magic(data, lo + STAMP_LEN, n)
+        k = magic.at_or_after(lo + STAMP_LEN)
         while k < n:
             found = frame_at(data, k)
             if found is not None and found[0].msgid in CRC_EXTRA:
                 return k - STAMP_LEN
-            k = next_magic(data, k + 1, n)
+            k = magic.at_or_after(k + 1)
         return n
 
 

@@ -5,7 +5,20 @@ from __future__ import annotations
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from mavframe.frames import BAD_CRC, BAD_FLAGS, BAD_LENGTH, CRC_EXTRA, GARBAGE, TRUNCATED, crc_of, split, tiles
+from mavframe.frames import (
+    BAD_CRC,
+    BAD_FLAGS,
+    BAD_LENGTH,
+    CRC_EXTRA,
+    GARBAGE,
+    TRUNCATED,
+    MagicCursor,
+    StreamFramer,
+    crc_of,
+    next_magic,
+    split,
+    tiles,
+)
 from tests.mavframe.frames_support import (
     DISTANCE_SENSOR,
     distance,
@@ -220,3 +233,37 @@ def test_fuzz_tiles_is_true_for_back_to_back_frames_and_false_once_bytes_are_cut
         assert not tiles(data[:-1])  # the last frame cut short
     if tail[0] not in (0xFD, 0xFE):
         assert not tiles(tail + data)  # garbage in front
+
+
+@FUZZ
+@given(st.binary(max_size=300), st.lists(st.integers(0, 40), max_size=60))
+def test_the_magic_cursor_finds_what_a_fresh_search_finds(data: bytes, steps: list[int]) -> None:
+    """The remembering search (each byte searched once per magic byte) answers like a search from scratch."""
+    cursor = MagicCursor(data, len(data))
+    lo = 0
+    for step in steps:
+        lo = min(lo + step, len(data))
+        assert cursor.at_or_after(lo) == next_magic(data, lo, len(data))
+
+
+@FUZZ
+@given(
+    st.lists(st.one_of(frames(), garbage, st.binary(max_size=8).map(lambda p: unknown_frame(payload=p))), max_size=8),
+    st.lists(st.integers(1, 64), min_size=1, max_size=20),
+)
+def test_a_stream_with_unknown_ids_cut_anywhere_yields_the_frames_of_the_whole(
+    parts: list[bytes], cuts: list[int]
+) -> None:
+    """An unknown-id frame is judged by whether a known frame starts inside it, whichever read it arrived in."""
+    stream = b"".join(parts)
+    framer = StreamFramer()
+    got: list[bytes] = []
+    i, k = 0, 0
+    while i < len(stream):
+        size = cuts[k % len(cuts)]
+        got.extend(raw for _h, raw in split(framer.feed(stream[i : i + size])).frames)
+        i, k = i + size, k + 1
+    tail = b"\x00" * 600  # enough bytes behind anything held to show what it was
+    got.extend(raw for _h, raw in split(framer.feed(tail)).frames)
+    assert framer.held == 0
+    assert got == [raw for _h, raw in split(stream + tail).frames]
