@@ -14,7 +14,11 @@
 
 A POST answers with the proxy's own acknowledgement (``ok``, ``error``), or 422
 when the request never left the console (a profile that does not validate: the
-body names the ``field``), or 504 when no proxy answered in time. Profiles are
+body names the ``field``), or 504 when no proxy answered in time. What guards
+the app against other web pages and greedy clients is in ``webconsole.security``
+and docs/security.md: POSTs must be JSON from the console's own origin, bodies
+are capped before they are read (413), event streams are capped per client and
+in all (429), and wrong passwords are throttled (429) and logged. Profiles are
 checked here with the same pydantic model the proxy uses (the one the profile
 JSON Schema is generated from), so nothing invalid reaches the broker.
 """
@@ -26,8 +30,10 @@ import base64
 import binascii
 import hmac
 import json
+import logging
 import time
-from collections.abc import AsyncIterator, Callable
+from collections import Counter, OrderedDict
+from collections.abc import AsyncIterator, Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -44,12 +50,22 @@ from attack_profiles.control import profile_from_payload
 from attack_profiles.profile import parse_profile, parse_text
 from secuav_common.loading import InputError, parse_document
 from webconsole.fleet import AckTimeout, Fleet, Session
+from webconsole.security import LOOPBACK_NAMES, guarded
 from webconsole.world import world_json
 
 STATIC = Path(__file__).resolve().parent / "static"
 STREAM_PERIOD_S = 0.08  # 12.5 updates a second, on a fixed schedule (the issue asks for 10 or more)
 BACKFILL_S = 120.0  # a page that (re)connects gets this much history at once
 MAX_BODY = 256 * 1024
+MAX_STREAMS_PER_CLIENT = 4  # a few tabs of one operator
+MAX_STREAMS = 32  # every update is built once per stream: this bounds the console's work
+LOGIN_FREE_FAILURES = 5  # wrong passwords from one address before it must wait (2 s, doubling)
+LOGIN_MAX_WAIT_S = 300.0
+log = logging.getLogger("secuav-console")
+
+
+class RequestTooLarge(Exception):
+    pass
 
 
 def _error(status: int, error: str, field: str | None = None) -> JSONResponse:
@@ -97,17 +113,65 @@ def library_json() -> list[dict[str, Any]]:
     return out
 
 
-class BasicAuth:
-    """HTTP Basic (any user name) or ``Authorization: Bearer`` with the console password; else 401."""
+class LoginThrottle:
+    """Wrong passwords per client address: after a few, the address waits (doubling, up to five minutes)."""
 
-    def __init__(self, app: ASGIApp, password: str) -> None:
+    def __init__(self, free: int = LOGIN_FREE_FAILURES, max_wait_s: float = LOGIN_MAX_WAIT_S,
+                 max_clients: int = 10_000) -> None:  # fmt: skip
+        self.free, self.max_wait_s, self.max_clients = free, max_wait_s, max_clients
+        self.failures: OrderedDict[str, tuple[int, float]] = OrderedDict()  # client -> (count, blocked until)
+
+    def wait_s(self, client: str, now: float) -> float:
+        """How long ``client`` must still wait before its next try is even checked (0: go ahead)."""
+        _, until = self.failures.get(client, (0, 0.0))
+        return max(0.0, until - now)
+
+    def failed(self, client: str, now: float) -> int:
+        count = self.failures.pop(client, (0, 0.0))[0] + 1
+        wait = 0.0 if count < self.free else min(self.max_wait_s, 2.0 ** (count - self.free + 1))
+        self.failures[client] = (count, now + wait)
+        while len(self.failures) > self.max_clients:  # bounded memory: forget the longest-quiet address
+            self.failures.popitem(last=False)
+        return count
+
+    def succeeded(self, client: str) -> None:
+        self.failures.pop(client, None)
+
+
+class BasicAuth:
+    """HTTP Basic (any user name) or ``Authorization: Bearer`` with the console password; else 401.
+
+    Wrong passwords are logged (``console.login_failed``, with the client's address) and
+    throttled per address by :class:`LoginThrottle`: a throttled client gets 429 and
+    ``Retry-After`` without its password being checked.
+    """
+
+    def __init__(self, app: ASGIApp, password: str, throttle: LoginThrottle | None = None) -> None:
         self.app = app
         self.password = password.encode()
+        self.throttle = throttle or LoginThrottle()
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http" or self._allowed(dict(scope["headers"]).get(b"authorization", b"")):
+        if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
+        client = (scope.get("client") or ("?", 0))[0]
+        now = time.monotonic()
+        wait = self.throttle.wait_s(client, now)
+        if wait > 0:
+            response: Response = _error(429, f"too many wrong passwords; try again in {wait:.0f} s")
+            response.headers["Retry-After"] = str(int(wait) + 1)
+            await response(scope, receive, send)
+            return
+        header = dict(scope["headers"]).get(b"authorization", b"")
+        if self._allowed(header):
+            self.throttle.succeeded(client)
+            await self.app(scope, receive, send)
+            return
+        if header:  # a page's first request carries no credentials: only a wrong password counts
+            count = self.throttle.failed(client, now)
+            log.warning("console.login_failed", extra={"client": client, "failures": count,
+                                                       "path": scope.get("path", "")})  # fmt: skip
         response = Response("password required\n", status_code=401,
                             headers={"WWW-Authenticate": 'Basic realm="secuav-console"'})  # fmt: skip
         await response(scope, receive, send)
@@ -125,15 +189,43 @@ class BasicAuth:
         return False
 
 
-def build_app(fleet: Fleet, session: Session, password: str | None = None,
-              ack_timeout_s: float = 5.0) -> ASGIApp:  # fmt: skip
-    """The ASGI application; wrapped in :class:`BasicAuth` when a password is given."""
+class StreamSlots:
+    """Event streams open, per client address and in all; a stream past either cap is refused."""
+
+    def __init__(self, per_client: int = MAX_STREAMS_PER_CLIENT, total: int = MAX_STREAMS) -> None:
+        self.per_client, self.total = per_client, total
+        self.open: Counter[str] = Counter()
+
+    def take(self, client: str) -> str | None:
+        """Reserve a stream for ``client``; returns why not, or None when reserved."""
+        if sum(self.open.values()) >= self.total:
+            return f"{self.total} event streams are open, the most this console serves"
+        if self.open[client] >= self.per_client:
+            return f"{self.per_client} event streams are open from {client}, the most one client may hold"
+        self.open[client] += 1
+        return None
+
+    def give_back(self, client: str) -> None:
+        self.open[client] -= 1
+        if self.open[client] <= 0:
+            del self.open[client]
+
+
+def build_app(fleet: Fleet, session: Session, password: str | None = None, ack_timeout_s: float = 5.0,
+              hosts: Iterable[str] = LOOPBACK_NAMES, streams: StreamSlots | None = None) -> ASGIApp:  # fmt: skip
+    """The ASGI application behind ``webconsole.security``'s guards (``hosts``: the Host names it answers
+    to), and behind :class:`BasicAuth` when a password is given."""
     library_cache: list[dict[str, Any]] = []
+    slots = streams or StreamSlots()
 
     async def json_body(request: Request) -> Any:
-        raw = await request.body()
-        if len(raw) > MAX_BODY:
-            raise InputError("request", "", f"{len(raw)} bytes", f"larger than {MAX_BODY} bytes")
+        chunks, size = [], 0
+        async for chunk in request.stream():  # counted as it arrives: a huge body is never held
+            size += len(chunk)
+            if size > MAX_BODY:
+                raise RequestTooLarge
+            chunks.append(chunk)
+        raw = b"".join(chunks)
         try:
             return json.loads(raw or b"null")
         except ValueError as exc:
@@ -151,6 +243,8 @@ def build_app(fleet: Fleet, session: Session, password: str | None = None,
             payload = build(await json_body(request))
         except InputError as exc:
             return _error(422, str(exc), exc.field or None)
+        except RequestTooLarge:
+            return _error(413, f"request body larger than {MAX_BODY} bytes")
         try:
             state = await session.request(f"secuav/v{sysid}/{leaf}/set", payload, ack_timeout_s)
         except AckTimeout as exc:
@@ -209,7 +303,11 @@ def build_app(fleet: Fleet, session: Session, password: str | None = None,
             watched = int(request.query_params.get("vehicle", "0"))
         except ValueError:
             return _error(400, "vehicle: must be a sysid")
-        return EventSourceResponse(_events(request, fleet, watched), ping=15)
+        client = request.client.host if request.client else "?"
+        refused = slots.take(client)
+        if refused is not None:
+            return _error(429, refused)
+        return EventSourceResponse(_events(request, fleet, watched, lambda: slots.give_back(client)), ping=15)
 
     routes = [
         Route("/", index),
@@ -224,11 +322,20 @@ def build_app(fleet: Fleet, session: Session, password: str | None = None,
         Mount("/static", StaticFiles(directory=STATIC), name="static"),
     ]
     app: ASGIApp = Starlette(routes=routes)
-    return BasicAuth(app, password) if password else app
+    return guarded(BasicAuth(app, password) if password else app, hosts, MAX_BODY)
 
 
-async def _events(request: Request, fleet: Fleet, watched: int) -> AsyncIterator[dict[str, str]]:
+async def _events(request: Request, fleet: Fleet, watched: int,
+                  done: Callable[[], None]) -> AsyncIterator[dict[str, str]]:  # fmt: skip
     """12.5 updates a second: the fleet table, and the watched vehicle's samples since the last one."""
+    try:
+        async for event in _updates(request, fleet, watched):
+            yield event
+    finally:
+        done()
+
+
+async def _updates(request: Request, fleet: Fleet, watched: int) -> AsyncIterator[dict[str, str]]:
     cursor, first = 0, True
     loop = asyncio.get_running_loop()
     due = loop.time()

@@ -2,11 +2,15 @@
 
     secuav-console                                   # 127.0.0.1:8080, embedded broker on 127.0.0.1:1883
     secuav-console --scenario wall_hover --broker mqtt://127.0.0.1:1883
-    secuav-console --listen 0.0.0.0:8080 --password-file console.pw
+    secuav-console --listen 0.0.0.0:8443 --password-file console.pw --tls-cert c.pem --tls-key k.pem \
+                   --allowed-host console.lab.example
 
 It binds 127.0.0.1 by default; on any other address it refuses to start
-without a password (``--password-file`` or ``SECUAV_CONSOLE_PASSWORD``), which
-the browser then asks for (HTTP Basic) and scripts send as a Bearer token.
+without a password of at least 12 characters (``--password-file`` or
+``SECUAV_CONSOLE_PASSWORD``), which the browser then asks for (HTTP Basic) and
+scripts send as a Bearer token, and without TLS (``--tls-cert``/``--tls-key``)
+unless told ``--insecure-http``. It answers only to the Host names it knows:
+its listen address, loopback names and each ``--allowed-host`` (docs/security.md).
 Stops cleanly on Ctrl-C or SIGTERM: the console's online record says offline
 and the proxies stop publishing readings.
 """
@@ -31,6 +35,7 @@ from secuav_common.scenario import load_scenario
 
 PROG = "secuav-console"
 DEFAULT_LISTEN = "127.0.0.1:8080"
+MIN_PASSWORD = 12
 log = logging.getLogger(PROG)
 
 
@@ -49,6 +54,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="scenario file or bundled name, for the top view and true readings (repeatable)")
     p.add_argument("--password-file", metavar="F", type=Path,
                    help="password for the page and API (mode 600); SECUAV_CONSOLE_PASSWORD works too")
+    p.add_argument("--allowed-host", action="append", default=[], metavar="NAME",
+                   help="a further Host name the console answers to (repeatable; loopback names always work)")
+    p.add_argument("--tls-cert", metavar="F", type=Path, help="serve HTTPS with this certificate (PEM)")
+    p.add_argument("--tls-key", metavar="F", type=Path, help="the certificate's private key (PEM)")
+    p.add_argument("--insecure-http", action="store_true",
+                   help="beyond loopback, serve plain HTTP anyway (the password then crosses the network in clear)")
     p.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
     p.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
     return p  # fmt: skip
@@ -76,6 +87,7 @@ async def serve(args: argparse.Namespace, host: str, port: int, password: str | 
 
     from webconsole.api import build_app
     from webconsole.fleet import Fleet, Session
+    from webconsole.security import allowed_hosts
 
     scenarios = [load_scenario(s) for s in args.scenario]
     stop = asyncio.Event()
@@ -90,12 +102,15 @@ async def serve(args: argparse.Namespace, host: str, port: int, password: str | 
             address = broker.address
         else:
             address = parse_broker_url(args.broker)
-        url = f"http://{host if ':' not in host else f'[{host}]'}:{port}/"
+        scheme = "https" if args.tls_cert else "http"
+        url = f"{scheme}://{host if ':' not in host else f'[{host}]'}:{port}/"
         fleet = Fleet(scenarios)
         session = Session(address, fleet, url, username=args.broker_username, password=broker_password)
         mqtt = asyncio.create_task(session.run(), name="console-mqtt")
-        config = uvicorn.Config(build_app(fleet, session, password), host=host, port=port, log_level="warning",
-                                access_log=False, lifespan="off")  # fmt: skip
+        app = build_app(fleet, session, password, hosts=allowed_hosts(host, args.allowed_host))
+        tls = {"ssl_certfile": str(args.tls_cert), "ssl_keyfile": str(args.tls_key)} if args.tls_cert else {}
+        config = uvicorn.Config(app, host=host, port=port, log_level="warning", access_log=False, lifespan="off",
+                                **tls)  # fmt: skip
         server = uvicorn.Server(config)
         server.install_signal_handlers = lambda: None  # type: ignore[method-assign]  # ours above
         web = asyncio.create_task(server.serve(), name="console-http")
@@ -107,6 +122,7 @@ async def serve(args: argparse.Namespace, host: str, port: int, password: str | 
             return _fail(f"cannot serve on {host}:{port} (in use, or not an address of this machine)", 1)
         log.info("console.ready", extra={"url": url, "broker": redact(address.url),
                                          "auth": "password" if password else "none (loopback only)",
+                                         "tls": bool(args.tls_cert),
                                          "scenarios": ",".join(s.name for s in scenarios) or "none"})  # fmt: skip
         print(f"{PROG}: {url}", file=sys.stderr, flush=True)
         await stop.wait()
@@ -134,9 +150,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         broker_password = secret_or_env(args.broker_password_file, "--broker-password-file")
     except (InputError, ValueError) as exc:
         return _fail(str(exc))
+    if bool(args.tls_cert) != bool(args.tls_key):
+        return _fail("--tls-cert and --tls-key go together")
+    for flag, path in (("--tls-cert", args.tls_cert), ("--tls-key", args.tls_key)):
+        if path is not None and not path.is_file():
+            return _fail(f"{flag} {path}: no such file")
     if not is_loopback(host) and not password:
         return _fail(f"--listen {args.listen}: serving beyond this machine needs a password "
                      "(--password-file F or SECUAV_CONSOLE_PASSWORD)")  # fmt: skip
+    if password is not None and len(password) < MIN_PASSWORD:
+        return _fail(f"the console password is {len(password)} characters long; use at least {MIN_PASSWORD}")
+    if not is_loopback(host) and not args.tls_cert and not args.insecure_http:
+        return _fail(f"--listen {args.listen}: serving beyond this machine needs TLS (--tls-cert F --tls-key F; "
+                     "docs/security.md says how to make one), or --insecure-http to send the password in clear")
     setup_logging(args.verbose, args.quiet, noisy=("aiomqtt", "asyncio", "amqtt", "transitions", "uvicorn"),
                   json_lines=args.log_json)  # fmt: skip
     try:

@@ -47,6 +47,8 @@ def call(base: str, path: str, body: Any = None, auth: str | None = None) -> tup
     """One HTTP request (in a worker thread: the server runs on this test's loop)."""
     data = None if body is None else json.dumps(body).encode()
     request = urllib.request.Request(base + path, data=data, method="GET" if body is None else "POST")
+    if data is not None:
+        request.add_header("Content-Type", "application/json")
     if auth:
         request.add_header("Authorization", auth)
     try:
@@ -61,9 +63,10 @@ def call(base: str, path: str, body: Any = None, auth: str | None = None) -> tup
 
 
 @contextlib.asynccontextmanager
-async def serve(fleet: Fleet, session: Session, password: str | None = None) -> AsyncIterator[str]:
+async def serve(fleet: Fleet, session: Session, password: str | None = None, **options: Any) -> AsyncIterator[str]:
     port = free_tcp_port()
-    server = uvicorn.Server(uvicorn.Config(build_app(fleet, session, password, ack_timeout_s=2.0), host="127.0.0.1",
+    app = build_app(fleet, session, password, ack_timeout_s=2.0, **options)
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1",
                                            port=port, log_level="warning", lifespan="off"))  # fmt: skip
     server.install_signal_handlers = lambda: None  # type: ignore[method-assign]
     task = asyncio.create_task(server.serve())
