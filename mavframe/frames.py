@@ -19,7 +19,9 @@ Skipped bytes are reported once per run with the reason found at its start:
 ``garbage`` (no magic byte), ``truncated`` (the frame runs past the datagram),
 ``bad_crc``, ``bad_flags`` (v2 incompatibility flags other than signing, which
 MAVLink says must be refused) and ``bad_length`` (a v1 frame longer than its
-message, impossible as v1 has no extensions).
+message, impossible as v1 has no extensions); ``text`` is a run of printable
+ASCII lines where garbage would be (ArduPilot SITL prints its boot messages,
+"Init ArduCopter ...", on the same serial link as its MAVLink).
 
 Measured on the 2-core bench machine (benchmarks/proxy_core_bench.py): ~3 µs
 per frame, about 4x pymavlink's ``parse_buffer``; hostile 64 KB datagrams of
@@ -49,6 +51,7 @@ __all__ = [
     "CRC_EXTRA",
     "GARBAGE",
     "SIGNATURE_LEN",
+    "TEXT",
     "TRUNCATED",
     "MagicCursor",
     "SplitResult",
@@ -74,6 +77,8 @@ TRUNCATED: Final = "truncated"  # a header whose frame runs past the end of the 
 BAD_CRC: Final = "bad_crc"  # a complete frame of a known message whose CRC does not match
 BAD_FLAGS: Final = "bad_flags"  # a v2 header with incompatibility flags we cannot honour
 BAD_LENGTH: Final = "bad_length"  # a v1 header claiming more payload than its message has
+
+TEXT: Final = "text"  # a run of printable ASCII lines, such as an autopilot's boot messages on its serial port
 
 CRC_EXTRA: Final[dict[int, int]] = {msgid: cls.crc_extra for msgid, cls in dialect.mavlink_map.items()}
 
@@ -288,6 +293,17 @@ def _any_in(sorted_positions: list[int], start: int, end: int) -> bool:
     return i < len(sorted_positions) and sorted_positions[i] < end
 
 
+_TEXT_BYTES: Final = bytes(range(0x20, 0x7F)) + b"\t\n\r"
+MIN_TEXT_LEN: Final = 3  # shorter printable runs are as likely noise as words
+
+
+def _named(data: bytes, lo: int, hi: int, reason: str) -> str:
+    """``reason`` for the skipped bytes ``data[lo:hi]``, or :data:`TEXT` when they are printable lines, not noise."""
+    if reason == GARBAGE and hi - lo >= MIN_TEXT_LEN and not data[lo:hi].translate(None, _TEXT_BYTES):
+        return TEXT
+    return reason
+
+
 def split(datagram: bytes) -> SplitResult:
     """Find every valid MAVLink v1/v2 frame in ``datagram``, in order; see the module doc."""
     data = bytes(datagram)
@@ -319,7 +335,7 @@ def split(datagram: bytes) -> SplitResult:
                     reason = TRUNCATED
                 elif _mcrf4xx(extra, _mcrf4xx(data[i + 1 : crc_at], 0xFFFF)) == data[crc_at] | data[crc_at + 1] << 8:
                     if skip_start >= 0:
-                        out.bad.append(skip_reason)
+                        out.bad.append(_named(data, skip_start, i, skip_reason))
                         skip_start = -1
                     header = Header(2, msgid, sysid, compid, seq, plen, incompat, incompat == IFLAG_SIGNED)
                     frames.append((header, data if (i == 0 and end == n) else data[i:end]))
@@ -340,7 +356,7 @@ def split(datagram: bytes) -> SplitResult:
                     reason = GARBAGE
             if reason is None:
                 if skip_start >= 0:
-                    out.bad.append(skip_reason)
+                    out.bad.append(_named(data, skip_start, i, skip_reason))
                     skip_start = -1
                 if header.msgid not in CRC_EXTRA:
                     out.unknown += 1
@@ -358,7 +374,7 @@ def split(datagram: bytes) -> SplitResult:
             magic = MagicCursor(data, n)
         i = magic.at_or_after(i)
     if skip_start >= 0:
-        out.bad.append(skip_reason)
+        out.bad.append(_named(data, skip_start, n, skip_reason))
     return out
 
 

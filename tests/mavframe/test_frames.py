@@ -11,6 +11,7 @@ from mavframe.frames import (
     BAD_LENGTH,
     CRC_EXTRA,
     GARBAGE,
+    TEXT,
     TRUNCATED,
     MagicCursor,
     StreamFramer,
@@ -73,7 +74,7 @@ def test_signed_frame_recognised_with_its_13_byte_block() -> None:
 
 def test_garbage_before_between_and_after_is_skipped_and_named() -> None:
     a, b = pack(distance()), pack(heartbeat())
-    res = split(b"\x00junk" + a + b"more junk" + b + b"tail")
+    res = split(b"\x00junk" + a + b"\x07more junk" + b + b"\x80\x81")  # printable words alone are TEXT (below)
     assert [raw for _, raw in res.frames] == [a, b]
     assert res.bad == [GARBAGE, GARBAGE, GARBAGE]
 
@@ -267,3 +268,23 @@ def test_a_stream_with_unknown_ids_cut_anywhere_yields_the_frames_of_the_whole(
     got.extend(raw for _h, raw in split(framer.feed(tail)).frames)
     assert framer.held == 0
     assert got == [raw for _h, raw in split(stream + tail).frames]
+
+
+def test_an_autopilots_boot_text_is_named_text_not_garbage() -> None:
+    """ArduPilot SITL prints "Init ArduCopter ..." lines on its MAVLink serial link before and between frames."""
+    a, b = pack(heartbeat()), pack(distance(cm=250))
+    res = split(b"Init ArduCopter V4.7.0-dev (abc123)\r\n" + a + b"Free RAM: 123456\n" + b + b"\x00\x13\x88garbage")
+    assert [raw for _, raw in res.frames] == [a, b]
+    assert res.bad == [TEXT, TEXT, GARBAGE]  # the tail holds binary bytes: noise, whatever words follow
+    assert split(b"ok" + a).bad == [GARBAGE]  # too short to call words
+
+
+@FUZZ
+@given(st.binary(min_size=1, max_size=60))
+def test_only_printable_runs_are_text(junk: bytes) -> None:
+    res = split(junk + pack(heartbeat()))
+    printable = all(0x20 <= c < 0x7F or c in b"\t\n\r" for c in junk)
+    if res.bad == [TEXT]:
+        assert printable
+    if printable and len(junk) >= 3 and len(res.frames) == 1:
+        assert res.bad == [TEXT]
