@@ -39,7 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=None, help="output directory (default out/<demo>)")
     p.add_argument("--base-port", type=int, default=None,
                    help="ports BASE+i (proxy), BASE+10+i (MAVSDK), BASE+20 (GCS), BASE+21 (MQTT) "
-                   "instead of DESIGN.md's port plan")  # fmt: skip
+                   "instead of the port plan in docs/interfaces.md")  # fmt: skip
     p.add_argument("--no-progress", action="store_true", help="no progress bar per flight")
     p.add_argument("-v", "--verbose", action="store_true")
     add_common_flags(p, log_flags=False)

@@ -24,7 +24,7 @@ STOP_TIMEOUT_S = 5.0
 
 @dataclass(frozen=True, slots=True)
 class Ports:
-    """Loopback ports of one run; the defaults are DESIGN.md's port plan for vehicle 0."""
+    """Loopback ports of one run; the defaults are the port plan of docs/interfaces.md for vehicle 0."""
 
     proxy_vehicle: int = 14560  # the simulator sends here, the proxy listens
     api: int = 14540  # the proxy forwards here, the MAVSDK controller listens

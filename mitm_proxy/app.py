@@ -1,6 +1,6 @@
 """The proxy process: links, control plane and the periodic stats line.
 
-Each link's pipeline is tap -> attack -> secure -> forward (DESIGN.md). The
+Each link's pipeline is tap -> attack -> secure -> forward (mitm_proxy/README.md). The
 attack stage is always there (``--attack bypass`` skips it; with no profile
 it costs nothing); the secure stage is there when a scenario says what the
 sensors are (``--scenario``), off until ``--secure NAME`` or ``secure/set``.

@@ -6,7 +6,7 @@ stage's start state, recording, signing and the control plane. Everything a
 user can get wrong is checked here, once, before a socket opens, and reported
 as one line naming the file, the field and the value (``InputError``).
 
-Defaults follow DESIGN.md's port plan: link i (the vehicle with sysid i+1, or
+Defaults follow the port plan of docs/interfaces.md: link i (the vehicle with sysid i+1, or
 the i-th vehicle of ``--scenario``) listens on ``udpin://127.0.0.1:(14560+i)``
 and forwards to ``udpout://127.0.0.1:(14540+i)`` (MAVSDK) and
 ``udpout://127.0.0.1:14550`` (QGroundControl / MAVProxy). An endpoint URL that
@@ -188,7 +188,7 @@ def effective(cfg: ProxyConfig) -> dict[str, Any]:
 
 
 def plan_links(sysids: list[int]) -> list[LinkConfig]:
-    """DESIGN.md's port plan for vehicles with these sysids, in order (vehicle i at index i)."""
+    """The port plan of docs/interfaces.md for vehicles with these sysids, in order (vehicle i at index i)."""
     return [
         LinkConfig(
             sysid=sysid,

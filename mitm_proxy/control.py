@@ -1,4 +1,6 @@
-"""The proxy's MQTT session (DESIGN.md "Control plane"): connect, serve, reconnect, publish.
+"""The proxy's MQTT session: connect, serve, reconnect, publish.
+
+Topics and payloads: docs/interfaces.md#mqtt-control-plane-json-payloads-vehicle-key-vsysid.
 
 This module is the transport; what a request does is :mod:`mitm_proxy.controls`
 (one :class:`~mitm_proxy.controls.Control` per runtime switch, registered once

@@ -1,6 +1,6 @@
 """The secure stage: feed the passing ranges to a secure estimator, substitute its output.
 
-Pipeline step 3 of DESIGN.md (tap -> attack -> secure -> forward). The stage
+Pipeline step 3 of mitm_proxy/README.md (tap -> attack -> secure -> forward). The stage
 sees the readings *after* the attack stage, as the ground side would, and:
 
 1. collects the configured group's DISTANCE_SENSOR readings (the wall group,
