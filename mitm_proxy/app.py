@@ -34,7 +34,7 @@ from attack_profiles.resolve import resolve_profile
 from mavframe.signing import Signer
 from mitm_proxy.attack import AttackStage
 from mitm_proxy.config import ProxyConfig
-from mitm_proxy.controls import Controls, RoutesControl, default_instance, vehicle_controls, vehicle_topic
+from mitm_proxy.controls import Controls, RoutesControl, default_instance, vehicle_controls
 from mitm_proxy.endpoints import DEFAULT_TAKEOVER_S, BaseEndpoint, make_endpoint
 from mitm_proxy.link import GroundRouter, Link
 from mitm_proxy.pipeline import Pipeline
@@ -44,6 +44,7 @@ from mitm_proxy.secure_config import OFF, SecureConfig, config_from_payload
 from mitm_proxy.slots import AttackSlot
 from mitm_proxy.stats import LinkStats
 from secuav_common.broker import redact
+from secuav_common.controlplane.topics import vehicle_topic
 from secuav_common.loading import InputError
 from secuav_common.scenario import Scenario, load_scenario
 from secuav_common.urls import Endpoint

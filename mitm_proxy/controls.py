@@ -41,39 +41,27 @@ from pydantic import ValidationError
 
 from mitm_proxy.routes import NO_RULES, EndpointRules
 from mitm_proxy.slots import AttackSlot
+from secuav_common.controlplane.payloads import RequestError
+from secuav_common.controlplane.topics import (
+    ANY,
+    INSTANCE_RE,
+    PREFIX,
+    parse,
+    parse_vehicle_key,
+    proxy_topic,
+    vehicle_topic,
+)
 from secuav_common.loading import InputError
 
 log = logging.getLogger("mitm_proxy.control")
 
-PREFIX = "secuav"
-PROXY_KEY = "proxy"
-INSTANCE_RE = re.compile(r"\A[A-Za-z0-9_.-]{1,64}\Z")
-_VEHICLE_KEY = re.compile(r"\Av(\d{1,3})\Z")
-
-
-class RequestError(ValueError):
-    """A set request refused before or while it was applied; the message is what the state reports."""
-
-
-def vehicle_topic(sysid: int, leaf: str) -> str:
-    """``secuav/v<sysid>/<leaf>`` (leaf: ``attack/state``, ``stats``, ``estimate``...)."""
-    return f"{PREFIX}/v{sysid}/{leaf}"
-
-
-def proxy_topic(instance: str, leaf: str) -> str:
-    """``secuav/proxy/<instance>/<leaf>`` (leaf: ``online``, ``routes/state``)."""
-    return f"{PREFIX}/{PROXY_KEY}/{instance}/{leaf}"
+__all__ = ["INSTANCE_RE", "PREFIX", "RequestError", "parse_vehicle_key", "proxy_topic", "vehicle_topic"]
 
 
 def default_instance() -> str:
     """``<host>-<pid>``, cleaned to what a topic level may hold: unique per process on one broker."""
     host = re.sub(r"[^A-Za-z0-9_.-]", "-", socket.gethostname())[:40] or "host"
     return f"{host}-{os.getpid()}"
-
-
-def parse_vehicle_key(key: str) -> int | None:
-    m = _VEHICLE_KEY.match(key)
-    return int(m.group(1)) if m and int(m.group(1)) <= 255 else None
 
 
 class Control(ABC):
@@ -130,7 +118,7 @@ class AttackControl(Control):
         self.slot = slot
 
     def apply(self, payload: Any, request_id: str | None) -> None:
-        state = self.slot.offer_payload(payload, request_id, source=vehicle_topic(self.slot.sysid, "attack/set"))
+        state = self.slot.offer_payload(payload, request_id, source=vehicle_topic(self.slot.sysid, "attack", "set"))
         if not state.ok:
             raise RequestError(state.error or "rejected")
         log.info("attack.applied", extra={"sysid": self.slot.sysid, "profile": state.profile,
@@ -329,40 +317,36 @@ class Controls:
 
     def subscriptions(self) -> list[str]:
         kinds = sorted({k for controls in self._vehicles.values() for k in controls})
-        topics = [f"{PREFIX}/+/{k}/set" for k in kinds]
+        topics = [vehicle_topic(ANY, k, "set") for k in kinds]
         for kind in sorted(self._proxy):
-            topics += [f"{PREFIX}/{PROXY_KEY}/{kind}/set", proxy_topic(self.instance, f"{kind}/set")]
+            topics += [proxy_topic(None, kind, "set"), proxy_topic(self.instance, kind, "set")]
         return topics
 
     def states(self) -> Iterator[Target]:
         """Every control with the topic its state goes to, vehicles first."""
         for sysid, controls in sorted(self._vehicles.items()):
             for kind, control in controls.items():
-                yield Target(control, vehicle_topic(sysid, f"{kind}/state"))
+                yield Target(control, vehicle_topic(sysid, kind, "state"))
         for kind, control in self._proxy.items():
-            yield Target(control, proxy_topic(self.instance, f"{kind}/state"))
+            yield Target(control, proxy_topic(self.instance, kind, "state"))
 
     def route(self, topic: str) -> Target | str | None:
         """The control a ``.../set`` topic addresses; a vehicle key we do not serve comes back as
         that key (for the log), anything else that is not ours as ``None``."""
-        if not topic.startswith(f"{PREFIX}/") or not topic.endswith("/set"):
+        parsed = parse(topic)
+        if parsed is None or parsed.verb != "set" or parsed.scope == "console":
             return None
-        parts = topic[len(PREFIX) + 1 : -len("/set")].split("/", 1)
-        if len(parts) != 2:
-            return None
-        key, rest = parts
-        if key == PROXY_KEY:
-            instance, _, kind = rest.partition("/") if "/" in rest else (None, "", rest)
-            if instance is not None and instance != self.instance:
+        if parsed.scope == "proxy":
+            if parsed.key is not None and parsed.key != self.instance:
                 return None  # another proxy's
-            control = self._proxy.get(kind)
-            return None if control is None else Target(control, proxy_topic(self.instance, f"{kind}/state"))
-        sysid = parse_vehicle_key(key)
+            control = self._proxy.get(parsed.leaf)
+            return None if control is None else Target(control, proxy_topic(self.instance, parsed.leaf, "state"))
+        sysid = parsed.sysid
         controls = self._vehicles.get(sysid) if sysid is not None else None
         if controls is None:
-            return key if any(rest in c for c in self._vehicles.values()) else None
-        control = controls.get(rest)
-        return None if control is None else Target(control, vehicle_topic(sysid, f"{rest}/state"))  # type: ignore[arg-type]
+            return parsed.key if any(parsed.leaf in c for c in self._vehicles.values()) else None
+        control = controls.get(parsed.leaf)
+        return None if control is None else Target(control, parsed.with_verb("state"))
 
 
 def vehicle_controls(
