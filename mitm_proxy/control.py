@@ -35,6 +35,8 @@ from collections.abc import Callable
 from types import TracebackType
 from typing import Any
 
+from pydantic import BaseModel
+
 from mitm_proxy.controls import Controls, Target, default_instance
 from secuav_common.controlplane.address import parse_broker_url
 from secuav_common.controlplane.payloads import (
@@ -156,7 +158,7 @@ class ControlPlane:
         self._unencodable: set[str] = set()  # topics whose payload could not be made JSON (logged once)
         self._handled: dict[str, deque[bytes]] = {}  # topic -> digests of recent requests (retained replays)
         self._stats_failing = False
-        self._published: dict[str, dict[str, Any]] = {}  # state topic -> the state last queued
+        self._published: dict[str, BaseModel] = {}  # state topic -> the state last queued
         self._online_since = time.time()
         self.state_poll_s = 0.2
         self.online_topic = proxy_topic(self.instance, "online")
@@ -264,14 +266,14 @@ class ControlPlane:
         """
         for target in self.controls.states():
             try:
-                state = target.control.state()
+                state = target.control.state
             except Exception:  # a control's bug: its set requests still get answers
                 log.debug("control.state_failed", extra={"topic": target.state_topic}, exc_info=True)
                 continue
             if force or state != self._published.get(target.state_topic):
                 self._publish(target, state)
 
-    def _publish(self, target: Target, state: dict[str, Any]) -> None:
+    def _publish(self, target: Target, state: BaseModel) -> None:
         self._published[target.state_topic] = state
         self.publish_nowait(target.state_topic, state, retain=True)
 

@@ -1,23 +1,23 @@
-"""Runtime switches, one shape for all: validate a request, apply it atomically, report the state.
+"""The runtime switches of one proxy process, and the registry the MQTT session dispatches into.
 
-Everything the control plane can change at runtime is a :class:`Control`:
+Everything the control plane can change at runtime is a :class:`~mitm_proxy.switch.Switch`:
 
-=============  ==========================================  ==============================
-kind           set on                                      what it holds
-=============  ==========================================  ==============================
-``attack``     ``secuav/v<N>/attack/set``                  the active attack profile
-``attack/mode``  ``secuav/v<N>/attack/mode/set``           the attack stage on or bypassed
-``secure``     ``secuav/v<N>/secure/set``                  the secure stage's estimator
-``routes``     ``secuav/proxy/routes/set`` (every proxy),  the endpoints' routing rules
-               ``secuav/proxy/<instance>/routes/set``
-=============  ==========================================  ==============================
+=================  ==========================================  ==============================  =====================
+kind (topic leaf)  set on                                      what it holds                   ``secuav-attack``
+=================  ==========================================  ==============================  =====================
+``attack``         ``secuav/v<N>/attack/set``                  the active attack profile       ``apply``, ``clear``
+``attack/mode``    ``secuav/v<N>/attack/mode/set``             the attack stage on or bypassed ``mode``
+``secure``         ``secuav/v<N>/secure/set``                  the secure stage's estimator    ``secure``
+``routes``         ``secuav/proxy/routes/set`` (every proxy),  the endpoints' routing rules    ``routes``
+                   ``secuav/proxy/<instance>/routes/set``
+=================  ==========================================  ==============================  =====================
 
-Each answers on the retained ``.../<kind>/state`` next to its ``set`` topic (a
-proxy-wide control on ``secuav/proxy/<instance>/<kind>/state``). A control
-never half-applies: it builds and checks everything first, then installs it
-with one assignment, and the event loop runs one callback at a time, so a
-change always falls between two frames. A refused request leaves the old
-setting in place and says why in the state.
+The attack switch is :class:`~mitm_proxy.slots.AttackSlot`, the secure one
+:class:`~mitm_proxy.secure.SecureSlot` (:class:`NoSecure` where the proxy has
+no scenario); the mode and routes switches live here. Each answers on the
+retained ``.../<kind>/state`` next to its ``set`` topic (a proxy-wide switch on
+``secuav/proxy/<instance>/<kind>/state``) with its payload model of
+:mod:`secuav_common.controlplane.payloads`.
 
 :class:`Controls` is the registry the proxy fills once and the MQTT session
 (:mod:`mitm_proxy.control`) dispatches into; it is sans-I/O, so tests drive
@@ -32,16 +32,17 @@ import os
 import re
 import socket
 import time
-from abc import ABC, abstractmethod
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any
 
 from pydantic import ValidationError
 
+from mitm_proxy.attack import AttackStage
 from mitm_proxy.routes import NO_RULES, EndpointRules
 from mitm_proxy.slots import AttackSlot
-from secuav_common.controlplane.payloads import RequestError
+from mitm_proxy.switch import Switch
+from secuav_common.controlplane.payloads import ModeState, RequestError, RoutesState, SecureState
 from secuav_common.controlplane.topics import (
     ANY,
     INSTANCE_RE,
@@ -51,7 +52,10 @@ from secuav_common.controlplane.topics import (
     proxy_topic,
     vehicle_topic,
 )
-from secuav_common.loading import InputError
+
+if TYPE_CHECKING:
+    from mitm_proxy.endpoints import BaseEndpoint
+    from mitm_proxy.secure import SecureSlot  # numpy/scipy: imported by the proxy only with a scenario
 
 log = logging.getLogger("mitm_proxy.control")
 
@@ -64,160 +68,62 @@ def default_instance() -> str:
     return f"{host}-{os.getpid()}"
 
 
-class Control(ABC):
-    """One runtime switch. ``apply`` raises :class:`RequestError` (or ``InputError``) to refuse."""
-
-    kind: ClassVar[str]
-    bare_words: ClassVar[frozenset[bytes]] = frozenset()  # accepted without JSON quotes (``mosquitto_pub -m off``)
-
-    def __init__(self) -> None:
-        self._request_id: str | None = None
-        self._error: str | None = None
-
-    @abstractmethod
-    def apply(self, payload: Any, request_id: str | None) -> None:
-        """Validate ``payload`` completely, then install it in one step."""
-
-    @abstractmethod
-    def current(self) -> dict[str, Any]:
-        """What is in force now (without the verdict on the last request)."""
-
-    def state(self) -> dict[str, Any]:
-        """The retained ``.../state``: what is in force and the verdict on the last request."""
-        return {**self.current(), "request_id": self._request_id, "ok": self._error is None, "error": self._error}
-
-    def handle(self, payload: Any, request_id: str | None) -> dict[str, Any]:
-        """Apply a decoded request and return the state to publish; never raises."""
-        try:
-            self.apply(payload, request_id)
-        except (RequestError, InputError) as exc:
-            return self.refuse(str(exc), request_id)
-        except Exception as exc:  # a library bug must not end the control plane; the old setting stays
-            log.exception(f"{self.kind.replace('/', '_')}.failed", extra={"request_id": request_id})
-            return self.refuse(f"internal error: {exc!r}", request_id)
-        self._request_id, self._error = request_id, None
-        return self.state()
-
-    def refuse(self, error: str, request_id: str | None) -> dict[str, Any]:
-        self._request_id, self._error = request_id, error
-        log.warning(f"{self.kind.replace('/', '_')}.rejected", extra={"error": error, "request_id": request_id})
-        return self.state()
-
-
-class AttackControl(Control):
-    """``attack/set``: a profile, ``{"library": name, "params": {...}}`` or ``null``, into the link's slot.
-
-    The slot keeps its own state (the file reload and ``--profile`` change it too), so this control
-    hands the verdict to the slot rather than keeping one.
-    """
-
-    kind = "attack"
-
-    def __init__(self, slot: AttackSlot) -> None:
-        super().__init__()
-        self.slot = slot
-
-    def apply(self, payload: Any, request_id: str | None) -> None:
-        state = self.slot.offer_payload(payload, request_id, source=vehicle_topic(self.slot.sysid, "attack", "set"))
-        if not state.ok:
-            raise RequestError(state.error or "rejected")
-        log.info("attack.applied", extra={"sysid": self.slot.sysid, "profile": state.profile,
-                                          "request_id": request_id})  # fmt: skip
-
-    def current(self) -> dict[str, Any]:
-        return self.slot.state.to_json()
-
-    def state(self) -> dict[str, Any]:
-        return self.slot.state.to_json()
-
-    def refuse(self, error: str, request_id: str | None) -> dict[str, Any]:
-        if self.slot.state.request_id != request_id or self.slot.state.error != error:
-            self.slot.reject(error, request_id)
-        log.warning("attack.rejected", extra={"sysid": self.slot.sysid, "error": error, "request_id": request_id})
-        return self.state()
-
-
 MODES = {"on": True, "bypass": False}
 
 
-class ModeControl(Control):
-    """``attack/mode/set``: ``"on"`` or ``"bypass"`` (or ``{"mode": ...}``); the profile stays installed."""
+class ModeSwitch(Switch[ModeState]):
+    """``attack/mode/set``: ``"on"`` or ``"bypass"`` (or ``{"mode": ...}``); the profile stays installed.
+
+    The attack stage's ``enabled`` flag is what the pipeline reads; this switch is the one that writes it
+    (``--attack bypass`` at start is :meth:`set` too).
+    """
 
     kind = "attack/mode"
+    state_model = ModeState
     bare_words = frozenset(m.encode() for m in MODES)
 
-    def __init__(self, sysid: int, stage: Any) -> None:
+    def __init__(self, sysid: int, stage: AttackStage, on: bool | None = None) -> None:
         super().__init__()
         self.sysid = sysid
-        self.stage = stage  # anything with a bool ``enabled`` (the link's AttackStage)
-        self._mode = self._now()
+        self.stage = stage
+        if on is not None:
+            stage.enabled = on
         self._since = time.time()
 
-    def _now(self) -> str:
-        return "on" if self.stage.enabled else "bypass"
+    def set(self, on: bool, request_id: str | None = None, source: str = "<app>") -> ModeState:
+        return self.handle("on" if on else "bypass", request_id, source)
 
-    def apply(self, payload: Any, request_id: str | None) -> None:
+    def apply(self, payload: Any, source: str) -> None:
         value = payload.get("mode") if isinstance(payload, dict) else payload
         if not (isinstance(value, str) and value in MODES):
             raise RequestError(f'mode: must be "on" or "bypass" (got {json.dumps(value)[:40]})')
-        self.stage.enabled = MODES[value]
-        if value != self._mode:
-            self._mode, self._since = value, time.time()
-        log.info("attack.mode", extra={"sysid": self.sysid, "mode": value, "request_id": request_id})
+        if self.stage.enabled != MODES[value]:
+            self.stage.enabled = MODES[value]
+            self._since = time.time()
 
     def current(self) -> dict[str, Any]:
-        mode = self._now()
-        if mode != self._mode:  # switched by someone else (the app): no request of ours did it
-            self._mode, self._since = mode, time.time()
-            self._request_id, self._error = None, None
-        return {"sysid": self.sysid, "mode": mode, "since": self._since}
+        return {"sysid": self.sysid, "mode": "on" if self.stage.enabled else "bypass", "since": self._since}
 
 
-class SecureControl(Control):
-    """``secure/set``: an estimator name, ``{"estimator": ..., "params": {...}}``, or ``"off"``/``null``.
-
-    ``slot`` is the link's :class:`~mitm_proxy.secure.SecureSlot`, which keeps its own verdict
-    (``secure/state`` predates this module); without one (no ``--scenario``) every request is refused.
-    """
+class NoSecure(Switch[SecureState]):
+    """``secure/set`` on a link without a secure stage (no ``--scenario``): every request is refused, with why."""
 
     kind = "secure"
+    state_model = SecureState
     bare_words = frozenset({b"off"})
 
-    def __init__(self, sysid: int, slot: Any | None) -> None:
+    def __init__(self, sysid: int) -> None:
         super().__init__()
         self.sysid = sysid
-        self.slot = slot
 
-    def apply(self, payload: Any, request_id: str | None) -> None:
-        if self.slot is None:
-            raise RequestError("the secure stage is not available in this proxy (start it with --scenario)")
-        state = self.slot.offer_payload(payload, request_id)
-        if not state.get("ok"):
-            raise RequestError(str(state.get("error")))
-        log.info("secure.applied", extra={"sysid": self.sysid, "estimator": state.get("estimator"),
-                                          "request_id": request_id})  # fmt: skip
+    def apply(self, payload: Any, source: str) -> None:
+        raise RequestError("the secure stage is not available in this proxy (start it with --scenario)")
 
     def current(self) -> dict[str, Any]:
-        if self.slot is None:
-            return {"sysid": self.sysid, "available": False, "estimator": None}
-        return dict(self.slot.state)
-
-    def state(self) -> dict[str, Any]:
-        if self.slot is not None:
-            return dict(self.slot.state)
-        return super().state()
-
-    def refuse(self, error: str, request_id: str | None) -> dict[str, Any]:
-        if self.slot is not None:
-            state = self.slot.state
-            if state.get("request_id") != request_id or state.get("error") != error:
-                self.slot.reject(error, request_id)
-            log.warning("secure.rejected", extra={"sysid": self.sysid, "error": error, "request_id": request_id})
-            return self.state()
-        return super().refuse(error, request_id)
+        return {"sysid": self.sysid, "available": False, "estimator": None}
 
 
-class RoutesControl(Control):
+class RoutesSwitch(Switch[RoutesState]):
     """``routes/set``: new rules for named endpoints, all checked before any is installed.
 
     Payload: ``{"endpoints": {"<name or URL>": <rules> | null, ...}}`` where ``<rules>`` is
@@ -228,14 +134,16 @@ class RoutesControl(Control):
     """
 
     kind = "routes"
+    scope = "proxy"
+    state_model = RoutesState
 
-    def __init__(self, instance: str, endpoints: Mapping[str, Any]) -> None:
+    def __init__(self, instance: str, endpoints: Mapping[str, BaseEndpoint]) -> None:
         super().__init__()
         self.instance = instance
         self.endpoints = dict(endpoints)  # name -> BaseEndpoint
         self._since = time.time()
 
-    def _find(self, key: str) -> Any:
+    def _find(self, key: str) -> BaseEndpoint:
         ep = self.endpoints.get(key)
         if ep is not None:
             return ep
@@ -245,14 +153,14 @@ class RoutesControl(Control):
         known = ", ".join(sorted(self.endpoints))
         raise RequestError(f"endpoints.{key}: no such endpoint in this proxy (known: {known})")
 
-    def apply(self, payload: Any, request_id: str | None) -> None:
+    def apply(self, payload: Any, source: str) -> None:
         body = payload.get("endpoints") if isinstance(payload, dict) else None
         if not isinstance(body, dict) or not body:
             raise RequestError('endpoints: expected {"endpoints": {"<name>": {rules} or null, ...}}')
         extra = sorted(set(payload) - {"endpoints", "request_id"})
         if extra:
             raise RequestError(f"{extra[0]}: unknown field (known: endpoints, request_id)")
-        plan: list[tuple[Any, EndpointRules]] = []
+        plan: list[tuple[BaseEndpoint, EndpointRules]] = []
         for key, raw in body.items():
             ep = self._find(str(key))
             try:
@@ -268,7 +176,7 @@ class RoutesControl(Control):
         for ep, rules in plan:  # everything checked: install (nothing above touched an endpoint)
             ep.set_rules(rules)
         self._since = time.time()
-        log.info("routes.applied", extra={"endpoints": ",".join(ep.name for ep, _ in plan), "request_id": request_id})
+        log.info("routes.installed", extra={"endpoints": ",".join(ep.name for ep, _ in plan)})
 
     def current(self) -> dict[str, Any]:
         return {
@@ -286,7 +194,7 @@ class RoutesControl(Control):
 class Target:
     """Where a ``set`` topic leads: the control, its state topic, and the scope for the log."""
 
-    control: Control
+    control: Switch[Any]
     state_topic: str
 
 
@@ -297,22 +205,29 @@ class Controls:
         if not INSTANCE_RE.match(instance):
             raise ValueError(f"instance name {instance!r}: use 1-64 letters, digits, '.', '_' or '-'")
         self.instance = instance
-        self._vehicles: dict[int, dict[str, Control]] = {}
-        self._proxy: dict[str, Control] = {}
+        self._vehicles: dict[int, dict[str, Switch[Any]]] = {}
+        self._proxy: dict[str, Switch[Any]] = {}
 
-    def add_vehicle(self, sysid: int, control: Control) -> Control:
-        self._vehicles.setdefault(sysid, {})[control.kind] = control
-        return control
+    def add(self, switch: Switch[Any], sysid: int | None = None) -> Switch[Any]:
+        """Register ``switch``: a vehicle's (``sysid``) or, for a proxy-wide one, the process's."""
+        if switch.scope == "proxy":
+            self._proxy[switch.kind] = switch
+        else:
+            assert sysid is not None, f"a {switch.kind} switch belongs to a vehicle"
+            self._vehicles.setdefault(sysid, {})[switch.kind] = switch
+        return switch
 
-    def add_proxy(self, control: Control) -> Control:
-        self._proxy[control.kind] = control
-        return control
+    def add_vehicle(self, sysid: int, switch: Switch[Any]) -> Switch[Any]:
+        return self.add(switch, sysid)
+
+    def add_proxy(self, switch: Switch[Any]) -> Switch[Any]:
+        return self.add(switch)
 
     @property
     def vehicles(self) -> list[int]:
         return sorted(self._vehicles)
 
-    def vehicle(self, sysid: int, kind: str) -> Control | None:
+    def vehicle(self, sysid: int, kind: str) -> Switch[Any] | None:
         return self._vehicles.get(sysid, {}).get(kind)
 
     def subscriptions(self) -> list[str]:
@@ -352,15 +267,17 @@ class Controls:
 def vehicle_controls(
     instance: str,
     slots: Mapping[int, AttackSlot],
-    stages: Mapping[int, Any] | None = None,
-    secure: Mapping[int, Any] | None = None,
+    modes: Mapping[int, ModeSwitch | AttackStage] | None = None,
+    secure: Mapping[int, SecureSlot] | None = None,
 ) -> Controls:
-    """The registry for a set of links: attack on every slot, mode where there is a stage, and secure
-    (refusing every request, with the reason, on a link without a secure slot)."""
+    """The registry for a set of links: attack on every slot, mode where there is a stage (or its switch),
+    and secure (:class:`NoSecure`, refusing every request with the reason, on a link without a secure slot)."""
     controls = Controls(instance)
     for sysid, slot in slots.items():
-        controls.add_vehicle(sysid, AttackControl(slot))
-        if stages is not None and sysid in stages:
-            controls.add_vehicle(sysid, ModeControl(sysid, stages[sysid]))
-        controls.add_vehicle(sysid, SecureControl(sysid, None if secure is None else secure.get(sysid)))
+        controls.add(slot, sysid)
+        mode = None if modes is None else modes.get(sysid)
+        if mode is not None:
+            controls.add(mode if isinstance(mode, ModeSwitch) else ModeSwitch(sysid, mode), sysid)
+        secure_slot = None if secure is None else secure.get(sysid)
+        controls.add(secure_slot if secure_slot is not None else NoSecure(sysid), sysid)
     return controls

@@ -106,7 +106,7 @@ class TlogWriter:
         pipe = self._pipes.get(sysid)
         if pipe is None:
             slot = AttackSlot(sysid)
-            slot.engine = self.engine  # the caller's engine and its clock, shared by the vehicles as before
+            slot.install(self.engine)  # the caller's engine and its clock, shared by the vehicles as before
             pipe = self._pipes[sysid] = Pipeline(len(self._pipes), [AttackStage(slot)], stats=LinkStats(sysid))
         return pipe
 

@@ -63,6 +63,8 @@ from mitm_proxy.secure_layout import (
     build_layout,
 )
 from mitm_proxy.secure_worker import Job, Stepper, StepResult
+from mitm_proxy.switch import Switch
+from secuav_common.controlplane.payloads import SecureState
 from secuav_common.geo import ned_to_geodetic
 from secuav_common.loading import InputError
 from secuav_common.scenario import Home, Scenario
@@ -454,34 +456,12 @@ def _num(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
 
 
-@dataclass(frozen=True, slots=True)
-class SecureState:
-    """What ``secuav/v<sysid>/secure/state`` carries (retained)."""
+class SecureSlot(Switch[SecureState]):
+    """The secure stage of one link and the one door for changing it (``--secure``, config, MQTT): ``secure``."""
 
-    sysid: int
-    ok: bool
-    estimator: str | None
-    params: dict[str, Any]
-    group: str | None
-    request_id: str | None
-    error: str | None
-    since: float | None
-
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "sysid": self.sysid,
-            "ok": self.ok,
-            "estimator": self.estimator,
-            "params": dict(self.params),
-            "group": self.group,
-            "request_id": self.request_id,
-            "error": self.error,
-            "since": self.since,
-        }
-
-
-class SecureSlot:
-    """The secure stage of one link and the one door for changing it (``--secure``, config, MQTT)."""
+    kind = "secure"
+    state_model = SecureState
+    bare_words = frozenset({b"off"})
 
     def __init__(
         self,
@@ -496,42 +476,37 @@ class SecureSlot:
         Give every slot of one proxy the same ``peers`` board, so inter-vehicle
         ranges can be checked against the peers' secure positions.
         """
+        super().__init__()
         self.sysid = sysid
         self.stage = SecureStage(config or OFF, scenario, sysid, publish, source="--secure", peers=peers)
-        self._state = self._accepted(None)
+        self._since = time.time()
 
-    @property
-    def state(self) -> dict[str, Any]:
-        return self._state.to_json()
-
-    def offer(self, config: SecureConfig, request_id: str | None = None, source: str = "<secure>") -> dict[str, Any]:
-        try:
-            self.stage.reconfigure(config, source)
-        except InputError as exc:
-            return self.reject(str(exc), request_id)
-        self._state = self._accepted(request_id)
-        return self.state
-
-    def offer_payload(self, payload: Any, request_id: str | None = None, source: str = "<mqtt>") -> dict[str, Any]:
-        """Decoded JSON of ``secure/set``: ``null``/``"off"``, a name, or ``{"estimator": ..., "params": {...}}``."""
-        if request_id is None and isinstance(payload, dict) and isinstance(payload.get("request_id"), str):
-            request_id = payload["request_id"]
-        try:
-            config = config_from_payload(payload, source, base=self.stage.config)
-        except InputError as exc:
-            return self.reject(str(exc), request_id)
-        return self.offer(config, request_id, source)
-
-    def reject(self, error: str, request_id: str | None = None) -> dict[str, Any]:
-        """A request refused (bad JSON, oversized, invalid): the running estimator stays."""
-        s = self._state
-        self._state = SecureState(s.sysid, False, s.estimator, s.params, s.group, request_id, error, s.since)
-        return self.state
-
-    def _accepted(self, request_id: str | None) -> SecureState:
+    def current(self) -> dict[str, Any]:
         cfg = self.stage.config
         group = None if self.stage.layout is None else self.stage.layout.group
-        return SecureState(self.sysid, True, cfg.estimator, dict(cfg.params), group, request_id, None, time.time())
+        return {"sysid": self.sysid, "estimator": cfg.estimator, "params": dict(cfg.params), "group": group,
+                "since": self._since}  # fmt: skip
+
+    def apply(self, payload: Any, source: str) -> None:
+        """A :class:`SecureConfig`, or the JSON of ``secure/set``: ``null``/``"off"``, a name, or
+        ``{"estimator": ..., "params": {...}}`` (fields left out keep their value)."""
+        config = payload if isinstance(payload, SecureConfig) else config_from_payload(
+            payload, source, base=self.stage.config)  # fmt: skip
+        self.stage.reconfigure(config, source)
+        self._since = time.time()
+
+    def offer(self, config: SecureConfig, request_id: str | None = None, source: str = "<secure>") -> SecureState:
+        return self.handle(config, request_id, source)
+
+    def offer_payload(self, payload: Any, request_id: str | None = None, source: str = "<mqtt>") -> SecureState:
+        """Decoded JSON of ``secure/set``; a ``request_id`` inside it counts when none is given."""
+        if request_id is None and isinstance(payload, dict) and isinstance(payload.get("request_id"), str):
+            request_id = payload["request_id"]
+        return self.handle(payload, request_id, source)
+
+    def reject(self, error: str, request_id: str | None = None) -> SecureState:
+        """A request refused (bad JSON, oversized, invalid): the running estimator stays."""
+        return self.refuse(error, request_id)
 
     def close(self) -> None:
         self.stage.close()

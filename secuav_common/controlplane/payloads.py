@@ -46,38 +46,53 @@ class _Payload(BaseModel):
     model_config = ConfigDict(extra="allow")
 
 
-class Verdict(_Payload):
-    """The verdict on the last request, carried by every ``.../state``."""
+class Verdict(BaseModel):
+    """The verdict on the last request to a switch: its id, whether it was accepted, and why not."""
+
+    model_config = ConfigDict(frozen=True)
 
     request_id: str | None = None
     ok: bool = True
     error: str | None = None
 
 
-class AttackState(Verdict):
+# Each state below lists its fields in the order they go on the wire (docs/interfaces.md), the verdict's
+# three among them; a switch builds it from what is in force and its one Verdict.
+
+
+class AttackState(_Payload):
     """``secuav/v<N>/attack/state`` (retained)."""
 
     sysid: int
     profile: str | None = None  # active profile name; None when no profile is active
     hash: str | None = None
     since: float | None = None  # wall-clock time (epoch s) the active profile was installed
+    request_id: str | None = None  # of the last request, accepted or not
+    ok: bool = True  # whether the last request was accepted
+    error: str | None = None  # why it was rejected
 
 
-class ModeState(Verdict):
+class ModeState(_Payload):
     """``secuav/v<N>/attack/mode/state`` (retained)."""
 
     sysid: int
     mode: Literal["on", "bypass"]
     since: float | None = None
+    request_id: str | None = None
+    ok: bool = True
+    error: str | None = None
 
 
-class SecureState(Verdict):
+class SecureState(_Payload):
     """``secuav/v<N>/secure/state`` (retained); ``available`` false: this proxy has no secure stage."""
 
     sysid: int
+    ok: bool = True
     estimator: str | None = None
     params: dict[str, Any] = {}
     group: str | None = None
+    request_id: str | None = None
+    error: str | None = None
     since: float | None = None
     available: bool = True
 
@@ -88,12 +103,15 @@ class RouteEntry(_Payload):
     rules: dict[str, Any] = {}
 
 
-class RoutesState(Verdict):
+class RoutesState(_Payload):
     """``secuav/proxy/<instance>/routes/state`` (retained)."""
 
     instance: str
     since: float | None = None
     endpoints: dict[str, RouteEntry] = {}
+    request_id: str | None = None
+    ok: bool = True
+    error: str | None = None
 
 
 class ProxyOnline(_Payload):
@@ -233,8 +251,8 @@ def decode(topic: str | Topic, raw: bytes | bytearray) -> Any:
 
 
 def as_dict(message: Any) -> Any:
-    """A decoded message as plain JSON data (what a page or a table reads), extras included."""
-    return message.model_dump(mode="json") if isinstance(message, BaseModel) else message
+    """A decoded message as plain JSON data (what a page or a table reads): the fields it carried, no more."""
+    return message.model_dump(mode="json", exclude_unset=True) if isinstance(message, BaseModel) else message
 
 
 # -- requests, as the proxy reads them ----------------------------------------------------------------
@@ -299,7 +317,7 @@ def _finite(node: Any) -> Any:
 
 def _plain(value: Any) -> Any:
     if isinstance(value, BaseModel):
-        return value.model_dump(mode="json")
+        return value.model_dump(mode="json", exclude_unset=True)
     item = getattr(value, "item", None)  # numpy scalar -> Python number
     if callable(item):
         with contextlib.suppress(Exception):
@@ -313,11 +331,12 @@ def _plain(value: Any) -> Any:
 
 
 def dumps(payload: Any) -> bytes:
-    """Compact, strict JSON (bytes pass through); models, numpy scalars and arrays become plain JSON."""
+    """Compact, strict JSON (bytes pass through); models (the fields they were given, in their declared
+    order), numpy scalars and arrays become plain JSON."""
     if isinstance(payload, bytes):
         return payload
     if isinstance(payload, BaseModel):
-        payload = payload.model_dump(mode="json")
+        payload = payload.model_dump(mode="json", exclude_unset=True)
     try:
         return json.dumps(payload, separators=(",", ":"), allow_nan=False, default=_plain).encode()
     except ValueError:  # a NaN somewhere: the slow path only then

@@ -17,7 +17,9 @@ from attack_profiles import library
 from mitm_proxy.control import MAX_PAYLOAD_BYTES, ONLINE_TOPIC, ControlPlane
 from mitm_proxy.controls import vehicle_controls
 from mitm_proxy.slots import AttackSlot
+from mitm_proxy.switch import Switch
 from secuav_common.broker import EmbeddedBroker
+from secuav_common.controlplane.payloads import SecureState
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -181,16 +183,15 @@ async def test_secure_set_without_and_with_a_secure_stage(broker_port: int, slot
             anonymous = await obs.wait_for("secuav/v1/secure/state", start=start)
             assert not anonymous["ok"] and anonymous["request_id"] is None
 
-    class BrokenSlot:  # a secure stage whose code raises: the plane reports it and keeps serving
-        def __init__(self) -> None:
-            self.state: dict[str, Any] = {"sysid": 2, "ok": True, "estimator": None, "request_id": None}
+    class BrokenSlot(Switch[SecureState]):  # a secure stage whose code raises: the plane reports it, serves on
+        kind = "secure"
+        state_model = SecureState
 
-        def offer_payload(self, payload: Any, request_id: str | None) -> dict[str, Any]:
+        def apply(self, payload: Any, source: str) -> None:
             raise RuntimeError("boom")
 
-        def reject(self, error: str, request_id: str | None) -> dict[str, Any]:
-            self.state = {**self.state, "ok": False, "error": error, "request_id": request_id}
-            return self.state
+        def current(self) -> dict[str, Any]:
+            return {"sysid": 2, "estimator": None}
 
     controls = vehicle_controls("t", slots, secure={2: BrokenSlot()})
     async with ControlPlane(url, controls, stats=fake_stats) as plane:
