@@ -60,7 +60,7 @@ async def _main(args: argparse.Namespace) -> int:
     out = args.out or Path("out") / args.demo
     matrix = args.matrix or (args.attack is None and args.secure is None)
     base = args.base_port
-    ports = Ports() if base is None else Ports(base, base + 10, base + 20, base + 21)
+    ports = Ports() if base is None else Ports.block(base)
     params = {**getattr(demo, "DEFAULT_PARAMS", {}), **parse_params(args.param)}
     opts = Options(out=out, seconds=args.seconds, settle_s=args.settle, seed=args.seed, ports=ports,
                    attack_params=params, progress=not args.no_progress and sys.stderr.isatty())  # fmt: skip

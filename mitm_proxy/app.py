@@ -32,17 +32,18 @@ from typing import TYPE_CHECKING, Any
 
 from attack_profiles.resolve import resolve_profile
 from mavframe.signing import Signer
-from mitm_proxy.attack import AttackStage
 from mitm_proxy.config import ProxyConfig
-from mitm_proxy.controls import Controls, ModeSwitch, RoutesSwitch, default_instance, vehicle_controls
-from mitm_proxy.endpoints import DEFAULT_TAKEOVER_S, BaseEndpoint, make_endpoint
-from mitm_proxy.link import GroundRouter, Link
-from mitm_proxy.pipeline import Pipeline
-from mitm_proxy.readings import ReadingsTap
-from mitm_proxy.recording import Recorder
-from mitm_proxy.secure_config import OFF, SecureConfig, config_from_payload
-from mitm_proxy.slots import AttackSlot
-from mitm_proxy.stats import LinkStats
+from mitm_proxy.control.switches import Controls, ModeSwitch, RoutesSwitch, default_instance, vehicle_controls
+from mitm_proxy.core.pipeline import Pipeline
+from mitm_proxy.core.readings import ReadingsTap
+from mitm_proxy.core.recorder import Recorder
+from mitm_proxy.core.stats import LinkStats
+from mitm_proxy.net.endpoints import DEFAULT_TAKEOVER_S, BaseEndpoint
+from mitm_proxy.net.factory import make_endpoint
+from mitm_proxy.net.link import GroundRouter, Link
+from mitm_proxy.stages.attack import AttackStage
+from mitm_proxy.stages.attack_slot import AttackSlot
+from mitm_proxy.stages.secure.config import OFF, SecureConfig, config_from_payload
 from secuav_common.broker import redact
 from secuav_common.controlplane.topics import vehicle_topic
 from secuav_common.loading import InputError
@@ -50,9 +51,9 @@ from secuav_common.scenario import Scenario, load_scenario
 from secuav_common.urls import Endpoint
 
 if TYPE_CHECKING:  # imported when used: numpy/scipy (secure) and MQTT (control) stay out of start-up
-    from mitm_proxy.control import ControlPlane
-    from mitm_proxy.reload import ProfileWatcher
-    from mitm_proxy.secure import SecureSlot
+    from mitm_proxy.control.plane import ControlPlane
+    from mitm_proxy.control.reload import ProfileWatcher
+    from mitm_proxy.stages.secure.stage import SecureSlot
 
 log = logging.getLogger("secuav-proxy")
 VEHICLE_TAKEOVER_S = 1.0  # a new vehicle source port is followed after this much silence from the old one
@@ -85,7 +86,7 @@ class Proxy:
         sysids = [link.sysid for link in config.links]
         secure: dict[int, SecureSlot] = {}
         if self.scenario is not None:  # the estimators' models come from the scenario
-            from mitm_proxy.secure import make_slots  # numpy/scipy estimators: only when they can run
+            from mitm_proxy.stages.secure.stage import make_slots  # numpy/scipy estimators: only when they can run
 
             secure = make_slots(self.scenario, sysids, self._secure_config(), self._publish_estimate, "secure")
         elif config_from_payload(config.secure, "secure").enabled:
@@ -189,7 +190,7 @@ class Proxy:
         self.routers = [GroundRouter(self.endpoints[ep], links) for ep, links in users.items()]
 
     def build_controls(self) -> Controls:
-        """Every runtime switch of this process, registered once (``mitm_proxy.controls``)."""
+        """Every runtime switch of this process, registered once (``mitm_proxy.control.switches``)."""
         modes = {s: v.mode for s, v in self.vehicles.items()}
         controls = vehicle_controls(self.instance, self.slots, modes, self.secure)
         controls.add(RoutesSwitch(self.instance, {ep.name: ep for ep in self.endpoints.values()}))
@@ -226,7 +227,7 @@ class Proxy:
         cfg = self.config
         if cfg.broker == "none":
             return
-        from mitm_proxy.control import ControlPlane
+        from mitm_proxy.control.plane import ControlPlane
         from secuav_common.broker import EmbeddedBroker, parse_broker_url
 
         if cfg.broker == "embedded":
@@ -248,7 +249,7 @@ class Proxy:
         profile = self.config.profile
         if profile is None or not Path(profile).exists():
             return
-        from mitm_proxy.reload import ProfileWatcher
+        from mitm_proxy.control.reload import ProfileWatcher
 
         watcher = ProfileWatcher(Path(profile), self.slots)
         self._tasks.append(asyncio.create_task(_run_watcher(watcher), name="reload"))

@@ -14,10 +14,10 @@ import pytest
 from test_control_support import MOSQUITTO, Mosquitto, Observer
 
 from attack_profiles import library
-from mitm_proxy.control import MAX_PAYLOAD_BYTES, ONLINE_TOPIC, ControlPlane
-from mitm_proxy.controls import vehicle_controls
-from mitm_proxy.slots import AttackSlot
-from mitm_proxy.switch import Switch
+from mitm_proxy.control.plane import MAX_PAYLOAD_BYTES, ONLINE_TOPIC, ControlPlane
+from mitm_proxy.control.switch import Switch
+from mitm_proxy.control.switches import vehicle_controls
+from mitm_proxy.stages.attack_slot import AttackSlot
 from secuav_common.broker import EmbeddedBroker
 from secuav_common.controlplane.payloads import SecureState
 
@@ -252,7 +252,7 @@ async def test_no_broker_means_no_mqtt_and_publish_is_a_no_op(slots: dict[int, A
 
 
 async def test_the_real_secure_slot_through_the_plane(broker_port: int) -> None:
-    from mitm_proxy.secure import SecureSlot
+    from mitm_proxy.stages.secure.stage import SecureSlot
     from secuav_common.scenario import load_scenario
 
     scenario = load_scenario("scenarios/wall_hover.yaml")
@@ -276,7 +276,7 @@ async def test_the_real_secure_slot_through_the_plane(broker_port: int) -> None:
 async def test_attack_mode_switches_bypass_at_runtime_and_keeps_the_profile(
     broker_port: int, slots: dict[int, AttackSlot]
 ) -> None:
-    from mitm_proxy.attack import AttackStage
+    from mitm_proxy.stages.attack import AttackStage
 
     stages = {sysid: AttackStage(slot) for sysid, slot in slots.items()}
     plane = ControlPlane(f"mqtt://127.0.0.1:{broker_port}", vehicle_controls("t", slots, stages), stats=fake_stats)

@@ -1,4 +1,4 @@
-"""The runtime switches (``mitm_proxy.controls``) without a broker: topic routing, atomic route sets, one verdict."""
+"""The runtime switches (``mitm_proxy.control``) without a broker: topic routing, atomic route sets, one verdict."""
 
 from __future__ import annotations
 
@@ -6,8 +6,7 @@ from typing import Any
 
 import pytest
 
-from mitm_proxy.attack import AttackStage
-from mitm_proxy.controls import (
+from mitm_proxy.control.switches import (
     Controls,
     ModeSwitch,
     NoSecure,
@@ -15,9 +14,10 @@ from mitm_proxy.controls import (
     Target,
     vehicle_controls,
 )
-from mitm_proxy.endpoints import make_endpoint
-from mitm_proxy.routes import EndpointRules, rules_from_query, rules_to_query
-from mitm_proxy.slots import AttackSlot
+from mitm_proxy.net.factory import make_endpoint
+from mitm_proxy.net.rules import EndpointRules, rules_from_query, rules_to_query
+from mitm_proxy.stages.attack import AttackStage
+from mitm_proxy.stages.attack_slot import AttackSlot
 from secuav_common.loading import InputError
 from secuav_common.urls import parse_endpoint
 

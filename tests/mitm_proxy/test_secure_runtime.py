@@ -15,9 +15,9 @@ from test_secure_support import StreamMaker, packet_of, wire_fields
 from attack_profiles import library
 from attack_profiles.engine import Engine
 from mavframe.packet import Direction
-from mitm_proxy.pipeline import Pipeline
-from mitm_proxy.secure import SecureConfig, SecureSlot, SecureStage
-from mitm_proxy.stats import LinkStats
+from mitm_proxy.core.pipeline import Pipeline
+from mitm_proxy.core.stats import LinkStats
+from mitm_proxy.stages.secure.stage import SecureConfig, SecureSlot, SecureStage
 from secuav_common.scenario import Scenario, load_scenario
 
 DS = 132
@@ -245,7 +245,7 @@ def test_auto_executor_keeps_cheap_steps_inline(wall: Scenario) -> None:
 @pytest.mark.timeout(30)
 def test_make_slots_from_the_secure_flag() -> None:
     """``--secure NAME`` for every vehicle of a scenario: one slot each, one shared peer board; bad input refused."""
-    from mitm_proxy.secure import make_slots
+    from mitm_proxy.stages.secure.stage import make_slots
     from secuav_common.loading import InputError
 
     formation = load_scenario("formation")

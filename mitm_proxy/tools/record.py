@@ -49,10 +49,10 @@ from attack_profiles.resolve import parse_params, resolve_profile
 from mavframe import codec, tlog
 from mavframe.frames import split
 from mavframe.packet import Direction, Header, Packet
-from mitm_proxy.attack import AttackStage
-from mitm_proxy.pipeline import Pipeline
-from mitm_proxy.slots import AttackSlot
-from mitm_proxy.stats import LinkStats
+from mitm_proxy.core.pipeline import Pipeline
+from mitm_proxy.core.stats import LinkStats
+from mitm_proxy.stages.attack import AttackStage
+from mitm_proxy.stages.attack_slot import AttackSlot
 from secuav_common.loading import InputError
 from secuav_common.logs import add_common_flags
 from secuav_common.scenario import load_scenario, resolve_scenario_path

@@ -1,6 +1,6 @@
 """The runtime switches of one proxy process, and the registry the MQTT session dispatches into.
 
-Everything the control plane can change at runtime is a :class:`~mitm_proxy.switch.Switch`:
+Everything the control plane can change at runtime is a :class:`~mitm_proxy.control.switch.Switch`:
 
 =================  ==========================================  ==============================  =====================
 kind (topic leaf)  set on                                      what it holds                   ``secuav-attack``
@@ -12,15 +12,15 @@ kind (topic leaf)  set on                                      what it holds    
                    ``secuav/proxy/<instance>/routes/set``
 =================  ==========================================  ==============================  =====================
 
-The attack switch is :class:`~mitm_proxy.slots.AttackSlot`, the secure one
-:class:`~mitm_proxy.secure.SecureSlot` (:class:`NoSecure` where the proxy has
+The attack switch is :class:`~mitm_proxy.stages.attack_slot.AttackSlot`, the secure one
+:class:`~mitm_proxy.stages.secure.stage.SecureSlot` (:class:`NoSecure` where the proxy has
 no scenario); the mode and routes switches live here. Each answers on the
 retained ``.../<kind>/state`` next to its ``set`` topic (a proxy-wide switch on
 ``secuav/proxy/<instance>/<kind>/state``) with its payload model of
 :mod:`secuav_common.controlplane.payloads`.
 
 :class:`Controls` is the registry the proxy fills once and the MQTT session
-(:mod:`mitm_proxy.control`) dispatches into; it is sans-I/O, so tests drive
+(:mod:`mitm_proxy.control.plane`) dispatches into; it is sans-I/O, so tests drive
 it directly.
 """
 
@@ -38,10 +38,10 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import ValidationError
 
-from mitm_proxy.attack import AttackStage
-from mitm_proxy.routes import NO_RULES, EndpointRules
-from mitm_proxy.slots import AttackSlot
-from mitm_proxy.switch import Switch
+from mitm_proxy.control.switch import Switch
+from mitm_proxy.net.rules import NO_RULES, EndpointRules
+from mitm_proxy.stages.attack import AttackStage
+from mitm_proxy.stages.attack_slot import AttackSlot
 from secuav_common.controlplane.payloads import ModeState, RequestError, RoutesState, SecureState
 from secuav_common.controlplane.topics import (
     ANY,
@@ -54,10 +54,10 @@ from secuav_common.controlplane.topics import (
 )
 
 if TYPE_CHECKING:
-    from mitm_proxy.endpoints import BaseEndpoint
-    from mitm_proxy.secure import SecureSlot  # numpy/scipy: imported by the proxy only with a scenario
+    from mitm_proxy.net.endpoints import BaseEndpoint
+    from mitm_proxy.stages.secure.stage import SecureSlot  # numpy/scipy: imported by the proxy only with a scenario
 
-log = logging.getLogger("mitm_proxy.control")
+log = logging.getLogger(__name__)
 
 __all__ = ["INSTANCE_RE", "PREFIX", "RequestError", "parse_vehicle_key", "proxy_topic", "vehicle_topic"]
 
@@ -127,7 +127,7 @@ class RoutesSwitch(Switch[RoutesState]):
     """``routes/set``: new rules for named endpoints, all checked before any is installed.
 
     Payload: ``{"endpoints": {"<name or URL>": <rules> | null, ...}}`` where ``<rules>`` is
-    an :class:`~mitm_proxy.routes.EndpointRules` object (``{"listen_only": true, "down":
+    an :class:`~mitm_proxy.net.rules.EndpointRules` object (``{"listen_only": true, "down":
     {"deny": ["ATTITUDE"]}}``) and ``null`` lifts every rule. An endpoint is named as the
     stats name it (``ground:14550``) or by its URL without options; endpoints left out
     keep their rules.

@@ -2,9 +2,9 @@
 
 Topics and payloads: docs/interfaces.md#mqtt-control-plane-json-payloads-vehicle-key-vsysid.
 
-This module is the transport; what a request does is :mod:`mitm_proxy.controls`
-(one :class:`~mitm_proxy.controls.Control` per runtime switch, registered once
-in a :class:`~mitm_proxy.controls.Controls`). One background task keeps one
+This module is the transport; what a request does is :mod:`mitm_proxy.control.switches`
+(one :class:`~mitm_proxy.control.switch.Switch` per runtime switch, registered once
+in a :class:`~mitm_proxy.control.switches.Controls`). One background task keeps one
 MQTT session: it subscribes to every control's ``set`` topic, hands each
 decoded request to its control, and publishes the control's state on the
 retained ``.../state`` topic next to it. It also publishes each link's stats at
@@ -37,7 +37,7 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from mitm_proxy.controls import Controls, Target, default_instance
+from mitm_proxy.control.switches import Controls, Target, default_instance
 from secuav_common.controlplane.address import parse_broker_url
 from secuav_common.controlplane.payloads import (
     MAX_PAYLOAD_BYTES,
@@ -60,7 +60,7 @@ from secuav_common.controlplane.topics import (
 
 log = logging.getLogger(__name__)
 # paho logs every packet at DEBUG; keep that out of ``-v`` unless someone asks for this logger by name.
-_CLIENT_LOG = logging.getLogger(f"{__name__}.mqtt")
+_CLIENT_LOG = logging.getLogger("mitm_proxy.control.mqtt")
 if _CLIENT_LOG.level == logging.NOTSET:
     _CLIENT_LOG.setLevel(logging.INFO)
 
@@ -118,7 +118,7 @@ class Outbox:
 class ControlPlane:
     """``async with ControlPlane(url, controls, stats=...) as plane:`` runs the MQTT side in the background.
 
-    ``controls`` is the registry of runtime switches (:mod:`mitm_proxy.controls`); the
+    ``controls`` is the registry of runtime switches (:mod:`mitm_proxy.control.switches`); the
     plane only moves their requests and states. ``broker_url`` None disables MQTT
     (``--broker none``): the plane then does nothing and :meth:`publish_nowait`
     discards. ``describe()`` adds fields to the instance's online record.

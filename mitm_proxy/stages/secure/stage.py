@@ -11,7 +11,7 @@ sees the readings *after* the attack stage, as the ground side would, and:
    (or ``max_wait_s`` after the first one did, so a dropped sensor cannot stall
    it), or at ``rate_hz`` if configured; on the forwarding path while steps are
    cheap, in a worker thread that sheds sets when they are not
-   (:mod:`mitm_proxy.secure_worker` says why, with the figures);
+   (:mod:`mitm_proxy.stages.secure.worker` says why, with the figures);
 3. rewrites what passes with the latest finished estimate: each group reading
    becomes what the secure estimate implies for it (the secure distance; the
    range from the secure position to that anchor); LOCAL_POSITION_NED and
@@ -52,8 +52,9 @@ import numpy as np
 
 from mavframe import codec
 from mavframe.packet import Direction, Packet
-from mitm_proxy.secure_config import OFF, SecureConfig, config_from_payload
-from mitm_proxy.secure_layout import (
+from mitm_proxy.control.switch import Switch
+from mitm_proxy.stages.secure.config import OFF, SecureConfig, config_from_payload
+from mitm_proxy.stages.secure.layout import (
     DISTANCE_SENSOR,
     GLOBAL_POSITION_INT,
     HOME_POSITION,
@@ -62,8 +63,7 @@ from mitm_proxy.secure_layout import (
     build_estimator,
     build_layout,
 )
-from mitm_proxy.secure_worker import Job, Stepper, StepResult
-from mitm_proxy.switch import Switch
+from mitm_proxy.stages.secure.worker import Job, Stepper, StepResult
 from secuav_common.controlplane.payloads import SecureState
 from secuav_common.geo import ned_to_geodetic
 from secuav_common.loading import InputError
@@ -115,7 +115,7 @@ class _Counters:
 
 
 class SecureStage:
-    """Stage protocol of :mod:`mitm_proxy.pipeline`; see the module docstring."""
+    """Stage protocol of :mod:`mitm_proxy.core.pipeline`; see the module docstring."""
 
     name = "secure"
 

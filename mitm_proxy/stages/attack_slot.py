@@ -19,7 +19,7 @@ from typing import Any
 from attack_profiles.control import profile_from_payload
 from attack_profiles.engine import Engine
 from attack_profiles.profile import Profile
-from mitm_proxy.switch import Switch
+from mitm_proxy.control.switch import Switch
 from secuav_common.controlplane.payloads import AttackState
 from secuav_common.controlplane.topics import vehicle_topic
 from secuav_common.scenario import Scenario

@@ -1,7 +1,7 @@
 """``secuav-attack status --watch``: a live terminal table of every vehicle on the broker.
 
-The MQTT listener of :mod:`mitm_proxy.attack_cli` keeps the latest message per
-topic on a :class:`~mitm_proxy.attack_cli.Board`; this module only draws it,
+The MQTT listener of :mod:`mitm_proxy.tools.attack_cli` keeps the latest message per
+topic on a :class:`~mitm_proxy.tools.board.Board`; this module only draws it,
 once per ``--interval``, until Ctrl-C. Frame rates come from the difference of
 two stats messages, so they are the proxy's own counts, not guesses.
 """
@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 from secuav_common.controlplane.topics import parse, vehicle_topic
 
 if TYPE_CHECKING:
-    from mitm_proxy.attack_cli import Board
+    from mitm_proxy.tools.board import Board
 
 COLUMNS = ("vehicle", "proxy", "attack", "mode", "secure", "down in/s", "out/s", "rewritten", "dropped", "bad",
            "p50 ms", "p99 ms", "stats age")  # fmt: skip

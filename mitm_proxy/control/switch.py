@@ -26,7 +26,7 @@ from secuav_common.controlplane.payloads import RequestError, Verdict
 from secuav_common.controlplane.topics import Scope
 from secuav_common.loading import InputError
 
-log = logging.getLogger("mitm_proxy.control")
+log = logging.getLogger(__name__)
 
 StateT = TypeVar("StateT", bound=BaseModel)
 

@@ -28,24 +28,22 @@ import sys
 import time
 import uuid
 from collections.abc import Awaitable, Callable, Sequence
-from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 from attack_profiles import cli as profiles_cli
+from mitm_proxy.tools.board import Board
 from secuav_common.broker import read_secret
 from secuav_common.controlplane.address import parse_broker_url
-from secuav_common.controlplane.payloads import MAX_PAYLOAD_BYTES, PayloadError, as_dict, decode, request_bytes
-from secuav_common.controlplane.requests import Acks
+from secuav_common.controlplane.payloads import MAX_PAYLOAD_BYTES, request_bytes
 from secuav_common.controlplane.session import Client, MqttError
 from secuav_common.controlplane.session import Session as MqttSession
-from secuav_common.controlplane.topics import ANY, INSTANCES_ONLINE, PROXY_ONLINE, parse, proxy_topic, vehicle_topic
+from secuav_common.controlplane.topics import ANY, INSTANCES_ONLINE, PROXY_ONLINE, proxy_topic, vehicle_topic
 from secuav_common.loading import InputError
 
 DEFAULT_BROKER = "mqtt://127.0.0.1:1883"
 EXIT_OK, EXIT_REJECTED, EXIT_USAGE, EXIT_UNREACHABLE = 0, 1, 2, 3
-SETTLE_S = 0.3  # retained messages follow the SUBACK at once; this long without one means we have them all
 
 
 def add_options(command: str, parser: argparse.ArgumentParser) -> None:
@@ -63,78 +61,6 @@ def add_options(command: str, parser: argparse.ArgumentParser) -> None:
     if command == "status":
         parser.add_argument("--watch", action="store_true", help="a live table, redrawn until Ctrl-C")
         parser.add_argument("--interval", type=float, default=1.0, metavar="S", help="--watch redraw period (1 s)")
-
-
-def _leaf(leaf: str, verb: str | None) -> str:
-    return f"{leaf}/{verb}" if verb else leaf
-
-
-@dataclass
-class Board:
-    """Everything seen on the subscribed topics, latest per topic, and who is waiting for what."""
-
-    latest: dict[str, Any] = field(default_factory=dict)
-    arrivals: dict[str, float] = field(default_factory=dict)  # topic -> monotonic time of its latest message
-    last_arrival_s: float = field(default_factory=time.monotonic)
-    changed: asyncio.Event = field(default_factory=asyncio.Event)
-    acks: Acks = field(default_factory=Acks)
-    refused: int = 0  # messages that did not fit their topic's model (skipped)
-
-    def receive(self, topic: str, raw: bytes) -> None:
-        """One message from the broker: checked against its topic's model, kept as plain JSON."""
-        try:
-            body = as_dict(decode(topic, raw))
-        except PayloadError:
-            self.refused += 1
-            return
-        self.latest[topic] = body
-        self.last_arrival_s = self.arrivals[topic] = time.monotonic()
-        self.acks.feed(topic, body)
-        self.changed.set()
-
-    def vehicles(self, leaf: str = "attack/state") -> list[int]:
-        found = set()
-        for topic in self.latest:
-            parsed = parse(topic)
-            if parsed is not None and parsed.sysid is not None and _leaf(parsed.leaf, parsed.verb) == leaf:
-                found.add(parsed.sysid)
-        return sorted(found)
-
-    def instances(self) -> dict[str, dict[str, Any]]:
-        """Proxy instance -> its online record (``secuav/proxy/<instance>/online``)."""
-        return self.by_instance("online", None)
-
-    def by_instance(self, leaf: str, verb: str | None) -> dict[str, dict[str, Any]]:
-        found = {}
-        for topic, body in self.latest.items():
-            parsed = parse(topic)
-            if (parsed is not None and parsed.scope == "proxy" and parsed.key is not None and parsed.leaf == leaf
-                    and parsed.verb == verb and isinstance(body, dict)):  # fmt: skip
-                found[parsed.key] = body
-        return dict(sorted(found.items()))
-
-    def online_instances(self) -> list[str]:
-        return [name for name, rec in self.instances().items() if rec.get("online") is True]
-
-    async def settle(self, limit_s: float) -> None:
-        """Wait until no message came for :data:`SETTLE_S` (the retained ones are in) or ``limit_s`` passed."""
-        deadline = time.monotonic() + limit_s
-        while (now := time.monotonic()) < deadline:
-            quiet_s = now - self.last_arrival_s
-            if quiet_s >= SETTLE_S:
-                return
-            await asyncio.sleep(min(SETTLE_S - quiet_s, deadline - now))
-
-    async def until(self, done: Callable[[], bool], limit_s: float) -> bool:
-        deadline = time.monotonic() + limit_s
-        while not done():
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                return False
-            self.changed.clear()
-            with contextlib.suppress(asyncio.TimeoutError):
-                await asyncio.wait_for(self.changed.wait(), remaining)
-        return True
 
 
 async def _listen(client: Client, board: Board) -> None:
@@ -362,7 +288,7 @@ async def _status(board: Board, args: argparse.Namespace) -> int:
 
 def cmd_status(args: argparse.Namespace) -> int:
     if args.watch:
-        from mitm_proxy.watch import watch
+        from mitm_proxy.tools.watch import watch
 
         return _session(args, STATUS_TOPICS, lambda c, b: watch(b, args))
     return _session(args, STATUS_TOPICS, lambda c, b: _status(b, args))
@@ -398,7 +324,7 @@ def _pick_instance(board: Board, args: argparse.Namespace) -> str | None:
 
 
 def _print_routes(name: str, state: dict[str, Any]) -> None:
-    from mitm_proxy.routes import EndpointRules, rules_to_query
+    from mitm_proxy.net.rules import EndpointRules, rules_to_query
 
     print(f"proxy {name}:")
     for ep_name, ep in (state.get("endpoints") or {}).items():
@@ -439,7 +365,7 @@ async def _routes(client: Client, board: Board, args: argparse.Namespace) -> int
 
 def _local_rules(query: str) -> dict[str, Any]:
     """The rules checked here first, as the proxy will check them (a typo fails before anything is sent)."""
-    from mitm_proxy.routes import rules_from_query
+    from mitm_proxy.net.rules import rules_from_query
 
     return rules_from_query(query, "RULES").model_dump(exclude_defaults=True)
 
