@@ -2,7 +2,7 @@
 
 A pure library (no sockets, no asyncio): the proxy's attack stage feeds it live
 MAVLink messages, the evaluation feeds it arrays of measurements; both read the
-same profile files. See DESIGN.md "Attack profiles".
+same profile files. See docs/profile.md and attack_profiles/README.md.
 
 - :func:`load_profile` / :func:`parse_profile` read and validate a profile;
 - :mod:`attack_profiles.library` holds ready-made profiles;

@@ -3,7 +3,7 @@
 Offline subcommands live here: ``validate F [--scenario S]``, ``list``,
 ``show NAME``, ``schema``. ``apply``, ``clear`` and ``status`` talk to a running
 proxy; their parsers are defined here so the proxy's CLI
-(``mitm_proxy.attack_cli``, the installed ``secuav-attack``) can reuse
+(``mitm_proxy.tools.attack_cli``, the installed ``secuav-attack``) can reuse
 :func:`build_parser` and plug in real handlers through ``live_handlers`` and
 its transport flags through ``live_options`` (this module alone answers them
 with one line saying so and exit 2: a library never imports the service).

@@ -1,4 +1,4 @@
-"""Turn a control-plane payload into a profile (DESIGN.md, topic ``secuav/v1/attack/set``).
+"""Turn a control-plane payload into a profile (docs/interfaces.md, topic ``secuav/v1/attack/set``).
 
 The topic carries a full profile, ``{"library": "<name>"}`` (optionally with
 ``"parameters": {...}``), or ``null`` to clear; any of them may carry a

@@ -48,7 +48,7 @@ class Parameter(Strict):
 
 
 class Profile(Strict):
-    """An attack profile (see DESIGN.md "Attack profiles")."""
+    """An attack profile (see attack_profiles/README.md)."""
 
     name: Annotated[str, Field(min_length=1, max_length=100)]
     description: str = ""

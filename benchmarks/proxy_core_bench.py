@@ -33,10 +33,10 @@ from attack_profiles.profile import parse_profile
 from mavframe.frames import split
 from mavframe.packet import Direction
 from mavframe.signing import Signer
-from mitm_proxy.attack import AttackStage
-from mitm_proxy.pipeline import Pipeline
-from mitm_proxy.slots import AttackSlot
-from mitm_proxy.stats import LinkStats
+from mitm_proxy.core.pipeline import Pipeline
+from mitm_proxy.core.stats import LinkStats
+from mitm_proxy.stages.attack import AttackStage
+from mitm_proxy.stages.attack_slot import AttackSlot
 
 
 def telemetry(n_frames: int, key: bytes | None = None) -> list[bytes]:

@@ -20,11 +20,11 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from attack_profiles.profile import parse_profile
 from mavframe.packet import Direction
-from mitm_proxy.attack import AttackStage
-from mitm_proxy.pipeline import Pipeline
-from mitm_proxy.readings import ReadingsTap
-from mitm_proxy.slots import AttackSlot
-from mitm_proxy.stats import LinkStats
+from mitm_proxy.core.pipeline import Pipeline
+from mitm_proxy.core.readings import ReadingsTap
+from mitm_proxy.core.stats import LinkStats
+from mitm_proxy.stages.attack import AttackStage
+from mitm_proxy.stages.attack_slot import AttackSlot
 
 BIAS = {"name": "bias", "rules": [{"target": {"message": "DISTANCE_SENSOR", "sensor_id": 0}, "kind": "bias",
                                    "offset_m": 1.0}]}  # fmt: skip

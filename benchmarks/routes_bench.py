@@ -19,8 +19,8 @@ import time
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from mitm_proxy.endpoints import UdpEndpoint
-from mitm_proxy.routes import EndpointRules, FrameFilter
+from mitm_proxy.net.endpoints import UdpEndpoint
+from mitm_proxy.net.rules import EndpointRules, FrameFilter
 from secuav_common.urls import parse_endpoint
 
 

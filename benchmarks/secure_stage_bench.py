@@ -28,9 +28,9 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from mavframe.packet import Direction
-from mitm_proxy.pipeline import Pipeline
-from mitm_proxy.secure import SecureConfig, SecureStage
-from mitm_proxy.stats import LinkStats
+from mitm_proxy.core.pipeline import Pipeline
+from mitm_proxy.core.stats import LinkStats
+from mitm_proxy.stages.secure.stage import SecureConfig, SecureStage
 from secuav_common.geo import ned_to_geodetic
 from secuav_common.scenario import load_scenario
 

@@ -39,7 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=None, help="output directory (default out/<demo>)")
     p.add_argument("--base-port", type=int, default=None,
                    help="ports BASE+i (proxy), BASE+10+i (MAVSDK), BASE+20 (GCS), BASE+21 (MQTT) "
-                   "instead of DESIGN.md's port plan")  # fmt: skip
+                   "instead of the port plan in docs/interfaces.md")  # fmt: skip
     p.add_argument("--no-progress", action="store_true", help="no progress bar per flight")
     p.add_argument("-v", "--verbose", action="store_true")
     add_common_flags(p, log_flags=False)
@@ -60,7 +60,7 @@ async def _main(args: argparse.Namespace) -> int:
     out = args.out or Path("out") / args.demo
     matrix = args.matrix or (args.attack is None and args.secure is None)
     base = args.base_port
-    ports = Ports() if base is None else Ports(base, base + 10, base + 20, base + 21)
+    ports = Ports() if base is None else Ports.block(base)
     params = {**getattr(demo, "DEFAULT_PARAMS", {}), **parse_params(args.param)}
     opts = Options(out=out, seconds=args.seconds, settle_s=args.settle, seed=args.seed, ports=ports,
                    attack_params=params, progress=not args.no_progress and sys.stderr.isatty())  # fmt: skip

@@ -21,6 +21,7 @@ from demos.mqtt_tap import Tap
 from demos.scoring import Window
 from demos.stack import Ports, Processes, tool
 from secuav_common.broker import EmbeddedBroker
+from secuav_common.controlplane.topics import CONSOLES_ONLINE, parse, vehicle_topic
 
 
 @dataclass(frozen=True, slots=True)
@@ -127,7 +128,6 @@ class FlightProgress:
         self._bar.close()
 
 
-CONSOLES = "secuav/console/+/online"
 _announced: set[str] = set()
 
 
@@ -137,7 +137,8 @@ def announce_consoles(tap: Tap) -> None:
 
     for sample in tap.samples:
         body = sample.payload
-        if sample.topic.startswith("secuav/console/") and isinstance(body, dict) and body.get("online"):
+        topic = parse(sample.topic)
+        if topic is not None and topic.scope == "console" and isinstance(body, dict) and body.get("online"):
             url = str(body.get("url"))
             if url not in _announced:
                 _announced.add(url)
@@ -157,8 +158,9 @@ async def fly(
     p = opts.ports
     n = len(controllers)
     sysids = [c.sysid for c in controllers]
-    topics = [f"secuav/v{s}/{t}" for s in sysids for t in ("truth", "estimate", "attack/state", "secure/state")]
-    topics.append(CONSOLES)
+    topics = [vehicle_topic(s, leaf, verb) for s in sysids
+              for leaf, verb in (("truth", None), ("estimate", None), ("attack", "state"), ("secure", "state"))]
+    topics.append(CONSOLES_ONLINE)
     seed = [] if opts.seed is None else ["--seed", str(opts.seed)]
     logs = {c.sysid: out / f"controller{c.sysid}.jsonl" for c in controllers}
     for path in logs.values():
@@ -192,7 +194,7 @@ async def fly(
         if case.attack is not None:
             payload = attack_payload(case.attack, opts.attack_params)
             for s in attack_sysids:
-                ack = await tap.request(f"secuav/v{s}/attack/set", payload, f"secuav/v{s}/attack/state")
+                ack = await tap.request(vehicle_topic(s, "attack", "set"), payload)
                 if not ack.get("ok"):
                     raise RuntimeError(f"the proxy rejected attack {case.attack!r} on vehicle {s}: {ack.get('error')}")
                 acks[s] = ack
@@ -202,8 +204,8 @@ async def fly(
         bar.phase("landing")
         for s in sysids:
             await wait_for_event(logs[s], "done", procs, f"controller{s}", 60.0)
-        truth = {s: [(x.wall_s, x.payload) for x in tap.on(f"secuav/v{s}/truth")] for s in sysids}
-        estimates = {s: [(x.wall_s, x.payload) for x in tap.on(f"secuav/v{s}/estimate")] for s in sysids}
+        truth = {s: [(x.wall_s, x.payload) for x in tap.on(vehicle_topic(s, "truth"))] for s in sysids}
+        estimates = {s: [(x.wall_s, x.payload) for x in tap.on(vehicle_topic(s, "estimate"))] for s in sysids}
     for s in sysids:
         _dump(out / f"truth{s}.jsonl", truth[s])
         _dump(out / f"estimates{s}.jsonl", estimates[s])

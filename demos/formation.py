@@ -10,10 +10,11 @@ from __future__ import annotations
 
 from typing import Any
 
+from demos.catalog import SCENARIO_OF_DEMO
 from demos.flight import Case, Controller, Options, fly
 from demos.scoring import position_metrics, range_metrics
 
-SCENARIO = "formation"
+SCENARIO = SCENARIO_OF_DEMO["formation"]
 CONTROLLER = "demos.controllers.localise"
 LEADER = (4.0, 4.0)
 KEEP_M = 3.0

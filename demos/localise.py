@@ -10,10 +10,11 @@ from __future__ import annotations
 
 from typing import Any
 
+from demos.catalog import SCENARIO_OF_DEMO
 from demos.flight import Case, Controller, Options, fly
 from demos.scoring import position_metrics
 
-SCENARIO = "anchors8"
+SCENARIO = SCENARIO_OF_DEMO["localise"]
 CONTROLLER = "demos.controllers.localise"
 TARGET = (2.5, 2.5)
 DEFAULT_ATTACK = "anchors-ramp"

@@ -10,7 +10,10 @@ import uuid
 from dataclasses import dataclass, field
 from typing import Any
 
-import aiomqtt
+from secuav_common.controlplane.address import BrokerAddress
+from secuav_common.controlplane.payloads import PayloadError, validate
+from secuav_common.controlplane.requests import Acks
+from secuav_common.controlplane.session import Client, MqttError, Session
 
 
 @dataclass
@@ -22,15 +25,17 @@ class Sample:
 
 @dataclass
 class Tap:
-    """Subscribes to ``topics`` and keeps every JSON message with its arrival time."""
+    """Subscribes to ``topics`` and keeps every message that fits its topic's model, with its arrival time."""
 
     host: str
     port: int
     topics: list[str]
     samples: list[Sample] = field(default_factory=list)
-    _client: aiomqtt.Client | None = None
+    refused: int = 0  # messages that did not fit their topic's model (skipped)
+    _client: Client | None = None
     _task: asyncio.Task[None] | None = None
     _ready: asyncio.Event = field(default_factory=asyncio.Event)
+    _acks: Acks = field(default_factory=Acks)
 
     async def __aenter__(self) -> Tap:
         self._task = asyncio.create_task(self._run())
@@ -40,38 +45,35 @@ class Tap:
     async def __aexit__(self, *exc: object) -> None:
         if self._task is not None:
             self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
+            with contextlib.suppress(asyncio.CancelledError, MqttError):
                 await self._task
 
     async def _run(self) -> None:
-        async with aiomqtt.Client(self.host, self.port, identifier=f"secuav-demo-{uuid.uuid4().hex[:8]}") as client:
+        session = Session(BrokerAddress(self.host, self.port), identifier=f"secuav-demo-{uuid.uuid4().hex[:8]}")
+        async with session.client() as client:
             self._client = client
             for topic in self.topics:
                 await client.subscribe(topic)
             self._ready.set()
             async for message in client.messages:
+                topic = str(message.topic)
                 try:
                     payload = json.loads(bytes(message.payload))  # type: ignore[arg-type]
-                except (ValueError, TypeError):
+                    validate(topic, payload)
+                except (ValueError, TypeError, PayloadError):
+                    self.refused += 1
                     continue
-                self.samples.append(Sample(time.time(), str(message.topic), payload))
+                self.samples.append(Sample(time.time(), topic, payload))
+                self._acks.feed(topic, payload)
 
     def on(self, topic: str) -> list[Sample]:
         return [s for s in self.samples if s.topic == topic]
 
-    async def request(self, topic: str, payload: Any, state_topic: str, timeout_s: float = 10.0) -> dict[str, Any]:
-        """Publish ``payload`` with a fresh ``request_id`` and return the state that acknowledges it."""
+    async def request(self, topic: str, payload: Any, timeout_s: float = 10.0) -> dict[str, Any]:
+        """Publish ``payload`` (``None`` clears) with a fresh ``request_id`` on a ``.../set`` topic and return the
+        state that acknowledges it (the tap must be subscribed to that state); ``TimeoutError`` if none came."""
         assert self._client is not None
-        request_id = uuid.uuid4().hex
-        body = {**payload, "request_id": request_id} if isinstance(payload, dict) else {"request_id": request_id}
-        if payload is None:
-            body = {"request_id": request_id}  # an empty set request clears
-        start = len(self.samples)
-        await self._client.publish(topic, json.dumps(body), qos=1)
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            for s in self.samples[start:]:
-                if s.topic == state_topic and isinstance(s.payload, dict) and s.payload.get("request_id") == request_id:
-                    return s.payload
-            await asyncio.sleep(0.05)
-        raise TimeoutError(f"no acknowledgement on {state_topic} for request {request_id} within {timeout_s:.0f} s")
+        (state,) = await self._acks.request_all(self._client, [(topic, payload)], timeout_s)
+        if state is None:
+            raise TimeoutError(f"no acknowledgement for {topic} within {timeout_s:.0f} s")
+        return state

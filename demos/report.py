@@ -1,4 +1,4 @@
-"""``report.json`` and the plots of a demo run (DESIGN.md, "Evaluation output")."""
+"""``report.json`` and the plots of a demo run (docs/interfaces.md#output-files)."""
 
 from __future__ import annotations
 

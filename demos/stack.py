@@ -17,6 +17,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 
+from demos.catalog import API_OFFSET, GCS_OFFSET, MQTT_OFFSET, PROXY_OFFSET
+from secuav_common.ports import GCS_PORT, GROUND_API_BASE, MQTT_PORT, PROXY_VEHICLE_BASE
+
 log = logging.getLogger(__name__)
 BIN = Path(sys.executable).parent
 STOP_TIMEOUT_S = 5.0
@@ -24,12 +27,17 @@ STOP_TIMEOUT_S = 5.0
 
 @dataclass(frozen=True, slots=True)
 class Ports:
-    """Loopback ports of one run; the defaults are DESIGN.md's port plan for vehicle 0."""
+    """Loopback ports of one run; the defaults are the port plan of docs/interfaces.md for vehicle 0."""
 
-    proxy_vehicle: int = 14560  # the simulator sends here, the proxy listens
-    api: int = 14540  # the proxy forwards here, the MAVSDK controller listens
-    gcs: int = 14550  # the proxy also forwards here (QGroundControl, MAVProxy)
-    mqtt: int = 1883
+    proxy_vehicle: int = PROXY_VEHICLE_BASE  # the simulator sends here, the proxy listens
+    api: int = GROUND_API_BASE  # the proxy forwards here, the MAVSDK controller listens
+    gcs: int = GCS_PORT  # the proxy also forwards here (QGroundControl, MAVProxy)
+    mqtt: int = MQTT_PORT
+
+    @classmethod
+    def block(cls, base: int) -> Ports:
+        """The ports of ``--base-port base`` (:mod:`demos.catalog` says which offset is which)."""
+        return cls(base + PROXY_OFFSET, base + API_OFFSET, base + GCS_OFFSET, base + MQTT_OFFSET)
 
     @property
     def broker_url(self) -> str:

@@ -11,11 +11,12 @@ from __future__ import annotations
 
 from typing import Any
 
+from demos.catalog import SCENARIO_OF_DEMO
 from demos.flight import Case, Controller, Options, fly
 from demos.scoring import distance_metrics
 from secuav_common.scenario import load_scenario
 
-SCENARIO = "wall_hover"
+SCENARIO = SCENARIO_OF_DEMO["wall-hover"]
 CONTROLLER = "demos.controllers.wall_hover"
 DEFAULT_ATTACK = "wall-spoof-two"
 DEFAULT_SECURE = "secekf"

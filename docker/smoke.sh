@@ -66,10 +66,10 @@ before="$("$python" docker/smoke_client.py 127.0.0.1:14550 5)"
 say "ground station, 5 s: $before"
 grep -q '"DISTANCE_SENSOR"' <<<"$before" || fail "no DISTANCE_SENSOR reached the ground station through the proxy"
 
-anon="$("$python" -m mitm_proxy.attack_cli status --broker mqtt://127.0.0.1:1883 --timeout 2 2>&1)"
+anon="$("$python" -m mitm_proxy.tools.attack_cli status --broker mqtt://127.0.0.1:1883 --timeout 2 2>&1)"
 if [[ $? == 0 ]]; then fail "an anonymous MQTT client was let in"; else say "anonymous MQTT refused: ${anon##*: }"; fi
 as_operator=(--broker mqtt://127.0.0.1:1883 --username operator --password-file docker/secrets/operator)
-if out="$("$python" -m mitm_proxy.attack_cli apply wall-spoof --param start_s=0 --param rate_per_s=2 "${as_operator[@]}" 2>&1)"; then
+if out="$("$python" -m mitm_proxy.tools.attack_cli apply wall-spoof --param start_s=0 --param rate_per_s=2 "${as_operator[@]}" 2>&1)"; then
     say "secuav-attack apply as operator: $out"
 else
     fail "secuav-attack apply as operator: $out"
@@ -87,7 +87,7 @@ sys.exit(0 if moved > 1.0 and steady < 0.2 else 1)
 PY
     fail "the attack did not change what the ground station receives as expected"
 fi
-"$python" -m mitm_proxy.attack_cli clear "${as_operator[@]}" >/dev/null 2>&1 || fail "secuav-attack clear"
+"$python" -m mitm_proxy.tools.attack_cli clear "${as_operator[@]}" >/dev/null 2>&1 || fail "secuav-attack clear"
 
 up down --remove-orphans -t 10 >/tmp/secuav-smoke-down.log 2>&1 || fail "compose down"
 trap - EXIT

@@ -58,7 +58,8 @@ The search stops when a level has more than ``budget`` subsets or when a subset
 would keep fewer than ``min_sensors + 1`` readings (nothing left to test).
 
 RECON: the family-wise levels, the trail and the escalating search are ours;
-the papers name sensors by a per-sensor chi-square test (notes §2.1 step 6).
+the sources (estimators/README.md#what-the-sources-allow-us-to-check) do not give the rule;
+the usual one is a per-sensor chi-square test at each step.
 """
 
 from __future__ import annotations

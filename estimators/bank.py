@@ -4,7 +4,7 @@ A bank is a boolean mask array ``masks[j, i]`` (subset j uses sensor i). All
 subsets share the full reading vector; a sensor outside a subset, or a
 missing (NaN) reading, simply gets weight zero. So every subset has the same
 array shapes and the whole bank runs as batched einsum/solve calls instead of
-a Python loop (notes §8: one engine for SecEKF, SecOPT, ReCaP's group search,
+a Python loop (one engine for SecEKF, SecOPT, ReCaP's group search,
 RARSE's hypotheses and the brute-force checks).
 
 Two solvers live here:

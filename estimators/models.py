@@ -530,7 +530,7 @@ class TwoVehicleRanges(MeasurementModel):
 
     @property
     def max_correctable(self) -> int:
-        # Each vehicle alone must survive: its anchors obey the 2-D bound (notes §1.4).
+        # Each vehicle alone must survive: its anchors obey the 2-D bound (estimators/README.md#api).
         return max(0, (self.n_anchors - 3) // 2)
 
     def tolerance_groups(self, s: int) -> Groups:

@@ -7,7 +7,7 @@ the offset vector b depending on the anchor and the reading, and cites ReSeT
 Reformulating Secure State Estimation for Resilient Cyber-Physical Systems",
 2018) by the same group as SecSens. RARSE is the one estimator of its Table 5.1
 without an algorithm box, and no document or code named RARSE or ReSeT could be
-found (notes §4; helper search of this session). This file is our reading of
+found (estimators/README.md#what-the-sources-allow-us-to-check). This file is our reading of
 that formulation; ``rarse.py`` keeps the earlier RANSAC reading so the two can
 be compared. Everything below is RECON.
 

@@ -1,8 +1,9 @@
 """``rarse``: RANSAC-style attack-resilient range state estimation (our reading of "RARSE").
 
 Paper: none identified. The seed thesis compares an estimator called RARSE but
-no document or code with that name could be found (notes §4). We implement the
-most defensible reading for range-only localisation: random-sample consensus
+no document or code with that name could be found
+(estimators/README.md#what-the-sources-allow-us-to-check). We implement the most
+defensible reading for range-only localisation: random-sample consensus
 over minimal anchor sets, then an EKF on the consensus. Everything here is
 RECON.
 

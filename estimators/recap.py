@@ -13,7 +13,7 @@ one group, correlated through the position. Attacker: at most ``pa`` (= s,
 default ``model.max_correctable``, i.e. floor((m-1)/2) for a scalar group) of
 the group's m sensors carry arbitrary values; Gaussian noise.
 
-Equations, all RECON (notes §3; the paper could not be read):
+Equations, all RECON (the paper could not be read; estimators/README.md#what-the-sources-allow-us-to-check):
 - Omega is the set of sensors currently trusted; the state is a constant-velocity
   EKF fed only with Omega's readings.
 - Init (Alg. 5, our reading): on the first step, every subset S of m - pa

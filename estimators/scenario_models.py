@@ -1,6 +1,6 @@
 """Measurement models built from a scenario file (anchors, rangefinder groups, peers).
 
-The wire ids of DESIGN.md ride along as ``sensor_ids``, so a caller can map
+The wire ids of docs/interfaces.md ride along as ``sensor_ids``, so a caller can map
 ``Estimate.attacked`` (indices into z) back to DISTANCE_SENSOR ids. Imports only
 the shared scenario schema, never a service.
 """

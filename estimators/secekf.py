@@ -13,8 +13,8 @@ Attacker: an unknown set of at most ``s`` of the p sensors adds arbitrary
 values (any size, sign, coordination); default ``s = model.max_correctable``
 (2 of 8 anchors in 2-D). Noise Gaussian with the model's std per sensor.
 
-Equations (notes §2.1), everything below is RECON (our reconstruction; the
-paper's algorithm box was not readable):
+Equations, everything below RECON (our reconstruction; the paper's algorithm
+box was not readable; estimators/README.md#what-the-sources-allow-us-to-check):
 1. One EKF per subset S_j of size p - s, J = C(p, p - s) (28 for p = 8, s = 2),
    all seeded from a secure snapshot fix (every subset's least squares, the
    consistent one wins).

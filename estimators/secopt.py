@@ -7,7 +7,8 @@ the seed thesis lists it as its Algorithm 3).
 Model: any ``MeasurementModel``. Attacker: at most ``s`` of p sensors carry
 arbitrary values (default ``s = model.max_correctable``); Gaussian noise.
 
-Equations (notes §2.2). Under Gaussian noise the maximum-likelihood position
+Equations (RECON; estimators/README.md#what-the-sources-allow-us-to-check).
+Under Gaussian noise the maximum-likelihood position
 given "the sensors in S are honest" minimises
 ``J_S(pos) = sum_{i in S} (z_i - h_i(pos))^2 / sigma_i^2``. For every S with
 |S| = p - s we solve it by Gauss-Newton (all subsets batched, warm-started at

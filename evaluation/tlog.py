@@ -5,7 +5,8 @@ A .tlog is what QGroundControl, MAVProxy and our recorder write: per frame an
 (read with :mod:`mavframe.tlog`, CRC-checked). We take, per vehicle (sysid):
 
 - DISTANCE_SENSOR (#132): ``current_distance`` cm -> metres, keyed by sensor id
-  (DESIGN.md: 0-9 rangefinders, 10 + k anchor k, 50 + n peer sysid n). A reading
+  (0-9 rangefinders, 10 + k anchor k, 50 + n peer sysid n:
+  docs/interfaces.md#mavlink-mapping-mavlink-2-common-dialect). A reading
   outside ``[min_distance, max_distance]`` (PX4 drivers' "no target") or with
   ``signal_quality`` 1 ("invalid") is missing (NaN), never zero.
 - LOCAL_POSITION_NED (#32): the autopilot's own position estimate, kept as a

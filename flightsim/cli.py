@@ -62,6 +62,8 @@ def build_parser() -> argparse.ArgumentParser:
         "udpout://127.0.0.1:14550 when running without the proxy",
     )
     p.add_argument("--broker", metavar="URL", help="publish ground truth to mqtt://HOST[:PORT] (secuav/v<sysid>/truth)")
+    p.add_argument("--broker-tls-ca", metavar="FILE", type=Path,
+                   help="CA file of a TLS broker (mqtts://) signed by a private CA")  # fmt: skip
     p.add_argument("--broker-username", metavar="NAME", help="broker account (or in the URL: mqtt://NAME@HOST)")
     p.add_argument("--broker-password-file", metavar="F", type=Path,
                    help="broker password from F (mode 600); SECUAV_BROKER_PASSWORD works too")  # fmt: skip
@@ -134,7 +136,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     from flightsim.runner import RunConfig  # after validation: bad input never pays for JSBSim
 
-    config = RunConfig(scenario, endpoints, args.seed, speed, duration, broker, args.truth_csv, args.truth_hz, gcs)
+    config = RunConfig(scenario, endpoints, args.seed, speed, duration, broker, args.truth_csv, args.truth_hz, gcs,
+                       broker_tls_ca=args.broker_tls_ca)  # fmt: skip
     try:
         return asyncio.run(_serve(config))
     except OSError as exc:

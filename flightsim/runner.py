@@ -24,7 +24,7 @@ from flightsim.mavlink import Px4Personality, UdpLink
 from flightsim.mavlink.tcp import TcpServerLink
 from flightsim.simulation import Simulation
 from flightsim.truth import CsvTruth, MqttTruth, TruthSample
-from secuav_common.broker import BrokerAddress
+from secuav_common.controlplane.address import BrokerAddress
 from secuav_common.scenario import Scenario
 from secuav_common.urls import Endpoint
 
@@ -47,6 +47,7 @@ class RunConfig:
     truth_csv: Path | None = None
     truth_hz: float = 20.0
     gcs: Endpoint | None = None  # every vehicle also streams here (udpout), e.g. QGroundControl on 14550
+    broker_tls_ca: Path | None = None  # CA file of a TLS broker (a private CA); mqtts:// alone uses the system's
 
 
 @dataclass(slots=True)
@@ -119,7 +120,8 @@ class SimRunner:
         if self.config.truth_csv is not None:
             self._csv = CsvTruth(self.config.truth_csv)
         if self.config.broker is not None:
-            self._mqtt = MqttTruth(self.config.broker)
+            ca = self.config.broker_tls_ca
+            self._mqtt = MqttTruth(self.config.broker, tls_ca=None if ca is None else str(ca))
             self._mqtt.start()
         return self
 

@@ -1,6 +1,6 @@
 """The proxy process: links, control plane and the periodic stats line.
 
-Each link's pipeline is tap -> attack -> secure -> forward (DESIGN.md). The
+Each link's pipeline is tap -> attack -> secure -> forward (mitm_proxy/README.md). The
 attack stage is always there (``--attack bypass`` skips it; with no profile
 it costs nothing); the secure stage is there when a scenario says what the
 sensors are (``--scenario``), off until ``--secure NAME`` or ``secure/set``.
@@ -28,25 +28,32 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from attack_profiles.resolve import resolve_profile
 from mavframe.signing import Signer
-from mitm_proxy.attack import AttackStage
 from mitm_proxy.config import ProxyConfig
-from mitm_proxy.controls import Controls, RoutesControl, default_instance, vehicle_controls, vehicle_topic
-from mitm_proxy.endpoints import DEFAULT_TAKEOVER_S, BaseEndpoint, make_endpoint
-from mitm_proxy.link import GroundRouter, Link
-from mitm_proxy.pipeline import Pipeline
-from mitm_proxy.readings import ReadingsTap
-from mitm_proxy.recording import Recorder
-from mitm_proxy.secure_config import OFF, SecureConfig, config_from_payload
-from mitm_proxy.slots import AttackSlot
-from mitm_proxy.stats import LinkStats
+from mitm_proxy.control.switches import Controls, ModeSwitch, RoutesSwitch, default_instance, vehicle_controls
+from mitm_proxy.core.pipeline import Pipeline
+from mitm_proxy.core.readings import ReadingsTap
+from mitm_proxy.core.recorder import Recorder
+from mitm_proxy.core.stats import LinkStats
+from mitm_proxy.net.endpoints import DEFAULT_TAKEOVER_S, BaseEndpoint
+from mitm_proxy.net.factory import make_endpoint
+from mitm_proxy.net.link import GroundRouter, Link
+from mitm_proxy.stages.attack import AttackStage
+from mitm_proxy.stages.attack_slot import AttackSlot
+from mitm_proxy.stages.secure.config import OFF, SecureConfig, config_from_payload
 from secuav_common.broker import redact
+from secuav_common.controlplane.topics import vehicle_topic
 from secuav_common.loading import InputError
 from secuav_common.scenario import Scenario, load_scenario
 from secuav_common.urls import Endpoint
+
+if TYPE_CHECKING:  # imported when used: numpy/scipy (secure) and MQTT (control) stay out of start-up
+    from mitm_proxy.control.plane import ControlPlane
+    from mitm_proxy.control.reload import ProfileWatcher
+    from mitm_proxy.stages.secure.stage import SecureSlot
 
 log = logging.getLogger("secuav-proxy")
 VEHICLE_TAKEOVER_S = 1.0  # a new vehicle source port is followed after this much silence from the old one
@@ -62,8 +69,9 @@ class VehicleParts:
     sysid: int
     slot: AttackSlot
     stage: AttackStage
+    mode: ModeSwitch
     stats: LinkStats
-    secure: Any | None = None  # mitm_proxy.secure.SecureSlot
+    secure: SecureSlot | None = None
 
 
 class Proxy:
@@ -76,9 +84,9 @@ class Proxy:
         self.signer: Signer | None = Signer.from_file(config.signing_key) if config.signing_key else None
         initial = resolve_profile(config.profile) if config.profile else None  # a file or a library name
         sysids = [link.sysid for link in config.links]
-        secure: dict[int, Any] = {}
+        secure: dict[int, SecureSlot] = {}
         if self.scenario is not None:  # the estimators' models come from the scenario
-            from mitm_proxy.secure import make_slots  # numpy/scipy estimators: only when they can run
+            from mitm_proxy.stages.secure.stage import make_slots  # numpy/scipy estimators: only when they can run
 
             secure = make_slots(self.scenario, sysids, self._secure_config(), self._publish_estimate, "secure")
         elif config_from_payload(config.secure, "secure").enabled:
@@ -90,13 +98,15 @@ class Proxy:
                 state = slot.offer(initial, request_id="--profile")
                 if not state.ok:
                     raise InputError(str(config.profile), "", None, state.error or "rejected")
-            stage = AttackStage(slot, active=config.attack == "on")
-            self.vehicles[sysid] = VehicleParts(sysid, slot, stage, LinkStats(sysid), secure.get(sysid))
+            stage = AttackStage(slot)
+            mode = ModeSwitch(sysid, stage)
+            mode.set(config.attack == "on", source="--attack")
+            self.vehicles[sysid] = VehicleParts(sysid, slot, stage, mode, LinkStats(sysid), secure.get(sysid))
         self.endpoints: dict[Endpoint, BaseEndpoint] = {}
         self.links: list[Link] = []
         self.routers: list[GroundRouter] = []
         self.recorders: list[Recorder] = []
-        self.control: Any = None  # the ControlPlane when a broker is configured
+        self.control: ControlPlane | None = None  # when a broker is configured
         self._stack = contextlib.AsyncExitStack()
         self._tasks: list[asyncio.Task[Any]] = []
         self._readings_task: asyncio.Task[None] | None = None
@@ -115,7 +125,7 @@ class Proxy:
         return {s: v.stage for s, v in self.vehicles.items()}
 
     @property
-    def secure(self) -> dict[int, Any]:
+    def secure(self) -> dict[int, SecureSlot]:
         """sysid -> SecureSlot (empty without a scenario)."""
         return {s: v.secure for s, v in self.vehicles.items() if v.secure is not None}
 
@@ -180,9 +190,10 @@ class Proxy:
         self.routers = [GroundRouter(self.endpoints[ep], links) for ep, links in users.items()]
 
     def build_controls(self) -> Controls:
-        """Every runtime switch of this process, registered once (``mitm_proxy.controls``)."""
-        controls = vehicle_controls(self.instance, self.slots, self.stages, self.secure)
-        controls.add_proxy(RoutesControl(self.instance, {ep.name: ep for ep in self.endpoints.values()}))
+        """Every runtime switch of this process, registered once (``mitm_proxy.control.switches``)."""
+        modes = {s: v.mode for s, v in self.vehicles.items()}
+        controls = vehicle_controls(self.instance, self.slots, modes, self.secure)
+        controls.add(RoutesSwitch(self.instance, {ep.name: ep for ep in self.endpoints.values()}))
         return controls
 
     def _describe(self) -> dict[str, Any]:
@@ -216,7 +227,7 @@ class Proxy:
         cfg = self.config
         if cfg.broker == "none":
             return
-        from mitm_proxy.control import ControlPlane
+        from mitm_proxy.control.plane import ControlPlane
         from secuav_common.broker import EmbeddedBroker, parse_broker_url
 
         if cfg.broker == "embedded":
@@ -238,7 +249,7 @@ class Proxy:
         profile = self.config.profile
         if profile is None or not Path(profile).exists():
             return
-        from mitm_proxy.reload import ProfileWatcher
+        from mitm_proxy.control.reload import ProfileWatcher
 
         watcher = ProfileWatcher(Path(profile), self.slots)
         self._tasks.append(asyncio.create_task(_run_watcher(watcher), name="reload"))
@@ -312,7 +323,7 @@ def _ms(value: float | None) -> str:
     return "-" if value is None else f"{value:.3f}"
 
 
-async def _run_watcher(watcher: Any) -> None:
+async def _run_watcher(watcher: ProfileWatcher) -> None:
     async with watcher:
         await watcher.run()
 

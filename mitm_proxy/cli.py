@@ -1,6 +1,6 @@
 """``secuav-proxy``: the MAVLink man-in-the-middle daemon.
 
-With no flags it serves one vehicle on DESIGN.md's port plan: listens on
+With no flags it serves one vehicle on the port plan of docs/interfaces.md: listens on
 ``udpin://127.0.0.1:14560`` and forwards to ``udpout://127.0.0.1:14540``
 (MAVSDK) and ``udpout://127.0.0.1:14550`` (QGroundControl, MAVProxy).
 ``--vehicles N`` or ``--scenario F`` gives one link per vehicle (vehicle i on

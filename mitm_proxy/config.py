@@ -6,7 +6,7 @@ stage's start state, recording, signing and the control plane. Everything a
 user can get wrong is checked here, once, before a socket opens, and reported
 as one line naming the file, the field and the value (``InputError``).
 
-Defaults follow DESIGN.md's port plan: link i (the vehicle with sysid i+1, or
+Defaults follow the port plan of docs/interfaces.md: link i (the vehicle with sysid i+1, or
 the i-th vehicle of ``--scenario``) listens on ``udpin://127.0.0.1:(14560+i)``
 and forwards to ``udpout://127.0.0.1:(14540+i)`` (MAVSDK) and
 ``udpout://127.0.0.1:14550`` (QGroundControl / MAVProxy). An endpoint URL that
@@ -20,7 +20,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from mitm_proxy.routes import EndpointRules, rules_to_query
+from mitm_proxy.net.rules import EndpointRules, rules_to_query
 from secuav_common.loading import InputError, load_model, validate
 from secuav_common.ports import GCS_PORT, GROUND_API_BASE, LOOPBACK, PROXY_VEHICLE_BASE
 from secuav_common.urls import Endpoint, parse_endpoint
@@ -35,8 +35,8 @@ class _Strict(BaseModel):
 
 def _check_url(url: str, role: str = "ground") -> str:
     ep = parse_endpoint(url)  # ValueError names the bad part; pydantic turns it into a field error
-    if ep.options:  # routing rules (mitm_proxy.routes); checked here so a bad one stops the start
-        from mitm_proxy.routes import rules_from_options
+    if ep.options:  # routing rules (mitm_proxy.net.rules); checked here so a bad one stops the start
+        from mitm_proxy.net.rules import rules_from_options
 
         try:
             rules = rules_from_options(ep)
@@ -171,7 +171,7 @@ class ProxyConfig(_Strict):
 def effective(cfg: ProxyConfig) -> dict[str, Any]:
     """The whole configuration as the proxy will run it (``--print-config``): every default filled in,
     and each endpoint with rules in the long form, its rules spelled out by direction."""
-    from mitm_proxy.routes import rules_from_options
+    from mitm_proxy.net.rules import rules_from_options
 
     def endpoint(url: str) -> str | dict[str, Any]:
         ep = parse_endpoint(url)
@@ -188,7 +188,7 @@ def effective(cfg: ProxyConfig) -> dict[str, Any]:
 
 
 def plan_links(sysids: list[int]) -> list[LinkConfig]:
-    """DESIGN.md's port plan for vehicles with these sysids, in order (vehicle i at index i)."""
+    """The port plan of docs/interfaces.md for vehicles with these sysids, in order (vehicle i at index i)."""
     return [
         LinkConfig(
             sysid=sysid,

@@ -1,4 +1,4 @@
-"""MQTT broker URLs and an embedded amqtt broker for the control plane.
+"""An embedded amqtt broker for the control plane, and the secrets its clients read.
 
 ``secuav-proxy --broker embedded`` runs an amqtt broker bound to loopback in a
 child process (so MQTT traffic never takes the forwarding loop's time); the
@@ -15,54 +15,17 @@ import logging
 import os
 import socket
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 from typing import Any
-from urllib.parse import urlsplit
 
+from secuav_common.controlplane.address import BrokerAddress, parse_broker_url, redact
 from secuav_common.loading import InputError
 from secuav_common.ports import LOOPBACK, MQTT_PORT
 
+__all__ = ["BrokerAddress", "EmbeddedBroker", "admits", "parse_broker_url", "read_secret", "redact", "secret_or_env"]
+
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True, slots=True)
-class BrokerAddress:
-    host: str
-    port: int
-    username: str | None = None
-    password: str | None = None
-    tls: bool = False
-
-    @property
-    def url(self) -> str:
-        scheme = "mqtts" if self.tls else "mqtt"
-        return f"{scheme}://{self.host}:{self.port}"
-
-
-def parse_broker_url(url: str) -> BrokerAddress:
-    """Parse ``mqtt://[user:pass@]host[:port]`` or ``mqtts://...``; ``ValueError`` names the bad part."""
-    parts = urlsplit(url)
-    if parts.scheme not in ("mqtt", "mqtts"):
-        raise ValueError(f"broker {url!r}: scheme must be mqtt:// or mqtts://")
-    if not parts.hostname:
-        raise ValueError(f"broker {url!r}: missing host")
-    try:
-        port = parts.port
-    except ValueError:
-        raise ValueError(f"broker {url!r}: bad port") from None
-    tls = parts.scheme == "mqtts"
-    return BrokerAddress(parts.hostname, port or (8883 if tls else MQTT_PORT), parts.username, parts.password, tls)
-
-
-def redact(url: str) -> str:
-    """``url`` with any password replaced by ``***``, for logs (``mqtt://op:***@host:1883``)."""
-    parts = urlsplit(url)
-    if parts.password is None:
-        return url
-    netloc = parts.netloc.replace(f":{parts.password}@", ":***@", 1)
-    return parts._replace(netloc=netloc).geturl()
 
 
 def read_secret(path: str | Path, what: str) -> bytes:
@@ -118,12 +81,13 @@ async def admits(
     host: str, port: int, username: str | None = None, password: str | None = None, timeout_s: float = 5.0
 ) -> bool:
     """Whether the broker at ``host:port`` lets this client in (no ``username``: an anonymous one)."""
-    import aiomqtt
+    from secuav_common.controlplane.session import MqttError, Session
 
+    session = Session(BrokerAddress(host, port), username=username, password=password, timeout_s=timeout_s)
     try:
-        async with aiomqtt.Client(host, port, username=username, password=password, timeout=timeout_s):
+        async with session.client():
             return True
-    except aiomqtt.MqttError:
+    except MqttError:
         return False
 
 

@@ -5,7 +5,7 @@ exist, where anchors are), estimators' evaluation and the proxy's secure stage
 (measurement models). Frame: local NED in metres, origin = home, so a vehicle
 2.5 m above ground has ``z = -2.5``.
 
-Sensor ids on the wire follow DESIGN.md (see :mod:`secuav_common.sensor_ids`):
+Sensor ids on the wire follow docs/interfaces.md (see :mod:`secuav_common.sensor_ids`):
 rangefinders 0-9, UWB anchor k -> 10+k, peer sysid n -> 50+n.
 """
 

@@ -1,4 +1,4 @@
-"""DISTANCE_SENSOR id plan of DESIGN.md, in one place.
+"""DISTANCE_SENSOR id plan of docs/interfaces.md, in one place.
 
 - 0-9: rangefinders toward walls/obstacles (a redundant group shares a target)
 - 10-49: UWB anchor k -> id 10 + k

@@ -1,7 +1,7 @@
 """MAVLink endpoint URLs as MAVSDK, mavlink-router and mavutil write them.
 
 ``udpin://HOST:PORT`` binds HOST:PORT and answers the peer that sent first (another sender takes its
-place only after that peer fell silent, see mitm_proxy.endpoints);
+place only after that peer fell silent, see mitm_proxy.net.endpoints);
 ``udpout://HOST:PORT`` sends to a fixed peer from an ephemeral port;
 ``tcp://HOST:PORT`` connects to a MAVLink TCP server (ArduPilot SITL's 5760) and reconnects when it goes;
 ``tcpin://HOST:PORT`` is a TCP server: every client that connects is a peer;
@@ -10,7 +10,7 @@ place only after that peer fell silent, see mitm_proxy.endpoints);
 mavutil's spellings are accepted too (``udpin:HOST:PORT``, ``udpout:HOST:PORT``, ``tcp:HOST:PORT``,
 ``tcpin:HOST:PORT``, ``udp:`` for ``udpin:``, ``/dev/ttyUSB0,57600``), and IPv6 literals in brackets
 (``udpin://[::1]:14550``). What follows ``?`` is kept as the endpoint's options (``listen_only=true``,
-``deny=DISTANCE_SENSOR``; ``mitm_proxy.routes`` reads them); ``str()`` gives the canonical URL back.
+``deny=DISTANCE_SENSOR``; ``mitm_proxy.net.rules`` reads them); ``str()`` gives the canonical URL back.
 """
 
 from __future__ import annotations

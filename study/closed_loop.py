@@ -20,23 +20,10 @@ from typing import Any
 
 import yaml
 
-from secuav_common.scenario import Scenario, load_scenario
+from demos.catalog import PORT_SPAN, demo_for
 from study.spec import SECURE_OFF, Cell
 
-# Each demo flies its own bundled scenario (demos/<demo>.py SCENARIO).
-DEMO_OF_SCENARIO = {"wall_hover": "wall-hover", "anchors8": "localise", "formation": "formation"}
-PORT_SPAN = 22  # secuav-demo --base-port B uses B .. B+21 (see demos/cli.py)
 PORT_RANGE = (20_000, 40_000)
-
-
-def demo_for(scenario: Scenario) -> str:
-    """The demo that flies this scenario; ``ValueError`` unless it is one of the demos' bundled scenarios."""
-    for bundled, demo in DEMO_OF_SCENARIO.items():
-        if load_scenario(bundled) == scenario:
-            return demo
-    known = ", ".join(DEMO_OF_SCENARIO)
-    raise ValueError(f"closed-loop cells fly the demos, whose scenarios are the bundled {known}; "
-                     f"{scenario.name!r} is none of them")  # fmt: skip
 
 
 def _block_free(base: int) -> bool:

@@ -208,7 +208,7 @@ def expand(study: Study, source: str) -> list[Cell]:
     except InputError as err:
         raise InputError(source, "scenario", study.scenario, str(err)) from None
     if study.mode == "closed-loop":
-        from study.closed_loop import demo_for
+        from demos.catalog import demo_for
 
         try:
             demo_for(scenario)

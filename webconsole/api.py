@@ -48,6 +48,7 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from attack_profiles import library
 from attack_profiles.control import profile_from_payload
 from attack_profiles.profile import parse_profile, parse_text
+from secuav_common.controlplane.topics import vehicle_topic
 from secuav_common.loading import InputError, parse_document
 from webconsole.fleet import AckTimeout, Fleet, Session
 from webconsole.security import LOOPBACK_NAMES, guarded
@@ -246,7 +247,7 @@ def build_app(fleet: Fleet, session: Session, password: str | None = None, ack_t
         except RequestTooLarge:
             return _error(413, f"request body larger than {MAX_BODY} bytes")
         try:
-            state = await session.request(f"secuav/v{sysid}/{leaf}/set", payload, ack_timeout_s)
+            state = await session.request(vehicle_topic(sysid, leaf, "set"), payload, ack_timeout_s)
         except AckTimeout as exc:
             return _error(504, str(exc))
         return JSONResponse(state, status_code=200 if state.get("ok") else 409)

@@ -26,20 +26,22 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-import aiomqtt
-
-from secuav_common.broker import BrokerAddress
+from secuav_common.controlplane.address import BrokerAddress
+from secuav_common.controlplane.payloads import PayloadError, as_dict, decode
+from secuav_common.controlplane.requests import Acks, AckTimeout
+from secuav_common.controlplane.session import Client, LastWill, MqttError
+from secuav_common.controlplane.session import Session as MqttSession
+from secuav_common.controlplane.topics import ANY, INSTANCES_ONLINE, console_topic, parse, vehicle_topic
 from secuav_common.scenario import Scenario
 from webconsole.world import secure_reading, true_reading
 
 log = logging.getLogger("secuav-console")
 
-PREFIX = "secuav"
+__all__ = ["AckTimeout", "Fleet", "Session", "VehicleView"]
 LEAVES = ("attack/state", "attack/mode/state", "secure/state", "stats", "estimate", "truth", "readings")
 HISTORY = 8_000  # samples kept per vehicle: over two minutes at ~50 per second, what a page backfills
 STALE_S = 3.0  # no stats for this long: the vehicle's proxy is gone or stuck (shown offline)
 GONE_S = 30.0  # offline this long with no proxy claiming it: left off the fleet (its retained states linger)
-MAX_PAYLOAD = 256 * 1024
 
 
 @dataclass
@@ -100,19 +102,16 @@ class Fleet:
     def on_message(self, topic: str, body: Any, now: float | None = None) -> None:
         """One decoded MQTT message; anything not understood is ignored."""
         now = time.time() if now is None else now
-        parts = topic.split("/", 2)
-        if len(parts) < 3 or parts[0] != PREFIX:
+        parsed = parse(topic)
+        if parsed is None:
             return
-        if parts[1] == "proxy":
-            inst = parts[2].split("/")
-            if len(inst) == 2 and inst[1] == "online" and isinstance(body, dict):
-                self.instances[inst[0]] = body
+        if parsed.scope == "proxy":
+            if parsed.key is not None and parsed.leaf == "online" and parsed.verb is None and isinstance(body, dict):
+                self.instances[parsed.key] = body
             return
-        key, leaf = parts[1], parts[2]
-        if not (key.startswith("v") and key[1:].isdigit()) or leaf not in LEAVES or not isinstance(body, dict):
-            return
-        sysid = int(key[1:])
-        if not 1 <= sysid <= 255:
+        leaf = f"{parsed.leaf}/{parsed.verb}" if parsed.verb else parsed.leaf
+        sysid = parsed.sysid
+        if sysid is None or not 1 <= sysid <= 255 or leaf not in LEAVES or not isinstance(body, dict):
             return
         view = self.vehicles.get(sysid)
         if view is None:
@@ -229,10 +228,6 @@ class Fleet:
         return rows
 
 
-class AckTimeout(Exception):
-    """No acknowledgement from the proxy in time."""
-
-
 class Session:
     """The console's MQTT session: feeds the fleet, announces the console, sends requests."""
 
@@ -241,86 +236,51 @@ class Session:
         self.address = address
         self.fleet = fleet
         self.console_id = f"console-{uuid.uuid4().hex[:8]}"
-        self.online_topic = f"{PREFIX}/console/{self.console_id}/online"
+        self.online_topic = console_topic(self.console_id)
         self.url = url
-        self._username = username if username is not None else address.username
-        self._password = password if password is not None else address.password
-        self._backoff_s = backoff_s
-        self._client: aiomqtt.Client | None = None
-        self._waiting: dict[str, asyncio.Future[dict[str, Any]]] = {}
-        self.connected = asyncio.Event()
         self.since = time.time()
+        self.acks = Acks("console-")
+        self.refused = 0  # messages that did not fit their topic's model (skipped)
+        self.mqtt = MqttSession(address, identifier=self.console_id, username=username, password=password,
+                                will=LastWill(self.online_topic, self._record(False)), backoff_s=backoff_s,
+                                log=log)  # fmt: skip
+        self.connected = self.mqtt.connected
 
     def _record(self, online: bool) -> bytes:
         return json.dumps({"id": self.console_id, "online": online, "url": self.url, "since": self.since}).encode()
 
     async def run(self) -> None:
         """Connect, subscribe, receive; on broker trouble log once and retry with backoff, until cancelled."""
-        delay = self._backoff_s[0]
-        down = False
-        while True:
-            try:
-                async with aiomqtt.Client(
-                    self.address.host, self.address.port, username=self._username, password=self._password,
-                    identifier=self.console_id, keepalive=10, timeout=5.0,
-                    will=aiomqtt.Will(self.online_topic, self._record(False), qos=1, retain=True),
-                    tls_params=aiomqtt.TLSParameters() if self.address.tls else None,
-                ) as client:  # fmt: skip
-                    self._client = client
-                    await client.subscribe([(f"{PREFIX}/+/{leaf}", 0) for leaf in LEAVES]
-                                           + [(f"{PREFIX}/proxy/+/online", 1)])  # fmt: skip
-                    await client.publish(self.online_topic, self._record(True), qos=1, retain=True)
-                    self.connected.set()
-                    if down:
-                        log.info("mqtt.reconnected", extra={"url": self.address.url})
-                    down, delay = False, self._backoff_s[0]
-                    async for message in client.messages:
-                        self._receive(str(message.topic), message.payload)
-            except aiomqtt.MqttError as exc:
-                if not down:
-                    log.warning("mqtt.unavailable", extra={"url": self.address.url, "error": str(exc)})
-                down = True
-            finally:
-                self._client = None
-                self.connected.clear()
-            await asyncio.sleep(delay)
-            delay = min(delay * 2, self._backoff_s[1])
+        await self.mqtt.run(self._serve)
+
+    async def _serve(self, client: Client) -> None:
+        await client.subscribe([(vehicle_topic(ANY, leaf), 0) for leaf in LEAVES] + [(INSTANCES_ONLINE, 1)])
+        await client.publish(self.online_topic, self._record(True), qos=1, retain=True)
+        self.mqtt.mark_connected()
+        async for message in client.messages:
+            self._receive(str(message.topic), message.payload)
 
     def _receive(self, topic: str, payload: Any) -> None:
         raw = payload if isinstance(payload, bytes | bytearray) else b""
-        if len(raw) > MAX_PAYLOAD:
-            return
         try:
-            body = json.loads(raw) if raw else None
-        except ValueError:
+            body = as_dict(decode(topic, raw))
+        except PayloadError:
+            self.refused += 1
             return
-        if isinstance(body, dict) and isinstance(body.get("request_id"), str) and topic.endswith("/state"):
-            waiter = self._waiting.pop(body["request_id"], None)
-            if waiter is not None and not waiter.done():
-                waiter.set_result(body)
+        self.acks.feed(topic, body)
         self.fleet.on_message(topic, body)
 
     async def request(self, topic: str, body: dict[str, Any], timeout_s: float = 5.0) -> dict[str, Any]:
         """Publish ``body`` (with a fresh request id first) on ``topic``; the proxy's state for it, or
         :class:`AckTimeout`."""
-        client = self._client
-        if client is None:
+        client = self.mqtt.current
+        if client is None or not self.connected.is_set():
             raise AckTimeout(f"not connected to the broker at {self.address.url}")
-        request_id = f"console-{uuid.uuid4().hex}"
-        future: asyncio.Future[dict[str, Any]] = asyncio.get_running_loop().create_future()
-        self._waiting[request_id] = future
-        try:
-            await client.publish(topic, json.dumps({"request_id": request_id, **body}).encode(), qos=1)
-            return await asyncio.wait_for(future, timeout_s)
-        except TimeoutError:
-            state = f"{topic.removesuffix('/set')}/state"
-            raise AckTimeout(f"no acknowledgement on {state} within {timeout_s:g} s") from None
-        finally:
-            self._waiting.pop(request_id, None)
+        return await self.acks.request(client, topic, body, timeout_s)
 
     async def aclose(self) -> None:
         """Say offline while we can (a clean disconnect does not fire the will)."""
-        client = self._client
+        client = self.mqtt.current
         if client is not None:
-            with contextlib.suppress(aiomqtt.MqttError, asyncio.TimeoutError):
+            with contextlib.suppress(MqttError, asyncio.TimeoutError):
                 await asyncio.wait_for(client.publish(self.online_topic, self._record(False), qos=1, retain=True), 0.5)

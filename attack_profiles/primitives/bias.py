@@ -17,7 +17,7 @@ from secuav_common.loading import InputError
 
 
 class BiasRule(RuleBase):
-    """``value + offset``; ``offset`` in the field's physical unit (``offset_m`` is accepted as in DESIGN.md)."""
+    """``value + offset``; ``offset`` in the field's physical unit (``offset_m`` is accepted too)."""
 
     kind: Literal["bias"] = "bias"
     offset: Finite | None = None
@@ -32,7 +32,7 @@ class BiasRule(RuleBase):
     @model_validator(mode="before")
     @classmethod
     def _design_spelling(cls, data: Any) -> Any:
-        # DESIGN.md's example writes ``offset_m``; accept it so both spellings work.
+        # Older profiles write ``offset_m``; accept it so both spellings work.
         if isinstance(data, dict) and "offset_m" in data and "offset" not in data:
             data = {("offset" if k == "offset_m" else k): v for k, v in data.items()}
         return data

@@ -152,6 +152,6 @@ rules:
 
 
 def test_the_design_md_example_is_a_valid_profile() -> None:
-    profile = parse_profile(DESIGN_EXAMPLE, "DESIGN.md")
+    profile = parse_profile(DESIGN_EXAMPLE, "example.yaml")
     assert [r.kind for r in profile.rules] == ["ramp", "bias"]
     assert profile.rules[1].offset == 2.0  # type: ignore[union-attr]

@@ -149,7 +149,7 @@ def test_model_geometry_and_jacobians() -> None:
             [(model.h(pos + step * e) - model.h(pos - step * e)) / (2 * step) for e in np.eye(model.d)], axis=1
         )
         np.testing.assert_allclose(jac, numeric, atol=1e-6, err_msg=type(model).__name__)
-    assert AnchorRanges2D.build(ANCHORS8_NED_M, SIGMA_M).max_correctable == 2  # notes §1.4
+    assert AnchorRanges2D.build(ANCHORS8_NED_M, SIGMA_M).max_correctable == 2  # estimators/README.md#api
     assert ScalarGroup.build([0.1] * 5).max_correctable == 2
     assert ScalarGroup.build([0.1] * 4).max_correctable == 1
 

@@ -24,7 +24,7 @@ from attack_profiles import Engine, library
 from attack_profiles.profile import Profile
 from evaluation.cli import main
 from evaluation.tlog import _framed, log_streams, read_tlog, read_truth_csv
-from mitm_proxy.record import Counts, TlogWriter, record
+from mitm_proxy.tools.record import Counts, TlogWriter, record
 from secuav_common.loading import InputError
 from secuav_common.scenario import load_scenario
 from secuav_common.urls import Endpoint
@@ -255,7 +255,7 @@ def test_two_vehicles_on_two_ports_score_the_inter_vehicle_range(tmp_path: Path)
 
 
 def test_recorder_refuses_bad_endpoints(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from mitm_proxy.record import main as record_main
+    from mitm_proxy.tools.record import main as record_main
 
     assert record_main(["--listen", "udpout://127.0.0.1:14550", "--out", str(tmp_path / "a.tlog")]) == 2
     assert "udpin" in capsys.readouterr().err and not (tmp_path / "a.tlog").exists()
@@ -272,7 +272,7 @@ def test_recorder_stops_cleanly_on_sigterm(tmp_path: Path) -> None:
     import time
 
     out = tmp_path / "s.tlog"
-    cmd = [sys.executable, "-m", "mitm_proxy.record", "--listen", "udpin://127.0.0.1:0", "--out", str(out)]
+    cmd = [sys.executable, "-m", "mitm_proxy.tools.record", "--listen", "udpin://127.0.0.1:0", "--out", str(out)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 15
     while not out.exists() and time.monotonic() < deadline:

@@ -1,4 +1,5 @@
-"""DISTANCE_SENSOR on the wire agrees with the geometry: ids, types, orientations, values (DESIGN.md).
+"""DISTANCE_SENSOR on the wire agrees with the geometry: ids, types, orientations, values
+(docs/interfaces.md#mavlink-mapping-mavlink-2-common-dialect).
 
 Both formation vehicles stand on their start points, so the true anchor and
 peer distances are fixed and every reading can be checked against them.

@@ -14,11 +14,11 @@ import pytest
 
 from attack_profiles import library
 from attack_profiles.profile import load_profile
-from mitm_proxy import attack_cli
-from mitm_proxy.attack import AttackStage
-from mitm_proxy.control import ControlPlane
-from mitm_proxy.controls import vehicle_controls
-from mitm_proxy.slots import AttackSlot
+from mitm_proxy.control.plane import ControlPlane
+from mitm_proxy.control.switches import vehicle_controls
+from mitm_proxy.stages.attack import AttackStage
+from mitm_proxy.stages.attack_slot import AttackSlot
+from mitm_proxy.tools import attack_cli
 from secuav_common.broker import EmbeddedBroker
 
 pytestmark = pytest.mark.timeout(60)
@@ -157,7 +157,8 @@ async def test_no_broker_and_no_proxy_exit_3(capsys: pytest.CaptureFixture[str],
 async def test_the_console_command_as_a_process(bench: Bench) -> None:
     """What a shell user runs: a separate process, its exit code and its one line."""
     proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "mitm_proxy.attack_cli", "apply", "gps-glitch", "--vehicle", "1", "--broker", bench.url,
+        sys.executable, "-m", "mitm_proxy.tools.attack_cli", "apply", "gps-glitch", "--vehicle", "1",
+        "--broker", bench.url,
         cwd=REPO, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
     )  # fmt: skip
     out, err = await asyncio.wait_for(proc.communicate(), 30)

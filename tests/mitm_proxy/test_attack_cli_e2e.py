@@ -31,7 +31,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 def attack(*argv: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "mitm_proxy.attack_cli", *argv],
+        [sys.executable, "-m", "mitm_proxy.tools.attack_cli", *argv],
         cwd=REPO, capture_output=True, text=True, timeout=60,
     )  # fmt: skip
 

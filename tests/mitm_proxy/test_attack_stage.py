@@ -13,10 +13,10 @@ from attack_profiles.engine import Engine
 from attack_profiles.profile import Profile, parse_profile
 from mavframe.frames import split
 from mavframe.packet import Direction, Packet
-from mitm_proxy.attack import AttackStage
-from mitm_proxy.pipeline import Pipeline
-from mitm_proxy.slots import AttackSlot
-from mitm_proxy.stats import LinkStats
+from mitm_proxy.core.pipeline import Pipeline
+from mitm_proxy.core.stats import LinkStats
+from mitm_proxy.stages.attack import AttackStage
+from mitm_proxy.stages.attack_slot import AttackSlot
 from tests.mavframe.frames_support import (
     DISTANCE_SENSOR,
     HEARTBEAT,

@@ -101,7 +101,7 @@ def test_cli_bad_input_exits_2_with_one_line(tmp_path: Path, capsys: pytest.Capt
 
 
 def test_rules_in_the_long_form_are_the_same_rules_as_url_options(tmp_path: Path) -> None:
-    from mitm_proxy.routes import rules_from_options
+    from mitm_proxy.net.rules import rules_from_options
 
     path = tmp_path / "proxy.yaml"
     path.write_text(

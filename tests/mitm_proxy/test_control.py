@@ -14,10 +14,12 @@ import pytest
 from test_control_support import MOSQUITTO, Mosquitto, Observer
 
 from attack_profiles import library
-from mitm_proxy.control import MAX_PAYLOAD_BYTES, ONLINE_TOPIC, ControlPlane
-from mitm_proxy.controls import vehicle_controls
-from mitm_proxy.slots import AttackSlot
+from mitm_proxy.control.plane import MAX_PAYLOAD_BYTES, ONLINE_TOPIC, ControlPlane
+from mitm_proxy.control.switch import Switch
+from mitm_proxy.control.switches import vehicle_controls
+from mitm_proxy.stages.attack_slot import AttackSlot
 from secuav_common.broker import EmbeddedBroker
+from secuav_common.controlplane.payloads import SecureState
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -181,16 +183,15 @@ async def test_secure_set_without_and_with_a_secure_stage(broker_port: int, slot
             anonymous = await obs.wait_for("secuav/v1/secure/state", start=start)
             assert not anonymous["ok"] and anonymous["request_id"] is None
 
-    class BrokenSlot:  # a secure stage whose code raises: the plane reports it and keeps serving
-        def __init__(self) -> None:
-            self.state: dict[str, Any] = {"sysid": 2, "ok": True, "estimator": None, "request_id": None}
+    class BrokenSlot(Switch[SecureState]):  # a secure stage whose code raises: the plane reports it, serves on
+        kind = "secure"
+        state_model = SecureState
 
-        def offer_payload(self, payload: Any, request_id: str | None) -> dict[str, Any]:
+        def apply(self, payload: Any, source: str) -> None:
             raise RuntimeError("boom")
 
-        def reject(self, error: str, request_id: str | None) -> dict[str, Any]:
-            self.state = {**self.state, "ok": False, "error": error, "request_id": request_id}
-            return self.state
+        def current(self) -> dict[str, Any]:
+            return {"sysid": 2, "estimator": None}
 
     controls = vehicle_controls("t", slots, secure={2: BrokenSlot()})
     async with ControlPlane(url, controls, stats=fake_stats) as plane:
@@ -251,7 +252,7 @@ async def test_no_broker_means_no_mqtt_and_publish_is_a_no_op(slots: dict[int, A
 
 
 async def test_the_real_secure_slot_through_the_plane(broker_port: int) -> None:
-    from mitm_proxy.secure import SecureSlot
+    from mitm_proxy.stages.secure.stage import SecureSlot
     from secuav_common.scenario import load_scenario
 
     scenario = load_scenario("scenarios/wall_hover.yaml")
@@ -275,7 +276,7 @@ async def test_the_real_secure_slot_through_the_plane(broker_port: int) -> None:
 async def test_attack_mode_switches_bypass_at_runtime_and_keeps_the_profile(
     broker_port: int, slots: dict[int, AttackSlot]
 ) -> None:
-    from mitm_proxy.attack import AttackStage
+    from mitm_proxy.stages.attack import AttackStage
 
     stages = {sysid: AttackStage(slot) for sysid, slot in slots.items()}
     plane = ControlPlane(f"mqtt://127.0.0.1:{broker_port}", vehicle_controls("t", slots, stages), stats=fake_stats)

@@ -13,9 +13,9 @@ from typing import Any
 import pytest
 from test_control_support import Mosquitto, Observer, needs_mosquitto
 
-from mitm_proxy.control import ControlPlane, Outbox
-from mitm_proxy.controls import vehicle_controls
-from mitm_proxy.slots import AttackSlot
+from mitm_proxy.control.plane import ControlPlane, Outbox
+from mitm_proxy.control.switches import vehicle_controls
+from mitm_proxy.stages.attack_slot import AttackSlot
 
 pytestmark = pytest.mark.timeout(60)
 SET1, STATE1 = "secuav/v1/attack/set", "secuav/v1/attack/state"

@@ -199,7 +199,7 @@ async def attack_cli(*args: str, timeout_s: float = 60) -> tuple[int, str]:
     """Run ``secuav-attack`` as a subprocess without blocking the loop (streams keep flowing meanwhile);
     its exit code and its stdout and stderr together."""
     proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "mitm_proxy.attack_cli", *args,
+        sys.executable, "-m", "mitm_proxy.tools.attack_cli", *args,
         stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
     )  # fmt: skip
     out, _ = await asyncio.wait_for(proc.communicate(), timeout_s)

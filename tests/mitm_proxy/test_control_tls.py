@@ -18,10 +18,10 @@ from test_control_support import (
     make_tls_files,
 )
 
-from mitm_proxy import attack_cli
-from mitm_proxy.control import ControlPlane
-from mitm_proxy.controls import vehicle_controls
-from mitm_proxy.slots import AttackSlot
+from mitm_proxy.control.plane import ControlPlane
+from mitm_proxy.control.switches import vehicle_controls
+from mitm_proxy.stages.attack_slot import AttackSlot
+from mitm_proxy.tools import attack_cli
 
 pytestmark = [
     pytest.mark.timeout(90),

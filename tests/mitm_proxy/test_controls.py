@@ -1,4 +1,4 @@
-"""The runtime switches (``mitm_proxy.controls``) without a broker: routing of topics, atomic route sets."""
+"""The runtime switches (``mitm_proxy.control``) without a broker: topic routing, atomic route sets, one verdict."""
 
 from __future__ import annotations
 
@@ -6,19 +6,18 @@ from typing import Any
 
 import pytest
 
-from mitm_proxy.attack import AttackStage
-from mitm_proxy.controls import (
-    AttackControl,
+from mitm_proxy.control.switches import (
     Controls,
-    ModeControl,
-    RoutesControl,
-    SecureControl,
+    ModeSwitch,
+    NoSecure,
+    RoutesSwitch,
     Target,
     vehicle_controls,
 )
-from mitm_proxy.endpoints import make_endpoint
-from mitm_proxy.routes import EndpointRules, rules_from_query, rules_to_query
-from mitm_proxy.slots import AttackSlot
+from mitm_proxy.net.factory import make_endpoint
+from mitm_proxy.net.rules import EndpointRules, rules_from_query, rules_to_query
+from mitm_proxy.stages.attack import AttackStage
+from mitm_proxy.stages.attack_slot import AttackSlot
 from secuav_common.loading import InputError
 from secuav_common.urls import parse_endpoint
 
@@ -36,18 +35,18 @@ def _registry() -> tuple[Controls, dict[str, Any]]:
     slots = {1: AttackSlot(1), 2: AttackSlot(2)}
     controls = vehicle_controls("bench", slots, {s: AttackStage(slot) for s, slot in slots.items()})
     endpoints = _endpoints()
-    controls.add_proxy(RoutesControl("bench", endpoints))
+    controls.add(RoutesSwitch("bench", endpoints))
     return controls, endpoints
 
 
 def test_every_set_topic_finds_its_control_and_state_topic() -> None:
     controls, _ = _registry()
     cases = {
-        "secuav/v1/attack/set": (AttackControl, "secuav/v1/attack/state"),
-        "secuav/v2/attack/mode/set": (ModeControl, "secuav/v2/attack/mode/state"),
-        "secuav/v2/secure/set": (SecureControl, "secuav/v2/secure/state"),
-        "secuav/proxy/routes/set": (RoutesControl, "secuav/proxy/bench/routes/state"),
-        "secuav/proxy/bench/routes/set": (RoutesControl, "secuav/proxy/bench/routes/state"),
+        "secuav/v1/attack/set": (AttackSlot, "secuav/v1/attack/state"),
+        "secuav/v2/attack/mode/set": (ModeSwitch, "secuav/v2/attack/mode/state"),
+        "secuav/v2/secure/set": (NoSecure, "secuav/v2/secure/state"),
+        "secuav/proxy/routes/set": (RoutesSwitch, "secuav/proxy/bench/routes/state"),
+        "secuav/proxy/bench/routes/set": (RoutesSwitch, "secuav/proxy/bench/routes/state"),
     }
     for topic, (cls, state_topic) in cases.items():
         target = controls.route(topic)
@@ -75,9 +74,9 @@ def test_a_route_set_is_all_or_nothing() -> None:
     assert isinstance(routes, Target)
     ok = routes.control.handle({"endpoints": {"ground:14551": {"listen_only": True, "down": {"deny": ["ATTITUDE"]}},
                                               "udpout://127.0.0.1:14550": None}}, "r1")  # fmt: skip
-    assert ok["ok"] and ok["request_id"] == "r1"
+    assert ok.ok and ok.request_id == "r1"
     assert eps["ground:14551"].gate.rules.listen_only and eps["ground:14550"].gate.rules.empty
-    assert ok["endpoints"]["ground:14551"]["rules"] == {"listen_only": True, "down": {"deny": ["ATTITUDE"]}}
+    assert ok.endpoints["ground:14551"].rules == {"listen_only": True, "down": {"deny": ["ATTITUDE"]}}
 
     before = {name: ep.gate.rules for name, ep in eps.items()}
     bad_sets = {
@@ -90,27 +89,38 @@ def test_a_route_set_is_all_or_nothing() -> None:
     }
     for label, (payload, error) in bad_sets.items():
         state = routes.control.handle(payload, label)
-        assert not state["ok"] and error in state["error"], (label, state["error"])
+        assert not state.ok and state.error is not None and error in state.error, (label, state.error)
         assert {name: ep.gate.rules for name, ep in eps.items()} == before, label  # nothing half-applied
 
 
-def test_mode_reports_a_switch_made_elsewhere_without_claiming_a_request() -> None:
+def test_every_change_of_mode_goes_through_its_switch_and_leaves_one_verdict() -> None:
     slot = AttackSlot(1)
     stage = AttackStage(slot)
-    mode = ModeControl(1, stage)
+    mode = ModeSwitch(1, stage)
     state = mode.handle("bypass", "r1")
-    assert state["mode"] == "bypass" and state["request_id"] == "r1" and state["ok"]
-    assert mode.handle({"mode": "off"}, "r2")["error"].startswith('mode: must be "on" or "bypass"')
-    stage.enabled = True  # the app, or a test, switched it
-    state = mode.state()
-    assert state["mode"] == "on" and state["request_id"] is None and state["ok"]
+    assert state.mode == "bypass" and state.request_id == "r1" and state.ok and not stage.enabled
+    refused = mode.handle({"mode": "off"}, "r2")
+    assert refused.error is not None and refused.error.startswith('mode: must be "on" or "bypass"')
+    assert refused.mode == "bypass"  # the refused request changed nothing
+    state = mode.set(True, source="--attack")  # the app switches through the same door
+    assert state.mode == "on" and state.request_id is None and state.ok and stage.enabled
+    assert mode.state == state
+
+
+def test_one_verdict_per_switch_whatever_the_door() -> None:
+    slot = AttackSlot(1)
+    assert slot.offer_payload({"library": "drift"}, "mqtt-1").ok
+    refused = slot.offer_payload({"library": "no-such-profile"}, "mqtt-2")
+    assert not refused.ok and refused.request_id == "mqtt-2" and refused.profile == "drift"
+    assert slot.offer(None, "reload").ok and slot.state.profile is None and slot.state.request_id == "reload"
+    assert slot.verdict.request_id == "reload" and slot.verdict.ok
 
 
 def test_secure_without_a_secure_stage_says_how_to_get_one() -> None:
-    secure = SecureControl(1, None)
-    assert secure.state()["available"] is False and secure.state()["ok"]
+    secure = NoSecure(1)
+    assert secure.state.available is False and secure.state.ok
     refused = secure.handle({"estimator": "secekf"}, "r")
-    assert not refused["ok"] and "--scenario" in refused["error"]
+    assert not refused.ok and refused.error is not None and "--scenario" in refused.error
 
 
 @pytest.mark.parametrize(

@@ -9,7 +9,7 @@ from collections.abc import Callable
 
 import pytest
 
-from mitm_proxy.endpoints import UdpEndpoint
+from mitm_proxy.net.endpoints import UdpEndpoint
 from secuav_common.urls import parse_endpoint
 
 pytestmark = pytest.mark.timeout(20)
@@ -37,7 +37,7 @@ async def until(cond: Callable[[], bool], timeout_s: float = 2.0) -> None:
 async def test_udpin_pins_its_peer_and_follows_it_only_after_silence(
     udp_port: Callable[[], int], caplog: pytest.LogCaptureFixture
 ) -> None:
-    caplog.set_level(logging.INFO, "mitm_proxy.endpoints")
+    caplog.set_level(logging.INFO, "mitm_proxy.net.endpoints")
     port = udp_port()
     got: list[bytes] = []
     ep = await UdpEndpoint(parse_endpoint(f"udpin://127.0.0.1:{port}"), "vehicle", takeover_after_s=0.3).open()
@@ -137,9 +137,9 @@ async def test_udpin_port_taken_is_an_oserror(udp_port: Callable[[], int]) -> No
 async def test_an_oversize_datagram_is_dropped_unread_and_never_becomes_the_peer(
     udp_port: Callable[[], int], caplog: pytest.LogCaptureFixture
 ) -> None:
-    from mitm_proxy.endpoints import MAX_DATAGRAM_BYTES
+    from mitm_proxy.net.endpoints import MAX_DATAGRAM_BYTES
 
-    caplog.set_level(logging.INFO, "mitm_proxy.endpoints")
+    caplog.set_level(logging.INFO, "mitm_proxy.net.endpoints")
     port = udp_port()
     got: list[bytes] = []
     ep = await UdpEndpoint(parse_endpoint(f"udpin://127.0.0.1:{port}"), "ground").open()

@@ -18,7 +18,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from mavframe.frames import split
 from mitm_proxy.app import Proxy
 from mitm_proxy.config import LinkConfig, ProxyConfig
-from mitm_proxy.link import TARGET_OFFSETS, target_system
+from mitm_proxy.net.link import TARGET_OFFSETS, target_system
 
 pytestmark = pytest.mark.timeout(30)
 

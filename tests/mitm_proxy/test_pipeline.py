@@ -13,10 +13,10 @@ from attack_profiles.profile import parse_profile
 from mavframe import codec
 from mavframe.frames import CRC_EXTRA, split
 from mavframe.packet import Direction, Packet
-from mitm_proxy.attack import AttackStage
-from mitm_proxy.pipeline import HOSTILE_BYTES_PER_S, Outgoing, Pipeline
-from mitm_proxy.slots import AttackSlot
-from mitm_proxy.stats import LinkStats
+from mitm_proxy.core.pipeline import HOSTILE_BYTES_PER_S, Outgoing, Pipeline
+from mitm_proxy.core.stats import LinkStats
+from mitm_proxy.stages.attack import AttackStage
+from mitm_proxy.stages.attack_slot import AttackSlot
 from tests.mavframe.frames_support import (
     DISTANCE_SENSOR,
     HEARTBEAT,
@@ -290,7 +290,7 @@ def test_fuzz_counters_balance_and_nothing_valid_is_lost(chunks: list[tuple[byte
 
 
 def test_a_readings_tap_sees_each_watched_reading_as_it_came_and_as_it_left() -> None:
-    from mitm_proxy.readings import ReadingsTap
+    from mitm_proxy.core.readings import ReadingsTap
 
     pipe, _, _ = make(bias(sensor_id=3, offset_m=1.0),
                       {"target": {"message": "DISTANCE_SENSOR", "sensor_id": 4}, "kind": "drop"})  # fmt: skip

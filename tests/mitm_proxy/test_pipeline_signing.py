@@ -12,10 +12,10 @@ from mavframe import codec
 from mavframe.frames import split
 from mavframe.packet import Direction, Packet
 from mavframe.signing import Signer
-from mitm_proxy.attack import AttackStage
-from mitm_proxy.pipeline import Pipeline
-from mitm_proxy.slots import AttackSlot
-from mitm_proxy.stats import LinkStats
+from mitm_proxy.core.pipeline import Pipeline
+from mitm_proxy.core.stats import LinkStats
+from mitm_proxy.stages.attack import AttackStage
+from mitm_proxy.stages.attack_slot import AttackSlot
 from tests.mavframe.frames_support import TEST_KEY, distance, heartbeat, pack, signed_mav
 from tests.mavframe.test_signing import read_strict
 

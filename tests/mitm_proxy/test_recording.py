@@ -14,11 +14,11 @@ from pymavlink import mavutil
 from attack_profiles.profile import parse_profile
 from mavframe import codec
 from mavframe.packet import Direction, Packet
-from mitm_proxy.attack import AttackStage
-from mitm_proxy.pipeline import Pipeline
-from mitm_proxy.recording import Recorder
-from mitm_proxy.slots import AttackSlot
-from mitm_proxy.stats import LinkStats
+from mitm_proxy.core.pipeline import Pipeline
+from mitm_proxy.core.recorder import Recorder
+from mitm_proxy.core.stats import LinkStats
+from mitm_proxy.stages.attack import AttackStage
+from mitm_proxy.stages.attack_slot import AttackSlot
 from tests.mavframe.frames_support import HEARTBEAT, distance, heartbeat, local_position, mav, pack
 
 

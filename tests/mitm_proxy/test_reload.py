@@ -13,10 +13,10 @@ import pytest
 from test_control_support import Observer
 
 from attack_profiles.profile import load_profile
-from mitm_proxy.control import ControlPlane
-from mitm_proxy.controls import vehicle_controls
-from mitm_proxy.reload import REHASH_EVERY, ProfileWatcher
-from mitm_proxy.slots import AttackSlot, SlotState
+from mitm_proxy.control.plane import ControlPlane
+from mitm_proxy.control.reload import REHASH_EVERY, ProfileWatcher
+from mitm_proxy.control.switches import vehicle_controls
+from mitm_proxy.stages.attack_slot import AttackSlot, SlotState
 from secuav_common.broker import EmbeddedBroker
 from secuav_common.scenario import load_scenario
 
@@ -76,7 +76,7 @@ def test_a_good_edit_swaps_and_an_unchanged_save_does_nothing(tmp_path: Path) ->
 def test_a_bad_edit_keeps_the_old_profile_and_names_file_and_field(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    caplog.set_level(logging.WARNING, logger="mitm_proxy.reload")
+    caplog.set_level(logging.WARNING, logger="mitm_proxy.control.reload")
     path = tmp_path / "attack.yaml"
     write(path, profile_text("first"))
     slots = {1: AttackSlot(1)}
@@ -112,7 +112,7 @@ def test_an_editor_that_writes_a_temp_file_and_renames_it(tmp_path: Path) -> Non
 
 
 def test_rules_that_name_vehicles_go_to_those_vehicles_only(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
-    caplog.set_level(logging.WARNING, logger="mitm_proxy.reload")
+    caplog.set_level(logging.WARNING, logger="mitm_proxy.control.reload")
     path = tmp_path / "attack.yaml"
     write(path, profile_text("for-2", sysid=2))
     slots = {1: AttackSlot(1), 2: AttackSlot(2), 3: AttackSlot(3)}
@@ -149,7 +149,7 @@ def test_a_profile_the_scenario_refuses_keeps_the_old_one(tmp_path: Path) -> Non
 
 
 def test_a_missing_file_keeps_the_profile_until_it_returns(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
-    caplog.set_level(logging.WARNING, logger="mitm_proxy.reload")
+    caplog.set_level(logging.WARNING, logger="mitm_proxy.control.reload")
     path = tmp_path / "attack.yaml"
     write(path, profile_text("first"))
     slots = {1: AttackSlot(1)}

@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mavframe.frames import StreamFramer, split
-from mitm_proxy.routes import EndpointGate, EndpointRules, FrameFilter, rules_from_options
+from mitm_proxy.net.rules import EndpointGate, EndpointRules, FrameFilter, rules_from_options
 from secuav_common.loading import InputError
 from secuav_common.urls import parse_endpoint
 

@@ -172,7 +172,7 @@ async def test_routes_set_show_and_the_fleet_view_with_real_proxies(
 
             # status --watch: a live table until Ctrl-C, with the proxy's own frame rates.
             watch = await asyncio.create_subprocess_exec(
-                sys.executable, "-m", "mitm_proxy.attack_cli", "status", "--watch", "--interval", "0.5",
+                sys.executable, "-m", "mitm_proxy.tools.attack_cli", "status", "--watch", "--interval", "0.5",
                 "--broker", broker, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
             )  # fmt: skip
             await asyncio.sleep(4.0)

@@ -15,9 +15,9 @@ from test_secure_support import StreamMaker, packet_of, wire_fields
 from attack_profiles import library
 from attack_profiles.engine import Engine
 from mavframe.packet import Direction
-from mitm_proxy.pipeline import Pipeline
-from mitm_proxy.secure import SecureConfig, SecureSlot, SecureStage
-from mitm_proxy.stats import LinkStats
+from mitm_proxy.core.pipeline import Pipeline
+from mitm_proxy.core.stats import LinkStats
+from mitm_proxy.stages.secure.stage import SecureConfig, SecureSlot, SecureStage
 from secuav_common.scenario import Scenario, load_scenario
 
 DS = 132
@@ -129,7 +129,7 @@ def test_pipeline_bypass_is_byte_exact_and_active_touches_only_the_group(wall: S
         for t, dgram in _datagrams(wall, 13, 2.0):
             out = pipe.feed(dgram, Direction.DOWNLINK, t)
             assert len(out) == 1 and out[0].data is dgram  # bypass: the very same datagram
-        assert slot.offer_payload({"estimator": "secekf", "executor": "inline"}, "r1")["ok"]
+        assert slot.offer_payload({"estimator": "secekf", "executor": "inline"}, "r1").ok
         from mavframe.frames import split
 
         rewritten = 0
@@ -152,7 +152,7 @@ def test_pipeline_bypass_is_byte_exact_and_active_touches_only_the_group(wall: S
                 else:
                     assert raw_out == raw_in, fields
         assert rewritten > 100
-        assert slot.offer_payload("off", "r2")["ok"] and not slot.stage.active
+        assert slot.offer_payload("off", "r2").ok and not slot.stage.active
         for t, dgram in _datagrams(wall, 15, 1.0):
             assert pipe.feed(dgram, Direction.DOWNLINK, t)[0].data is dgram
     finally:
@@ -165,10 +165,10 @@ def test_secure_set_acknowledges_and_a_rejected_request_keeps_the_estimator(anch
     slot = SecureSlot(1, anchors8, publish=lambda s, p: published.append(p))
     try:
         st = slot.state
-        assert st["ok"] and st["estimator"] is None and not slot.stage.active
+        assert st.ok and st.estimator is None and not slot.stage.active
         st = slot.offer_payload({"estimator": "secekf", "params": {"s": 2, "alpha": 0.01}, "request_id": "a"})
-        assert st == {
-            **st,
+        assert st.model_dump() == {
+            **st.model_dump(),
             "ok": True,
             "estimator": "secekf",
             "params": {"s": 2, "alpha": 0.01},
@@ -189,19 +189,19 @@ def test_secure_set_acknowledges_and_a_rejected_request_keeps_the_estimator(anch
         ]
         for i, (payload, field, value) in enumerate(bad):
             st = slot.offer_payload(payload, f"bad{i}")
-            assert not st["ok"] and st["request_id"] == f"bad{i}", st
-            assert field in st["error"] and value in st["error"], st["error"]
-            assert st["estimator"] == "secekf" and st["params"] == {"s": 2, "alpha": 0.01}
+            assert not st.ok and st.request_id == f"bad{i}", st
+            assert field in st.error and value in st.error, st.error
+            assert st.estimator == "secekf" and st.params == {"s": 2, "alpha": 0.01}
             assert slot.stage._stepper is running and slot.stage.config.estimator == "secekf"
-        json.dumps(slot.state)
+        json.dumps(slot.state.model_dump())
         # A new name resets the parameters; the stage keeps running on it.
         st = slot.offer_payload("rarse", "b")
-        assert st["ok"] and st["estimator"] == "rarse" and st["params"] == {} and slot.stage.active
+        assert st.ok and st.estimator == "rarse" and st.params == {} and slot.stage.active
         assert running is not None and running._closed
         for value in (None, "off", {"estimator": None}):
-            assert slot.offer_payload("secekf")["ok"] and slot.stage.active
+            assert slot.offer_payload("secekf").ok and slot.stage.active
             st = slot.offer_payload(value, "c")
-            assert st["ok"] and st["estimator"] is None and not slot.stage.active, value
+            assert st.ok and st.estimator is None and not slot.stage.active, value
             assert slot.stage.message_ids == frozenset()
     finally:
         slot.close()
@@ -245,15 +245,15 @@ def test_auto_executor_keeps_cheap_steps_inline(wall: Scenario) -> None:
 @pytest.mark.timeout(30)
 def test_make_slots_from_the_secure_flag() -> None:
     """``--secure NAME`` for every vehicle of a scenario: one slot each, one shared peer board; bad input refused."""
-    from mitm_proxy.secure import make_slots
+    from mitm_proxy.stages.secure.stage import make_slots
     from secuav_common.loading import InputError
 
     formation = load_scenario("formation")
     slots = make_slots(formation, [1, 2], "secekf")
     try:
-        assert [s.state["estimator"] for s in slots.values()] == ["secekf", "secekf"]
+        assert [s.state.estimator for s in slots.values()] == ["secekf", "secekf"]
         assert slots[1].stage.peers is slots[2].stage.peers
-        assert all(s.stage.active and s.state["group"] == "anchors" for s in slots.values())
+        assert all(s.stage.active and s.state.group == "anchors" for s in slots.values())
     finally:
         for s in slots.values():
             s.close()

@@ -21,7 +21,7 @@ from attack_profiles import library
 from attack_profiles.engine import Engine
 from attack_profiles.profile import parse_profile
 from mavframe.packet import Direction
-from mitm_proxy.secure import FLAGGED_QUALITY, PeerBoard, SecureConfig, SecureStage
+from mitm_proxy.stages.secure.stage import FLAGGED_QUALITY, PeerBoard, SecureConfig, SecureStage
 from secuav_common.geo import geodetic_to_ned
 from secuav_common.scenario import Scenario, load_scenario
 

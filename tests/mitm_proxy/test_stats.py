@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mavframe.packet import Direction
-from mitm_proxy.stats import LatencyHistogram, LinkStats
+from mitm_proxy.core.stats import LatencyHistogram, LinkStats
 
 
 def test_snapshot_is_json_with_both_directions_and_latency() -> None:

@@ -18,10 +18,10 @@ from typing import Any
 import pytest
 import uvicorn
 
-from mitm_proxy.attack import AttackStage
-from mitm_proxy.control import ControlPlane
-from mitm_proxy.controls import vehicle_controls
-from mitm_proxy.slots import AttackSlot
+from mitm_proxy.control.plane import ControlPlane
+from mitm_proxy.control.switches import vehicle_controls
+from mitm_proxy.stages.attack import AttackStage
+from mitm_proxy.stages.attack_slot import AttackSlot
 from secuav_common.broker import BrokerAddress, EmbeddedBroker
 from secuav_common.scenario import load_scenario
 from tests.conftest import free_tcp_port
@@ -134,13 +134,13 @@ async def test_vehicles_library_and_a_profile_round_trip(bench: Bench) -> None:
     ],
 )
 async def test_a_bad_profile_never_leaves_the_console(bench: Bench, body: Any, field: str | None, words: str) -> None:
-    before = bench.slots[1].state
+    before = bench.slots[1].verdict  # replaced by every request the slot handles, even a refused one
     status, answer = await asyncio.to_thread(call, bench.base, "/api/vehicles/1/attack", body)
     assert status == 422 and not answer["ok"] and words in answer["error"], answer
     if field is not None:
         assert str(answer["field"]).startswith(field)
     await asyncio.sleep(0.3)
-    assert bench.slots[1].state is before  # the proxy saw nothing, not even a rejection
+    assert bench.slots[1].verdict is before  # the proxy saw nothing, not even a rejection
 
 
 async def test_mode_secure_unknown_vehicles_and_a_silent_proxy(bench: Bench) -> None:

@@ -49,10 +49,10 @@ from attack_profiles.resolve import parse_params, resolve_profile
 from mavframe import codec, tlog
 from mavframe.frames import split
 from mavframe.packet import Direction, Header, Packet
-from mitm_proxy.attack import AttackStage
-from mitm_proxy.pipeline import Pipeline
-from mitm_proxy.slots import AttackSlot
-from mitm_proxy.stats import LinkStats
+from mitm_proxy.core.pipeline import Pipeline
+from mitm_proxy.core.stats import LinkStats
+from mitm_proxy.stages.attack import AttackStage
+from mitm_proxy.stages.attack_slot import AttackSlot
 from secuav_common.loading import InputError
 from secuav_common.logs import add_common_flags
 from secuav_common.scenario import load_scenario, resolve_scenario_path
@@ -106,7 +106,7 @@ class TlogWriter:
         pipe = self._pipes.get(sysid)
         if pipe is None:
             slot = AttackSlot(sysid)
-            slot.engine = self.engine  # the caller's engine and its clock, shared by the vehicles as before
+            slot.install(self.engine)  # the caller's engine and its clock, shared by the vehicles as before
             pipe = self._pipes[sysid] = Pipeline(len(self._pipes), [AttackStage(slot)], stats=LinkStats(sysid))
         return pipe
 

@@ -1,8 +1,10 @@
-"""The proxy's MQTT session (DESIGN.md "Control plane"): connect, serve, reconnect, publish.
+"""The proxy's MQTT session: connect, serve, reconnect, publish.
 
-This module is the transport; what a request does is :mod:`mitm_proxy.controls`
-(one :class:`~mitm_proxy.controls.Control` per runtime switch, registered once
-in a :class:`~mitm_proxy.controls.Controls`). One background task keeps one
+Topics and payloads: docs/interfaces.md#mqtt-control-plane-json-payloads-vehicle-key-vsysid.
+
+This module is the transport; what a request does is :mod:`mitm_proxy.control.switches`
+(one :class:`~mitm_proxy.control.switch.Switch` per runtime switch, registered once
+in a :class:`~mitm_proxy.control.switches.Controls`). One background task keeps one
 MQTT session: it subscribes to every control's ``set`` topic, hands each
 decoded request to its control, and publishes the control's state on the
 retained ``.../state`` topic next to it. It also publishes each link's stats at
@@ -26,8 +28,6 @@ import errno
 import hashlib
 import json
 import logging
-import math
-import re
 import time
 import uuid
 from collections import deque
@@ -35,73 +35,40 @@ from collections.abc import Callable
 from types import TracebackType
 from typing import Any
 
-import aiomqtt
+from pydantic import BaseModel
 
-from mitm_proxy.controls import (
-    PREFIX,
-    Controls,
+from mitm_proxy.control.switches import Controls, Target, default_instance
+from secuav_common.controlplane.address import parse_broker_url
+from secuav_common.controlplane.payloads import (
+    MAX_PAYLOAD_BYTES,
+    PayloadError,
     RequestError,
-    Target,
-    default_instance,
+    dumps,
+    loads_request,
+    salvage_request_id,
+    validate,
+)
+from secuav_common.controlplane.session import Client, LastWill, MqttError, Session
+from secuav_common.controlplane.topics import (
+    CONSOLES_ONLINE,
+    PROXY_ONLINE,
+    parse,
     parse_vehicle_key,
     proxy_topic,
     vehicle_topic,
 )
-from secuav_common.broker import parse_broker_url
 
 log = logging.getLogger(__name__)
 # paho logs every packet at DEBUG; keep that out of ``-v`` unless someone asks for this logger by name.
-_CLIENT_LOG = logging.getLogger(f"{__name__}.mqtt")
+_CLIENT_LOG = logging.getLogger("mitm_proxy.control.mqtt")
 if _CLIENT_LOG.level == logging.NOTSET:
     _CLIENT_LOG.setLevel(logging.INFO)
 
-CONSOLE_ONLINE = f"{PREFIX}/console/+/online"  # a console's retained record: the proxy then publishes readings
-ONLINE_TOPIC = f"{PREFIX}/proxy/online"  # the single-proxy flag; fleets read each instance's online record
-MAX_PAYLOAD_BYTES = 64 * 1024
+ONLINE_TOPIC = PROXY_ONLINE  # the single-proxy flag; fleets read each instance's online record
 DRAIN_BATCH = 64  # messages published concurrently by the outbox drain
 MAX_UNKNOWN_LOGGED = 100  # unknown vehicle keys logged (once each); junk topics cannot grow the set
-__all__ = ["ONLINE_TOPIC", "PREFIX", "ControlPlane", "Outbox", "RequestError", "default_instance",
+__all__ = ["MAX_PAYLOAD_BYTES", "ONLINE_TOPIC", "ControlPlane", "Outbox", "RequestError", "default_instance",
            "parse_vehicle_key", "proxy_topic", "vehicle_topic"]  # fmt: skip
-
-# A request id the CLI puts first in its JSON, so an oversized or broken payload can still be answered.
-_REQUEST_ID_PREFIX = re.compile(rb'\A\s*\{\s*"request_id"\s*:\s*"([A-Za-z0-9_.:@/-]{1,100})"')
-
-
-def decode_payload(raw: bytes) -> tuple[Any, str | None]:
-    """JSON payload and its ``request_id``; :class:`RequestError` says why a payload is refused.
-
-    The size is checked before anything is decoded, so a flood of huge
-    messages costs a length comparison each.
-    """
-    if len(raw) > MAX_PAYLOAD_BYTES:
-        raise RequestError(f"payload of {len(raw)} bytes is larger than {MAX_PAYLOAD_BYTES} bytes")
-    if not raw.strip():
-        raise RequestError("empty payload; send JSON null to clear")
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise RequestError(f"payload is not UTF-8 text (byte {exc.start})") from None
-    try:
-        payload = json.loads(text)
-    except (ValueError, RecursionError) as exc:
-        where = f" at line {exc.lineno} column {exc.colno}" if isinstance(exc, json.JSONDecodeError) else ""
-        if isinstance(exc, json.JSONDecodeError):
-            reason = exc.msg
-        elif isinstance(exc, RecursionError):
-            reason = "nested too deeply"
-        else:  # e.g. an integer of thousands of digits (Python's int parsing limit)
-            reason = str(exc).split(";")[0]
-        raise RequestError(f"payload is not JSON: {reason}{where}") from None
-    request_id = payload.get("request_id") if isinstance(payload, dict) else None
-    if request_id is not None and not isinstance(request_id, str):
-        request_id = json.dumps(request_id)[:100]
-    return payload, request_id
-
-
-def salvage_request_id(raw: bytes) -> str | None:
-    """The request id of a refused payload, when it leads the JSON object (as ``secuav-attack`` writes it)."""
-    m = _REQUEST_ID_PREFIX.match(raw[:200])
-    return m.group(1).decode() if m else None
 
 
 class Outbox:
@@ -148,44 +115,10 @@ class Outbox:
             self.dropped += 1
 
 
-def _finite(node: Any) -> Any:
-    """NaN and infinities as JSON null: estimates mark missing readings with NaN, and JSON has no NaN."""
-    if isinstance(node, float) and not math.isfinite(node):
-        return None
-    if isinstance(node, dict):
-        return {k: _finite(v) for k, v in node.items()}
-    if isinstance(node, list | tuple):
-        return [_finite(v) for v in node]
-    return node
-
-
-def _json_bytes(payload: Any) -> bytes:
-    """Compact, strict JSON; numpy scalars and other odd values fall back to ``str``."""
-    if isinstance(payload, bytes):
-        return payload
-    try:
-        return json.dumps(payload, separators=(",", ":"), allow_nan=False, default=_plain).encode()
-    except ValueError:  # a NaN somewhere: the slow path only then
-        return json.dumps(_finite(payload), separators=(",", ":"), allow_nan=False, default=_plain).encode()
-
-
-def _plain(value: Any) -> Any:
-    item = getattr(value, "item", None)  # numpy scalar -> Python number
-    if callable(item):
-        with contextlib.suppress(Exception):
-            plain = item()
-            return None if isinstance(plain, float) and not math.isfinite(plain) else plain
-    tolist = getattr(value, "tolist", None)  # numpy array -> list
-    if callable(tolist):
-        with contextlib.suppress(Exception):
-            return _finite(tolist())
-    return str(value)
-
-
 class ControlPlane:
     """``async with ControlPlane(url, controls, stats=...) as plane:`` runs the MQTT side in the background.
 
-    ``controls`` is the registry of runtime switches (:mod:`mitm_proxy.controls`); the
+    ``controls`` is the registry of runtime switches (:mod:`mitm_proxy.control.switches`); the
     plane only moves their requests and states. ``broker_url`` None disables MQTT
     (``--broker none``): the plane then does nothing and :meth:`publish_nowait`
     discards. ``describe()`` adds fields to the instance's online record.
@@ -217,29 +150,35 @@ class ControlPlane:
         self._describe = describe  # extra fields of the online record (endpoints, pid...)
         self._on_watchers = on_watchers  # told how many consoles watch when that changes
         self.watchers: set[str] = set()  # consoles whose retained online record says true
-        self._username = username if username is not None else (self.address.username if self.address else None)
-        self._password = password if password is not None else (self.address.password if self.address else None)
-        self._tls = self.address is not None and (self.address.tls or tls_ca is not None)
-        self._tls_ca = tls_ca
-        self._tls_insecure = tls_insecure
         self.stats_interval_s = stats_interval_s
-        self._backoff_s = backoff_s
-        self._keepalive_s = keepalive_s
         self.outbox = Outbox(outbox_size)
-        self.connected = asyncio.Event()
-        self.connections = 0  # successful connects, for tests and the log
         self._task: asyncio.Task[None] | None = None
         self._restore_handler: Callable[[], None] | None = None
-        self._client: aiomqtt.Client | None = None
         self._unknown: set[str] = set()  # vehicle keys already logged
         self._unencodable: set[str] = set()  # topics whose payload could not be made JSON (logged once)
         self._handled: dict[str, deque[bytes]] = {}  # topic -> digests of recent requests (retained replays)
         self._stats_failing = False
-        self._published: dict[str, dict[str, Any]] = {}  # state topic -> the state last queued
+        self._published: dict[str, BaseModel] = {}  # state topic -> the state last queued
         self._online_since = time.time()
         self.state_poll_s = 0.2
         self.online_topic = proxy_topic(self.instance, "online")
         self.identifier = f"secuav-proxy-{self.instance}-{uuid.uuid4().hex[:6]}"
+        self.session = None if self.address is None else Session(
+            self.address, identifier=self.identifier, username=username, password=password, tls_ca=tls_ca,
+            tls_insecure=tls_insecure, will=lambda: LastWill(self.online_topic, self._online_record(False)),
+            keepalive_s=keepalive_s, backoff_s=backoff_s, log=log, client_log=_CLIENT_LOG,
+            max_in_flight=DRAIN_BATCH + 16,  # the drain has up to DRAIN_BATCH publishes in flight by design
+        )  # fmt: skip
+        self.connected = asyncio.Event() if self.session is None else self.session.connected
+
+    @property
+    def connections(self) -> int:
+        """Successful connects, for tests and the log."""
+        return 0 if self.session is None else self.session.connections
+
+    @property
+    def _client(self) -> Client | None:
+        return None if self.session is None else self.session.current
 
     # -- lifecycle ------------------------------------------------------------------------------------
 
@@ -287,7 +226,7 @@ class ControlPlane:
         """Say ``online false`` while we still can (a clean disconnect does not fire the will), then stop."""
         client = self._client
         if client is not None and self.connected.is_set():
-            with contextlib.suppress(aiomqtt.MqttError, asyncio.TimeoutError):
+            with contextlib.suppress(MqttError, asyncio.TimeoutError):
                 await asyncio.wait_for(asyncio.gather(
                     client.publish(self.online_topic, self._online_record(False), qos=1, retain=True),
                     client.publish(ONLINE_TOPIC, b"false", qos=1, retain=True),
@@ -311,7 +250,7 @@ class ControlPlane:
         if self.address is None:
             return
         try:
-            data = _json_bytes(payload)
+            data = dumps(payload)
         except Exception as exc:  # a producer's odd payload must not raise into the data path
             if topic not in self._unencodable:
                 self._unencodable.add(topic)
@@ -327,14 +266,14 @@ class ControlPlane:
         """
         for target in self.controls.states():
             try:
-                state = target.control.state()
+                state = target.control.state
             except Exception:  # a control's bug: its set requests still get answers
                 log.debug("control.state_failed", extra={"topic": target.state_topic}, exc_info=True)
                 continue
             if force or state != self._published.get(target.state_topic):
                 self._publish(target, state)
 
-    def _publish(self, target: Target, state: dict[str, Any]) -> None:
+    def _publish(self, target: Target, state: BaseModel) -> None:
         self._published[target.state_topic] = state
         self.publish_nowait(target.state_topic, state, retain=True)
 
@@ -345,7 +284,7 @@ class ControlPlane:
         if online and self._describe is not None:
             with contextlib.suppress(Exception):
                 record.update(self._describe())
-        return _json_bytes(record)
+        return dumps(record)
 
     @property
     def dropped(self) -> int:
@@ -353,69 +292,21 @@ class ControlPlane:
 
     # -- the session ----------------------------------------------------------------------------------
 
-    def _client_for_attempt(self) -> aiomqtt.Client:
-        assert self.address is not None
-        tls_params = aiomqtt.TLSParameters(ca_certs=self._tls_ca) if self._tls else None
-        client = aiomqtt.Client(
-            self.address.host,
-            self.address.port,
-            username=self._username,
-            password=self._password,
-            identifier=self.identifier,
-            will=aiomqtt.Will(self.online_topic, self._online_record(False), qos=1, retain=True),
-            keepalive=self._keepalive_s,
-            timeout=5.0,
-            tls_params=tls_params,
-            tls_insecure=self._tls_insecure if self._tls else None,
-            logger=_CLIENT_LOG,
-        )
-        # aiomqtt warns above 10 publishes in flight; the drain has up to DRAIN_BATCH by design.
-        client.pending_calls_threshold = DRAIN_BATCH + 16
-        return client
-
     async def run(self) -> None:
         """Connect, serve, and on any broker failure reconnect with backoff, until cancelled."""
-        assert self.address is not None
-        url = self.address.url
-        delay_s = self._backoff_s[0]
-        down_since: float | None = None
-        attempts = 0
-        while True:
-            try:
-                async with self._client_for_attempt() as client:
-                    self._client = client
-                    if down_since is not None:
-                        log.info(
-                            "mqtt.reconnected",
-                            extra={"url": url, "down_s": round(time.monotonic() - down_since, 2), "attempts": attempts},
-                        )
-                    down_since, attempts, delay_s = None, 0, self._backoff_s[0]
-                    await self._serve(client)
-            except Exception as exc:  # MqttError is the broker; anything else is our bug: logged, retried
-                attempts += 1
-                if down_since is None:
-                    down_since = time.monotonic()
-                    if not isinstance(exc, aiomqtt.MqttError):
-                        log.exception("control.failed", extra={"url": url})
-                    log.warning("mqtt.unavailable", extra={"url": url, "error": str(exc)})
-                else:
-                    log.debug("mqtt.retry", extra={"url": url, "error": str(exc), "attempt": attempts})
-            finally:
-                self._client = None
-                self.connected.clear()
-            await asyncio.sleep(delay_s)
-            delay_s = min(delay_s * 2, self._backoff_s[1])
+        assert self.session is not None
+        await self.session.run(self._serve)
 
-    async def _serve(self, client: aiomqtt.Client) -> None:
+    async def _serve(self, client: Client) -> None:
         await client.publish(self.online_topic, self._online_record(True), qos=1, retain=True)
         await client.publish(ONLINE_TOPIC, b"true", qos=1, retain=True)
         topics = self.controls.subscriptions()
         if self._on_watchers is not None:
-            topics.append(CONSOLE_ONLINE)
+            topics.append(CONSOLES_ONLINE)
         await client.subscribe([(t, 1) for t in topics])
         self.publish_states(force=True)
-        self.connections += 1
-        self.connected.set()
+        assert self.session is not None
+        self.session.mark_connected()
         log.info("mqtt.connected", extra={"url": self.address.url if self.address else None})
         tasks = [
             asyncio.create_task(self._receive(client), name="control-receive"),
@@ -432,7 +323,7 @@ class ControlPlane:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
 
-    async def _drain(self, client: aiomqtt.Client) -> None:
+    async def _drain(self, client: Client) -> None:
         """Send what the outbox holds; a batch goes out concurrently, which costs about a third less
         CPU per message than one await per publish (measured: ~120 vs ~180 us through aiomqtt)."""
         while True:
@@ -469,7 +360,7 @@ class ControlPlane:
             await asyncio.sleep(self.state_poll_s)
             self.publish_states()
 
-    async def _receive(self, client: aiomqtt.Client) -> None:
+    async def _receive(self, client: Client) -> None:
         async for message in client.messages:
             body = message.payload
             raw = bytes(body) if isinstance(body, bytes | bytearray) else ("" if body is None else str(body)).encode()
@@ -481,8 +372,8 @@ class ControlPlane:
     def _console(self, topic: str, raw: bytes) -> None:
         """A console came or went (its retained record, or its last will)."""
         try:
-            online = bool(json.loads(raw).get("online")) if raw and len(raw) < 4096 else False
-        except (ValueError, AttributeError):
+            online = len(raw) < 4096 and bool(validate(topic, json.loads(raw)).online) if raw else False
+        except (ValueError, PayloadError):  # a record that does not fit counts as a console gone
             online = False
         before = len(self.watchers)
         (self.watchers.add if online else self.watchers.discard)(topic)
@@ -494,7 +385,8 @@ class ControlPlane:
 
     def handle(self, topic: str, raw: bytes, retained: bool = False) -> None:
         """Apply one ``.../set`` message and queue the resulting state."""
-        if topic.startswith(CONSOLE_ONLINE[:-8]) and topic.endswith("/online"):
+        parsed = parse(topic)
+        if parsed is not None and parsed.scope == "console" and parsed.key is not None and parsed.leaf == "online":
             self._console(topic, raw)
             return
         target = self.controls.route(topic)
@@ -518,7 +410,7 @@ class ControlPlane:
         if raw.strip() in control.bare_words:
             raw = json.dumps(raw.strip().decode()).encode()  # `mosquitto_pub -m bypass`: the word without quotes
         try:
-            payload, request_id = decode_payload(raw)
+            payload, request_id = loads_request(raw)
         except RequestError as exc:
             self._publish(target, control.refuse(str(exc), salvage_request_id(raw)))
             return

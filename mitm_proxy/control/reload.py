@@ -30,7 +30,7 @@ from pathlib import Path
 from types import TracebackType
 
 from attack_profiles.profile import Profile, parse_profile
-from mitm_proxy.slots import AttackSlot, SlotState
+from mitm_proxy.stages.attack_slot import AttackSlot, SlotState
 from secuav_common.loading import InputError, parse_document
 
 log = logging.getLogger(__name__)

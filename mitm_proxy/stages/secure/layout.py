@@ -14,7 +14,7 @@ the proxy's numbers comparable with the offline evaluation:
   else LOCAL_POSITION_NED's z, else the scenario's hold height.
   Inter-vehicle ranges (id 50+n) become the distance between this vehicle's
   secure position and peer n's, when peer n's link runs a secure stage on the
-  same :class:`~mitm_proxy.secure.PeerBoard`; a reading far from it is flagged.
+  same :class:`~mitm_proxy.stages.secure.stage.PeerBoard`; a reading far from it is flagged.
 
 Substitution uses ``model.h(position, known)`` for every reading, so a reading
 becomes exactly what the secure position implies.
@@ -30,7 +30,7 @@ import numpy as np
 import estimators
 from estimators.models import MeasurementModel
 from estimators.scenario_models import anchor_model, wall_group_model
-from mitm_proxy.secure_config import SecureConfig
+from mitm_proxy.stages.secure.config import SecureConfig
 from secuav_common.loading import InputError
 from secuav_common.scenario import Home, Scenario, Vehicle, WallDistanceTarget
 from secuav_common.sensor_ids import peer_sensor_id

@@ -26,8 +26,8 @@ import time
 from typing import Any
 
 from mavframe.frames import StreamFramer
-from mitm_proxy.endpoints import MAX_PENDING_SEND_BYTES, BaseEndpoint, EndpointError, Role, _fmt
-from mitm_proxy.routes import NO_RULES, EndpointRules
+from mitm_proxy.net.endpoints import MAX_PENDING_SEND_BYTES, BaseEndpoint, EndpointError, Role, _fmt
+from mitm_proxy.net.rules import NO_RULES, EndpointRules
 from secuav_common.urls import Endpoint
 
 log = logging.getLogger(__name__)

@@ -1,6 +1,6 @@
 """The secure stage: feed the passing ranges to a secure estimator, substitute its output.
 
-Pipeline step 3 of DESIGN.md (tap -> attack -> secure -> forward). The stage
+Pipeline step 3 of mitm_proxy/README.md (tap -> attack -> secure -> forward). The stage
 sees the readings *after* the attack stage, as the ground side would, and:
 
 1. collects the configured group's DISTANCE_SENSOR readings (the wall group,
@@ -11,7 +11,7 @@ sees the readings *after* the attack stage, as the ground side would, and:
    (or ``max_wait_s`` after the first one did, so a dropped sensor cannot stall
    it), or at ``rate_hz`` if configured; on the forwarding path while steps are
    cheap, in a worker thread that sheds sets when they are not
-   (:mod:`mitm_proxy.secure_worker` says why, with the figures);
+   (:mod:`mitm_proxy.stages.secure.worker` says why, with the figures);
 3. rewrites what passes with the latest finished estimate: each group reading
    becomes what the secure estimate implies for it (the secure distance; the
    range from the secure position to that anchor); LOCAL_POSITION_NED and
@@ -52,8 +52,9 @@ import numpy as np
 
 from mavframe import codec
 from mavframe.packet import Direction, Packet
-from mitm_proxy.secure_config import OFF, SecureConfig, config_from_payload
-from mitm_proxy.secure_layout import (
+from mitm_proxy.control.switch import Switch
+from mitm_proxy.stages.secure.config import OFF, SecureConfig, config_from_payload
+from mitm_proxy.stages.secure.layout import (
     DISTANCE_SENSOR,
     GLOBAL_POSITION_INT,
     HOME_POSITION,
@@ -62,7 +63,8 @@ from mitm_proxy.secure_layout import (
     build_estimator,
     build_layout,
 )
-from mitm_proxy.secure_worker import Job, Stepper, StepResult
+from mitm_proxy.stages.secure.worker import Job, Stepper, StepResult
+from secuav_common.controlplane.payloads import SecureState
 from secuav_common.geo import ned_to_geodetic
 from secuav_common.loading import InputError
 from secuav_common.scenario import Home, Scenario
@@ -113,7 +115,7 @@ class _Counters:
 
 
 class SecureStage:
-    """Stage protocol of :mod:`mitm_proxy.pipeline`; see the module docstring."""
+    """Stage protocol of :mod:`mitm_proxy.core.pipeline`; see the module docstring."""
 
     name = "secure"
 
@@ -454,34 +456,12 @@ def _num(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
 
 
-@dataclass(frozen=True, slots=True)
-class SecureState:
-    """What ``secuav/v<sysid>/secure/state`` carries (retained)."""
+class SecureSlot(Switch[SecureState]):
+    """The secure stage of one link and the one door for changing it (``--secure``, config, MQTT): ``secure``."""
 
-    sysid: int
-    ok: bool
-    estimator: str | None
-    params: dict[str, Any]
-    group: str | None
-    request_id: str | None
-    error: str | None
-    since: float | None
-
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "sysid": self.sysid,
-            "ok": self.ok,
-            "estimator": self.estimator,
-            "params": dict(self.params),
-            "group": self.group,
-            "request_id": self.request_id,
-            "error": self.error,
-            "since": self.since,
-        }
-
-
-class SecureSlot:
-    """The secure stage of one link and the one door for changing it (``--secure``, config, MQTT)."""
+    kind = "secure"
+    state_model = SecureState
+    bare_words = frozenset({b"off"})
 
     def __init__(
         self,
@@ -496,42 +476,37 @@ class SecureSlot:
         Give every slot of one proxy the same ``peers`` board, so inter-vehicle
         ranges can be checked against the peers' secure positions.
         """
+        super().__init__()
         self.sysid = sysid
         self.stage = SecureStage(config or OFF, scenario, sysid, publish, source="--secure", peers=peers)
-        self._state = self._accepted(None)
+        self._since = time.time()
 
-    @property
-    def state(self) -> dict[str, Any]:
-        return self._state.to_json()
-
-    def offer(self, config: SecureConfig, request_id: str | None = None, source: str = "<secure>") -> dict[str, Any]:
-        try:
-            self.stage.reconfigure(config, source)
-        except InputError as exc:
-            return self.reject(str(exc), request_id)
-        self._state = self._accepted(request_id)
-        return self.state
-
-    def offer_payload(self, payload: Any, request_id: str | None = None, source: str = "<mqtt>") -> dict[str, Any]:
-        """Decoded JSON of ``secure/set``: ``null``/``"off"``, a name, or ``{"estimator": ..., "params": {...}}``."""
-        if request_id is None and isinstance(payload, dict) and isinstance(payload.get("request_id"), str):
-            request_id = payload["request_id"]
-        try:
-            config = config_from_payload(payload, source, base=self.stage.config)
-        except InputError as exc:
-            return self.reject(str(exc), request_id)
-        return self.offer(config, request_id, source)
-
-    def reject(self, error: str, request_id: str | None = None) -> dict[str, Any]:
-        """A request refused (bad JSON, oversized, invalid): the running estimator stays."""
-        s = self._state
-        self._state = SecureState(s.sysid, False, s.estimator, s.params, s.group, request_id, error, s.since)
-        return self.state
-
-    def _accepted(self, request_id: str | None) -> SecureState:
+    def current(self) -> dict[str, Any]:
         cfg = self.stage.config
         group = None if self.stage.layout is None else self.stage.layout.group
-        return SecureState(self.sysid, True, cfg.estimator, dict(cfg.params), group, request_id, None, time.time())
+        return {"sysid": self.sysid, "estimator": cfg.estimator, "params": dict(cfg.params), "group": group,
+                "since": self._since}  # fmt: skip
+
+    def apply(self, payload: Any, source: str) -> None:
+        """A :class:`SecureConfig`, or the JSON of ``secure/set``: ``null``/``"off"``, a name, or
+        ``{"estimator": ..., "params": {...}}`` (fields left out keep their value)."""
+        config = payload if isinstance(payload, SecureConfig) else config_from_payload(
+            payload, source, base=self.stage.config)  # fmt: skip
+        self.stage.reconfigure(config, source)
+        self._since = time.time()
+
+    def offer(self, config: SecureConfig, request_id: str | None = None, source: str = "<secure>") -> SecureState:
+        return self.handle(config, request_id, source)
+
+    def offer_payload(self, payload: Any, request_id: str | None = None, source: str = "<mqtt>") -> SecureState:
+        """Decoded JSON of ``secure/set``; a ``request_id`` inside it counts when none is given."""
+        if request_id is None and isinstance(payload, dict) and isinstance(payload.get("request_id"), str):
+            request_id = payload["request_id"]
+        return self.handle(payload, request_id, source)
+
+    def reject(self, error: str, request_id: str | None = None) -> SecureState:
+        """A request refused (bad JSON, oversized, invalid): the running estimator stays."""
+        return self.refuse(error, request_id)
 
     def close(self) -> None:
         self.stage.close()

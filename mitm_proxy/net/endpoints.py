@@ -1,4 +1,5 @@
-"""The proxy's endpoints: UDP here, TCP and serial in :mod:`mitm_proxy.streams`.
+"""The proxy's endpoints: the base class and UDP here, TCP and serial in :mod:`mitm_proxy.net.tcp_serial`
+(:func:`mitm_proxy.net.factory.make_endpoint` picks the class for a URL).
 
 ``udpin://HOST:PORT`` binds HOST:PORT and answers the peer that sent first. A
 datagram from anyone else is a stranger's: counted, logged once, dropped, so
@@ -12,7 +13,7 @@ name (``localhost``, a compose service name) is resolved once when the
 endpoint opens, IPv4 first; replies are compared with the resolved address.
 
 An endpoint only moves bytes and applies its routing rules
-(:mod:`mitm_proxy.routes`: allow/deny lists, listen-only): the link above it
+(:mod:`mitm_proxy.net.rules`: allow/deny lists, listen-only): the link above it
 decides what frames mean. Faults of the network never close it: an ICMP "port
 unreachable" from a ground client that went away (reported by the kernel on
 the standard loop, see :func:`_reports_icmp`), a send buffer that fills, a
@@ -37,7 +38,7 @@ from typing import Any, Literal
 
 from mavframe import frames
 from mavframe.codec import MAVLINK_MAP
-from mitm_proxy.routes import NO_RULES, Direction, EndpointGate, EndpointRules
+from mitm_proxy.net.rules import NO_RULES, Direction, EndpointGate, EndpointRules
 from secuav_common.urls import Endpoint
 
 log = logging.getLogger(__name__)
@@ -64,7 +65,7 @@ class BaseEndpoint:
     """What every endpoint has: counters, fault bookkeeping and its routing rules.
 
     ``receiver`` is called with what arrives and its arrival time: the link's
-    (vehicle side) or a :class:`~mitm_proxy.link.GroundRouter` (ground side,
+    (vehicle side) or a :class:`~mitm_proxy.net.link.GroundRouter` (ground side,
     which hands uplink to the link or links that share the endpoint).
     ``faults`` counts what went wrong by kind; ``rx``/``tx`` count reads and
     writes; ``gate.dropped`` what the rules dropped.
@@ -285,21 +286,6 @@ async def resolve(ep: Endpoint, socktype: int, name: str) -> tuple[int, tuple[An
     infos.sort(key=lambda info: info[0] != socket.AF_INET)
     family, _, _, _, addr = infos[0]
     return family, tuple(addr)
-
-
-def make_endpoint(
-    ep: Endpoint, name: str, role: Role, takeover_after_s: float = DEFAULT_TAKEOVER_S, source: str = "<url>"
-) -> BaseEndpoint:
-    """The endpoint class for the URL's scheme, with the rules its options give."""
-    from mitm_proxy.routes import rules_from_options
-
-    rules = rules_from_options(ep, source)
-    if ep.mode in ("udpin", "udpout"):
-        return UdpEndpoint(ep, name, takeover_after_s, role, rules)
-    from mitm_proxy import streams
-
-    cls = {"tcp": streams.TcpClientEndpoint, "tcpin": streams.TcpServerEndpoint, "serial": streams.SerialEndpoint}
-    return cls[ep.mode](ep, name, role, rules)
 
 
 def _reports_icmp(loop: asyncio.AbstractEventLoop) -> bool:

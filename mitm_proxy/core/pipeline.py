@@ -35,9 +35,9 @@ from mavframe import codec
 from mavframe.frames import split, tiles
 from mavframe.packet import Direction, Header, Packet
 from mavframe.signing import Signer
-from mitm_proxy.readings import ReadingsTap
-from mitm_proxy.recording import Recorder
-from mitm_proxy.stats import DirectionStats, LinkStats
+from mitm_proxy.core.readings import ReadingsTap
+from mitm_proxy.core.recorder import Recorder
+from mitm_proxy.core.stats import DirectionStats, LinkStats
 
 __all__ = ["Outgoing", "Pipeline", "Stage"]
 
@@ -113,7 +113,7 @@ class Pipeline:
         self.stats = stats
         self.recorder = recorder
         self.signer = signer
-        self.readings: ReadingsTap | None = None  # set while a console watches (mitm_proxy.readings)
+        self.readings: ReadingsTap | None = None  # set while a console watches (mitm_proxy.core.readings)
         self._logged: set[str] = set()
         self._union_key: tuple[frozenset[int], ...] = ()
         self._union: frozenset[int] = _NOTHING

@@ -1,7 +1,7 @@
 """``secuav-attack status --watch``: a live terminal table of every vehicle on the broker.
 
-The MQTT listener of :mod:`mitm_proxy.attack_cli` keeps the latest message per
-topic on a :class:`~mitm_proxy.attack_cli.Board`; this module only draws it,
+The MQTT listener of :mod:`mitm_proxy.tools.attack_cli` keeps the latest message per
+topic on a :class:`~mitm_proxy.tools.board.Board`; this module only draws it,
 once per ``--interval``, until Ctrl-C. Frame rates come from the difference of
 two stats messages, so they are the proxy's own counts, not guesses.
 """
@@ -12,9 +12,12 @@ import argparse
 import asyncio
 import sys
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from mitm_proxy.controls import parse_vehicle_key, vehicle_topic
+from secuav_common.controlplane.topics import parse, vehicle_topic
+
+if TYPE_CHECKING:
+    from mitm_proxy.tools.board import Board
 
 COLUMNS = ("vehicle", "proxy", "attack", "mode", "secure", "down in/s", "out/s", "rewritten", "dropped", "bad",
            "p50 ms", "p99 ms", "stats age")  # fmt: skip
@@ -39,7 +42,7 @@ class Rates:
             self._last[sysid] = now
 
 
-def table(board: Any, rates: Rates, now_s: float) -> list[str]:
+def table(board: Board, rates: Rates, now_s: float) -> list[str]:
     """The rows to print (header first), from what the board holds now."""
     owners: dict[int, list[str]] = {}  # two names: two proxies claim the sysid (status says so)
     for name, rec in board.instances().items():
@@ -72,12 +75,12 @@ def table(board: Any, rates: Rates, now_s: float) -> list[str]:
     return ["  ".join(str(c).ljust(w) for c, w in zip(row, widths, strict=True)).rstrip() for row in rows]
 
 
-def _vehicles(board: Any) -> list[int]:
+def _vehicles(board: Board) -> list[int]:
     found = set()
     for topic in board.latest:
-        parts = topic.split("/")
-        if len(parts) >= 3 and (sysid := parse_vehicle_key(parts[1])) is not None:
-            found.add(sysid)
+        parsed = parse(topic)
+        if parsed is not None and parsed.sysid is not None:
+            found.add(parsed.sysid)
     return sorted(found)
 
 
@@ -85,7 +88,7 @@ def _num(value: Any, digits: int = 0) -> str:
     return "-" if not isinstance(value, int | float) else f"{value:.{digits}f}"
 
 
-async def watch(board: Any, args: argparse.Namespace) -> int:
+async def watch(board: Board, args: argparse.Namespace) -> int:
     """Redraw until Ctrl-C (exit 0); on a terminal the screen is cleared first, piped output gets blocks."""
     rates = Rates()
     tty = sys.stdout.isatty()

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from mavframe import codec
 from mavframe.packet import Packet
-from mitm_proxy.slots import AttackSlot
+from mitm_proxy.stages.attack_slot import AttackSlot
 
 __all__ = ["AttackStage"]
 

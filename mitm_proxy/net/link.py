@@ -38,9 +38,9 @@ from pymavlink.dialects.v20 import ardupilotmega as dialect
 
 from mavframe import frames
 from mavframe.packet import Direction
-from mitm_proxy.endpoints import BaseEndpoint
-from mitm_proxy.pipeline import Outgoing, Pipeline
-from mitm_proxy.stats import LinkStats
+from mitm_proxy.core.pipeline import Outgoing, Pipeline
+from mitm_proxy.core.stats import LinkStats
+from mitm_proxy.net.endpoints import BaseEndpoint
 
 log = logging.getLogger(__name__)
 

@@ -28,21 +28,22 @@ import sys
 import time
 import uuid
 from collections.abc import Awaitable, Callable, Sequence
-from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-import aiomqtt
-
 from attack_profiles import cli as profiles_cli
-from mitm_proxy.control import MAX_PAYLOAD_BYTES, ONLINE_TOPIC, PREFIX, parse_vehicle_key, proxy_topic, vehicle_topic
-from secuav_common.broker import parse_broker_url, read_secret
+from mitm_proxy.tools.board import Board
+from secuav_common.broker import read_secret
+from secuav_common.controlplane.address import parse_broker_url
+from secuav_common.controlplane.payloads import MAX_PAYLOAD_BYTES, request_bytes
+from secuav_common.controlplane.session import Client, MqttError
+from secuav_common.controlplane.session import Session as MqttSession
+from secuav_common.controlplane.topics import ANY, INSTANCES_ONLINE, PROXY_ONLINE, proxy_topic, vehicle_topic
 from secuav_common.loading import InputError
 
 DEFAULT_BROKER = "mqtt://127.0.0.1:1883"
 EXIT_OK, EXIT_REJECTED, EXIT_USAGE, EXIT_UNREACHABLE = 0, 1, 2, 3
-SETTLE_S = 0.3  # retained messages follow the SUBACK at once; this long without one means we have them all
 
 
 def add_options(command: str, parser: argparse.ArgumentParser) -> None:
@@ -62,75 +63,16 @@ def add_options(command: str, parser: argparse.ArgumentParser) -> None:
         parser.add_argument("--interval", type=float, default=1.0, metavar="S", help="--watch redraw period (1 s)")
 
 
-@dataclass
-class Board:
-    """Everything seen on the subscribed topics, latest per topic, and who is waiting for what."""
-
-    latest: dict[str, Any] = field(default_factory=dict)
-    arrivals: dict[str, float] = field(default_factory=dict)  # topic -> monotonic time of its latest message
-    last_arrival_s: float = field(default_factory=time.monotonic)
-    changed: asyncio.Event = field(default_factory=asyncio.Event)
-
-    def vehicles(self, leaf: str = "attack/state") -> list[int]:
-        found = set()
-        for topic in self.latest:
-            parts = topic.split("/")
-            sysid = parse_vehicle_key(parts[1]) if len(parts) == 4 and f"{parts[2]}/{parts[3]}" == leaf else None
-            if sysid is not None:
-                found.add(sysid)
-        return sorted(found)
-
-    def instances(self) -> dict[str, dict[str, Any]]:
-        """Proxy instance -> its online record (``secuav/proxy/<instance>/online``)."""
-        found = {}
-        for topic, body in self.latest.items():
-            parts = topic.split("/")
-            if len(parts) == 4 and parts[1] == "proxy" and parts[3] == "online" and isinstance(body, dict):
-                found[parts[2]] = body
-        return dict(sorted(found.items()))
-
-    def online_instances(self) -> list[str]:
-        return [name for name, rec in self.instances().items() if rec.get("online") is True]
-
-    async def settle(self, limit_s: float) -> None:
-        """Wait until no message came for :data:`SETTLE_S` (the retained ones are in) or ``limit_s`` passed."""
-        deadline = time.monotonic() + limit_s
-        while (now := time.monotonic()) < deadline:
-            quiet_s = now - self.last_arrival_s
-            if quiet_s >= SETTLE_S:
-                return
-            await asyncio.sleep(min(SETTLE_S - quiet_s, deadline - now))
-
-    async def until(self, done: Callable[[], bool], limit_s: float) -> bool:
-        deadline = time.monotonic() + limit_s
-        while not done():
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                return False
-            self.changed.clear()
-            with contextlib.suppress(asyncio.TimeoutError):
-                await asyncio.wait_for(self.changed.wait(), remaining)
-        return True
-
-
-async def _listen(client: aiomqtt.Client, board: Board, answers: dict[str, dict[str, Any]]) -> None:
+async def _listen(client: Client, board: Board) -> None:
     async for message in client.messages:
         raw = message.payload if isinstance(message.payload, bytes | bytearray) else b""
-        try:
-            body = json.loads(raw) if raw else None
-        except ValueError:
-            continue
-        board.latest[str(message.topic)] = body
-        board.last_arrival_s = board.arrivals[str(message.topic)] = time.monotonic()
-        if isinstance(body, dict) and isinstance(body.get("request_id"), str):
-            answers[body["request_id"]] = body
-        board.changed.set()
+        board.receive(str(message.topic), bytes(raw))
 
 
-Session = Callable[[aiomqtt.Client, Board, dict[str, dict[str, Any]]], Awaitable[int]]
+Body = Callable[[Client, Board], Awaitable[int]]
 
 
-def _session(args: argparse.Namespace, topics: list[str], body: Session) -> int:
+def _session(args: argparse.Namespace, topics: list[str], body: Body) -> int:
     """Connect, subscribe, run ``body``; broker trouble becomes one line and exit 3."""
     try:
         address = parse_broker_url(args.broker)
@@ -144,38 +86,31 @@ def _session(args: argparse.Namespace, topics: list[str], body: Session) -> int:
     except InputError as exc:
         print(f"secuav-attack: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    tls = aiomqtt.TLSParameters(ca_certs=args.tls_ca) if address.tls or args.tls_ca else None
+    session = MqttSession(address, identifier=f"secuav-attack-{uuid.uuid4().hex[:8]}", username=args.username,
+                          password=password, tls_ca=args.tls_ca, timeout_s=args.timeout)  # fmt: skip
 
     async def run() -> int:
-        board, answers = Board(), {}
-        async with aiomqtt.Client(
-            address.host,
-            address.port,
-            username=args.username or address.username,
-            password=password,
-            identifier=f"secuav-attack-{uuid.uuid4().hex[:8]}",
-            timeout=args.timeout,
-            tls_params=tls,
-        ) as client:
-            listener = asyncio.create_task(_listen(client, board, answers))
+        board = Board()
+        async with session.client() as client:
+            listener = asyncio.create_task(_listen(client, board))
             try:
                 await client.subscribe([(t, 1) for t in topics])
                 board.last_arrival_s = time.monotonic()
-                return await body(client, board, answers)
+                return await body(client, board)
             finally:
                 listener.cancel()
-                with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
+                with contextlib.suppress(asyncio.CancelledError, MqttError):
                     await listener
 
     try:
         return asyncio.run(run())
-    except aiomqtt.MqttError as exc:
+    except MqttError as exc:
         print(f"secuav-attack: cannot use the broker at {address.url}: {exc}", file=sys.stderr)
         return EXIT_UNREACHABLE
 
 
 def _online(board: Board) -> str:
-    value = board.latest.get(ONLINE_TOPIC)
+    value = board.latest.get(PROXY_ONLINE)
     return "online" if value is True else "offline" if value is False else "unknown"
 
 
@@ -186,9 +121,8 @@ def _attack_verdict(sysid: int, state: dict[str, Any]) -> str:
 
 
 async def _request(
-    client: aiomqtt.Client,
+    client: Client,
     board: Board,
-    answers: dict[str, dict[str, Any]],
     args: argparse.Namespace,
     body: Any,
     leaf: str = "attack",
@@ -202,22 +136,16 @@ async def _request(
         vehicles = board.vehicles(f"{leaf}/state") or board.vehicles()
         if not vehicles:
             print(
-                f"secuav-attack: no proxy on the broker at {args.broker} (no retained {PREFIX}/+/{leaf}/state); "
-                "is secuav-proxy running with this --broker?",
+                f"secuav-attack: no proxy on the broker at {args.broker} (no retained "
+                f"{vehicle_topic(ANY, leaf, 'state')}); is secuav-proxy running with this --broker?",
                 file=sys.stderr,
             )
             return EXIT_UNREACHABLE
-    pending: dict[str, int] = {}
-    for sysid in vehicles:
-        request_id = uuid.uuid4().hex
-        pending[request_id] = sysid
-        payload = json.dumps({"request_id": request_id, **body} if body is not None else {"request_id": request_id})
-        await client.publish(vehicle_topic(sysid, f"{leaf}/set"), payload.encode(), qos=1)
-    await board.until(lambda: all(rid in answers for rid in pending), args.timeout)
+    requests = [(vehicle_topic(sysid, leaf, "set"), body) for sysid in vehicles]
+    states = await board.acks.request_all(client, requests, args.timeout)
 
     worst = EXIT_OK
-    for request_id, sysid in pending.items():
-        state = answers.get(request_id)
+    for sysid, state in zip(vehicles, states, strict=True):
         if state is None:
             print(
                 f"secuav-attack: v{sysid}: no acknowledgement within {args.timeout:g} s "
@@ -237,23 +165,23 @@ async def _request(
 def cmd_apply(args: argparse.Namespace) -> int:
     profile = profiles_cli._resolve(args.profile, profiles_cli._params(args.param))
     body = json.loads(profile.canonical_json())
-    size = len(json.dumps({"request_id": uuid.uuid4().hex, **body}).encode())
+    size = len(request_bytes(body, uuid.uuid4().hex))
     if size > MAX_PAYLOAD_BYTES:
         raise InputError(args.profile, "", size, f"the proxy accepts profiles up to {MAX_PAYLOAD_BYTES} bytes of JSON")
-    topics = [f"{PREFIX}/+/attack/state", ONLINE_TOPIC]
-    return _session(args, topics, lambda c, b, a: _request(c, b, a, args, body))
+    topics = [vehicle_topic(ANY, "attack", "state"), PROXY_ONLINE]
+    return _session(args, topics, lambda c, b: _request(c, b, args, body))
 
 
 def cmd_clear(args: argparse.Namespace) -> int:
-    topics = [f"{PREFIX}/+/attack/state", ONLINE_TOPIC]
-    return _session(args, topics, lambda c, b, a: _request(c, b, a, args, None))
+    topics = [vehicle_topic(ANY, "attack", "state"), PROXY_ONLINE]
+    return _session(args, topics, lambda c, b: _request(c, b, args, None))
 
 
 def cmd_mode(args: argparse.Namespace) -> int:
     """``mode on|bypass``: switch the attack stage, keeping its profile."""
-    topics = [f"{PREFIX}/+/attack/mode/state", f"{PREFIX}/+/attack/state", ONLINE_TOPIC]
-    return _session(args, topics, lambda c, b, a: _request(
-        c, b, a, args, {"mode": args.mode}, "attack/mode", lambda s, st: f"ok: v{s} attack {st.get('mode')}"
+    topics = [vehicle_topic(ANY, "attack/mode", "state"), vehicle_topic(ANY, "attack", "state"), PROXY_ONLINE]
+    return _session(args, topics, lambda c, b: _request(
+        c, b, args, {"mode": args.mode}, "attack/mode", lambda s, st: f"ok: v{s} attack {st.get('mode')}"
     ))  # fmt: skip
 
 
@@ -266,8 +194,8 @@ def cmd_secure(args: argparse.Namespace) -> int:
     def verdict(sysid: int, state: dict[str, Any]) -> str:
         return f"ok: v{sysid} secure {state.get('estimator') or 'off'}"
 
-    topics = [f"{PREFIX}/+/secure/state", f"{PREFIX}/+/attack/state", ONLINE_TOPIC]
-    return _session(args, topics, lambda c, b, a: _request(c, b, a, args, body, "secure", verdict))
+    topics = [vehicle_topic(ANY, "secure", "state"), vehicle_topic(ANY, "attack", "state"), PROXY_ONLINE]
+    return _session(args, topics, lambda c, b: _request(c, b, args, body, "secure", verdict))
 
 
 def _since(epoch_s: Any) -> str:
@@ -292,12 +220,12 @@ def _stats_line(stats: dict[str, Any]) -> str:
 
 
 LEAVES = ("attack/state", "attack/mode/state", "secure/state", "stats")
-STATUS_TOPICS = [*(f"{PREFIX}/+/{leaf}" for leaf in LEAVES), ONLINE_TOPIC, proxy_topic("+", "online")]
+STATUS_TOPICS = [*(vehicle_topic(ANY, leaf) for leaf in LEAVES), PROXY_ONLINE, INSTANCES_ONLINE]
 
 
 def _report(board: Board, vehicles: list[int]) -> dict[str, Any]:
     """What ``status --json`` prints: the proxy instances and, per vehicle, every state the broker holds."""
-    report: dict[str, Any] = {"online": board.latest.get(ONLINE_TOPIC), "instances": board.instances(), "vehicles": {}}
+    report: dict[str, Any] = {"online": board.latest.get(PROXY_ONLINE), "instances": board.instances(), "vehicles": {}}
     for sysid in vehicles:
         report["vehicles"][f"v{sysid}"] = {leaf: board.latest.get(vehicle_topic(sysid, leaf)) for leaf in LEAVES}
     return report
@@ -360,23 +288,18 @@ async def _status(board: Board, args: argparse.Namespace) -> int:
 
 def cmd_status(args: argparse.Namespace) -> int:
     if args.watch:
-        from mitm_proxy.watch import watch
+        from mitm_proxy.tools.watch import watch
 
-        return _session(args, STATUS_TOPICS, lambda c, b, a: watch(b, args))
-    return _session(args, STATUS_TOPICS, lambda c, b, a: _status(b, args))
+        return _session(args, STATUS_TOPICS, lambda c, b: watch(b, args))
+    return _session(args, STATUS_TOPICS, lambda c, b: _status(b, args))
 
 
-ROUTES_TOPICS = [proxy_topic("+", "routes/state"), proxy_topic("+", "online")]
+ROUTES_TOPICS = [proxy_topic(ANY, "routes", "state"), INSTANCES_ONLINE]
 
 
 def _routes_of(board: Board) -> dict[str, dict[str, Any]]:
     """Instance -> its retained ``routes/state``."""
-    found = {}
-    for topic, body in board.latest.items():
-        parts = topic.split("/")
-        if len(parts) == 5 and parts[1] == "proxy" and parts[3:] == ["routes", "state"] and isinstance(body, dict):
-            found[parts[2]] = body
-    return dict(sorted(found.items()))
+    return board.by_instance("routes", "state")
 
 
 def _pick_instance(board: Board, args: argparse.Namespace) -> str | None:
@@ -392,8 +315,8 @@ def _pick_instance(board: Board, args: argparse.Namespace) -> str | None:
     if len(online) == 1:
         return online[0]
     if not online:
-        print(f"secuav-attack: no proxy on the broker at {args.broker} (no retained {PREFIX}/proxy/+/routes/state)",
-              file=sys.stderr)  # fmt: skip
+        where = proxy_topic(ANY, "routes", "state")
+        print(f"secuav-attack: no proxy on the broker at {args.broker} (no retained {where})", file=sys.stderr)
     else:
         print(f"secuav-attack: {len(online)} proxies are online ({', '.join(online)}): choose one with --instance",
               file=sys.stderr)  # fmt: skip
@@ -401,7 +324,7 @@ def _pick_instance(board: Board, args: argparse.Namespace) -> str | None:
 
 
 def _print_routes(name: str, state: dict[str, Any]) -> None:
-    from mitm_proxy.routes import EndpointRules, rules_to_query
+    from mitm_proxy.net.rules import EndpointRules, rules_to_query
 
     print(f"proxy {name}:")
     for ep_name, ep in (state.get("endpoints") or {}).items():
@@ -412,8 +335,7 @@ def _print_routes(name: str, state: dict[str, Any]) -> None:
         print(f"  {ep_name:<16} {ep.get('role', '?'):<7} {ep.get('url')}  {spelled}")
 
 
-async def _routes(client: aiomqtt.Client, board: Board, answers: dict[str, dict[str, Any]],
-                  args: argparse.Namespace) -> int:  # fmt: skip
+async def _routes(client: Client, board: Board, args: argparse.Namespace) -> int:
     await board.settle(args.timeout)
     if args.routes_action == "show" and args.json and args.instance is None:
         print(json.dumps(_routes_of(board), indent=2))
@@ -429,13 +351,11 @@ async def _routes(client: aiomqtt.Client, board: Board, answers: dict[str, dict[
             _print_routes(name, state)
         return EXIT_OK
     rules = None if args.rules.strip().lower() in ("none", "") else _local_rules(args.rules)
-    request_id = uuid.uuid4().hex
-    body = {"request_id": request_id, "endpoints": {args.endpoint: rules}}
-    await client.publish(proxy_topic(name, "routes/set"), json.dumps(body).encode(), qos=1)
-    if not await board.until(lambda: request_id in answers, args.timeout):
+    body = {"endpoints": {args.endpoint: rules}}
+    (state,) = await board.acks.request_all(client, [(proxy_topic(name, "routes", "set"), body)], args.timeout)
+    if state is None:
         print(f"secuav-attack: {name}: no acknowledgement within {args.timeout:g} s", file=sys.stderr)
         return EXIT_UNREACHABLE
-    state = answers[request_id]
     if not state.get("ok"):
         print(f"secuav-attack: {name}: rejected: {state.get('error')}", file=sys.stderr)
         return EXIT_REJECTED
@@ -445,7 +365,7 @@ async def _routes(client: aiomqtt.Client, board: Board, answers: dict[str, dict[
 
 def _local_rules(query: str) -> dict[str, Any]:
     """The rules checked here first, as the proxy will check them (a typo fails before anything is sent)."""
-    from mitm_proxy.routes import rules_from_query
+    from mitm_proxy.net.rules import rules_from_query
 
     return rules_from_query(query, "RULES").model_dump(exclude_defaults=True)
 
@@ -454,7 +374,7 @@ def cmd_routes(args: argparse.Namespace) -> int:
     """``routes show`` / ``routes set ENDPOINT RULES``: one instance's per-endpoint rules."""
     if args.routes_action == "set" and args.rules.strip().lower() not in ("none", ""):
         _local_rules(args.rules)  # InputError -> exit 1 with the option named, before any broker is involved
-    return _session(args, ROUTES_TOPICS, lambda c, b, a: _routes(c, b, a, args))
+    return _session(args, ROUTES_TOPICS, lambda c, b: _routes(c, b, args))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

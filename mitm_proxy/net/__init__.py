@@ -1,0 +1,1 @@
+"""The proxy's edge to the world: endpoints (UDP; TCP and serial), their routing rules, the link, the factory."""

@@ -1,0 +1,1 @@
+"""The pipeline's stages: ``attack`` (the active profile) and ``secure`` (a secure estimator)."""

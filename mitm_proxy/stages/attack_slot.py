@@ -1,0 +1,82 @@
+"""The per-link holder of the active attack profile: the ``attack`` switch.
+
+Every way of changing the profile (``--profile`` at start, the file reload, MQTT
+``secuav/v<sysid>/attack/set``, ``secuav-attack apply``, ``secuav-record``'s
+shared engine) goes through :meth:`AttackSlot.handle` (:meth:`AttackSlot.offer`
+for a profile already parsed, :meth:`AttackSlot.install` for a built engine);
+the attack stage reads :attr:`AttackSlot.engine` once per targeted frame. A new
+engine is built and checked completely before the single attribute assignment
+that installs it, and the event loop runs one callback at a time, so a swap
+always falls between two frames. A rejected profile leaves the previous engine
+in place and says why in :attr:`state`.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from attack_profiles.control import profile_from_payload
+from attack_profiles.engine import Engine
+from attack_profiles.profile import Profile
+from mitm_proxy.control.switch import Switch
+from secuav_common.controlplane.payloads import AttackState
+from secuav_common.controlplane.topics import vehicle_topic
+from secuav_common.scenario import Scenario
+
+SlotState = AttackState  # what ``secuav/v<sysid>/attack/state`` carries (retained)
+
+__all__ = ["AttackSlot", "SlotState"]
+
+
+class AttackSlot(Switch[AttackState]):
+    """Active profile of one link (one vehicle)."""
+
+    kind = "attack"
+    state_model = AttackState
+
+    def __init__(self, sysid: int, scenario: Scenario | None = None, seed: int = 0) -> None:
+        super().__init__()
+        self.sysid = sysid
+        self.scenario = scenario
+        self.seed = seed
+        self.engine: Engine | None = None
+        self._since: float | None = None
+
+    @property
+    def message_ids(self) -> frozenset[int]:
+        return self.engine.message_ids if self.engine is not None else frozenset()
+
+    def current(self) -> dict[str, Any]:
+        profile = None if self.engine is None else self.engine.profile
+        return {"sysid": self.sysid, "profile": None if profile is None else profile.name,
+                "hash": None if profile is None else profile.content_hash(), "since": self._since}  # fmt: skip
+
+    def apply(self, payload: Any, source: str) -> None:
+        """A profile, its JSON (a profile, ``{"library": ...}``), ``None`` to clear, or a built :class:`Engine`."""
+        if isinstance(payload, Engine):
+            engine: Engine | None = payload  # built and started by the caller (secuav-record shares one clock)
+        else:
+            profile = payload if isinstance(payload, Profile) or payload is None else profile_from_payload(
+                payload, source)  # fmt: skip
+            engine = None if profile is None else Engine(profile, self.seed, self.scenario)
+            if engine is not None:
+                engine.activate(time.monotonic())
+        self.engine = engine
+        self._since = time.time()
+
+    def offer(self, profile: Profile | None, request_id: str | None = None, source: str = "<profile>") -> AttackState:
+        """Install ``profile`` (``None`` clears); on ``InputError`` keep the old one and report it."""
+        return self.handle(profile, request_id, source)
+
+    def offer_payload(self, payload: Any, request_id: str | None = None, source: str | None = None) -> AttackState:
+        """Decoded JSON of an ``attack/set`` message: a profile, ``{"library": ...}`` or ``null``."""
+        return self.handle(payload, request_id, source or vehicle_topic(self.sysid, "attack", "set"))
+
+    def install(self, engine: Engine, request_id: str | None = None) -> AttackState:
+        """An engine the caller built and activated (its clock shared with other slots)."""
+        return self.handle(engine, request_id, "<engine>")
+
+    def reject(self, error: str, request_id: str | None = None) -> AttackState:
+        """A request that failed before it became a profile (bad JSON, oversized, binary)."""
+        return self.refuse(error, request_id)

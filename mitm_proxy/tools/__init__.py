@@ -1,0 +1,1 @@
+"""Client commands around the proxy: ``secuav-attack`` (and its ``status --watch`` view), ``secuav-record``."""
