@@ -3,9 +3,13 @@
 ``udpin://HOST:PORT`` binds HOST:PORT and answers the peer that sent first (another sender takes its
 place only after that peer fell silent, see mitm_proxy.net.endpoints);
 ``udpout://HOST:PORT`` sends to a fixed peer from an ephemeral port;
-``tcp://HOST:PORT`` connects to a MAVLink TCP server (ArduPilot SITL's 5760) and reconnects when it goes;
-``tcpin://HOST:PORT`` is a TCP server: every client that connects is a peer;
+``tcp://HOST:PORT`` connects to a MAVLink TCP server (ArduPilot SITL's 5760) and reconnects when it goes
+or falls silent for 10 s;
+``tcpin://HOST:PORT`` is a TCP server: every client that connects is a peer, up to ``max_clients`` of them
+(``tcpin://0.0.0.0:5760?max_clients=4``; default 16); a client that floods it with bytes that are not
+MAVLink (over 256 kB a second) or reads nothing for 5 s while frames wait is disconnected;
 ``serial:///dev/ttyUSB0?baud=57600`` is a serial port (a telemetry radio).
+Every stream is framed a slice at a time, so no peer holds up the others (mitm_proxy.net.tcp_serial).
 
 mavutil's spellings are accepted too (``udpin:HOST:PORT``, ``udpout:HOST:PORT``, ``tcp:HOST:PORT``,
 ``tcpin:HOST:PORT``, ``udp:`` for ``udpin:``, ``/dev/ttyUSB0,57600``), and IPv6 literals in brackets

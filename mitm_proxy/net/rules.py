@@ -118,9 +118,14 @@ def message_of(item: str | int) -> int:
 def rules_from_options(endpoint: Endpoint, source: str = "<url>") -> EndpointRules:
     """The rules a URL's options give (``listen_only``, ``allow``, ``deny_up``, ``allow_sysid``, ...).
 
-    Unknown options and bad values raise :class:`InputError` naming the URL and the option.
+    Unknown options and bad values raise :class:`InputError` naming the URL and the option. Settings of the
+    endpoint itself (``max_clients`` of a ``tcpin`` server) are not rules and are left to the endpoint.
     """
-    return rules_from_pairs(endpoint.options, f"{endpoint} option", source, f"{source} {endpoint.without_options()}")
+    pairs = [(k, v) for k, v in endpoint.options if (endpoint.mode, k) not in ENDPOINT_SETTINGS]
+    return rules_from_pairs(pairs, f"{endpoint} option", source, f"{source} {endpoint.without_options()}")
+
+
+ENDPOINT_SETTINGS = {("tcpin", "max_clients")}  # (scheme, URL option) read by the endpoint, not a routing rule
 
 
 def rules_from_query(query: str, source: str) -> EndpointRules:

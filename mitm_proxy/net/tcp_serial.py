@@ -12,9 +12,22 @@ the same backoff.
 
 A stream may cut a frame anywhere, so each connection has its own
 :class:`~mavframe.frames.StreamFramer` and hands on only whole frames; the
-link above sees the same shape as a UDP datagram. A client that cannot keep up
-(more than ``MAX_PENDING_SEND_BYTES`` waiting) loses frames, counted, rather
-than making the proxy buffer without bound.
+link above sees the same shape as a UDP datagram.
+
+No peer can stall the others (docs/security.md). What arrives is framed
+``SLICE_BYTES`` at a time, one slice per turn of the event loop (reading
+paused meanwhile), so a 256 kB read cannot hold the loop for other vehicles.
+Bytes that are not MAVLink count against the endpoint's budget of
+``GARBAGE_BYTES_PER_S``, as on the UDP path: past it a ``tcpin`` client is
+evicted, and a ``tcp``/``serial`` link drops what arrives for the rest of that
+second. A ``tcpin`` endpoint serves at most ``max_clients`` clients (URL
+option, default ``DEFAULT_MAX_CLIENTS``; one more is refused), and a client
+whose send buffer stays over ``MAX_PENDING_SEND_BYTES`` for ``SLOW_CLIENT_S``
+is evicted (meanwhile it loses frames, counted) rather than making the proxy
+buffer without bound. A ``tcp`` peer that stays silent for ``SILENT_PEER_S``
+(one that accepts and never sends, or a half-open connection) is dropped and
+dialled again; TCP keepalive finds a vanished peer on ``tcpin`` too. Each of
+these is counted in the endpoint's faults and logged once.
 """
 
 from __future__ import annotations
@@ -22,12 +35,15 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import socket
 import time
+from collections.abc import Callable
 from typing import Any
 
-from mavframe.frames import StreamFramer
-from mitm_proxy.net.endpoints import MAX_PENDING_SEND_BYTES, BaseEndpoint, EndpointError, Role, _fmt
+from mavframe.frames import StreamFramer, tiles
+from mitm_proxy.net.endpoints import MAX_DATAGRAM_BYTES, MAX_PENDING_SEND_BYTES, BaseEndpoint, EndpointError, Role, _fmt
 from mitm_proxy.net.rules import NO_RULES, EndpointRules
+from secuav_common.loading import InputError
 from secuav_common.urls import Endpoint
 
 log = logging.getLogger(__name__)
@@ -35,29 +51,108 @@ log = logging.getLogger(__name__)
 BACKOFF_FIRST_S = 0.25
 BACKOFF_MAX_S = 5.0
 STABLE_S = 2.0  # a connection that lasted this long resets the backoff
+SLICE_BYTES = MAX_DATAGRAM_BYTES  # framed per turn of the loop (as much as one UDP datagram may hold)
+# Framing crafted bytes costs up to ~2 s per MB (benchmarks/framing_garbage_bench.py): 256 kB of garbage a
+# second is at most about half a core, and a link's own traffic never comes near it.
+GARBAGE_BYTES_PER_S = 256 * 1024
+DEFAULT_MAX_CLIENTS = 16
+SLOW_CLIENT_S = 5.0  # a tcpin client that reads nothing for this long while we send is evicted
+SILENT_PEER_S = 10.0  # an autopilot sends HEARTBEAT at 1 Hz; a tcp peer silent this long is dialled again
+KEEPALIVE = {"TCP_KEEPIDLE": 5, "TCP_KEEPINTVL": 2, "TCP_KEEPCNT": 3}  # a vanished peer is found in ~11 s
+
+
+def _keepalive(transport: asyncio.BaseTransport) -> None:
+    sock = transport.get_extra_info("socket")
+    if sock is None or sock.family not in (socket.AF_INET, socket.AF_INET6):
+        return
+    with contextlib.suppress(OSError):
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
+        for name, value in KEEPALIVE.items():
+            if hasattr(socket, name):
+                sock.setsockopt(socket.IPPROTO_TCP, getattr(socket, name), value)
+
+
+class _GarbageBudget:
+    """Bytes that were not MAVLink, in the current one-second window of one endpoint."""
+
+    __slots__ = ("spent", "window_s")
+
+    def __init__(self) -> None:
+        self.window_s = -1.0
+        self.spent = 0
+
+    def spend(self, size: int, now_s: float) -> bool:
+        """Count ``size`` bytes; True while the window's total stays within the budget."""
+        if now_s - self.window_s >= 1.0:
+            self.window_s, self.spent = now_s, 0
+        self.spent += size
+        return self.spent <= GARBAGE_BYTES_PER_S
+
+    def over(self, now_s: float) -> bool:
+        return now_s - self.window_s < 1.0 and self.spent > GARBAGE_BYTES_PER_S
 
 
 class _Connection(asyncio.Protocol):
-    """One TCP connection or serial port: reassembles frames and hands them to its endpoint."""
+    """One TCP connection or serial port: reassembles frames, a slice per loop turn, and hands them on."""
 
-    def __init__(self, owner: BaseEndpoint, on_lost: Any) -> None:
+    def __init__(self, owner: _StreamEndpoint, on_lost: Callable[[_Connection, Exception | None], None]) -> None:
         self.owner = owner
         self.framer = StreamFramer()
         self.transport: asyncio.WriteTransport | None = None
         self.peer: Any = None
         self.lost = asyncio.get_running_loop().create_future()
+        self.last_rx_s = time.monotonic()
         self._on_lost = on_lost
+        self._inbox: list[bytes] = []
+        self._draining = False
+        self._full_since_s: float | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.transport = transport  # type: ignore[assignment]
         self.peer = transport.get_extra_info("peername")
+        _keepalive(transport)
 
     def data_received(self, data: bytes) -> None:
-        rx_s = time.monotonic()
+        self.last_rx_s = time.monotonic()
         self.owner.rx += 1
-        whole = self.framer.feed(data)
+        self._inbox.append(data)
+        if not self._draining and self.transport is not None:
+            self._draining = True
+            self.transport.pause_reading()  # type: ignore[attr-defined]
+            asyncio.get_running_loop().call_soon(self._drain)
+
+    def _drain(self) -> None:
+        """Frame one slice of what arrived; come back next turn for the rest, then read again."""
+        transport = self.transport
+        if transport is None or transport.is_closing():
+            self._inbox.clear()
+            self._draining = False
+            return
+        head = self._inbox[0]
+        piece, rest = head[:SLICE_BYTES], head[SLICE_BYTES:]
+        if rest:
+            self._inbox[0] = rest
+        else:
+            self._inbox.pop(0)
+        self._take(piece, time.monotonic())
+        if self._inbox and self.transport is not None:
+            asyncio.get_running_loop().call_soon(self._drain)
+            return
+        self._draining = False
+        if self.transport is not None and not self.transport.is_closing():
+            self.transport.resume_reading()  # type: ignore[attr-defined]
+
+    def _take(self, piece: bytes, rx_s: float) -> None:
+        owner = self.owner
+        if owner.garbage.over(rx_s):
+            owner.over_budget(self, len(piece))
+            return
+        whole = self.framer.feed(piece)
+        if whole and not tiles(whole) and not owner.garbage.spend(len(whole), rx_s):
+            owner.over_budget(self, len(whole))
+            return
         if whole:
-            self.owner._deliver(whole, rx_s)
+            owner._deliver(whole, rx_s)
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.transport = None
@@ -70,9 +165,15 @@ class _Connection(asyncio.Protocol):
         if transport is None or transport.is_closing():
             return False
         if transport.get_write_buffer_size() > MAX_PENDING_SEND_BYTES:
+            now_s = time.monotonic()
+            if self._full_since_s is None:
+                self._full_since_s = now_s
             detail = f"{_fmt(self.peer)} has more than {MAX_PENDING_SEND_BYTES} bytes waiting"
             self.owner._fault("send_overflow", detail)
+            if now_s - self._full_since_s > SLOW_CLIENT_S:
+                self.owner.too_slow(self)
             return False
+        self._full_since_s = None
         transport.write(data)
         return True
 
@@ -80,8 +181,41 @@ class _Connection(asyncio.Protocol):
         if self.transport is not None:
             self.transport.close()
 
+    def abort(self) -> None:
+        """Close now, dropping whatever is still waiting to be sent."""
+        if self.transport is not None:
+            self.transport.abort()
 
-class _Reconnecting(BaseEndpoint):
+
+class _StreamEndpoint(BaseEndpoint):
+    """What TCP and serial endpoints share: the garbage budget and what to do with a peer that abuses it."""
+
+    def __init__(self, endpoint: Endpoint, name: str, role: Role = "ground", rules: EndpointRules = NO_RULES) -> None:
+        super().__init__(endpoint, name, role, rules)
+        self.garbage = _GarbageBudget()
+        self.dropped_bytes = 0  # dropped unread: over the garbage budget, or from an evicted client
+
+    def snapshot(self) -> dict[str, Any]:
+        out = super().snapshot()
+        if self.dropped_bytes:
+            out["dropped_bytes"] = self.dropped_bytes
+        return out
+
+    def over_budget(self, conn: _Connection, size: int) -> None:
+        """A connection sent more than the budget of non-MAVLink bytes: drop them (subclasses may evict it)."""
+        self.dropped_bytes += size
+        self._fault("over_budget", f"more than {GARBAGE_BYTES_PER_S} bytes that are not MAVLink in a second from "
+                                   f"{_fmt(conn.peer)}: dropped unread until the second is over")  # fmt: skip
+        conn.framer = StreamFramer()  # what was held is cut off from what follows
+
+    def too_slow(self, conn: _Connection) -> None:
+        """A peer read nothing for ``SLOW_CLIENT_S`` while we sent: drop it (it reconnects or stays gone)."""
+        self._fault("slow_peer_evicted", f"{_fmt(conn.peer)} read nothing for {SLOW_CLIENT_S:g} s; disconnected")
+        self._cleared("slow_peer_evicted")  # every eviction is news
+        conn.abort()
+
+
+class _Reconnecting(_StreamEndpoint):
     """An endpoint with one connection at a time, opened by ``_connect`` and reopened with backoff."""
 
     def __init__(self, endpoint: Endpoint, name: str, role: Role = "ground", rules: EndpointRules = NO_RULES) -> None:
@@ -89,6 +223,8 @@ class _Reconnecting(BaseEndpoint):
         self.connection: _Connection | None = None
         self.connects = 0
         self._task: asyncio.Task[None] | None = None
+
+    silent_after_s: float | None = None  # TCP: SILENT_PEER_S; a radio may be silent while its vehicle is off
 
     async def open(self) -> _Reconnecting:
         self._task = asyncio.create_task(self._run(), name=f"connect {self.name}")
@@ -122,7 +258,7 @@ class _Reconnecting(BaseEndpoint):
             log.info("endpoint.connected",
                      extra={"endpoint": self.name, "url": str(self.endpoint), "peer": _fmt(self.peer)})  # fmt: skip
             up_s = time.monotonic()
-            exc = await conn.lost
+            exc = await self._until_lost(conn)
             self.connection = None
             self._fault("disconnected", f"connection closed ({exc or 'by the peer'}); reconnecting")
             self._cleared("disconnected")  # every drop is news
@@ -131,6 +267,21 @@ class _Reconnecting(BaseEndpoint):
             else:
                 await asyncio.sleep(backoff)
                 backoff = min(backoff * 2, BACKOFF_MAX_S)
+
+    async def _until_lost(self, conn: _Connection) -> Exception | None:
+        """Wait for the connection to end; a peer silent for ``silent_after_s`` is cut off first."""
+        limit = self.silent_after_s
+        while limit is not None:
+            try:
+                return await asyncio.wait_for(asyncio.shield(conn.lost), timeout=limit / 4)
+            except TimeoutError:
+                quiet_s = time.monotonic() - conn.last_rx_s
+                if quiet_s > limit:
+                    self._fault("silent_peer", f"nothing from {_fmt(conn.peer)} for {quiet_s:.0f} s; dialling again")
+                    self._cleared("silent_peer")  # every one is news
+                    conn.abort()
+                    break
+        return await conn.lost
 
     def _write(self, data: bytes) -> bool:
         conn = self.connection
@@ -151,7 +302,9 @@ class _Reconnecting(BaseEndpoint):
 
 
 class TcpClientEndpoint(_Reconnecting):
-    """``tcp://HOST:PORT``: connect to a MAVLink TCP server, reconnect when it goes."""
+    """``tcp://HOST:PORT``: connect to a MAVLink TCP server, reconnect when it goes or falls silent."""
+
+    silent_after_s = SILENT_PEER_S
 
     async def _connect(self, factory: Any) -> None:
         loop = asyncio.get_running_loop()
@@ -175,13 +328,14 @@ class SerialEndpoint(_Reconnecting):
         )
 
 
-class TcpServerEndpoint(BaseEndpoint):
+class TcpServerEndpoint(_StreamEndpoint):
     """``tcpin://HOST:PORT``: a TCP server; every connected client is a peer."""
 
     def __init__(self, endpoint: Endpoint, name: str, role: Role = "ground", rules: EndpointRules = NO_RULES) -> None:
         super().__init__(endpoint, name, role, rules)
         self.clients: list[_Connection] = []
         self.connects = 0
+        self.max_clients = max_clients_of(endpoint)
         self._server: asyncio.Server | None = None
 
     async def open(self) -> TcpServerEndpoint:
@@ -196,13 +350,22 @@ class TcpServerEndpoint(BaseEndpoint):
         self.local = tuple(sock.getsockname()[:2])  # type: ignore[assignment]
         return self
 
-    def _accept(self) -> _Connection:
+    def _accept(self) -> asyncio.Protocol:
+        if len(self.clients) >= self.max_clients:
+            return _Refused(self)
         conn = _Connection(self, self._gone)
         self.clients.append(conn)
         self.connects += 1
-        loop = asyncio.get_running_loop()
-        loop.call_soon(self._greet, conn)
+        asyncio.get_running_loop().call_soon(self._greet, conn)
         return conn
+
+    def over_budget(self, conn: _Connection, size: int) -> None:
+        """A client that floods the endpoint with bytes that are not MAVLink is disconnected."""
+        self.dropped_bytes += size
+        self._fault("client_evicted", f"{_fmt(conn.peer)} sent more than {GARBAGE_BYTES_PER_S} bytes that are not "
+                                      "MAVLink in a second; disconnected")  # fmt: skip
+        self._cleared("client_evicted")  # every eviction is news
+        conn.abort()
 
     def _greet(self, conn: _Connection) -> None:
         self.peer = conn.peer
@@ -238,4 +401,28 @@ class TcpServerEndpoint(BaseEndpoint):
     def snapshot(self) -> dict[str, Any]:
         out = super().snapshot()
         out["clients"] = len(self.clients)
+        out["max_clients"] = self.max_clients
         return out
+
+
+class _Refused(asyncio.Protocol):
+    """A client past ``max_clients``: counted, logged once, and cut off as soon as it is connected."""
+
+    def __init__(self, owner: TcpServerEndpoint) -> None:
+        self.owner = owner
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        peer = transport.get_extra_info("peername")
+        self.owner._fault("client_refused", f"{_fmt(peer)}: {self.owner.max_clients} clients are connected, the "
+                                            "most this endpoint serves (URL option max_clients)")  # fmt: skip
+        transport.abort()  # type: ignore[attr-defined]
+
+
+def max_clients_of(endpoint: Endpoint) -> int:
+    """The ``max_clients`` URL option of a ``tcpin`` endpoint (default ``DEFAULT_MAX_CLIENTS``)."""
+    text = endpoint.option("max_clients")
+    if text is None:
+        return DEFAULT_MAX_CLIENTS
+    if not text.isdigit() or int(text) < 1:
+        raise InputError("<url>", f"{endpoint.without_options()} option max_clients", text, "must be a number >= 1")
+    return int(text)
