@@ -13,9 +13,11 @@ retained ``.../state`` topic next to it. It also publishes each link's stats at
 ``secuav/proxy/online`` flag, and whatever other producers hand to
 :meth:`ControlPlane.publish_nowait`.
 
-The data path never waits for MQTT: requests run between two frames on the
-event loop, and every outgoing message goes through an outbox that drops
-rather than blocks. When the broker goes away the plane logs it once, retries
+The data path never waits for MQTT: a request is decoded and validated in a
+worker thread and installed between two frames on the event loop, requests
+past ``REQUESTS_PER_S`` per set topic are dropped, requests handed over as
+retained (left on the broker) are ignored, and every outgoing message goes
+through an outbox that drops rather than blocks. When the broker goes away the plane logs it once, retries
 with a growing backoff, and on reconnect republishes every state, so a client
 that subscribes later still reads the truth.
 """
@@ -25,13 +27,13 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import errno
-import hashlib
 import json
 import logging
 import time
 import uuid
 from collections import deque
 from collections.abc import Callable
+from dataclasses import dataclass
 from types import TracebackType
 from typing import Any
 
@@ -57,6 +59,7 @@ from secuav_common.controlplane.topics import (
     proxy_topic,
     vehicle_topic,
 )
+from secuav_common.loading import InputError
 
 log = logging.getLogger(__name__)
 # paho logs every packet at DEBUG; keep that out of ``-v`` unless someone asks for this logger by name.
@@ -67,6 +70,11 @@ if _CLIENT_LOG.level == logging.NOTSET:
 ONLINE_TOPIC = PROXY_ONLINE  # the single-proxy flag; fleets read each instance's online record
 DRAIN_BATCH = 64  # messages published concurrently by the outbox drain
 MAX_UNKNOWN_LOGGED = 100  # unknown vehicle keys logged (once each); junk topics cannot grow the set
+# Requests per set topic: MQTT 3.1.1 does not say who sent a message, so the limit is per switch. A person
+# or a script sends a few a second; a flood past this is dropped unread (counted, logged once).
+REQUESTS_PER_S = 10.0
+REQUEST_BURST = 20
+REQUEST_BACKLOG = 64  # requests waiting to be checked and applied; past this they are dropped (counted)
 __all__ = ["MAX_PAYLOAD_BYTES", "ONLINE_TOPIC", "ControlPlane", "Outbox", "RequestError", "default_instance",
            "parse_vehicle_key", "proxy_topic", "vehicle_topic"]  # fmt: skip
 
@@ -156,7 +164,12 @@ class ControlPlane:
         self._restore_handler: Callable[[], None] | None = None
         self._unknown: set[str] = set()  # vehicle keys already logged
         self._unencodable: set[str] = set()  # topics whose payload could not be made JSON (logged once)
-        self._handled: dict[str, deque[bytes]] = {}  # topic -> digests of recent requests (retained replays)
+        self._retained_logged: set[str] = set()  # topics whose retained request was ignored (logged once)
+        self.retained_ignored = 0
+        self._rate = _RateLimit(REQUESTS_PER_S, REQUEST_BURST)
+        self._rate_logged: set[str] = set()
+        self.rate_limited = 0
+        self.committed = 0  # requests checked and answered (accepted or refused)
         self._stats_failing = False
         self._published: dict[str, BaseModel] = {}  # state topic -> the state last queued
         self._online_since = time.time()
@@ -361,12 +374,33 @@ class ControlPlane:
             self.publish_states()
 
     async def _receive(self, client: Client) -> None:
-        async for message in client.messages:
-            body = message.payload
-            raw = bytes(body) if isinstance(body, bytes | bytearray) else ("" if body is None else str(body)).encode()
-            self.handle(str(message.topic), raw, retained=message.retain)
-            # A burst of queued requests would otherwise run back to back (the queue hands them
-            # over without yielding); let the datagrams that arrived meanwhile go first.
+        """Take messages as they arrive (so the rate limit sees their real rate); requests queue for :meth:`_work`."""
+        backlog: asyncio.Queue[Request] = asyncio.Queue(maxsize=REQUEST_BACKLOG)
+        worker = asyncio.create_task(self._work(backlog), name="control-requests")
+        try:
+            async for message in client.messages:
+                body = message.payload
+                raw = bytes(body) if isinstance(body, bytes | bytearray) else str(body or "").encode()
+                request = self.accept(str(message.topic), raw, message.retain, time.monotonic())
+                if request is None:
+                    continue
+                try:
+                    backlog.put_nowait(request)
+                except asyncio.QueueFull:
+                    self.rate_limited += 1
+                    self._log_once(self._rate_logged, "<backlog>", "control.backlog_full", backlog=REQUEST_BACKLOG)
+        finally:
+            worker.cancel()
+
+    async def _work(self, backlog: asyncio.Queue[Request]) -> None:
+        while True:
+            request = await backlog.get()
+            # Decoding and validating (a 55 kB profile takes tens of ms) run in a worker thread, so the
+            # frames keep flowing; only the install, one assignment, runs on the loop. One at a time, in
+            # the order they came.
+            self.commit(request, await asyncio.to_thread(request.prepare))
+            # A burst of queued requests would otherwise run back to back; let the datagrams that arrived
+            # meanwhile go first.
             await asyncio.sleep(0)
 
     def _console(self, topic: str, raw: bytes) -> None:
@@ -384,34 +418,101 @@ class ControlPlane:
     # -- requests (sans-I/O: tests call handle() directly) ---------------------------------------------
 
     def handle(self, topic: str, raw: bytes, retained: bool = False) -> None:
-        """Apply one ``.../set`` message and queue the resulting state."""
+        """Apply one ``.../set`` message and queue the resulting state (decode, check and apply in one go)."""
+        request = self.accept(topic, raw, retained, time.monotonic())
+        if request is not None:
+            self.commit(request, request.prepare())
+
+    def accept(self, topic: str, raw: bytes, retained: bool, now_s: float) -> Request | None:
+        """Route one message: a request to prepare and commit, or None (console presence, unknown, retained,
+        over the rate limit: each counted, logged once)."""
         parsed = parse(topic)
         if parsed is not None and parsed.scope == "console" and parsed.key is not None and parsed.leaf == "online":
             self._console(topic, raw)
-            return
+            return None
         target = self.controls.route(topic)
         if target is None:
-            return
+            return None
         if isinstance(target, str):
             if target not in self._unknown and len(self._unknown) < MAX_UNKNOWN_LOGGED:
                 self._unknown.add(target)
                 log.warning("control.unknown_vehicle", extra={"topic": topic, "known": self.controls.vehicles})
+            return None
+        if retained:
+            # A request someone left retained on the broker is handed to every proxy that subscribes, at
+            # its start and after each reconnect: taking it would let a stale or planted request override
+            # what the command line set (a retained routes/set lifting listen_only before anyone asked).
+            # Only requests sent while we listen count (docs/interfaces.md).
+            self.retained_ignored += 1
+            self._log_once(self._retained_logged, topic, "control.retained_request_ignored")
+            return None
+        if not self._rate.take(topic, now_s):
+            self.rate_limited += 1
+            self._log_once(self._rate_logged, topic, "control.rate_limited",
+                           limit_per_s=REQUESTS_PER_S, burst=REQUEST_BURST)  # fmt: skip
+            return None
+        return Request(target, raw, topic)
+
+    def commit(self, request: Request, prepared: Prepared) -> None:
+        """Apply a prepared request on the event loop (between two frames) and queue the state."""
+        target, control = request.target, request.target.control
+        payload, request_id, error = prepared
+        self.committed += 1
+        if error is not None:
+            self._publish(target, control.refuse(error, request_id))
             return
-        if len(raw) <= MAX_PAYLOAD_BYTES:  # an oversized one is refused below without reading it
-            digest = hashlib.sha256(raw).digest()
-            seen = self._handled.setdefault(topic, deque(maxlen=64))
-            if retained and digest in seen:
-                # Someone published this request retained; we applied it when it arrived and the
-                # broker hands it to us again after every reconnect. Re-applying it would undo
-                # whatever came later, so only a retained request we never saw counts.
-                return
-            seen.append(digest)
-        control = target.control
+        self._publish(target, control.handle(payload, request_id))
+
+    def _log_once(self, seen: set[str], topic: str, event: str, **extra: Any) -> None:
+        if topic not in seen and len(seen) < MAX_UNKNOWN_LOGGED:
+            seen.add(topic)
+            log.warning(event, extra={"topic": topic, **extra})
+
+
+Prepared = tuple[Any, "str | None", "str | None"]  # payload ready to apply, request id, or why it is refused
+
+
+@dataclass(slots=True)
+class Request:
+    """One ``.../set`` message on its way: :meth:`prepare` (decode and check: any thread) then commit."""
+
+    target: Target
+    raw: bytes
+    topic: str
+
+    def prepare(self) -> Prepared:
+        """Decode the JSON and let the switch check it (a profile is validated here); never raises."""
+        control = self.target.control
+        raw = self.raw
         if raw.strip() in control.bare_words:
             raw = json.dumps(raw.strip().decode()).encode()  # `mosquitto_pub -m bypass`: the word without quotes
         try:
             payload, request_id = loads_request(raw)
         except RequestError as exc:
-            self._publish(target, control.refuse(str(exc), salvage_request_id(raw)))
-            return
-        self._publish(target, control.handle(payload, request_id))
+            return None, salvage_request_id(raw), str(exc)
+        try:
+            return control.prepare(payload, self.topic), request_id, None
+        except (RequestError, InputError) as exc:
+            return None, request_id, str(exc)
+        except Exception as exc:  # a library bug must not end the control plane; the old setting stays
+            log.exception("control.prepare_failed", extra={"request_id": request_id})
+            return None, request_id, f"internal error: {exc!r}"
+
+
+class _RateLimit:
+    """A token bucket per topic: ``burst`` requests at once, ``per_s`` a second after that."""
+
+    def __init__(self, per_s: float, burst: int, max_topics: int = 1024) -> None:
+        self.per_s, self.burst, self.max_topics = per_s, burst, max_topics
+        self.buckets: dict[str, tuple[float, float]] = {}  # topic -> (tokens, when counted)
+
+    def take(self, topic: str, now_s: float) -> bool:
+        tokens, then = self.buckets.get(topic, (float(self.burst), now_s))
+        tokens = min(float(self.burst), tokens + (now_s - then) * self.per_s)
+        if len(self.buckets) >= self.max_topics and topic not in self.buckets:
+            self.buckets.clear()  # routed topics are few; this only bounds junk
+        if tokens < 1.0:
+            self.buckets[topic] = (tokens, now_s)
+            return False
+        self.buckets[topic] = (tokens - 1.0, now_s)
+        return True

@@ -10,7 +10,9 @@ state always says what is in force.
 
 A switch never half-applies: :meth:`Switch.apply` builds and checks
 everything first, then installs it with one assignment, and the event loop
-runs one callback at a time, so a change always falls between two frames. A
+runs one callback at a time, so a change always falls between two frames.
+What is costly and pure (validating a profile) a switch may do in
+:meth:`Switch.prepare`, which the MQTT session runs in a worker thread. A
 refused request leaves the old setting in place and says why in the state.
 """
 
@@ -43,6 +45,11 @@ class Switch(ABC, Generic[StateT]):
 
     def __init__(self) -> None:
         self.verdict = Verdict()
+
+    def prepare(self, payload: Any, source: str) -> Any:
+        """The costly, pure part of checking a request (parsing a profile), run off the event loop by the
+        MQTT session; what it returns is what :meth:`apply` gets. Raises ``RequestError``/``InputError``."""
+        return payload
 
     @abstractmethod
     def apply(self, payload: Any, source: str) -> None:

@@ -52,6 +52,12 @@ class AttackSlot(Switch[AttackState]):
         return {"sysid": self.sysid, "profile": None if profile is None else profile.name,
                 "hash": None if profile is None else profile.content_hash(), "since": self._since}  # fmt: skip
 
+    def prepare(self, payload: Any, source: str) -> Any:
+        """A request's JSON validated into a :class:`Profile` (pure: the MQTT session runs it off the loop)."""
+        if isinstance(payload, Engine | Profile) or payload is None:
+            return payload
+        return profile_from_payload(payload, source)
+
     def apply(self, payload: Any, source: str) -> None:
         """A profile, its JSON (a profile, ``{"library": ...}``), ``None`` to clear, or a built :class:`Engine`."""
         if isinstance(payload, Engine):

@@ -109,6 +109,9 @@ def test_pymavlink_param_round_trip_through_the_cli(running: tuple[subprocess.Po
 
 def test_sigterm_stops_within_a_second(running: tuple[subprocess.Popen[bytes], int, Path]) -> None:
     proxy, _gcs, tmp = running
+    deadline = time.monotonic() + 30  # its handlers are in place once it says it is ready (slow on a busy machine)
+    while b"proxy.ready" not in (tmp / "proxy.log").read_bytes() and time.monotonic() < deadline:
+        time.sleep(0.1)
     time.sleep(1.0)
     assert proxy.poll() is None, (tmp / "proxy.log").read_text()
     code, took = stop(proxy, signal.SIGTERM)

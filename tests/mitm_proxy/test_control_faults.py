@@ -152,8 +152,10 @@ async def test_in_the_real_proxy_a_flood_of_bad_requests_loses_no_frame_and_a_sw
     from mavframe.frames import split
     from mitm_proxy.app import Proxy
     from mitm_proxy.config import LinkConfig, ProxyConfig
+    from mitm_proxy.control.plane import REQUEST_BURST, REQUESTS_PER_S
     from secuav_common.broker import EmbeddedBroker
 
+    FRAMES = 800
     mqtt, veh = tcp_port(), udp_port()
     ground = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     ground.bind(("127.0.0.1", 0))
@@ -169,7 +171,7 @@ async def test_in_the_real_proxy_a_flood_of_bad_requests_loses_no_frame_and_a_sw
     loop = asyncio.get_running_loop()
 
     async def stream() -> None:
-        for i in range(400):  # 2 s at 200 Hz
+        for i in range(FRAMES):  # 4 s at 200 Hz
             frame = mav.distance_sensor_encode(i, 20, 1000, 250, 0, 0, 0, 0).pack(mav)
             sent.append((time.monotonic(), frame))
             vehicle.sendto(frame, ("127.0.0.1", veh))
@@ -193,6 +195,9 @@ async def test_in_the_real_proxy_a_flood_of_bad_requests_loses_no_frame_and_a_sw
                 for i in range(40):
                     await obs.publish(SET1, b"\xff\x00" * 100 + bytes([i]))
                     await obs.publish(SET1, b'{"request_id": "big", "x": "' + b"y" * 70_000 + b'"}')
+                # Past the first REQUEST_BURST the flood was dropped unread; the bucket refills in 2 s.
+                await asyncio.sleep(REQUEST_BURST / REQUESTS_PER_S + 0.2)
+                assert 0 < proxy.control.rate_limited <= 80 - REQUEST_BURST  # the bucket refills as they come
                 # The hostile review's YAML alias bomb (a few hundred bytes that expand to gigabytes), a
                 # document nested past Python's recursion limit and a 5000-digit integer: refused at once.
                 await obs.publish(SET1, json.dumps(_ALIAS_BOMB).encode())
@@ -215,11 +220,11 @@ async def test_in_the_real_proxy_a_flood_of_bad_requests_loses_no_frame_and_a_sw
         ground.close()
         vehicle.close()
 
-    assert len(received) == len(sent) == 400  # nothing lost, nothing added
+    assert len(received) == len(sent) == FRAMES  # nothing lost, nothing added
     parser = mavlink2.MAVLink(None)
     values = [parser.decode(bytearray(f)).current_distance for f in received]
     swapped = next(i for i, v in enumerate(values) if v != 250)
-    assert values[swapped:] == [350] * (400 - swapped)  # every frame after the swap, none half-way
+    assert values[swapped:] == [350] * (FRAMES - swapped)  # every frame after the swap, none half-way
     assert received[:swapped] == [f for _t, f in sent[:swapped]]  # before it: byte for byte
     assert sent[swapped - 1][0] < acked_s  # the swap happened before the acknowledgement went out
 

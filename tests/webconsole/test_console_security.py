@@ -284,3 +284,21 @@ fetch("{target}", {{method: "POST", mode: "no-cors", headers: {{"Content-Type": 
         ".then(r => done(r.status), e => done(String(e)));",
     )
     assert result == 200 and await asyncio.to_thread(mode_of, bench.base) == "bypass"
+
+
+async def test_a_malformed_stats_message_breaks_neither_the_session_nor_the_api(bench: Bench) -> None:  # noqa: F811
+    """The review's two messages: one killed the console's broker session for good, the other every view."""
+    for body in ({"downlink": {"frames_in": "x"}}, {"downlink": [1]}, {"downlink": {"latency_ms": {"p99": "slow"}}}):
+        bench.plane.publish_nowait("secuav/v1/stats", body)
+    await asyncio.sleep(1.0)
+    status, rows = await asyncio.to_thread(call, bench.base, "/api/vehicles")
+    assert status == 200 and rows[0]["online"], rows
+    status, ack = await asyncio.to_thread(call, bench.base, "/api/vehicles/1/attack/mode", {"mode": "bypass"})
+    assert status == 200 and ack["mode"] == "bypass"  # the session still sends and hears acknowledgements
+    status, conn = await asyncio.to_thread(_open_stream, bench.base)
+    try:
+        assert status == 200
+        first = await asyncio.to_thread(conn.sock.recv, 65536)  # type: ignore[union-attr]
+        assert b"event: update" in first
+    finally:
+        conn.close()
