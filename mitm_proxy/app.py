@@ -34,7 +34,7 @@ from attack_profiles.resolve import resolve_profile
 from mavframe.signing import Signer
 from mitm_proxy.config import ProxyConfig
 from mitm_proxy.control.switches import Controls, ModeSwitch, RoutesSwitch, default_instance, vehicle_controls
-from mitm_proxy.core.pipeline import Pipeline
+from mitm_proxy.core.pipeline import Pipeline, Stage
 from mitm_proxy.core.readings import ReadingsTap
 from mitm_proxy.core.recorder import Recorder
 from mitm_proxy.core.stats import LinkStats
@@ -178,7 +178,7 @@ class Proxy:
                 recorder = Recorder(Path(self.config.record) / f"v{sysid}", i)
                 self.recorders.append(recorder)
             parts = self.vehicles[sysid]
-            stages: list[Any] = [parts.stage]  # tap -> attack -> secure -> forward
+            stages: list[Stage] = [parts.stage]  # tap -> attack -> secure -> forward
             if parts.secure is not None:
                 stages.append(parts.secure.stage)
             signer = None if self.signer is None else self.signer.for_link()  # replay state per link

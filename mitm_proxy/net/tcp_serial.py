@@ -23,6 +23,7 @@ import asyncio
 import contextlib
 import logging
 import time
+from collections.abc import Callable
 from typing import Any
 
 from mavframe.frames import StreamFramer
@@ -40,7 +41,7 @@ STABLE_S = 2.0  # a connection that lasted this long resets the backoff
 class _Connection(asyncio.Protocol):
     """One TCP connection or serial port: reassembles frames and hands them to its endpoint."""
 
-    def __init__(self, owner: BaseEndpoint, on_lost: Any) -> None:
+    def __init__(self, owner: BaseEndpoint, on_lost: Callable[[_Connection, Exception | None], None]) -> None:
         self.owner = owner
         self.framer = StreamFramer()
         self.transport: asyncio.WriteTransport | None = None
