@@ -12,6 +12,8 @@ what a valid frame is byte for byte.
   :class:`~mavframe.packet.Direction`;
 - :mod:`mavframe.codec`: decode a targeted frame to pymavlink's field dict,
   re-pack a changed one with its original header, build new frames;
+- :mod:`mavframe.layout`: message ids, payload start and field offsets (read off the dialect,
+  never typed by hand), ``target_system`` of a frame;
 - :mod:`mavframe.signing`: MAVLink 2 signing keys, verification and re-signing;
 - :mod:`mavframe.tlog`: the .tlog format QGroundControl and MAVProxy write, read and written.
 """

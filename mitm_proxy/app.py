@@ -34,7 +34,7 @@ from attack_profiles.resolve import resolve_profile
 from mavframe.signing import Signer
 from mitm_proxy.config import ProxyConfig
 from mitm_proxy.control.switches import Controls, ModeSwitch, RoutesSwitch, default_instance, vehicle_controls
-from mitm_proxy.core.pipeline import Pipeline
+from mitm_proxy.core.pipeline import Pipeline, Stage
 from mitm_proxy.core.readings import ReadingsTap
 from mitm_proxy.core.recorder import Recorder
 from mitm_proxy.core.stats import LinkStats
@@ -106,6 +106,7 @@ class Proxy:
         self.links: list[Link] = []
         self.routers: list[GroundRouter] = []
         self.recorders: list[Recorder] = []
+        self.taps: dict[int, ReadingsTap] = {}  # sysid -> the readings tap, while a console watches
         self.control: ControlPlane | None = None  # when a broker is configured
         self._stack = contextlib.AsyncExitStack()
         self._tasks: list[asyncio.Task[Any]] = []
@@ -177,11 +178,11 @@ class Proxy:
                 recorder = Recorder(Path(self.config.record) / f"v{sysid}", i)
                 self.recorders.append(recorder)
             parts = self.vehicles[sysid]
-            stages: list[Any] = [parts.stage]  # tap -> attack -> secure -> forward
+            stages: list[Stage] = [parts.stage]  # tap -> attack -> secure -> forward
             if parts.secure is not None:
                 stages.append(parts.secure.stage)
             signer = None if self.signer is None else self.signer.for_link()  # replay state per link
-            pipeline = Pipeline(i, stages, stats=parts.stats, recorder=recorder, signer=signer)
+            pipeline = Pipeline(i, stages, stats=parts.stats, observers=[recorder] if recorder else (), signer=signer)
             grounds = [self.endpoints[ep] for ep in link_cfg.ground_endpoints]
             link = Link(i, sysid, pipeline, parts.stats, self.endpoints[link_cfg.vehicle_endpoint], grounds)
             self.links.append(link)
@@ -205,7 +206,12 @@ class Proxy:
     def _watch(self, consoles: int) -> None:
         """A console watches: give each pipeline a readings tap and publish it at 10 Hz; none: take them away."""
         for link in self.links:
-            link.pipeline.readings = ReadingsTap(link.sysid) if consoles else None
+            tap = self.taps.pop(link.sysid, None)
+            if tap is not None:
+                link.pipeline.detach(tap)
+            if consoles:
+                tap = self.taps[link.sysid] = ReadingsTap(link.sysid, after=link.pipeline.stages[0].name)
+                link.pipeline.attach(tap)
         if consoles and self._readings_task is None:
             self._readings_task = asyncio.create_task(self._publish_readings(), name="readings")
             self._tasks.append(self._readings_task)
@@ -218,7 +224,7 @@ class Proxy:
         while True:
             await asyncio.sleep(READINGS_PERIOD_S)
             for link in self.links:
-                tap = link.pipeline.readings
+                tap = self.taps.get(link.sysid)
                 payload = tap.take() if tap is not None else None
                 if payload is not None and self.control is not None:
                     self.control.publish_nowait(vehicle_topic(link.sysid, "readings"), payload)

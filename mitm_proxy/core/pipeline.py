@@ -18,6 +18,12 @@ that is not back-to-back frames by its length fields (:func:`mavframe.frames.til
 one step per frame) is dropped unsplit for the rest of that second and counted
 under ``bad["over_budget"]``. A sender's frames always tile, so they still pass.
 
+Observers (the recorder, a console's readings tap, any future one) attach with
+:meth:`Pipeline.attach` and see the link through four hooks, :class:`Observer`:
+frames in, after each stage, each frame out, each frame dropped. While one is
+attached every datagram takes the slow path, where the hooks are called; with
+none the fast path has nothing to call and pays one truth test.
+
 A stage sees a frame only when it is active, the frame's message id is in its
 ``message_ids``, and the frame is not signed, unless the pipeline has the link's
 signing key. A stage that raises does not stop forwarding: the frame leaves as it
@@ -35,11 +41,9 @@ from mavframe import codec
 from mavframe.frames import split, tiles
 from mavframe.packet import Direction, Header, Packet
 from mavframe.signing import Signer
-from mitm_proxy.core.readings import ReadingsTap
-from mitm_proxy.core.recorder import Recorder
 from mitm_proxy.core.stats import DirectionStats, LinkStats
 
-__all__ = ["Outgoing", "Pipeline", "Stage"]
+__all__ = ["Observer", "Outgoing", "Pipeline", "Stage"]
 
 log = logging.getLogger(__name__)
 
@@ -71,6 +75,24 @@ class Stage(Protocol):
     def message_ids(self) -> frozenset[int]: ...
 
     def process(self, pkt: Packet, now_s: float) -> list[Packet]: ...
+
+
+class Observer(Protocol):
+    """Watches one link's frames without changing them; the pipeline calls it on the slow path only.
+
+    ``pos`` is a frame's position in its datagram (the frames :meth:`frames_in` was given);
+    ``pkt`` is None for a frame no stage took (it leaves as ``raw``), else the packet that
+    leaves (``pkt.injected`` for one a stage added); ``delay_s`` > 0 when a stage held it back.
+    """
+
+    def frames_in(self, direction: Direction, frames: Sequence[tuple[Header, bytes]]) -> None: ...
+
+    def after_stage(self, stage: Stage, pkts: Sequence[Packet]) -> None: ...
+
+    def frame_out(self, direction: Direction, pos: int, header: Header, raw: bytes, data: bytes,
+                  pkt: Packet | None, delay_s: float) -> None: ...  # fmt: skip
+
+    def dropped(self, direction: Direction, pos: int, header: Header, raw: bytes, pkt: Packet) -> None: ...
 
 
 @dataclass(slots=True)
@@ -105,19 +127,26 @@ class Pipeline:
         stages: Sequence[Stage],
         *,
         stats: LinkStats,
-        recorder: Recorder | None = None,
+        observers: Sequence[Observer] = (),
         signer: Signer | None = None,
     ) -> None:
         self.link = link
         self.stages: list[Stage] = list(stages)
         self.stats = stats
-        self.recorder = recorder
+        self.observers: tuple[Observer, ...] = tuple(observers)
         self.signer = signer
-        self.readings: ReadingsTap | None = None  # set while a console watches (mitm_proxy.core.readings)
         self._logged: set[str] = set()
         self._union_key: tuple[frozenset[int], ...] = ()
         self._union: frozenset[int] = _NOTHING
         self._budget = {d: _HostileBudget() for d in Direction}
+
+    def attach(self, observer: Observer) -> None:
+        """From the next datagram on, ``observer`` sees every frame (see :class:`Observer`)."""
+        if observer not in self.observers:
+            self.observers = (*self.observers, observer)
+
+    def detach(self, observer: Observer) -> None:
+        self.observers = tuple(o for o in self.observers if o is not observer)
 
     def _wanted(self) -> tuple[list[Stage], frozenset[int]]:
         """Active stages and the union of their message ids, asked afresh per datagram (bypass and
@@ -170,11 +199,9 @@ class Pipeline:
             for reason in res.bad:
                 st.add_bad(reason)
             self._spend(budget, len(datagram), direction, now_s)
-        rec = self.recorder
-        first = rec.original(frames) if rec is not None else 0
         active, wanted = self._wanted()
         signer = self.signer
-        slow = bool(res.bad)
+        slow = bool(res.bad) or bool(self.observers)
         for header, _raw in frames:
             if header.signed:
                 st.signed += 1
@@ -189,15 +216,8 @@ class Pipeline:
                 return []
             st.frames_out += len(frames)
             st.bytes_out += len(datagram)
-            if rec is not None:
-                rec.forwarded_frames(frames)
-            tap = self.readings
-            if tap is not None and direction is Direction.DOWNLINK:
-                for header, raw in frames:
-                    if header.msgid in tap.ids:
-                        tap.see(header.msgid, raw, raw)
             return [Outgoing(datagram, now_s, now_s, len(frames))]
-        return self._slow(frames, direction, now_s, st, active, wanted, first)
+        return self._slow(frames, direction, now_s, st, active, wanted)
 
     def _slow(
         self,
@@ -207,14 +227,14 @@ class Pipeline:
         st: DirectionStats,
         active: list[Stage],
         wanted: frozenset[int],
-        first: int,
     ) -> list[Outgoing]:
         signer = self.signer
-        rec = self.recorder
-        tap = self.readings if direction is Direction.DOWNLINK else None
+        observers = self.observers
+        for o in observers:
+            o.frames_in(direction, frames)
         now_parts: list[bytes] = []
         later: list[Outgoing] = []
-        for j, (header, raw) in enumerate(frames, first):
+        for pos, (header, raw) in enumerate(frames):
             if header.signed and signer is not None:
                 reason = signer.verify(raw)
                 if reason is not None:
@@ -222,14 +242,12 @@ class Pipeline:
                     continue
             if header.msgid not in wanted or (header.signed and signer is None):
                 now_parts.append(raw)
-                if rec is not None:
-                    rec.forwarded(raw, header.msgid)
-                if tap is not None and header.msgid in tap.ids:
-                    tap.see(header.msgid, raw, raw)
+                for o in observers:
+                    o.frame_out(direction, pos, header, raw, raw, None, 0.0)
                 continue
             pkt = Packet(raw, header, direction, self.link, now_s)
             try:
-                pkts = self._run_stages(pkt, active, now_s, tap)
+                pkts = self._run_stages(pkt, active, now_s)
             except Exception as exc:  # a stage bug must not stop forwarding
                 st.add_bad(STAGE_ERROR)
                 self._log_once(
@@ -239,25 +257,21 @@ class Pipeline:
                 pkts = [pkt]
             if not any(p is pkt for p in pkts):
                 st.dropped += 1
-                if rec is not None:
-                    rec.dropped(header.msgid, pkt, j)
-                if tap is not None and header.msgid in tap.ids:
-                    tap.see(header.msgid, raw, None)
+                for o in observers:
+                    o.dropped(direction, pos, header, raw, pkt)
             for p in pkts:
                 data = self._wire(p, st)
-                if tap is not None and p is pkt and header.msgid in tap.ids:
-                    tap.see(header.msgid, raw, data)
+                delay_s = 0.0
                 if p.release_s > now_s:
+                    delay_s = p.release_s - now_s
                     st.delayed += 1
                     st.frames_out += 1
                     st.bytes_out += len(data)
                     later.append(Outgoing(data, p.release_s, p.rx_s, 1))
-                    if rec is not None:
-                        rec.forwarded(data, p.header.msgid, p, p.release_s - now_s, j)
                 else:
                     now_parts.append(data)
-                    if rec is not None:
-                        rec.forwarded(data, p.header.msgid, p, 0.0, j)
+                for o in observers:
+                    o.frame_out(direction, pos, header, raw, data, p, delay_s)
         out: list[Outgoing] = []
         if now_parts:
             joined = b"".join(now_parts)
@@ -267,8 +281,9 @@ class Pipeline:
         out.extend(later)
         return out
 
-    def _run_stages(self, pkt: Packet, active: list[Stage], now_s: float, tap: ReadingsTap | None) -> list[Packet]:
+    def _run_stages(self, pkt: Packet, active: list[Stage], now_s: float) -> list[Packet]:
         signer = self.signer
+        observers = self.observers
         pkts = [pkt]
         for stage in active:
             ids = stage.message_ids
@@ -279,10 +294,8 @@ class Pipeline:
                 else:
                     nxt.append(p)
             pkts = nxt
-            if tap is not None and stage.name == "attack":  # what the attack made of it, before the secure stage
-                for p in pkts:
-                    if p.changed and p.fields is not None:
-                        tap.attacked(p.header.msgid, p.fields)
+            for o in observers:
+                o.after_stage(stage, pkts)
         return pkts
 
     def _wire(self, p: Packet, st: DirectionStats) -> bytes:

@@ -1,11 +1,12 @@
 """What a live console plots: each watched sensor's reading as it came and as it left, at 10 Hz.
 
 While a console watches (a retained ``secuav/console/<id>/online`` record says
-so), each link's pipeline hands its :class:`ReadingsTap` the downlink frames of
-DISTANCE_SENSOR and LOCAL_POSITION_NED: the frame as the vehicle sent it and the
+so), a :class:`ReadingsTap` observes each link's pipeline (its four hooks,
+:class:`mitm_proxy.core.pipeline.Observer`) and keeps, of the downlink frames of
+DISTANCE_SENSOR and LOCAL_POSITION_NED, the frame as the vehicle sent it and the
 frame as the ground got it (``None`` when the attack dropped it), and, when the
-attack stage changed it, the value the attack made (the secure stage may have
-replaced it before it left). The tap reads
+stage it is told to watch (``after``, the attack stage) changed it, the value that
+stage made (the secure stage may have replaced it before it left). The tap reads
 the few fields it needs straight from the bytes (no decode), keeps the latest
 per sensor, and the proxy publishes what changed on ``secuav/v<N>/readings``
 ten times a second. With no console the pipeline has no tap and pays nothing.
@@ -15,48 +16,72 @@ from __future__ import annotations
 
 import struct
 import time
-from typing import Any
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
 
-DISTANCE_SENSOR = 132
-LOCAL_POSITION_NED = 32
-_V2_MAGIC = 0xFD
-_DIST = struct.Struct("<8xHxB")  # current_distance (cm) at 8, id at 11
-_POS = struct.Struct("<4x3f")  # x, y, z (m) at 4, 8, 12
-QUALITY_AT = 38  # DISTANCE_SENSOR.signal_quality (extension): 1 = the secure stage flags it invalid
+from mavframe.layout import DISTANCE_SENSOR, LOCAL_POSITION_NED, offset, payload
+from mavframe.packet import Direction, Header, Packet
 
+_DIST_AT = offset(DISTANCE_SENSOR, "current_distance")  # uint16 cm
+_ID_AT = offset(DISTANCE_SENSOR, "id")  # uint8
+QUALITY_AT = offset(DISTANCE_SENSOR, "signal_quality")  # 1 = the secure stage flags it invalid
+_POS_AT = offset(LOCAL_POSITION_NED, "x")  # x, y, z (float32 m), in a row
+if TYPE_CHECKING:
+    from mitm_proxy.core.pipeline import Stage
 
-def _payload(frame: bytes, need: int) -> bytes:
-    """The payload of a frame, with the zeros MAVLink 2 truncates put back up to ``need`` bytes."""
-    start = 10 if frame[0] == _V2_MAGIC else 6
-    body = frame[start : start + frame[1]]
-    return body if len(body) >= need else body + bytes(need - len(body))
+_CM = struct.Struct("<H")
+_XYZ = struct.Struct("<3f")
+_DIST_NEED = max(_DIST_AT + _CM.size, _ID_AT + 1, QUALITY_AT + 1)
 
 
 def distance(frame: bytes) -> tuple[int, float, bool]:
     """(sensor id, distance in metres, flagged invalid) of a DISTANCE_SENSOR frame."""
-    body = _payload(frame, QUALITY_AT + 1)
-    cm, sensor = _DIST.unpack_from(body)
-    return sensor, cm / 100.0, body[QUALITY_AT] == 1
+    body = payload(frame, _DIST_NEED)
+    (cm,) = _CM.unpack_from(body, _DIST_AT)
+    return body[_ID_AT], cm / 100.0, body[QUALITY_AT] == 1
 
 
 def position(frame: bytes) -> tuple[float, float, float]:
     """(north, east, down) in metres of a LOCAL_POSITION_NED frame."""
-    return _POS.unpack_from(_payload(frame, 16))
+    north, east, down = _XYZ.unpack_from(payload(frame, _POS_AT + _XYZ.size), _POS_AT)
+    return north, east, down
 
 
 class ReadingsTap:
     """The latest original and forwarded value per sensor of one link; see the module doc."""
 
     ids = frozenset({DISTANCE_SENSOR, LOCAL_POSITION_NED})
-    __slots__ = ("_attacked", "_attacked_position", "_position", "_sensors", "seen", "sysid")
+    __slots__ = ("_attacked", "_attacked_position", "_position", "_sensors", "after", "seen", "sysid")
 
-    def __init__(self, sysid: int) -> None:
+    def __init__(self, sysid: int, after: str = "attack") -> None:
         self.sysid = sysid
+        self.after = after  # the stage whose changes count as "attacked"
         self._sensors: dict[int, dict[str, Any]] = {}
         self._position: dict[str, Any] | None = None
         self._attacked: dict[int, float] = {}  # sensor -> value after the attack stage, for the frame in flight
         self._attacked_position: tuple[Any, ...] | None = None
         self.seen = 0
+
+    # -- the pipeline's observer hooks (mitm_proxy.core.pipeline.Observer) ---------------------------------
+
+    def frames_in(self, direction: Direction, frames: Sequence[tuple[Header, bytes]]) -> None:
+        pass
+
+    def after_stage(self, stage: Stage, pkts: Sequence[Packet]) -> None:
+        if stage.name != self.after:
+            return
+        for p in pkts:
+            if p.changed and p.fields is not None and p.direction is Direction.DOWNLINK and p.header.msgid in self.ids:
+                self.attacked(p.header.msgid, p.fields)
+
+    def frame_out(self, direction: Direction, pos: int, header: Header, raw: bytes, data: bytes,
+                  pkt: Packet | None, delay_s: float) -> None:  # fmt: skip
+        if direction is Direction.DOWNLINK and header.msgid in self.ids and (pkt is None or not pkt.injected):
+            self.see(header.msgid, raw, raw if pkt is None or not pkt.changed else data)
+
+    def dropped(self, direction: Direction, pos: int, header: Header, raw: bytes, pkt: Packet) -> None:
+        if direction is Direction.DOWNLINK and header.msgid in self.ids:
+            self.see(header.msgid, raw, None)
 
     def see(self, msgid: int, original: bytes, forwarded: bytes | None) -> None:
         """One watched frame: ``forwarded`` is what left (the same object when untouched), None if dropped."""

@@ -30,12 +30,12 @@ import logging
 import queue
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import IO
 
 from mavframe import tlog
-from mavframe.packet import Header, Packet
+from mavframe.packet import Direction, Header, Packet
 
 __all__ = ["Recorder"]
 
@@ -56,6 +56,7 @@ class Recorder:
         self._n_index = 0
         self.original_count = 0
         self.forwarded_count = 0
+        self._first = 0  # original.tlog index of the first frame of the datagram in flight
         self.lost_chunks = 0
         self.failed: str | None = None  # why recording stopped, if it did
         self.closed = False
@@ -120,37 +121,29 @@ class Recorder:
             self.flush()
         return tlog.stamp(now + delay_s)
 
-    def original(self, frames: list[tuple[Header, bytes]]) -> int:
-        """Frames as received (one datagram's worth); returns the index of the first in original.tlog."""
-        first = self.original_count
+    # -- the pipeline's observer hooks (mitm_proxy.core.pipeline.Observer) ---------------------------------
+
+    def frames_in(self, direction: Direction, frames: Sequence[tuple[Header, bytes]]) -> None:
+        """Frames as received (one datagram's worth), in original.tlog."""
+        self._first = self.original_count
         stamp = self._stamp()
         self._put(_ORIGINAL, b"".join(stamp + raw for _, raw in frames))
         self.original_count += len(frames)
-        return first
 
-    def forwarded_frames(self, frames: list[tuple[Header, bytes]]) -> None:
-        """Frames forwarded untouched (the fast path)."""
-        stamp = self._stamp()
-        self._put(_FORWARDED, b"".join(stamp + raw for _, raw in frames))
-        self.forwarded_count += len(frames)
+    def after_stage(self, stage: object, pkts: Sequence[Packet]) -> None:
+        pass
 
-    def forwarded(
-        self,
-        data: bytes,
-        msgid: int,
-        pkt: Packet | None = None,
-        delay_s: float = 0.0,
-        original: int | None = None,
-    ) -> None:
-        """One forwarded frame; ``pkt`` when a stage handled it, so the index can say what happened."""
+    def frame_out(self, direction: Direction, pos: int, header: Header, raw: bytes, data: bytes,
+                  pkt: Packet | None, delay_s: float) -> None:  # fmt: skip
+        """One forwarded frame; when a stage handled it (``pkt``), the index says what happened."""
         self._put(_FORWARDED, self._stamp(delay_s) + data)
         if pkt is not None and (pkt.changed or pkt.injected or delay_s > 0.0):
-            self._entry(self.forwarded_count, original, msgid, pkt, delay_s)
+            self._entry(self.forwarded_count, self._first + pos, pkt.header.msgid, pkt, delay_s)
         self.forwarded_count += 1
 
-    def dropped(self, msgid: int, pkt: Packet, original: int | None) -> None:
+    def dropped(self, direction: Direction, pos: int, header: Header, raw: bytes, pkt: Packet) -> None:
         """A frame a stage dropped: only the index records it."""
-        self._entry(None, original, msgid, pkt, 0.0, dropped=True)
+        self._entry(None, self._first + pos, header.msgid, pkt, 0.0, dropped=True)
 
     def _entry(
         self, index: int | None, original: int | None, msgid: int, pkt: Packet, delay_s: float, dropped: bool = False

@@ -38,7 +38,8 @@ from typing import Any, Literal
 
 from mavframe import frames
 from mavframe.codec import MAVLINK_MAP
-from mitm_proxy.net.rules import NO_RULES, Direction, EndpointGate, EndpointRules
+from mavframe.packet import Direction
+from mitm_proxy.net.rules import NO_RULES, EndpointGate, EndpointRules
 from secuav_common.urls import Endpoint
 
 log = logging.getLogger(__name__)
@@ -76,8 +77,8 @@ class BaseEndpoint:
         self.name = name
         self.role = role
         self.gate = EndpointGate(rules)
-        self._inbound: Direction = "down" if role == "vehicle" else "up"
-        self._outbound: Direction = "up" if role == "vehicle" else "down"
+        self._inbound = Direction.DOWNLINK if role == "vehicle" else Direction.UPLINK
+        self._outbound = Direction.UPLINK if role == "vehicle" else Direction.DOWNLINK
         self.receiver: Receiver | None = None
         self.peer: Any = None
         self.local: tuple[str, int] | None = None

@@ -28,45 +28,17 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import re
-import struct
 import time
 from collections.abc import Sequence
-from typing import Any
-
-from pymavlink.dialects.v20 import ardupilotmega as dialect
 
 from mavframe import frames
+from mavframe.layout import target_system
 from mavframe.packet import Direction
 from mitm_proxy.core.pipeline import Outgoing, Pipeline
 from mitm_proxy.core.stats import LinkStats
 from mitm_proxy.net.endpoints import BaseEndpoint
 
 log = logging.getLogger(__name__)
-
-
-def _target_offsets() -> dict[int, int]:
-    """Payload offset of ``target_system`` for every message that has one (MAVLink orders fields by size)."""
-    out: dict[int, int] = {}
-    for msgid, cls in dialect.mavlink_map.items():
-        names = list(cls.ordered_fieldnames)
-        if "target_system" not in names:
-            continue
-        tokens = re.findall(r"\d*[a-zA-Z]", cls.unpacker.format.lstrip("<"))
-        out[msgid] = struct.calcsize("<" + "".join(tokens[: names.index("target_system")]))
-    return out
-
-
-TARGET_OFFSETS = _target_offsets()
-
-
-def target_system(header: Any, frame: bytes) -> int:
-    """The frame's ``target_system``, 0 (broadcast) when it has none; v2 payloads may be zero-truncated."""
-    offset = TARGET_OFFSETS.get(header.msgid)
-    if offset is None:
-        return 0
-    start = (10 if header.version == 2 else 6) + offset
-    return frame[start] if offset < header.payload_len else 0
 
 
 class Link:

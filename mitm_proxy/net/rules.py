@@ -39,17 +39,19 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 from urllib.parse import parse_qsl
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from mavframe import frames
 from mavframe.codec import BY_NAME, MAVLINK_MAP
+from mavframe.packet import Direction
 from secuav_common.loading import InputError, validate
 from secuav_common.urls import Endpoint
 
-Direction = Literal["down", "up"]
+# The rules say "down" (vehicle -> ground) and "up" (ground -> vehicle), as users write them.
+RULE_SIDE: dict[Direction, str] = {Direction.DOWNLINK: "down", Direction.UPLINK: "up"}
 _LISTS = ("allow", "deny", "allow_sysid", "deny_sysid", "allow_compid", "deny_compid")
 
 
@@ -226,11 +228,11 @@ class EndpointGate:
         self._up = None if rules.up.empty else CompiledFilter.of(rules.up)
 
     def filters(self, direction: Direction) -> bool:
-        return (self._down if direction == "down" else self._up) is not None
+        return (self._down if direction is Direction.DOWNLINK else self._up) is not None
 
     def apply(self, data: bytes, direction: Direction) -> bytes:
         """What of ``data`` may go on in ``direction`` (``b""``: nothing)."""
-        flt = self._down if direction == "down" else self._up
+        flt = self._down if direction is Direction.DOWNLINK else self._up
         if flt is None:
             return data
         split = frames.split(data)
@@ -239,7 +241,7 @@ class EndpointGate:
             why = flt.verdict(header.msgid, header.sysid, header.compid)
             if why is None:
                 return data
-            self.dropped[f"{direction}.{why}"] += 1
+            self.dropped[f"{RULE_SIDE[direction]}.{why}"] += 1
             return b""
         kept: list[bytes] = []
         for header, frame in split.frames:
@@ -247,7 +249,7 @@ class EndpointGate:
             if why is None:
                 kept.append(frame)
             else:
-                self.dropped[f"{direction}.{why}"] += 1
+                self.dropped[f"{RULE_SIDE[direction]}.{why}"] += 1
         if len(kept) == len(split.frames) and split.clean:
             return data
         return b"".join(kept)

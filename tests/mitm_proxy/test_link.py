@@ -16,9 +16,10 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mavframe.frames import split
+from mavframe.layout import TARGET_SYSTEM_OFFSETS as TARGET_OFFSETS
+from mavframe.layout import target_system
 from mitm_proxy.app import Proxy
 from mitm_proxy.config import LinkConfig, ProxyConfig
-from mitm_proxy.net.link import TARGET_OFFSETS, target_system
 
 pytestmark = pytest.mark.timeout(30)
 

@@ -294,7 +294,8 @@ def test_a_readings_tap_sees_each_watched_reading_as_it_came_and_as_it_left() ->
 
     pipe, _, _ = make(bias(sensor_id=3, offset_m=1.0),
                       {"target": {"message": "DISTANCE_SENSOR", "sensor_id": 4}, "kind": "drop"})  # fmt: skip
-    tap = pipe.readings = ReadingsTap(1)
+    tap = ReadingsTap(1)
+    pipe.attach(tap)
     now = time.monotonic()
     pipe.feed(pack(distance(cm=250, sensor_id=3)) + pack(distance(cm=300, sensor_id=5)), DOWN, now)  # slow path
     pipe.feed(pack(distance(cm=420, sensor_id=4)), DOWN, now)  # dropped by the attack
@@ -310,3 +311,46 @@ def test_a_readings_tap_sees_each_watched_reading_as_it_came_and_as_it_left() ->
     pos = got["position"]
     assert pos["original_ned_m"] == pos["forwarded_ned_m"] and len(pos["original_ned_m"]) == 3
     assert tap.take() is None  # only what changed since
+
+
+class Log:
+    """An observer that writes down every hook call."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[Any, ...]] = []
+
+    def frames_in(self, direction: Direction, frames: Any) -> None:
+        self.calls.append(("in", direction, len(frames)))
+
+    def after_stage(self, stage: Any, pkts: Any) -> None:
+        self.calls.append(("stage", stage.name, len(pkts)))
+
+    def frame_out(self, direction: Direction, pos: int, header: Any, raw: bytes, data: bytes, pkt: Packet | None,
+                  delay_s: float) -> None:  # fmt: skip
+        self.calls.append(("out", pos, header.msgid, pkt is not None and pkt.changed, data is raw))
+
+    def dropped(self, direction: Direction, pos: int, header: Any, raw: bytes, pkt: Packet) -> None:
+        self.calls.append(("dropped", pos, header.msgid))
+
+
+def test_observers_see_four_hooks_and_only_while_attached() -> None:
+    pipe, _, _ = make(bias(sensor_id=3), {"target": {"message": "DISTANCE_SENSOR", "sensor_id": 4}, "kind": "drop"})
+    log = Log()
+    untargeted = pack(heartbeat())
+    now = time.monotonic()
+    assert pipe.feed(untargeted, DOWN, now)[0].data is untargeted and log.calls == []  # nobody watches: fast path
+    pipe.attach(log)
+    out = pipe.feed(untargeted, DOWN, now)
+    assert out[0].data == untargeted  # the same bytes leave; the observer saw them
+    assert log.calls == [("in", DOWN, 1), ("out", 0, HEARTBEAT, False, True)]
+    log.calls.clear()
+    pipe.feed(pack(heartbeat()) + pack(distance(sensor_id=3)) + pack(distance(sensor_id=4)), DOWN, now)
+    assert log.calls == [
+        ("in", DOWN, 3),
+        ("out", 0, HEARTBEAT, False, True),
+        ("stage", "attack", 1), ("out", 1, DISTANCE_SENSOR, True, False),  # rewritten by the bias
+        ("stage", "attack", 0), ("dropped", 2, DISTANCE_SENSOR),  # dropped by the profile
+    ]  # fmt: skip
+    pipe.detach(log)
+    log.calls.clear()
+    assert pipe.feed(untargeted, DOWN, now)[0].data is untargeted and log.calls == []

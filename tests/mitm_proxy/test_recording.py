@@ -43,7 +43,7 @@ def test_original_and_forwarded_read_back_with_the_attack_visible(tmp_path: Path
         {"target": {"message": "DISTANCE_SENSOR", "sensor_id": 2}, "kind": "delay", "delay_s": 0.25},
     ]}, "wall.yaml"))  # fmt: skip
     rec = Recorder(tmp_path / "rec", link=0)
-    pipe = Pipeline(0, [AttackStage(slot)], stats=LinkStats(1), recorder=rec)
+    pipe = Pipeline(0, [AttackStage(slot)], stats=LinkStats(1), observers=[rec])
     m = mav()
     sent = [
         pack(heartbeat(), m) + pack(local_position(), m),
@@ -85,7 +85,7 @@ def test_original_and_forwarded_read_back_with_the_attack_visible(tmp_path: Path
 
 def test_forwarded_untouched_stream_is_byte_identical_to_the_original(tmp_path: Path) -> None:
     with Recorder(tmp_path) as rec:
-        pipe = Pipeline(0, [], stats=LinkStats(), recorder=rec)
+        pipe = Pipeline(0, [], stats=LinkStats(), observers=[rec])
         m = mav()
         for i in range(50):
             pipe.feed(pack(distance(cm=i, sensor_id=i % 5), m) + pack(heartbeat(), m), Direction.DOWNLINK, 0.0)
@@ -111,7 +111,7 @@ def test_forwarded_untouched_stream_is_byte_identical_to_the_original(tmp_path: 
 def test_recording_is_flushed_while_running_so_a_crash_keeps_it(tmp_path: Path) -> None:
     clock = [1_700_000_000.0]
     rec = Recorder(tmp_path, wall_clock=lambda: clock[0])
-    pipe = Pipeline(0, [], stats=LinkStats(), recorder=rec)
+    pipe = Pipeline(0, [], stats=LinkStats(), observers=[rec])
     frame = pack(heartbeat())
     pipe.feed(frame, Direction.DOWNLINK, 0.0)
     assert (tmp_path / "original.tlog").stat().st_size == 0  # buffered
@@ -143,7 +143,7 @@ class Beacon:
 
 def test_injected_frames_are_indexed_without_an_original(tmp_path: Path) -> None:
     with Recorder(tmp_path) as rec:
-        pipe = Pipeline(0, [Beacon()], stats=LinkStats(), recorder=rec)
+        pipe = Pipeline(0, [Beacon()], stats=LinkStats(), observers=[rec])
         pipe.feed(pack(local_position()) + pack(heartbeat()), Direction.UPLINK, 0.0)
     index = json.loads((tmp_path / "index.json").read_text())
     assert index == [{"index": 2, "original": None, "msgid": 253, "direction": "uplink", "changed": False,
@@ -165,7 +165,7 @@ def test_a_full_disk_stops_the_recording_once_and_never_changes_what_is_forwarde
                                                         "offset": 1.0}]})  # fmt: skip
     slot = AttackSlot(1)
     slot.offer(profile)
-    pipe = Pipeline(0, [AttackStage(slot)], stats=LinkStats(), recorder=rec)
+    pipe = Pipeline(0, [AttackStage(slot)], stats=LinkStats(), observers=[rec])
     sender = mav(1)
     outs = []
     for i in range(2000):

@@ -8,6 +8,7 @@ from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mavframe.frames import StreamFramer, split
+from mavframe.packet import Direction
 from mitm_proxy.net.rules import EndpointGate, EndpointRules, FrameFilter, rules_from_options
 from secuav_common.loading import InputError
 from secuav_common.urls import parse_endpoint
@@ -59,13 +60,13 @@ def test_a_gate_drops_by_message_sysid_and_compid_and_counts_the_rule() -> None:
     )
     gate = EndpointGate(rules)
     datagram = f1["HEARTBEAT"] + f1["DISTANCE_SENSOR"] + f2["ATTITUDE"] + f1["ATTITUDE"]
-    assert gate.apply(datagram, "down") == f1["HEARTBEAT"] + f1["ATTITUDE"]
+    assert gate.apply(datagram, Direction.DOWNLINK) == f1["HEARTBEAT"] + f1["ATTITUDE"]
     assert gate.dropped == {"down.deny": 1, "down.deny_sysid": 1}
     uplink = f2["HEARTBEAT"] + f2["COMMAND_LONG"] + f1["HEARTBEAT"]
-    assert gate.apply(uplink, "up") == f2["HEARTBEAT"] + f2["COMMAND_LONG"]
+    assert gate.apply(uplink, Direction.UPLINK) == f2["HEARTBEAT"] + f2["COMMAND_LONG"]
     assert gate.dropped["up.allow_compid"] == 1
     whole = f1["HEARTBEAT"] + f1["ATTITUDE"]
-    assert gate.apply(whole, "down") is whole  # nothing dropped: the same bytes go on
+    assert gate.apply(whole, Direction.DOWNLINK) is whole  # nothing dropped: the same bytes go on
 
 
 def test_a_filtered_datagram_drops_what_is_not_a_frame() -> None:
@@ -73,7 +74,7 @@ def test_a_filtered_datagram_drops_what_is_not_a_frame() -> None:
     f = _frames(1)
     gate = EndpointGate(EndpointRules(up=FrameFilter(deny=["COMMAND_LONG"])))
     fake = bytes([0xFD, 40, 0, 0, 0, 1, 1, 0, 0, 0])  # a v2 header claiming a 40-byte HEARTBEAT that is not there
-    assert gate.apply(fake + f["COMMAND_LONG"] + f["HEARTBEAT"], "up") == f["HEARTBEAT"]
+    assert gate.apply(fake + f["COMMAND_LONG"] + f["HEARTBEAT"], Direction.UPLINK) == f["HEARTBEAT"]
 
 
 _NAMES = ["HEARTBEAT", "DISTANCE_SENSOR", "ATTITUDE", "COMMAND_LONG"]
@@ -90,7 +91,7 @@ def test_a_gate_keeps_exactly_the_frames_its_rules_allow(
 ) -> None:
     frames = [(_frames(s, c)[name], name, s, c) for name, s, c in stream]
     gate = EndpointGate(EndpointRules(down=FrameFilter(deny=deny, allow_sysid=allow_sysid, deny_compid=deny_compid)))
-    out = gate.apply(b"".join(f for f, *_ in frames), "down")
+    out = gate.apply(b"".join(f for f, *_ in frames), Direction.DOWNLINK)
     want = [f for f, name, s, c in frames
             if name not in deny and (not allow_sysid or s in allow_sysid) and c not in deny_compid]  # fmt: skip
     assert [raw for _h, raw in split(out).frames] == want

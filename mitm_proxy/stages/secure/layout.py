@@ -30,15 +30,11 @@ import numpy as np
 import estimators
 from estimators.models import MeasurementModel
 from estimators.scenario_models import anchor_model, wall_group_model
+from mavframe.layout import DISTANCE_SENSOR, GLOBAL_POSITION_INT, HOME_POSITION, LOCAL_POSITION_NED
 from mitm_proxy.stages.secure.config import SecureConfig
 from secuav_common.loading import InputError
 from secuav_common.scenario import Home, Scenario, Vehicle, WallDistanceTarget
 from secuav_common.sensor_ids import peer_sensor_id
-
-DISTANCE_SENSOR = 132
-LOCAL_POSITION_NED = 32
-GLOBAL_POSITION_INT = 33
-HOME_POSITION = 242
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,0 +1,85 @@
+"""Collecting the group's readings between two estimator steps, and deciding when a step is due.
+
+A reading is the group sensor's DISTANCE_SENSOR value, NaN when the sensor
+reports "no target" (``signal_quality`` 0); a set is due when every sensor has
+reported since the last step (a sensor silent for longer than ``max_age_s`` is
+not waited for), ``max_wait_s`` after the first one did (so a dropped sensor
+cannot stall the estimator), or at ``rate_hz`` when configured. A reading
+older than ``max_age_s`` goes into the step as NaN.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Literal
+
+import numpy as np
+
+from mitm_proxy.stages.secure.config import SecureConfig
+from mitm_proxy.stages.secure.layout import Layout
+from mitm_proxy.stages.secure.worker import Job
+
+NO_TARGET_QUALITY = 0  # DISTANCE_SENSOR.signal_quality: 0 = unknown / no target
+HEIGHT_MAX_AGE_S = 2.0  # a known height older than this is not used (the model's hold height is)
+
+Due = Literal["complete", "timed_out", "rate"]
+
+
+class Readings:
+    """The reading vector of one layout and the clock of its sets (proxy monotonic time)."""
+
+    def __init__(self, layout: Layout) -> None:
+        p = layout.p
+        self.z = np.full(p, np.nan)
+        self.rx = np.full(p, -math.inf)  # proxy time of each sensor's latest reading
+        self.fresh = np.zeros(p, dtype=bool)  # reported since the last step
+        self.pending_since: float | None = None
+        self.last_submit_s = -math.inf
+        self.sim_t_s: float | None = None  # the vehicle's clock of the newest reading, to join with truth
+        self.height_m: float | None = None  # known NED z (2-D anchors)
+        self.height_rx = -math.inf
+
+    def take_range(self, layout: Layout, fields: dict[str, Any], now_s: float) -> bool:
+        """A DISTANCE_SENSOR frame's fields; True when it was one of the group's readings."""
+        sid = fields.get("id")
+        distance_m = fields.get("current_distance", 0) / 100.0
+        valid = fields.get("signal_quality", 100) != NO_TARGET_QUALITY
+        if sid == layout.height_sensor_id and valid:
+            self.take_height(-distance_m, now_s)
+        i = layout.index_of.get(sid) if isinstance(sid, int) else None
+        if i is None:
+            return False
+        self.z[i] = distance_m if valid else math.nan
+        self.rx[i] = now_s
+        self.fresh[i] = True
+        boot_ms = fields.get("time_boot_ms")
+        if isinstance(boot_ms, int):
+            self.sim_t_s = boot_ms / 1000.0 if self.sim_t_s is None else max(self.sim_t_s, boot_ms / 1000.0)
+        if self.pending_since is None:
+            self.pending_since = now_s
+        return True
+
+    def take_height(self, z_ned_m: float, now_s: float) -> None:
+        self.height_m, self.height_rx = z_ned_m, now_s
+
+    def due(self, cfg: SecureConfig, now_s: float) -> Due | None:
+        """Why a step is due now, or None."""
+        if self.pending_since is None:
+            return None
+        if cfg.rate_hz is not None:
+            return "rate" if now_s - self.last_submit_s >= 1.0 / cfg.rate_hz - 1e-6 else None  # no float loss
+        if np.all(self.fresh | (now_s - self.rx > cfg.max_age_s)):  # a silent sensor is not waited for
+            return "complete"
+        return "timed_out" if now_s - self.pending_since >= cfg.max_wait_s else None
+
+    def job(self, cfg: SecureConfig, layout: Layout, now_s: float) -> Job:
+        """The set to step now (stale readings as NaN); the next set starts empty."""
+        z = np.where(now_s - self.rx <= cfg.max_age_s, self.z, np.nan)
+        known: float | None = None
+        if layout.position_dims == 2:
+            fresh_height = self.height_m is not None and now_s - self.height_rx <= HEIGHT_MAX_AGE_S
+            known = self.height_m if fresh_height else None  # None: the model's hold height
+        self.fresh[:] = False
+        self.pending_since = None
+        self.last_submit_s = now_s
+        return Job(t_s=now_s, z=z, known=known, sim_t_s=self.sim_t_s, rx_s=now_s)

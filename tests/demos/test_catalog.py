@@ -1,0 +1,27 @@
+"""What the study needs from the demos, without flying one: which demo flies which scenario, and its ports."""
+
+from __future__ import annotations
+
+import pytest
+
+from demos import catalog, formation, localise, wall_hover
+from demos.cli import DEMOS
+from demos.stack import Ports
+from secuav_common.scenario import load_scenario
+
+
+def test_the_catalog_names_each_demo_and_the_scenario_it_flies() -> None:
+    assert set(catalog.SCENARIO_OF_DEMO) == set(DEMOS)
+    for module in (wall_hover, localise, formation):
+        demo = next(name for name, m in DEMOS.items() if m is module)
+        assert catalog.SCENARIO_OF_DEMO[demo] == module.SCENARIO
+        assert catalog.demo_for(load_scenario(module.SCENARIO)) == demo
+    with pytest.raises(ValueError, match="closed-loop cells fly the demos"):
+        catalog.demo_for(load_scenario("anchors8").model_copy(update={"name": "other", "duration_s": 1.0}))
+
+
+def test_a_port_block_is_what_base_port_documents() -> None:
+    ports = Ports.block(20000)
+    assert (ports.proxy_vehicle, ports.api, ports.gcs, ports.mqtt) == (20000, 20010, 20020, 20021)
+    assert catalog.PORT_SPAN == 22 and ports.mqtt < 20000 + catalog.PORT_SPAN
+    assert Ports() == Ports(14560, 14540, 14550, 1883)  # docs/interfaces.md's plan for vehicle 0
