@@ -13,6 +13,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Final
 
+from mavframe.frames import TEXT
 from mavframe.packet import Direction
 
 __all__ = ["DirectionStats", "LatencyHistogram", "LinkStats"]
@@ -56,7 +57,9 @@ class DirectionStats:
             "signed_untouched": self.signed_untouched,
             "resigned": self.resigned,
             "bad": dict(self.bad),
-            "bad_total": sum(self.bad.values()),
+            # Printable lines (an autopilot's boot text on its serial link) are shown under bad but are not
+            # hostile: they stay out of the total that consoles and `secuav-attack status` call "bad".
+            "bad_total": sum(n for reason, n in self.bad.items() if reason != TEXT),
         }
 
 

@@ -62,3 +62,12 @@ def test_memory_is_constant_and_reset_works() -> None:
     assert len(h._counts) == n_bins and h.count == 100000
     h.reset()
     assert h.count == 0 and h.quantile(0.5) is None
+
+
+def test_boot_text_is_shown_but_not_counted_as_bad() -> None:
+    """ArduPilot SITL's "Init ArduCopter ..." lines on its serial link are not an attack on the link."""
+    stats = LinkStats(1)
+    stats[Direction.DOWNLINK].add_bad("text", 3)
+    stats[Direction.DOWNLINK].add_bad("bad_crc")
+    snap = stats.snapshot()
+    assert snap["downlink"]["bad"] == {"text": 3, "bad_crc": 1} and snap["downlink"]["bad_total"] == 1
