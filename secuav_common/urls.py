@@ -7,7 +7,7 @@ place only after that peer fell silent, see mitm_proxy.net.endpoints);
 or falls silent for 10 s;
 ``tcpin://HOST:PORT`` is a TCP server: every client that connects is a peer, up to ``max_clients`` of them
 (``tcpin://0.0.0.0:5760?max_clients=4``; default 16); a client that floods it with bytes that are not
-MAVLink (over 256 kB a second) or reads nothing for 5 s while frames wait is disconnected;
+MAVLink (over 64 kB a second) or reads nothing for 5 s while frames wait is disconnected;
 ``serial:///dev/ttyUSB0?baud=57600`` is a serial port (a telemetry radio).
 Every stream is framed a slice at a time, so no peer holds up the others (mitm_proxy.net.tcp_serial).
 

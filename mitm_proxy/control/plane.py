@@ -15,7 +15,8 @@ retained ``.../state`` topic next to it. It also publishes each link's stats at
 
 The data path never waits for MQTT: a request is decoded and validated in a
 worker thread and installed between two frames on the event loop, requests
-past ``REQUESTS_PER_S`` per set topic are dropped, requests handed over as
+past ``REQUESTS_PER_S`` per set topic (a large one counting as one per 4 kB)
+are dropped, requests handed over as
 retained (left on the broker) are ignored, and every outgoing message goes
 through an outbox that drops rather than blocks. When the broker goes away the plane logs it once, retries
 with a growing backoff, and on reconnect republishes every state, so a client
@@ -74,6 +75,9 @@ MAX_UNKNOWN_LOGGED = 100  # unknown vehicle keys logged (once each); junk topics
 # or a script sends a few a second; a flood past this is dropped unread (counted, logged once).
 REQUESTS_PER_S = 10.0
 REQUEST_BURST = 20
+# A request costs one more token per 4 kB: checking and building a profile costs ~2 ms per kB, so a flood of
+# the largest profiles (64 kB, 17 tokens) is held to one every 1.7 s, while small requests keep 10 a second.
+REQUEST_BYTES_PER_TOKEN = 4096
 REQUEST_BACKLOG = 64  # requests waiting to be checked and applied; past this they are dropped (counted)
 __all__ = ["MAX_PAYLOAD_BYTES", "ONLINE_TOPIC", "ControlPlane", "Outbox", "RequestError", "default_instance",
            "parse_vehicle_key", "proxy_topic", "vehicle_topic"]  # fmt: skip
@@ -446,7 +450,7 @@ class ControlPlane:
             self.retained_ignored += 1
             self._log_once(self._retained_logged, topic, "control.retained_request_ignored")
             return None
-        if not self._rate.take(topic, now_s):
+        if not self._rate.take(topic, now_s, 1 + len(raw) // REQUEST_BYTES_PER_TOKEN):
             self.rate_limited += 1
             self._log_once(self._rate_logged, topic, "control.rate_limited",
                            limit_per_s=REQUESTS_PER_S, burst=REQUEST_BURST)  # fmt: skip
@@ -506,13 +510,13 @@ class _RateLimit:
         self.per_s, self.burst, self.max_topics = per_s, burst, max_topics
         self.buckets: dict[str, tuple[float, float]] = {}  # topic -> (tokens, when counted)
 
-    def take(self, topic: str, now_s: float) -> bool:
+    def take(self, topic: str, now_s: float, cost: int = 1) -> bool:
         tokens, then = self.buckets.get(topic, (float(self.burst), now_s))
         tokens = min(float(self.burst), tokens + (now_s - then) * self.per_s)
         if len(self.buckets) >= self.max_topics and topic not in self.buckets:
             self.buckets.clear()  # routed topics are few; this only bounds junk
-        if tokens < 1.0:
+        if tokens < cost:
             self.buckets[topic] = (tokens, now_s)
             return False
-        self.buckets[topic] = (tokens - 1.0, now_s)
+        self.buckets[topic] = (tokens - cost, now_s)
         return True

@@ -41,7 +41,7 @@ from collections.abc import Callable
 from typing import Any
 
 from mavframe.frames import StreamFramer, tiles
-from mitm_proxy.net.endpoints import MAX_DATAGRAM_BYTES, MAX_PENDING_SEND_BYTES, BaseEndpoint, EndpointError, Role, _fmt
+from mitm_proxy.net.endpoints import MAX_PENDING_SEND_BYTES, BaseEndpoint, EndpointError, Role, _fmt
 from mitm_proxy.net.rules import NO_RULES, EndpointRules
 from secuav_common.loading import InputError
 from secuav_common.urls import Endpoint
@@ -51,10 +51,11 @@ log = logging.getLogger(__name__)
 BACKOFF_FIRST_S = 0.25
 BACKOFF_MAX_S = 5.0
 STABLE_S = 2.0  # a connection that lasted this long resets the backoff
-SLICE_BYTES = MAX_DATAGRAM_BYTES  # framed per turn of the loop (as much as one UDP datagram may hold)
-# Framing crafted bytes costs up to ~2 s per MB (benchmarks/framing_garbage_bench.py): 256 kB of garbage a
-# second is at most about half a core, and a link's own traffic never comes near it.
-GARBAGE_BYTES_PER_S = 256 * 1024
+# Framing crafted bytes costs up to ~2 us a byte (benchmarks/framing_garbage_bench.py), clean frames ~0.3:
+# 2 kB a turn holds the loop ~4 ms at worst, and 64 kB of garbage a second costs at most ~13 % of a core.
+# A link's own traffic never comes near the budget (a stream that tiles costs nothing against it).
+SLICE_BYTES = 2048
+GARBAGE_BYTES_PER_S = 64 * 1024
 DEFAULT_MAX_CLIENTS = 16
 SLOW_CLIENT_S = 5.0  # a tcpin client that reads nothing for this long while we send is evicted
 SILENT_PEER_S = 10.0  # an autopilot sends HEARTBEAT at 1 Hz; a tcp peer silent this long is dialled again

@@ -54,9 +54,9 @@ def _flood(port: int, total: int, outcome: dict[str, object]) -> None:
 async def test_a_garbage_flood_on_one_endpoint_evicts_that_client_and_the_other_vehicle_flows(
     udp_port: Callable[[], int], tcp_port: Callable[[], int], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    # A smaller budget than the real 256 kB/s, so that even a proxy slowed by a busy machine (which reads a
+    # A smaller budget than the real 64 kB/s, so that even a proxy slowed by a busy machine (which reads a
     # stream only as fast as it frames it) sees the flood go over it within the test.
-    monkeypatch.setattr(tcp_serial, "GARBAGE_BYTES_PER_S", 32 * 1024)
+    monkeypatch.setattr(tcp_serial, "GARBAGE_BYTES_PER_S", 16 * 1024)
     v1, v2, gtcp = udp_port(), udp_port(), tcp_port()
     ground2 = Peer()
     config = ProxyConfig(links=[
