@@ -97,18 +97,63 @@ class Rangefinder(_Strict):
 
 
 class RangeNoise(_Strict):
-    """Radio range noise beyond the Gaussian: heavy tails and non-line-of-sight paths (off by default).
+    """Radio range noise beyond white Gaussian (off by default: without ``noise:`` a range is truth + N(0, std)).
 
-    UWB ranges indoors are not Gaussian: multipath and bodies in the way lengthen
-    some readings (NLOS: a positive excess path, here exponential with mean
-    ``nlos_mean_m``, on a share ``nlos_prob`` of readings), and the line-of-sight
-    error itself has heavier tails (Student-t with ``student_t_dof`` degrees of
-    freedom, scaled to keep ``noise_std_m`` as its standard deviation).
+    A reading's error is the sum of
+
+    - a per-link constant offset, drawn once per link and run from N(``offset_mean_m``, ``offset_std_m``)
+      (antenna delay left after calibration: real two-way UWB ranges read long by about 0.1-0.3 m);
+    - the noise of std ``noise_std_m`` (the sensor's field), split into a time-correlated part, a
+      first-order Gauss-Markov process holding the share ``correlated_share`` of its variance with
+      correlation time ``correlation_time_s``, and a white remainder; the white part is Student-t
+      with ``student_t_dof`` degrees of freedom when that is set (heavy tails, rescaled to keep
+      its variance);
+    - non-line-of-sight excess path: per reading, with probability ``nlos_prob``, an exponential
+      excess of mean ``nlos_mean_m``; and NLOS *episodes*, starting at rate ``nlos_episode_rate_hz``
+      per link, lasting an exponential time of mean ``nlos_episode_mean_s``, during which the link
+      reads long by a bias drawn (exponential) with mean ``nlos_episode_bias_m``;
+    - gross errors: with probability ``outlier_prob`` a reading is off by N(0, ``outlier_std_m``).
+
+    ``preset`` fills every field not given from a named parameter set fitted to real data
+    (docs/datasets.md gives the dataset, its licence and the fit): ``uwb-lias-planar`` is the
+    LIAS-CUHKSZ planar two-way UWB dataset (8 anchors, motion-capture truth). A scenario without
+    ``noise:``, or with only the first three fields below, draws exactly the numbers it always did.
     """
 
+    preset: Literal["uwb-lias-planar"] | None = Field(
+        None, description="fill the fields not given from a fitted parameter set (docs/datasets.md)"
+    )
     nlos_prob: Probability = 0.0
     nlos_mean_m: NonNegFloat = 0.3
     student_t_dof: float | None = Field(None, gt=2.0, description="None: Gaussian; > 2 for a finite variance")
+    offset_mean_m: float = Field(0.0, ge=-10.0, le=10.0, description="mean of the per-link constant offsets")
+    offset_std_m: NonNegFloat = Field(0.0, description="spread of the per-link constant offsets across links")
+    correlated_share: Probability = Field(0.0, description="share of the noise variance that is Gauss-Markov")
+    correlation_time_s: PositiveFloat = Field(1.0, description="correlation time of the Gauss-Markov part")
+    nlos_episode_rate_hz: NonNegFloat = Field(0.0, description="NLOS episode onsets per second per link")
+    nlos_episode_mean_s: PositiveFloat = Field(0.5, description="mean NLOS episode duration (exponential)")
+    nlos_episode_bias_m: NonNegFloat = Field(0.3, description="mean excess range during an episode")
+    outlier_prob: Probability = Field(0.0, description="share of readings with a gross error")
+    outlier_std_m: NonNegFloat = Field(2.0, description="std of a gross error")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _fill_preset(cls, data: object) -> object:
+        if isinstance(data, dict) and data.get("preset") is not None:
+            from secuav_common.noise_presets import PRESETS
+
+            base = PRESETS.get(data["preset"])
+            if base is not None:  # an unknown name is refused by the Literal above
+                return {**base, **data}
+        return data
+
+    @property
+    def stateful(self) -> bool:
+        """True when a link carries state (offset, correlated part, episodes, outliers) beyond per-reading draws."""
+        return bool(
+            self.offset_mean_m or self.offset_std_m or self.correlated_share or self.nlos_episode_rate_hz
+            or self.outlier_prob
+        )
 
 
 class UwbRanging(_Strict):
