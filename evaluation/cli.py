@@ -3,6 +3,7 @@
     secuav-eval --scenario anchors8 --attack type-a --estimators ekf,secekf,rarse --trials 3 --seed 0 --out out/tc1
     secuav-eval --scenario wall_hover --attack wall-spoof-two --out out/wall
     secuav-eval --scenario anchors8 --tlog flight.tlog [--truth truth.csv] [--attack none] --out out/log
+    secuav-eval --scenario rec.yaml --ranges ranges.csv [--truth truth.csv] [--attack type-a] --out out/rec
 
 ``--attack`` takes a profile file, a library name (``secuav-attack list``) or
 ``none``; ``--param k=v`` fills a library profile's parameters. Each trial flies
@@ -16,7 +17,9 @@ file and field, exit 2, nothing written.
 ``--tlog F`` replaces the flight by a recorded MAVLink log (one trial): its
 DISTANCE_SENSOR readings, framed on the vehicle's boot clock (see
 :mod:`evaluation.tlog`); the scenario still supplies the anchors and noise.
-``--truth CSV`` (flightsim's ``secuav-sim --truth-csv``, same clock) scores
+``--ranges CSV`` does the same for recorded ranges in a plain CSV file (time,
+sysid, sensor id, range; docs/recorded-ranges.md), e.g. a public dataset decoded
+by ``scripts/datasets/``. ``--truth CSV`` (flightsim's ``secuav-sim --truth-csv``, same clock) scores
 errors and detection against ground truth; without it errors are n/a and only
 alarms, the links named per sensor id, step times (and the distance from the
 autopilot's LOCAL_POSITION_NED) are reported. An ``--attack`` other than
@@ -40,6 +43,7 @@ from attack_profiles.profile import Profile
 from attack_profiles.resolve import parse_params, resolve_profile
 from estimators.models import MeasurementModel
 from estimators.scenario_models import anchor_model, two_vehicle_model, wall_group_model
+from evaluation.ranges import read_ranges_csv
 from evaluation.report import plot, summarise, table, write_results
 from evaluation.tlog import frame_rate_hz, log_streams, read_tlog, read_truth_csv
 from evaluation.trial import RATE_HZ, TrialResult, evaluate, is_formation, is_wall, run_trial
@@ -73,8 +77,18 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="evaluate a recorded MAVLink .tlog instead of flying (one trial; --trials, --leg, --duration unused)",
     )
-    p.add_argument("--truth", type=Path, default=None, help="ground-truth CSV for --tlog (secuav-sim --truth-csv)")
-    p.add_argument("--rate", type=float, default=None, help="--tlog framing rate in Hz (default: the ranges' own)")
+    p.add_argument(
+        "--ranges",
+        type=Path,
+        default=None,
+        help="evaluate recorded ranges from a CSV (t_s,sysid,sensor_id,range_m; docs/recorded-ranges.md), like --tlog",
+    )
+    p.add_argument(
+        "--truth", type=Path, default=None, help="ground-truth CSV for --tlog/--ranges (secuav-sim --truth-csv)"
+    )
+    p.add_argument(
+        "--rate", type=float, default=None, help="--tlog/--ranges framing rate in Hz (default: the ranges' own)"
+    )
     add_common_flags(p, log_flags=False)
     return p
 
@@ -111,10 +125,13 @@ def main(argv: list[str] | None = None) -> int:
         scenario_path = resolve_scenario_path(args.scenario)
         scenario = load_scenario(scenario_path)
         _check_scenario(scenario, str(scenario_path))
-        if args.attack is None and args.tlog is None:
+        if args.tlog is not None and args.ranges is not None:
+            raise InputError("--tlog/--ranges", "", None, "give one recording, not both")
+        recorded = args.tlog is not None or args.ranges is not None
+        if args.attack is None and not recorded:
             raise InputError("--attack", "", None, "required (a profile file, a library name, or 'none')")
-        if args.tlog is None and (args.truth is not None or args.rate is not None):
-            raise InputError("--truth/--rate", "", None, "only with --tlog")
+        if not recorded and (args.truth is not None or args.rate is not None):
+            raise InputError("--truth/--rate", "", None, "only with --tlog or --ranges")
         if args.rate is not None and not 0.1 <= args.rate <= 1000.0:
             raise InputError("--rate", "", args.rate, "must lie in 0.1..1000 Hz")
         profile = resolve_attack(args.attack or "none", parse_params(args.param))
@@ -130,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as err:
         print(f"secuav-eval: {err}", file=sys.stderr)
         return 2
-    if args.tlog is not None:
+    if recorded:
         return _main_tlog(args, scenario, scenario_path, profile, names)
     duration = args.duration or scenario.duration_s
     jobs = [(scenario, profile, names, args.seed + i, duration, args.leg, args.dims) for i in range(args.trials)]
@@ -179,28 +196,33 @@ def _write(out: Path, meta: dict[str, Any], summary: dict[str, dict[str, Any]], 
 def _main_tlog(
     args: argparse.Namespace, scenario: Scenario, scenario_path: Path, profile: Profile | None, names: list[str]
 ) -> int:
-    """One trial on a recorded log (see the module docstring)."""
+    """One trial on a recorded log or recorded-ranges CSV (see the module docstring)."""
+    source = args.tlog if args.tlog is not None else args.ranges
+    skipped = 0
     try:
-        logs, info = read_tlog(args.tlog)
-        truth = None if args.truth is None else read_truth_csv(args.truth)
         needed = [v.sysid for v in scenario.vehicles[: 2 if is_formation(scenario) else 1]]
-        absent = [s for s in needed if s not in logs]
-        if absent:
-            reason = f"scenario {scenario.name!r} needs sysid {absent[0]}; the log has {list(info.sysids)}"
-            raise InputError(str(args.tlog), "sysid", absent[0], reason)
-        if truth is not None and needed[0] not in truth:
-            raise InputError(str(args.truth), "sysid", needed[0], f"no truth rows for it (has {sorted(truth)})")
         down = {
             s: next((r.id for r in scenario.vehicle(s).sensors.rangefinders if r.orientation == "down"), None)
             for s in needed
         }
+        if args.tlog is not None:
+            logs, info = read_tlog(args.tlog)
+        else:
+            logs, info, skipped = read_ranges_csv(args.ranges, needed[0], down)
+        truth = None if args.truth is None else read_truth_csv(args.truth)
+        absent = [s for s in needed if s not in logs]
+        if absent:
+            reason = f"scenario {scenario.name!r} needs sysid {absent[0]}; the log has {list(info.sysids)}"
+            raise InputError(str(source), "sysid", absent[0], reason)
+        if truth is not None and needed[0] not in truth:
+            raise InputError(str(args.truth), "sysid", needed[0], f"no truth rows for it (has {sorted(truth)})")
         rate = args.rate or frame_rate_hz(logs[needed[0]], RATE_HZ)
         streams, boot_offset_s = log_streams(logs, needed, down, rate, truth)
         wanted = set(_model_ids(scenario))
         if not wanted & set(streams[needed[0]].readings):
             has = list(info.sensor_ids[needed[0]])
             reason = f"none of the scenario's sensor ids {sorted(wanted)} is in the log (it has {has})"
-            raise InputError(str(args.tlog), "DISTANCE_SENSOR.id", None, reason)
+            raise InputError(str(source), "DISTANCE_SENSOR.id" if args.tlog else "sensor_id", None, reason)
         engine = None if profile is None else Engine(profile, seed=args.seed, scenario=scenario)
     except InputError as err:
         print(f"secuav-eval: {err}", file=sys.stderr)
@@ -209,8 +231,9 @@ def _main_tlog(
     summary = summarise([trial])
     args.out.mkdir(parents=True, exist_ok=True)
     meta = {
-        "source": "tlog",
-        "tlog": str(args.tlog),
+        "source": "tlog" if args.tlog is not None else "ranges",
+        "tlog": None if args.tlog is None else str(args.tlog),
+        "ranges": None if args.ranges is None else str(args.ranges),
         "truth": None if args.truth is None else str(args.truth),
         "scenario": scenario.name,
         "scenario_file": str(scenario_path),
@@ -226,6 +249,7 @@ def _main_tlog(
             "sysids": list(info.sysids),
             "sensor_ids": {str(k): list(v) for k, v in info.sensor_ids.items()},
             "invalid_readings": info.invalid_readings,
+            "rows_skipped": skipped,
         },
         "test_case": "wall" if is_wall(scenario) else 2 if is_formation(scenario) else 1,
         "errors_scored": trial.scored_errors,

@@ -70,6 +70,9 @@ class TrialResult:
     local_xy_m: np.ndarray | None = None  # (T, 2) LOCAL_POSITION_NED of the first vehicle (logs)
     readings_m: np.ndarray | None = None  # (T, p) what the estimators read (attacked; NaN = missing)
     truth_down_m: np.ndarray | None = None  # (T,) the first vehicle's true NED down
+    # (T, p) what this run's attack engine added to each reading (0 where it changed nothing, NaN where a
+    # reading was missing); unlike offsets_m on a log, never the recording's own error. None: not known.
+    added_m: np.ndarray | None = None
 
 
 def is_wall(scenario: Scenario) -> bool:
@@ -200,6 +203,7 @@ def evaluate(
         local_xy_m=local,
         readings_m=z,
         truth_down_m=s1.truth_ned_m[:, 2],
+        added_m=z - clean,
     )
 
 
@@ -349,4 +353,5 @@ def _wall_trial(
         named_floor_m=floor,
         scored_errors=scored_err,
         scored_detection=scored_det,
+        added_m=z - clean,
     )
