@@ -29,6 +29,7 @@ autopilot's LOCAL_POSITION_NED) are reported. An ``--attack`` other than
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import signal
 import sys
 from concurrent.futures import ProcessPoolExecutor
@@ -42,10 +43,10 @@ from attack_profiles import Engine
 from attack_profiles.profile import Profile
 from attack_profiles.resolve import parse_params, resolve_profile
 from estimators.models import MeasurementModel
+from estimators.noise import CALIBRATION_PARAM
 from estimators.scenario_models import anchor_model, two_vehicle_model, wall_group_model
-from evaluation.ranges import read_ranges_csv
+from evaluation.recorded import load_recording
 from evaluation.report import plot, summarise, table, write_results
-from evaluation.tlog import frame_rate_hz, log_streams, read_tlog, read_truth_csv
 from evaluation.trial import RATE_HZ, TrialResult, evaluate, is_formation, is_wall, run_trial
 from secuav_common.loading import InputError
 from secuav_common.logs import add_common_flags
@@ -89,6 +90,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--rate", type=float, default=None, help="--tlog/--ranges framing rate in Hz (default: the ranges' own)"
     )
+    p.add_argument(
+        "--calibrate",
+        type=float,
+        default=None,
+        metavar="S",
+        help="calibrate per-link offsets and the noise scale on the first S seconds (taken as attack-free; "
+        "estimators.noise) before the estimators trust the readings",
+    )
+    p.add_argument(
+        "--score-from",
+        type=float,
+        default=None,
+        metavar="S",
+        help="score only steps after S seconds (default: 1 s of warm-up, after the --calibrate window if given); "
+        "give the same S to runs compared with and without --calibrate",
+    )
     add_common_flags(p, log_flags=False)
     return p
 
@@ -110,9 +127,17 @@ def _check_scenario(scenario: Scenario, source: str) -> None:
         raise InputError(source, "vehicles[1].sensors.uwb.anchors", None, reason)
 
 
-def _trial(args: tuple[Scenario, Profile | None, list[str], int, float, str, int]) -> TrialResult:
-    scenario, profile, names, seed, duration_s, leg, dims = args
-    return run_trial(scenario, profile, names, seed, duration_s, leg, dims=dims)  # type: ignore[arg-type]
+def _trial(args: tuple[Scenario, Profile | None, list[str], int, float, str, int, dict[str, Any]]) -> TrialResult:
+    scenario, profile, names, seed, duration_s, leg, dims, params = args
+    return run_trial(scenario, profile, names, seed, duration_s, leg, params, dims=dims)  # type: ignore[arg-type]
+
+
+def _scored(trial: TrialResult, args: argparse.Namespace) -> TrialResult:
+    return trial if args.score_from is None else dataclasses.replace(trial, score_from_s=args.score_from)
+
+
+def _params(args: argparse.Namespace) -> dict[str, Any]:
+    return {} if args.calibrate is None else {CALIBRATION_PARAM: args.calibrate}
 
 
 def _terminate(signum: int, frame: object) -> None:
@@ -142,6 +167,10 @@ def main(argv: list[str] | None = None) -> int:
         unknown = [n for n in names if n not in fits]
         if unknown or not names:
             raise InputError("--estimators", "", args.estimators, f"choose from {', '.join(fits)} (on this scenario)")
+        if args.calibrate is not None and not 0 < args.calibrate <= 3600:
+            raise InputError("--calibrate", "", args.calibrate, "must lie in (0, 3600] seconds")
+        if args.score_from is not None and not 0 <= args.score_from <= 36000:
+            raise InputError("--score-from", "", args.score_from, "must lie in 0..36000 seconds")
         if args.trials < 1 or args.jobs < 1:
             raise InputError("--trials/--jobs", "", (args.trials, args.jobs), "must be at least 1")
     except InputError as err:
@@ -150,7 +179,10 @@ def main(argv: list[str] | None = None) -> int:
     if recorded:
         return _main_tlog(args, scenario, scenario_path, profile, names)
     duration = args.duration or scenario.duration_s
-    jobs = [(scenario, profile, names, args.seed + i, duration, args.leg, args.dims) for i in range(args.trials)]
+    jobs = [
+        (scenario, profile, names, args.seed + i, duration, args.leg, args.dims, _params(args))
+        for i in range(args.trials)
+    ]
     signal.signal(signal.SIGTERM, _terminate)
     try:
         if args.jobs == 1:
@@ -161,6 +193,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("secuav-eval: interrupted, nothing written", file=sys.stderr)
         return 130
+    trials = [_scored(t, args) for t in trials]
     summary = summarise(trials)
     args.out.mkdir(parents=True, exist_ok=True)
     meta = {
@@ -173,6 +206,8 @@ def main(argv: list[str] | None = None) -> int:
         "duration_s": duration,
         "leg": args.leg,
         "dims": args.dims,
+        "calibration_s": args.calibrate,
+        "score_from_s": trials[0].score_from_s,
         "rate_hz": RATE_HZ,
         "test_case": "wall" if is_wall(scenario) else 2 if is_formation(scenario) else 1,
         "note": "errors: the first vehicle's horizontal position (wall case: the wall distance); "
@@ -197,37 +232,17 @@ def _main_tlog(
     args: argparse.Namespace, scenario: Scenario, scenario_path: Path, profile: Profile | None, names: list[str]
 ) -> int:
     """One trial on a recorded log or recorded-ranges CSV (see the module docstring)."""
-    source = args.tlog if args.tlog is not None else args.ranges
-    skipped = 0
     try:
-        needed = [v.sysid for v in scenario.vehicles[: 2 if is_formation(scenario) else 1]]
-        down = {
-            s: next((r.id for r in scenario.vehicle(s).sensors.rangefinders if r.orientation == "down"), None)
-            for s in needed
-        }
-        if args.tlog is not None:
-            logs, info = read_tlog(args.tlog)
-        else:
-            logs, info, skipped = read_ranges_csv(args.ranges, needed[0], down)
-        truth = None if args.truth is None else read_truth_csv(args.truth)
-        absent = [s for s in needed if s not in logs]
-        if absent:
-            reason = f"scenario {scenario.name!r} needs sysid {absent[0]}; the log has {list(info.sysids)}"
-            raise InputError(str(source), "sysid", absent[0], reason)
-        if truth is not None and needed[0] not in truth:
-            raise InputError(str(args.truth), "sysid", needed[0], f"no truth rows for it (has {sorted(truth)})")
-        rate = args.rate or frame_rate_hz(logs[needed[0]], RATE_HZ)
-        streams, boot_offset_s = log_streams(logs, needed, down, rate, truth)
-        wanted = set(_model_ids(scenario))
-        if not wanted & set(streams[needed[0]].readings):
-            has = list(info.sensor_ids[needed[0]])
-            reason = f"none of the scenario's sensor ids {sorted(wanted)} is in the log (it has {has})"
-            raise InputError(str(source), "DISTANCE_SENSOR.id" if args.tlog else "sensor_id", None, reason)
+        rec = load_recording(scenario, tlog=args.tlog, ranges=args.ranges, truth=args.truth, rate_hz=args.rate)
+        streams, info, skipped, rate, boot_offset_s = (
+            rec.streams, rec.info, rec.rows_skipped, rec.rate_hz, rec.boot_offset_s
+        )
         engine = None if profile is None else Engine(profile, seed=args.seed, scenario=scenario)
     except InputError as err:
         print(f"secuav-eval: {err}", file=sys.stderr)
         return 2
-    trial = evaluate(scenario, streams, engine, names, from_log=True, dims=args.dims)
+    trial = evaluate(scenario, streams, engine, names, from_log=True, params=_params(args), dims=args.dims)
+    trial = _scored(trial, args)
     summary = summarise([trial])
     args.out.mkdir(parents=True, exist_ok=True)
     meta = {
@@ -241,6 +256,8 @@ def _main_tlog(
         "attack_hash": None if profile is None else profile.content_hash(),
         "trials": 1,
         "seed": args.seed,
+        "calibration_s": args.calibrate,
+        "score_from_s": trial.score_from_s,
         "rate_hz": round(rate, 6),
         "frames": int(trial.t_s.size),
         "boot_time_of_t0_s": boot_offset_s,
@@ -273,13 +290,6 @@ def model_for(scenario: Scenario, dims: int = 3) -> MeasurementModel:
     if is_formation(scenario):
         return two_vehicle_model(scenario, first.sysid, scenario.vehicles[1].sysid)
     return anchor_model(scenario, first.sysid, dims)
-
-
-def _model_ids(scenario: Scenario) -> tuple[int, ...]:
-    first = scenario.vehicles[0]
-    if is_wall(scenario):
-        return wall_group_model(scenario, first.sysid).ids()
-    return anchor_model(scenario, first.sysid).ids()
 
 
 if __name__ == "__main__":

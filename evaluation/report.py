@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from evaluation.trial import WARMUP_S, TrialResult
+from evaluation.trial import TrialResult
 
 RECALL_SIGMAS = 5.0  # an attack counts for recall once it exceeds five noise deviations (issue 6 target)
 
@@ -53,7 +53,7 @@ def false_alarms(trials: list[TrialResult], name: str) -> dict[str, float | None
         if tr.added_m is None:
             return dict.fromkeys(FALSE_ALARM_KEYS)
         trace = tr.traces[name]
-        keep = tr.t_s > WARMUP_S
+        keep = tr.t_s > tr.score_from_s
         dt = float(np.median(np.diff(tr.t_s))) if tr.t_s.size > 1 else 0.0
         touched = np.abs(np.nan_to_num(tr.added_m[keep], nan=0.0)) > 0.0
         quiet = ~touched.any(axis=1)
@@ -107,7 +107,7 @@ def summarise(trials: list[TrialResult]) -> dict[str, dict[str, Any]]:
         named_by_id = np.zeros(len(trials[0].sensor_ids))
         for tr in trials:
             trace = tr.traces[name]
-            keep = tr.t_s > WARMUP_S
+            keep = tr.t_s > tr.score_from_s
             errs.append(trace.err_m[keep])
             has_estimate.append(np.isfinite(trace.est_xy_m[keep]).all(axis=1))
             if trace.range_err_m is not None:
