@@ -123,3 +123,17 @@ def test_the_uwb_model_gives_each_anchor_its_own_offset() -> None:
     offsets = [r.distance_m - math.dist((0.0, 0.0, -3.0), anchors[r.sensor_id - 10]) for r in reads]
     assert offsets == pytest.approx([uwb.links[k].offset_m for k in range(8)])
     assert statistics.pstdev(offsets) > 0.02  # not one shared offset
+
+
+def test_a_flight_with_the_fitted_preset_has_per_link_offsets() -> None:
+    from estimators.scenario_models import anchor_model
+    from evaluation.streams import fly
+
+    scenario = load_scenario("anchors8_realnoise")
+    stream = fly(scenario, 3, 20.0, RATE_HZ)[1]
+    model = anchor_model(scenario, 1, 2)
+    z = np.column_stack([stream.readings[i] for i in model.sensor_ids])
+    true = np.array([model.h(p[:2], p[2]) for p in stream.truth_ned_m])
+    means = np.nanmedian(z - true, axis=0)
+    assert 0.08 < means.mean() < 0.26 and means.std() > 0.02  # offsets 0.17 +- 0.062 m across eight links
+    assert np.nanstd(z - true - means) == pytest.approx(0.069, rel=0.35)
