@@ -47,6 +47,7 @@ from estimators.registry import create as create_estimator
 WARM_STEPS = 20  # readings replayed into the rebuilt estimator (2 s at 10 Hz) so it takes over converged
 MIN_STEPS = 20  # fewer usable steps than this in the window: no calibration, the estimator goes on as it was
 CALIBRATION_PARAM = "calibration_s"
+TAIL_PARAM = "calibration_tail_dof"  # optional: Student-t dof of the errors, measured beforehand
 
 
 @dataclass(frozen=True)
@@ -77,7 +78,12 @@ def _fix(model: MeasurementModel, z: np.ndarray, known: Known, start: np.ndarray
 
 
 def calibrate(
-    model: MeasurementModel, z: np.ndarray, known: list[Known], test_level: float = 1e-3, passes: int = 3
+    model: MeasurementModel,
+    z: np.ndarray,
+    known: list[Known],
+    test_level: float = 1e-3,
+    passes: int = 3,
+    tail_dof: float | None = None,
 ) -> Calibration | None:
     """Offsets and scale from a window of readings ``z`` (T, p) with their ``known`` inputs; see the module doc."""
     p, d = model.p, model.d
@@ -106,7 +112,10 @@ def calibrate(
     # low by chance (0.045 m against a true 0.069 in 20 s at a 2 s correlation time): no link below the median.
     robust = np.maximum(robust, float(np.median(robust)))
     standard = np.abs(centred / robust)
-    factor = tail_factor(standard[np.isfinite(standard)], test_level)
+    if tail_dof is None:
+        factor = tail_factor(standard[np.isfinite(standard)], test_level)
+    else:  # the tails measured on this hardware beforehand (docs/datasets.md), not guessed from the window
+        factor = max(1.0, float(_t_ratio(np.array([float(tail_dof)]), 1.0 - test_level)[0]))
     vif = window_vif(centred, EVIDENCE_STEPS)
     return Calibration(offsets_m=offsets, sigma_m=robust * factor, tail_factor=factor, steps=steps, window_vif=vif)
 
@@ -160,9 +169,14 @@ def window_vif(resid: np.ndarray, window: int) -> float:
 class Calibrated:
     """An estimator behind a calibration window (see the module docstring); the same ``step`` shape."""
 
-    def __init__(self, name: str, model: MeasurementModel, window_s: float, **params: Any) -> None:
+    def __init__(
+        self, name: str, model: MeasurementModel, window_s: float, tail_dof: float | None = None, **params: Any
+    ) -> None:
         if not window_s > 0:
             raise ValueError(f"{CALIBRATION_PARAM}={window_s} must be positive (seconds)")
+        if tail_dof is not None and not tail_dof > 2:
+            raise ValueError(f"{TAIL_PARAM}={tail_dof} must exceed 2 (a finite variance)")
+        self.tail_dof = tail_dof
         self.name = name
         self.model = model
         self.window_s = float(window_s)
@@ -199,7 +213,7 @@ class Calibrated:
         z = np.array(self._z)
         alpha = float(self.params.get("alpha", 0.01))
         level = 1.0 - (1.0 - alpha / 2.0) ** (1.0 / self.model.p)  # the per-reading Sidak level of attribution
-        self.calibration = calibrate(self.model, z, self._known, test_level=level)
+        self.calibration = calibrate(self.model, z, self._known, test_level=level, tail_dof=self.tail_dof)
         if self.calibration is not None:
             tuned = replace(self.model, sigma_m=self.calibration.sigma_m)
             self.inner = create_estimator(self.name, tuned, **self.params)
@@ -213,8 +227,13 @@ class Calibrated:
 
 
 def create(name: str, model: MeasurementModel, **params: Any) -> Estimator | Calibrated:
-    """``estimators.create`` that also takes ``calibration_s`` (seconds of attack-free window; see above)."""
+    """``estimators.create`` that also takes ``calibration_s`` (seconds of attack-free window; see above) and
+    ``calibration_tail_dof`` (the errors' Student-t degrees of freedom measured beforehand, e.g. 6.2 for the
+    LIAS-CUHKSZ hardware, docs/datasets.md; without it the tail factor is fitted on the window)."""
     window = params.pop(CALIBRATION_PARAM, None)
+    tail = params.pop(TAIL_PARAM, None)
     if window is None:
+        if tail is not None:
+            raise ValueError(f"{TAIL_PARAM} needs {CALIBRATION_PARAM}")
         return create_estimator(name, model, **params)
-    return Calibrated(name, model, float(window), **params)
+    return Calibrated(name, model, float(window), tail_dof=None if tail is None else float(tail), **params)

@@ -120,3 +120,16 @@ def test_bad_window_and_plain_create() -> None:
     with pytest.raises(ValueError, match="calibration_s"):
         noise.create("ekf", _model(), calibration_s=0.0)
     assert not isinstance(noise.create("ekf", _model()), noise.Calibrated)
+
+
+def test_a_known_tail_dof_keeps_honest_heavy_tailed_links_unnamed() -> None:
+    rng = np.random.default_rng(6)
+    n = 1200
+    z = _readings(_path(n), _errors(n, rng, dof=4.5), np.zeros(8))
+    fitted, _ = _named_share(noise.create("secekf", _model(), calibration_s=20.0), z, 200)
+    known = noise.create("secekf", _model(), calibration_s=20.0, calibration_tail_dof=4.5)
+    told, _ = _named_share(known, z, 200)
+    assert known.calibration is not None and known.calibration.tail_factor > 1.8
+    assert told < 0.02 < fitted  # the window alone underestimates the tail; the measured dof does not
+    with pytest.raises(ValueError, match="calibration_tail_dof"):
+        noise.create("ekf", _model(), calibration_tail_dof=5.0)
