@@ -43,7 +43,7 @@ from attack_profiles import Engine
 from attack_profiles.profile import Profile
 from attack_profiles.resolve import parse_params, resolve_profile
 from estimators.models import MeasurementModel
-from estimators.noise import CALIBRATION_PARAM
+from estimators.noise import CALIBRATION_PARAM, TAIL_PARAM
 from estimators.scenario_models import anchor_model, two_vehicle_model, wall_group_model
 from evaluation.recorded import load_recording
 from evaluation.report import plot, summarise, table, write_results
@@ -99,6 +99,14 @@ def build_parser() -> argparse.ArgumentParser:
         "estimators.noise) before the estimators trust the readings",
     )
     p.add_argument(
+        "--tail-dof",
+        type=float,
+        default=None,
+        metavar="NU",
+        help="with --calibrate: the range errors' Student-t degrees of freedom measured beforehand "
+        "(docs/datasets.md), instead of fitting the tail on the window",
+    )
+    p.add_argument(
         "--score-from",
         type=float,
         default=None,
@@ -137,7 +145,10 @@ def _scored(trial: TrialResult, args: argparse.Namespace) -> TrialResult:
 
 
 def _params(args: argparse.Namespace) -> dict[str, Any]:
-    return {} if args.calibrate is None else {CALIBRATION_PARAM: args.calibrate}
+    if args.calibrate is None:
+        return {}
+    tail = {} if args.tail_dof is None else {TAIL_PARAM: args.tail_dof}
+    return {CALIBRATION_PARAM: args.calibrate, **tail}
 
 
 def _terminate(signum: int, frame: object) -> None:
@@ -169,6 +180,8 @@ def main(argv: list[str] | None = None) -> int:
             raise InputError("--estimators", "", args.estimators, f"choose from {', '.join(fits)} (on this scenario)")
         if args.calibrate is not None and not 0 < args.calibrate <= 3600:
             raise InputError("--calibrate", "", args.calibrate, "must lie in (0, 3600] seconds")
+        if args.tail_dof is not None and (args.calibrate is None or not 2 < args.tail_dof <= 1000):
+            raise InputError("--tail-dof", "", args.tail_dof, "needs --calibrate and must lie in (2, 1000]")
         if args.score_from is not None and not 0 <= args.score_from <= 36000:
             raise InputError("--score-from", "", args.score_from, "must lie in 0..36000 seconds")
         if args.trials < 1 or args.jobs < 1:
@@ -207,6 +220,7 @@ def main(argv: list[str] | None = None) -> int:
         "leg": args.leg,
         "dims": args.dims,
         "calibration_s": args.calibrate,
+        "calibration_tail_dof": args.tail_dof,
         "score_from_s": trials[0].score_from_s,
         "rate_hz": RATE_HZ,
         "test_case": "wall" if is_wall(scenario) else 2 if is_formation(scenario) else 1,
@@ -257,6 +271,7 @@ def _main_tlog(
         "trials": 1,
         "seed": args.seed,
         "calibration_s": args.calibrate,
+        "calibration_tail_dof": args.tail_dof,
         "score_from_s": trial.score_from_s,
         "rate_hz": round(rate, 6),
         "frames": int(trial.t_s.size),

@@ -135,3 +135,20 @@ def test_false_alarm_figures_count_events_on_untouched_steps() -> None:
     assert fa["false_alarms_per_hour"] == pytest.approx(2 / quiet_h)
     assert fa["false_alarm_per_step"] == pytest.approx(4 / (20000 - 10))
     assert fa["false_accusations_per_hour"] == pytest.approx(1.0)
+
+
+def test_calibration_flags_reach_the_estimators_and_the_scoring(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    ranges, truth = _write_recording(tmp_path)
+    out = tmp_path / "cal"
+    argv = ["--scenario", "anchors8", "--ranges", str(ranges), "--truth", str(truth), "--dims", "2", "--rate", "10"]
+    argv += ["--estimators", "ekf,secekf", "--attack", "none", "--calibrate", "5", "--tail-dof", "6.2"]
+    assert main([*argv, "--out", str(out)]) == 0
+    res = json.loads((out / "results.json").read_text())
+    assert res["calibration_s"] == 5.0 and res["calibration_tail_dof"] == 6.2 and res["score_from_s"] == 6.0
+    sec = res["estimators"]["secekf"]
+    assert sec["attack_free_hours"] == pytest.approx((SECONDS - 6.0) / 3600, rel=0.02)
+    assert sec["false_accusation_per_step"] < 0.02  # white noise of the stated sigma, widened for the tails
+    assert main([*argv[:-4], "--tail-dof", "6.2", "--out", str(tmp_path / "x")]) == 2
+    assert "--tail-dof" in capsys.readouterr().err
