@@ -97,34 +97,29 @@ class Rangefinder(_Strict):
 
 
 class RangeNoise(_Strict):
-    """Radio range noise beyond white Gaussian (off by default: without ``noise:`` a range is truth + N(0, std)).
+    """Radio range noise beyond white Gaussian; off by default (without ``noise:`` a range is truth +
+    N(0, ``noise_std_m``), and a scenario using only ``nlos_prob``, ``nlos_mean_m`` and ``student_t_dof``
+    draws the numbers it always did). A reading's error is the sum of: its link's constant offset, drawn
+    once per link and run from N(``offset_mean_m``, ``offset_std_m``); noise of std ``noise_std_m`` (the
+    sensor's field) whose share ``correlated_share`` of the variance is a first-order Gauss-Markov process
+    with correlation time ``correlation_time_s`` and the rest white (Student-t with ``student_t_dof``
+    degrees of freedom when set, rescaled to keep its variance); a non-line-of-sight excess path, per
+    reading with probability ``nlos_prob`` (exponential, mean ``nlos_mean_m``), and in episodes that start
+    at ``nlos_episode_rate_hz`` per link, last an exponential time of mean ``nlos_episode_mean_s`` and read
+    long by an exponential bias of mean ``nlos_episode_bias_m``; and with probability ``outlier_prob`` a
+    gross error N(0, ``outlier_std_m``). ``preset`` fills the fields not given from a set fitted to real
+    recorded ranges (``uwb-lias-planar``: docs/datasets.md gives the dataset, its licence and the fit).
 
-    A reading's error is the sum of
-
-    - a per-link constant offset, drawn once per link and run from N(``offset_mean_m``, ``offset_std_m``)
-      (antenna delay left after calibration: real two-way UWB ranges read long by about 0.1-0.3 m);
-    - the noise of std ``noise_std_m`` (the sensor's field), split into a time-correlated part, a
-      first-order Gauss-Markov process holding the share ``correlated_share`` of its variance with
-      correlation time ``correlation_time_s``, and a white remainder; the white part is Student-t
-      with ``student_t_dof`` degrees of freedom when that is set (heavy tails, rescaled to keep
-      its variance);
-    - non-line-of-sight excess path: per reading, with probability ``nlos_prob``, an exponential
-      excess of mean ``nlos_mean_m``; and NLOS *episodes*, starting at rate ``nlos_episode_rate_hz``
-      per link, lasting an exponential time of mean ``nlos_episode_mean_s``, during which the link
-      reads long by a bias drawn (exponential) with mean ``nlos_episode_bias_m``;
-    - gross errors: with probability ``outlier_prob`` a reading is off by N(0, ``outlier_std_m``).
-
-    ``preset`` fills every field not given from a named parameter set fitted to real data
-    (docs/datasets.md gives the dataset, its licence and the fit): ``uwb-lias-planar`` is the
-    LIAS-CUHKSZ planar two-way UWB dataset (8 anchors, motion-capture truth). A scenario without
-    ``noise:``, or with only the first three fields below, draws exactly the numbers it always did.
+    Real two-way UWB ranges read long by about 0.1-0.3 m per link (antenna delay left after
+    calibration), their errors are correlated over seconds (multipath changes with the geometry), and
+    bodies in the way add NLOS excess paths; the per-link state lives in ``flightsim.sensors.LinkNoise``.
     """
 
     preset: Literal["uwb-lias-planar"] | None = Field(
         None, description="fill the fields not given from a fitted parameter set (docs/datasets.md)"
     )
-    nlos_prob: Probability = 0.0
-    nlos_mean_m: NonNegFloat = 0.3
+    nlos_prob: Probability = Field(0.0, description="share of readings with an NLOS excess path")
+    nlos_mean_m: NonNegFloat = Field(0.3, description="mean of that excess path (exponential)")
     student_t_dof: float | None = Field(None, gt=2.0, description="None: Gaussian; > 2 for a finite variance")
     offset_mean_m: float = Field(0.0, ge=-10.0, le=10.0, description="mean of the per-link constant offsets")
     offset_std_m: NonNegFloat = Field(0.0, description="spread of the per-link constant offsets across links")
