@@ -39,7 +39,7 @@ import math
 import sys
 import urllib.request
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -92,7 +92,8 @@ class Recording:
 
 def _stamp(text: str, path: Path, line: int) -> float:
     try:
-        return datetime.strptime(text.strip(), STAMP).timestamp()
+        # Read as UTC whatever this machine's zone: only differences are used, and no zone shifts them.
+        return datetime.strptime(text.strip(), STAMP).replace(tzinfo=UTC).timestamp()
     except ValueError:
         raise DatasetError(f"{path}: line {line}: time {text!r} is not {STAMP}") from None
 
