@@ -109,6 +109,9 @@ class Namer:
         self.resid = np.zeros((int(window), model.p))
         self.seen = np.zeros((int(window), model.p), dtype=bool)
         self.k = 0
+        # How much larger the window mean's variance is than 1/n of a step's: 1 for errors independent from
+        # step to step; estimators.noise sets it from the errors' measured autocorrelation.
+        self.window_vif = 1.0
 
     def name(
         self, z: np.ndarray, used: np.ndarray, start: np.ndarray, cov_pos: np.ndarray, known: Known
@@ -140,7 +143,7 @@ class Namer:
         mean = self.resid.sum(axis=0) / np.maximum(n, 1)
         sig2 = model.sigma_m**2
         leaning = np.where(seen, resid * mean > 0.0, False)
-        persistent = (n >= 3) & leaning & (mean * mean > self.gate * (sig2 + hcov) / np.maximum(n, 1))
+        persistent = (n >= 3) & leaning & (mean * mean > self.gate * self.window_vif * (sig2 + hcov) / np.maximum(n, 1))
         jump = np.where(seen, resid * resid > self.gate * (sig2 + hcov), False)
         named = ~used & seen & (jump | persistent)
         return (named, ref, cov) if agreed else (named, None, None)

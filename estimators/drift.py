@@ -30,6 +30,7 @@ class InnovationWindow:
         self.innov_sum = np.zeros(p)
         self.seen_sum = np.zeros(p, dtype=int)
         self.k = 0
+        self.vif = 1.0  # window-mean variance inflation for time-correlated errors (estimators.noise)
 
     def update(
         self, z: np.ndarray, hx: np.ndarray, jac: np.ndarray, cov_pos: np.ndarray, sigma_m: np.ndarray
@@ -45,4 +46,4 @@ class InnovationWindow:
         self.innov[slot], self.seen[slot] = value, seen
         n = self.seen_sum
         # n m^2 with m = sum / n is sum^2 / n.
-        return (n >= 3) & (self.innov_sum * self.innov_sum > self.gate1 * n)
+        return (n >= 3) & (self.innov_sum * self.innov_sum > self.gate1 * self.vif * n)

@@ -3,6 +3,7 @@
     secuav-eval --scenario anchors8 --attack type-a --estimators ekf,secekf,rarse --trials 3 --seed 0 --out out/tc1
     secuav-eval --scenario wall_hover --attack wall-spoof-two --out out/wall
     secuav-eval --scenario anchors8 --tlog flight.tlog [--truth truth.csv] [--attack none] --out out/log
+    secuav-eval --scenario rec.yaml --ranges ranges.csv [--truth truth.csv] [--attack type-a] --out out/rec
 
 ``--attack`` takes a profile file, a library name (``secuav-attack list``) or
 ``none``; ``--param k=v`` fills a library profile's parameters. Each trial flies
@@ -16,7 +17,9 @@ file and field, exit 2, nothing written.
 ``--tlog F`` replaces the flight by a recorded MAVLink log (one trial): its
 DISTANCE_SENSOR readings, framed on the vehicle's boot clock (see
 :mod:`evaluation.tlog`); the scenario still supplies the anchors and noise.
-``--truth CSV`` (flightsim's ``secuav-sim --truth-csv``, same clock) scores
+``--ranges CSV`` does the same for recorded ranges in a plain CSV file (time,
+sysid, sensor id, range; docs/recorded-ranges.md), e.g. a public dataset decoded
+by ``scripts/datasets/``. ``--truth CSV`` (flightsim's ``secuav-sim --truth-csv``, same clock) scores
 errors and detection against ground truth; without it errors are n/a and only
 alarms, the links named per sensor id, step times (and the distance from the
 autopilot's LOCAL_POSITION_NED) are reported. An ``--attack`` other than
@@ -26,6 +29,7 @@ autopilot's LOCAL_POSITION_NED) are reported. An ``--attack`` other than
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import signal
 import sys
 from concurrent.futures import ProcessPoolExecutor
@@ -39,9 +43,10 @@ from attack_profiles import Engine
 from attack_profiles.profile import Profile
 from attack_profiles.resolve import parse_params, resolve_profile
 from estimators.models import MeasurementModel
+from estimators.noise import CALIBRATION_PARAM, TAIL_PARAM
 from estimators.scenario_models import anchor_model, two_vehicle_model, wall_group_model
+from evaluation.recorded import load_recording
 from evaluation.report import plot, summarise, table, write_results
-from evaluation.tlog import frame_rate_hz, log_streams, read_tlog, read_truth_csv
 from evaluation.trial import RATE_HZ, TrialResult, evaluate, is_formation, is_wall, run_trial
 from secuav_common.loading import InputError
 from secuav_common.logs import add_common_flags
@@ -73,8 +78,42 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="evaluate a recorded MAVLink .tlog instead of flying (one trial; --trials, --leg, --duration unused)",
     )
-    p.add_argument("--truth", type=Path, default=None, help="ground-truth CSV for --tlog (secuav-sim --truth-csv)")
-    p.add_argument("--rate", type=float, default=None, help="--tlog framing rate in Hz (default: the ranges' own)")
+    p.add_argument(
+        "--ranges",
+        type=Path,
+        default=None,
+        help="evaluate recorded ranges from a CSV (t_s,sysid,sensor_id,range_m; docs/recorded-ranges.md), like --tlog",
+    )
+    p.add_argument(
+        "--truth", type=Path, default=None, help="ground-truth CSV for --tlog/--ranges (secuav-sim --truth-csv)"
+    )
+    p.add_argument(
+        "--rate", type=float, default=None, help="--tlog/--ranges framing rate in Hz (default: the ranges' own)"
+    )
+    p.add_argument(
+        "--calibrate",
+        type=float,
+        default=None,
+        metavar="S",
+        help="calibrate per-link offsets and the noise scale on the first S seconds (taken as attack-free; "
+        "estimators.noise) before the estimators trust the readings",
+    )
+    p.add_argument(
+        "--tail-dof",
+        type=float,
+        default=None,
+        metavar="NU",
+        help="with --calibrate: the range errors' Student-t degrees of freedom measured beforehand "
+        "(docs/datasets.md), instead of fitting the tail on the window",
+    )
+    p.add_argument(
+        "--score-from",
+        type=float,
+        default=None,
+        metavar="S",
+        help="score only steps after S seconds (default: 1 s of warm-up, after the --calibrate window if given); "
+        "give the same S to runs compared with and without --calibrate",
+    )
     add_common_flags(p, log_flags=False)
     return p
 
@@ -96,9 +135,20 @@ def _check_scenario(scenario: Scenario, source: str) -> None:
         raise InputError(source, "vehicles[1].sensors.uwb.anchors", None, reason)
 
 
-def _trial(args: tuple[Scenario, Profile | None, list[str], int, float, str, int]) -> TrialResult:
-    scenario, profile, names, seed, duration_s, leg, dims = args
-    return run_trial(scenario, profile, names, seed, duration_s, leg, dims=dims)  # type: ignore[arg-type]
+def _trial(args: tuple[Scenario, Profile | None, list[str], int, float, str, int, dict[str, Any]]) -> TrialResult:
+    scenario, profile, names, seed, duration_s, leg, dims, params = args
+    return run_trial(scenario, profile, names, seed, duration_s, leg, params, dims=dims)  # type: ignore[arg-type]
+
+
+def _scored(trial: TrialResult, args: argparse.Namespace) -> TrialResult:
+    return trial if args.score_from is None else dataclasses.replace(trial, score_from_s=args.score_from)
+
+
+def _params(args: argparse.Namespace) -> dict[str, Any]:
+    if args.calibrate is None:
+        return {}
+    tail = {} if args.tail_dof is None else {TAIL_PARAM: args.tail_dof}
+    return {CALIBRATION_PARAM: args.calibrate, **tail}
 
 
 def _terminate(signum: int, frame: object) -> None:
@@ -111,10 +161,13 @@ def main(argv: list[str] | None = None) -> int:
         scenario_path = resolve_scenario_path(args.scenario)
         scenario = load_scenario(scenario_path)
         _check_scenario(scenario, str(scenario_path))
-        if args.attack is None and args.tlog is None:
+        if args.tlog is not None and args.ranges is not None:
+            raise InputError("--tlog/--ranges", "", None, "give one recording, not both")
+        recorded = args.tlog is not None or args.ranges is not None
+        if args.attack is None and not recorded:
             raise InputError("--attack", "", None, "required (a profile file, a library name, or 'none')")
-        if args.tlog is None and (args.truth is not None or args.rate is not None):
-            raise InputError("--truth/--rate", "", None, "only with --tlog")
+        if not recorded and (args.truth is not None or args.rate is not None):
+            raise InputError("--truth/--rate", "", None, "only with --tlog or --ranges")
         if args.rate is not None and not 0.1 <= args.rate <= 1000.0:
             raise InputError("--rate", "", args.rate, "must lie in 0.1..1000 Hz")
         profile = resolve_attack(args.attack or "none", parse_params(args.param))
@@ -125,15 +178,24 @@ def main(argv: list[str] | None = None) -> int:
         unknown = [n for n in names if n not in fits]
         if unknown or not names:
             raise InputError("--estimators", "", args.estimators, f"choose from {', '.join(fits)} (on this scenario)")
+        if args.calibrate is not None and not 0 < args.calibrate <= 3600:
+            raise InputError("--calibrate", "", args.calibrate, "must lie in (0, 3600] seconds")
+        if args.tail_dof is not None and (args.calibrate is None or not 2 < args.tail_dof <= 1000):
+            raise InputError("--tail-dof", "", args.tail_dof, "needs --calibrate and must lie in (2, 1000]")
+        if args.score_from is not None and not 0 <= args.score_from <= 36000:
+            raise InputError("--score-from", "", args.score_from, "must lie in 0..36000 seconds")
         if args.trials < 1 or args.jobs < 1:
             raise InputError("--trials/--jobs", "", (args.trials, args.jobs), "must be at least 1")
     except InputError as err:
         print(f"secuav-eval: {err}", file=sys.stderr)
         return 2
-    if args.tlog is not None:
+    if recorded:
         return _main_tlog(args, scenario, scenario_path, profile, names)
     duration = args.duration or scenario.duration_s
-    jobs = [(scenario, profile, names, args.seed + i, duration, args.leg, args.dims) for i in range(args.trials)]
+    jobs = [
+        (scenario, profile, names, args.seed + i, duration, args.leg, args.dims, _params(args))
+        for i in range(args.trials)
+    ]
     signal.signal(signal.SIGTERM, _terminate)
     try:
         if args.jobs == 1:
@@ -144,6 +206,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("secuav-eval: interrupted, nothing written", file=sys.stderr)
         return 130
+    trials = [_scored(t, args) for t in trials]
     summary = summarise(trials)
     args.out.mkdir(parents=True, exist_ok=True)
     meta = {
@@ -156,6 +219,9 @@ def main(argv: list[str] | None = None) -> int:
         "duration_s": duration,
         "leg": args.leg,
         "dims": args.dims,
+        "calibration_s": args.calibrate,
+        "calibration_tail_dof": args.tail_dof,
+        "score_from_s": trials[0].score_from_s,
         "rate_hz": RATE_HZ,
         "test_case": "wall" if is_wall(scenario) else 2 if is_formation(scenario) else 1,
         "note": "errors: the first vehicle's horizontal position (wall case: the wall distance); "
@@ -179,38 +245,24 @@ def _write(out: Path, meta: dict[str, Any], summary: dict[str, dict[str, Any]], 
 def _main_tlog(
     args: argparse.Namespace, scenario: Scenario, scenario_path: Path, profile: Profile | None, names: list[str]
 ) -> int:
-    """One trial on a recorded log (see the module docstring)."""
+    """One trial on a recorded log or recorded-ranges CSV (see the module docstring)."""
     try:
-        logs, info = read_tlog(args.tlog)
-        truth = None if args.truth is None else read_truth_csv(args.truth)
-        needed = [v.sysid for v in scenario.vehicles[: 2 if is_formation(scenario) else 1]]
-        absent = [s for s in needed if s not in logs]
-        if absent:
-            reason = f"scenario {scenario.name!r} needs sysid {absent[0]}; the log has {list(info.sysids)}"
-            raise InputError(str(args.tlog), "sysid", absent[0], reason)
-        if truth is not None and needed[0] not in truth:
-            raise InputError(str(args.truth), "sysid", needed[0], f"no truth rows for it (has {sorted(truth)})")
-        down = {
-            s: next((r.id for r in scenario.vehicle(s).sensors.rangefinders if r.orientation == "down"), None)
-            for s in needed
-        }
-        rate = args.rate or frame_rate_hz(logs[needed[0]], RATE_HZ)
-        streams, boot_offset_s = log_streams(logs, needed, down, rate, truth)
-        wanted = set(_model_ids(scenario))
-        if not wanted & set(streams[needed[0]].readings):
-            has = list(info.sensor_ids[needed[0]])
-            reason = f"none of the scenario's sensor ids {sorted(wanted)} is in the log (it has {has})"
-            raise InputError(str(args.tlog), "DISTANCE_SENSOR.id", None, reason)
+        rec = load_recording(scenario, tlog=args.tlog, ranges=args.ranges, truth=args.truth, rate_hz=args.rate)
+        streams, info, skipped, rate, boot_offset_s = (
+            rec.streams, rec.info, rec.rows_skipped, rec.rate_hz, rec.boot_offset_s
+        )
         engine = None if profile is None else Engine(profile, seed=args.seed, scenario=scenario)
     except InputError as err:
         print(f"secuav-eval: {err}", file=sys.stderr)
         return 2
-    trial = evaluate(scenario, streams, engine, names, from_log=True, dims=args.dims)
+    trial = evaluate(scenario, streams, engine, names, from_log=True, params=_params(args), dims=args.dims)
+    trial = _scored(trial, args)
     summary = summarise([trial])
     args.out.mkdir(parents=True, exist_ok=True)
     meta = {
-        "source": "tlog",
-        "tlog": str(args.tlog),
+        "source": "tlog" if args.tlog is not None else "ranges",
+        "tlog": None if args.tlog is None else str(args.tlog),
+        "ranges": None if args.ranges is None else str(args.ranges),
         "truth": None if args.truth is None else str(args.truth),
         "scenario": scenario.name,
         "scenario_file": str(scenario_path),
@@ -218,6 +270,9 @@ def _main_tlog(
         "attack_hash": None if profile is None else profile.content_hash(),
         "trials": 1,
         "seed": args.seed,
+        "calibration_s": args.calibrate,
+        "calibration_tail_dof": args.tail_dof,
+        "score_from_s": trial.score_from_s,
         "rate_hz": round(rate, 6),
         "frames": int(trial.t_s.size),
         "boot_time_of_t0_s": boot_offset_s,
@@ -226,6 +281,7 @@ def _main_tlog(
             "sysids": list(info.sysids),
             "sensor_ids": {str(k): list(v) for k, v in info.sensor_ids.items()},
             "invalid_readings": info.invalid_readings,
+            "rows_skipped": skipped,
         },
         "test_case": "wall" if is_wall(scenario) else 2 if is_formation(scenario) else 1,
         "errors_scored": trial.scored_errors,
@@ -249,13 +305,6 @@ def model_for(scenario: Scenario, dims: int = 3) -> MeasurementModel:
     if is_formation(scenario):
         return two_vehicle_model(scenario, first.sysid, scenario.vehicles[1].sysid)
     return anchor_model(scenario, first.sysid, dims)
-
-
-def _model_ids(scenario: Scenario) -> tuple[int, ...]:
-    first = scenario.vehicles[0]
-    if is_wall(scenario):
-        return wall_group_model(scenario, first.sysid).ids()
-    return anchor_model(scenario, first.sysid).ids()
 
 
 if __name__ == "__main__":

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from evaluation.trial import WARMUP_S, TrialResult
+from evaluation.trial import TrialResult
 
 RECALL_SIGMAS = 5.0  # an attack counts for recall once it exceeds five noise deviations (issue 6 target)
 
@@ -30,6 +30,66 @@ def _errors(e: np.ndarray) -> dict[str, float | None]:
     }
 
 
+def _onsets(flag: np.ndarray) -> int:
+    """Events: runs of consecutive flagged steps (one accusation that lasts three steps is one event)."""
+    return int(np.sum(flag & ~np.concatenate([[False], flag[:-1]])))
+
+
+def false_alarms(trials: list[TrialResult], name: str) -> dict[str, float | None]:
+    """False alarms and false accusations of one estimator, per step, per run and per hour.
+
+    A *false alarm* is an alarm on a step where this run's attack changed no reading (every step of a
+    clean run; before the onset and in the gaps of an attacked one). A *false accusation* is a step
+    on which a reading the attack left untouched is named attacked. Per step: the share of such
+    steps; per run and per hour: the number of events (a run of consecutive flagged steps counts
+    once), per trial and per hour of the steps they could occur on. On a recording, a reading the
+    recording itself got wrong (NLOS, a gross error) is untouched by the attack, so naming it counts
+    here too: the figure is what an operator would see. None where the added offsets are unknown.
+    """
+    alarm_events = accusation_events = alarm_steps = accusation_steps = 0
+    quiet_s = all_s = 0.0
+    quiet_n = all_n = 0
+    for tr in trials:
+        if tr.added_m is None:
+            return dict.fromkeys(FALSE_ALARM_KEYS)
+        trace = tr.traces[name]
+        keep = tr.t_s > tr.score_from_s
+        dt = float(np.median(np.diff(tr.t_s))) if tr.t_s.size > 1 else 0.0
+        touched = np.abs(np.nan_to_num(tr.added_m[keep], nan=0.0)) > 0.0
+        quiet = ~touched.any(axis=1)
+        alarm = trace.alarm[keep] & quiet
+        accused = (trace.named[keep] & ~touched).any(axis=1)
+        alarm_events += _onsets(alarm)
+        accusation_events += _onsets(accused)
+        alarm_steps += int(alarm.sum())
+        accusation_steps += int(accused.sum())
+        quiet_n += int(quiet.sum())
+        all_n += int(keep.sum())
+        quiet_s += float(quiet.sum()) * dt
+        all_s += float(keep.sum()) * dt
+    runs = len(trials)
+    return {
+        "false_alarm_per_step": alarm_steps / quiet_n if quiet_n else None,
+        "false_alarms_per_run": alarm_events / runs,
+        "false_alarms_per_hour": alarm_events / (quiet_s / 3600.0) if quiet_s else None,
+        "false_accusation_per_step": accusation_steps / all_n if all_n else None,
+        "false_accusations_per_run": accusation_events / runs,
+        "false_accusations_per_hour": accusation_events / (all_s / 3600.0) if all_s else None,
+        "attack_free_hours": quiet_s / 3600.0,
+    }
+
+
+FALSE_ALARM_KEYS = (
+    "false_alarm_per_step",
+    "false_alarms_per_run",
+    "false_alarms_per_hour",
+    "false_accusation_per_step",
+    "false_accusations_per_run",
+    "false_accusations_per_hour",
+    "attack_free_hours",
+)
+
+
 def summarise(trials: list[TrialResult]) -> dict[str, dict[str, Any]]:
     """Per estimator, pooled over trials (scored after the warm-up).
 
@@ -47,7 +107,7 @@ def summarise(trials: list[TrialResult]) -> dict[str, dict[str, Any]]:
         named_by_id = np.zeros(len(trials[0].sensor_ids))
         for tr in trials:
             trace = tr.traces[name]
-            keep = tr.t_s > WARMUP_S
+            keep = tr.t_s > tr.score_from_s
             errs.append(trace.err_m[keep])
             has_estimate.append(np.isfinite(trace.est_xy_m[keep]).all(axis=1))
             if trace.range_err_m is not None:
@@ -83,6 +143,7 @@ def summarise(trials: list[TrialResult]) -> dict[str, dict[str, Any]]:
                 for sid, n in zip(trials[0].sensor_ids, named_by_id, strict=True)
             },
         })  # fmt: skip
+        row.update(false_alarms(trials, name))
         if not scored_detection:
             row["attack_detection_precision"] = row["attack_detection_recall"] = None
         if devs:
@@ -96,6 +157,10 @@ def summarise(trials: list[TrialResult]) -> dict[str, dict[str, Any]]:
     return out
 
 
+def _per_hour(value: float | None) -> str:
+    return f"{'n/a':>15}" if value is None else f"{value:>15.0f}"
+
+
 def _cell(value: float | None, width: int, scale: float = 1.0) -> str:
     return f"{'n/a':>{width}}" if value is None else f"{value * scale:>{width}.3f}"
 
@@ -106,6 +171,7 @@ def table(summary: dict[str, dict[str, Any]]) -> str:
     head = f"{'Estimator':<10} | {'Mean abs. error [m]':>19} | {'Max abs. error [m]':>18}"
     if two:
         head += f" | {'Range mean [m]':>14} | {'Range max [m]':>13}"
+    head += f" | {'False alarms /h':>15} | {'False accus. /h':>15}"
     head += f" | {'Time per step [ms]':>18} | {'p99 [ms]':>8}"
     lines = [head, "-" * len(head)]
     for name, row in summary.items():
@@ -113,6 +179,7 @@ def table(summary: dict[str, dict[str, Any]]) -> str:
         if two:
             rng = row["inter_vehicle_range"]
             line += f" | {_cell(rng['mean_error_m'], 14)} | {_cell(rng['max_error_m'], 13)}"
+        line += f" | {_per_hour(row.get('false_alarms_per_hour'))} | {_per_hour(row.get('false_accusations_per_hour'))}"
         line += f" | {row['step_time_us_median'] / 1000:>18.3f} | {row['step_time_us_p99'] / 1000:>8.3f}"
         lines.append(line)
     silent = [name for name, row in summary.items() if row.get("estimate_fraction", 1.0) == 0.0]
@@ -121,6 +188,10 @@ def table(summary: dict[str, dict[str, Any]]) -> str:
             f"n/a for {', '.join(silent)}: no estimate on any step (alarm throughout: more sensors attacked"
             " than the estimator tolerates, so it refuses to guess)."
         )
+    lines.append(
+        "False alarms /h: alarms on steps the attack left untouched; false accus. /h: steps naming an untouched"
+        " reading; events per hour (consecutive steps count once), per step and per run in results.json."
+    )
     lines.append("Time per step: one step of every estimator (ReCaP: its one sensor group), median over all steps.")
     return "\n".join(lines)
 

@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
-import estimators
 from attack_profiles import Engine
 from attack_profiles.profile import Profile
+from estimators import noise
 from estimators.base import Estimate
 from estimators.models import AnchorRangesHeight, MeasurementModel
 from estimators.scenario_models import anchor_model, two_vehicle_model, wall_group_model
@@ -70,6 +70,18 @@ class TrialResult:
     local_xy_m: np.ndarray | None = None  # (T, 2) LOCAL_POSITION_NED of the first vehicle (logs)
     readings_m: np.ndarray | None = None  # (T, p) what the estimators read (attacked; NaN = missing)
     truth_down_m: np.ndarray | None = None  # (T,) the first vehicle's true NED down
+    # (T, p) what this run's attack engine added to each reading (0 where it changed nothing, NaN where a
+    # reading was missing); unlike offsets_m on a log, never the recording's own error. None: not known.
+    added_m: np.ndarray | None = None
+    # Steps at or before this time are not scored (the start-up transient; a calibration window, which is
+    # not under test and must not count as attack-free time). See score_from().
+    score_from_s: float = WARMUP_S
+
+
+def score_from(params: dict[str, Any] | None) -> float:
+    """The first scored time: the warm-up, or the end of a calibration window (estimators.noise) plus the warm-up."""
+    window = (params or {}).get(noise.CALIBRATION_PARAM)
+    return WARMUP_S if window is None else float(window) + WARMUP_S
 
 
 def is_wall(scenario: Scenario) -> bool:
@@ -200,6 +212,8 @@ def evaluate(
         local_xy_m=local,
         readings_m=z,
         truth_down_m=s1.truth_ned_m[:, 2],
+        added_m=z - clean,
+        score_from_s=score_from(params),
     )
 
 
@@ -253,7 +267,7 @@ def _run_estimator(
     local: np.ndarray | None = None,
     params: dict[str, Any] | None = None,
 ) -> EstimatorTrace:
-    est = estimators.create(name, model, **(params or {}))
+    est = noise.create(name, model, **(params or {}))  # estimators.create, plus calibration_s (estimators.noise)
     n = z.shape[0]
     err = np.full(n, np.nan)
     rerr = None if truth2 is None else np.full(n, np.nan)
@@ -321,7 +335,7 @@ def _wall_trial(
     true_d = (s1.truth_ned_m - np.asarray(wall.point_ned_m)) @ np.asarray(wall.normal_ned)
     traces = {}
     for name in names:
-        est = estimators.create(name, model, **params)
+        est = noise.create(name, model, **params)
         n = z.shape[0]
         d_est, times = np.full(n, np.nan), np.zeros(n)
         named, alarm = np.zeros(z.shape, dtype=bool), np.zeros(n, dtype=bool)
@@ -349,4 +363,6 @@ def _wall_trial(
         named_floor_m=floor,
         scored_errors=scored_err,
         scored_detection=scored_det,
+        added_m=z - clean,
+        score_from_s=score_from(params),
     )

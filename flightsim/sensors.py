@@ -11,8 +11,10 @@ ever feeds truth to the outside unaltered.
   NaN beyond ``max_m`` or on dropout.
 - Inter-vehicle range to peer sysid n (sensor id 50+n): 3-D distance between
   the two true positions + N(0, std); NaN on dropout.
-- Both radio ranges may instead carry heavy-tailed (Student-t) noise and NLOS
-  excess paths (``noise:`` in the scenario, :class:`secuav_common.scenario.RangeNoise`).
+- Both radio ranges may instead carry what real UWB ranges show (``noise:`` in the
+  scenario, :class:`secuav_common.scenario.RangeNoise`): heavy-tailed (Student-t)
+  noise, NLOS excess paths and, per link (:class:`LinkNoise`), a constant offset, a
+  time-correlated (Gauss-Markov) part, NLOS episodes and gross errors.
 - GPS and the state estimate share one position error model, documented on
   :class:`PositionError`.
 
@@ -125,12 +127,65 @@ def radio_noise(rng: random.Random, std_m: float, extra: sc.RangeNoise | None) -
     return noise
 
 
+class LinkNoise:
+    """The error process of one radio link (one anchor, or one peer), see :class:`~secuav_common.scenario.RangeNoise`.
+
+    Without ``noise:``, or with only per-reading terms, each draw is :func:`radio_noise` and takes
+    exactly the random numbers it always took. With stateful terms the link draws, once, its
+    constant offset and the start of its Gauss-Markov part, then per reading: the Gauss-Markov step
+    over the time since its last reading, the white remainder, an episode onset or end, a gross error.
+    """
+
+    def __init__(self, rng: random.Random, std_m: float, cfg: sc.RangeNoise | None) -> None:
+        self._rng = rng
+        self.std_m = std_m
+        self.cfg = cfg
+        self.stateful = cfg is not None and cfg.stateful
+        self.offset_m = 0.0
+        self._white_std = std_m
+        self._gm: GaussMarkov | None = None
+        self._last_t_s: float | None = None
+        self._episode_end_s = -math.inf
+        self._episode_bias_m = 0.0
+        if self.stateful:
+            assert cfg is not None
+            spread = cfg.offset_std_m
+            self.offset_m = rng.gauss(cfg.offset_mean_m, spread) if spread > 0 else cfg.offset_mean_m
+            share = cfg.correlated_share
+            self._white_std = std_m * math.sqrt(1.0 - share)
+            if share > 0 and std_m > 0:
+                self._gm = GaussMarkov(rng, std_m * math.sqrt(share), cfg.correlation_time_s)
+
+    def draw(self, t_s: float) -> float:
+        if not self.stateful:
+            return radio_noise(self._rng, self.std_m, self.cfg)
+        cfg, rng = self.cfg, self._rng
+        assert cfg is not None
+        dt = 0.0 if self._last_t_s is None else max(0.0, t_s - self._last_t_s)
+        self._last_t_s = t_s
+        noise = self.offset_m
+        if self._gm is not None:
+            noise += self._gm.step(dt) if dt > 0 else self._gm.value
+        noise += radio_noise(rng, self._white_std, cfg)
+        if cfg.nlos_episode_rate_hz > 0:
+            if t_s >= self._episode_end_s and rng.random() < -math.expm1(-cfg.nlos_episode_rate_hz * dt):
+                self._episode_end_s = t_s + rng.expovariate(1.0 / cfg.nlos_episode_mean_s)
+                bias = cfg.nlos_episode_bias_m
+                self._episode_bias_m = rng.expovariate(1.0 / bias) if bias > 0 else 0.0
+            if t_s < self._episode_end_s:
+                noise += self._episode_bias_m
+        if cfg.outlier_prob > 0 and rng.random() < cfg.outlier_prob:
+            noise += rng.gauss(0.0, cfg.outlier_std_m)
+        return noise
+
+
 class UwbModel:
     def __init__(self, cfg: sc.UwbRanging, anchors: Mapping[int, Vec3], rng: random.Random) -> None:
         self.cfg = cfg
         self.anchors = dict(sorted(anchors.items()))
         self._rng = rng
         self._clock = _Clock(cfg.rate_hz)
+        self.links = {k: LinkNoise(rng, cfg.noise_std_m, cfg.noise) for k in self.anchors}
 
     @property
     def next_t_s(self) -> float:
@@ -143,7 +198,7 @@ class UwbModel:
         out = []
         for k, a in self.anchors.items():
             d = _dist(truth.pos_ned_m, a)
-            noise = radio_noise(rng, cfg.noise_std_m, cfg.noise)
+            noise = self.links[k].draw(truth.t_s)
             dropped = cfg.dropout_prob > 0 and rng.random() < cfg.dropout_prob
             value = NAN if dropped or d > cfg.max_m else max(0.0, d + noise)
             out.append(_range(anchor_sensor_id(k), truth.t_s, value, cfg.max_m, cfg.noise_std_m))
@@ -155,6 +210,7 @@ class PeerRangeModel:
         self.cfg = cfg
         self._rng = rng
         self._clock = _Clock(cfg.rate_hz)
+        self.links = {n: LinkNoise(rng, cfg.noise_std_m, cfg.noise) for n in cfg.peers}
 
     @property
     def next_t_s(self) -> float:
@@ -167,7 +223,7 @@ class PeerRangeModel:
         out = []
         for sysid in cfg.peers:
             other = peers.get(sysid)
-            noise = radio_noise(rng, cfg.noise_std_m, cfg.noise)
+            noise = self.links[sysid].draw(truth.t_s)
             dropped = cfg.dropout_prob > 0 and rng.random() < cfg.dropout_prob
             value = NAN if other is None or dropped else max(0.0, _dist(truth.pos_ned_m, other.pos_ned_m) + noise)
             out.append(_range(peer_sensor_id(sysid), truth.t_s, value, PEER_MAX_M, cfg.noise_std_m))

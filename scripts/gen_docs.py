@@ -93,7 +93,7 @@ def field_table(model: type[BaseModel], title: str, seen: set[type[BaseModel]] |
     """A table of a model's fields, then one for each model nested in it (once each)."""
     seen = set() if seen is None else seen
     seen.add(model)
-    doc = (model.__doc__ or "").strip().split("\n\n")[0].replace("\n", " ")
+    doc = " ".join(line.strip() for line in (model.__doc__ or "").strip().split("\n\n")[0].splitlines())
     out = [f"### {title}", "", doc, "", "| field | type | default | description |", "|---|---|---|---|"]
     nested: list[type[BaseModel]] = []
     for name, field in model.model_fields.items():

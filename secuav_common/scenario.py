@@ -97,18 +97,58 @@ class Rangefinder(_Strict):
 
 
 class RangeNoise(_Strict):
-    """Radio range noise beyond the Gaussian: heavy tails and non-line-of-sight paths (off by default).
+    """Radio range noise beyond white Gaussian; off by default (without ``noise:`` a range is truth +
+    N(0, ``noise_std_m``), and a scenario using only ``nlos_prob``, ``nlos_mean_m`` and ``student_t_dof``
+    draws the numbers it always did). A reading's error is the sum of: its link's constant offset, drawn
+    once per link and run from N(``offset_mean_m``, ``offset_std_m``); noise of std ``noise_std_m`` (the
+    sensor's field) whose share ``correlated_share`` of the variance is a first-order Gauss-Markov process
+    with correlation time ``correlation_time_s`` and the rest white (Student-t with ``student_t_dof``
+    degrees of freedom when set, rescaled to keep its variance); a non-line-of-sight excess path, per
+    reading with probability ``nlos_prob`` (exponential, mean ``nlos_mean_m``), and in episodes that start
+    at ``nlos_episode_rate_hz`` per link, last an exponential time of mean ``nlos_episode_mean_s`` and read
+    long by an exponential bias of mean ``nlos_episode_bias_m``; and with probability ``outlier_prob`` a
+    gross error N(0, ``outlier_std_m``). ``preset`` fills the fields not given from a set fitted to real
+    recorded ranges (``uwb-lias-planar``: docs/datasets.md gives the dataset, its licence and the fit).
 
-    UWB ranges indoors are not Gaussian: multipath and bodies in the way lengthen
-    some readings (NLOS: a positive excess path, here exponential with mean
-    ``nlos_mean_m``, on a share ``nlos_prob`` of readings), and the line-of-sight
-    error itself has heavier tails (Student-t with ``student_t_dof`` degrees of
-    freedom, scaled to keep ``noise_std_m`` as its standard deviation).
+    Real two-way UWB ranges read long by about 0.1-0.3 m per link (antenna delay left after
+    calibration), their errors are correlated over seconds (multipath changes with the geometry), and
+    bodies in the way add NLOS excess paths; the per-link state lives in ``flightsim.sensors.LinkNoise``.
     """
 
-    nlos_prob: Probability = 0.0
-    nlos_mean_m: NonNegFloat = 0.3
+    preset: Literal["uwb-lias-planar"] | None = Field(
+        None, description="fill the fields not given from a fitted parameter set (docs/datasets.md)"
+    )
+    nlos_prob: Probability = Field(0.0, description="share of readings with an NLOS excess path")
+    nlos_mean_m: NonNegFloat = Field(0.3, description="mean of that excess path (exponential)")
     student_t_dof: float | None = Field(None, gt=2.0, description="None: Gaussian; > 2 for a finite variance")
+    offset_mean_m: float = Field(0.0, ge=-10.0, le=10.0, description="mean of the per-link constant offsets")
+    offset_std_m: NonNegFloat = Field(0.0, description="spread of the per-link constant offsets across links")
+    correlated_share: Probability = Field(0.0, description="share of the noise variance that is Gauss-Markov")
+    correlation_time_s: PositiveFloat = Field(1.0, description="correlation time of the Gauss-Markov part")
+    nlos_episode_rate_hz: NonNegFloat = Field(0.0, description="NLOS episode onsets per second per link")
+    nlos_episode_mean_s: PositiveFloat = Field(0.5, description="mean NLOS episode duration (exponential)")
+    nlos_episode_bias_m: NonNegFloat = Field(0.3, description="mean excess range during an episode")
+    outlier_prob: Probability = Field(0.0, description="share of readings with a gross error")
+    outlier_std_m: NonNegFloat = Field(2.0, description="std of a gross error")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _fill_preset(cls, data: object) -> object:
+        if isinstance(data, dict) and data.get("preset") is not None:
+            from secuav_common.noise_presets import PRESETS
+
+            base = PRESETS.get(data["preset"])
+            if base is not None:  # an unknown name is refused by the Literal above
+                return {**base, **data}
+        return data
+
+    @property
+    def stateful(self) -> bool:
+        """True when a link carries state (offset, correlated part, episodes, outliers) beyond per-reading draws."""
+        return bool(
+            self.offset_mean_m or self.offset_std_m or self.correlated_share or self.nlos_episode_rate_hz
+            or self.outlier_prob
+        )
 
 
 class UwbRanging(_Strict):

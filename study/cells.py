@@ -44,9 +44,18 @@ def base_row(cell: Cell, estimator: str) -> dict[str, Any]:
 
 def run_offline(cell: Cell, names: list[str]) -> dict[str, dict[str, Any]]:
     """Every estimator on the same attacked streams of one seeded headless flight."""
-    from evaluation.trial import run_trial
+    from evaluation.trial import evaluate, run_trial
     from study.metrics import trial_rows
 
+    if cell.recording is not None:  # recorded ranges: the seed seeds the attack engine only
+        from attack_profiles import Engine
+
+        engine = None if cell.profile is None else Engine(cell.profile, seed=cell.seed, scenario=cell.scenario)
+        trial = evaluate(
+            cell.scenario, cell.recording.streams, engine, names, from_log=True, params=cell.estimator_params,
+            dims=cell.dims,
+        )  # fmt: skip
+        return trial_rows(trial)
     trial = run_trial(
         cell.scenario, cell.profile, names, cell.seed, cell.duration_s, cell.leg, cell.estimator_params, cell.dims
     )

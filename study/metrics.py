@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from evaluation.report import summarise
-from evaluation.trial import WARMUP_S, TrialResult
+from evaluation.trial import TrialResult
 
 SIGMA_BINS = (0.0, 1.0, 3.0, 5.0, 10.0, float("inf"))
 
@@ -52,7 +52,7 @@ def _finite(values: np.ndarray | None, *masks: np.ndarray) -> np.ndarray | None:
 
 def detection_figures(trial: TrialResult, name: str) -> dict[str, Any]:
     trace = trial.traces[name]
-    keep = trial.t_s > WARMUP_S
+    keep = trial.t_s > trial.score_from_s
     t = trial.t_s[keep]
     offsets = np.abs(np.nan_to_num(trial.offsets_m[keep], nan=0.0))
     attacked = offsets > 0.0

@@ -29,6 +29,7 @@ from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, field_validato
 import estimators
 from attack_profiles import library
 from attack_profiles.profile import Profile
+from estimators import noise
 from evaluation.cli import resolve_attack
 from secuav_common.loading import InputError, dump_json, load_model, parse_document, validate
 from secuav_common.scenario import HoldTarget, Scenario, load_scenario, resolve_scenario_path
@@ -47,6 +48,14 @@ class AttackSpec(_Strict):
 
     profile: str = Field(description="library profile name (secuav-attack list) or a profile file")
     params: dict[str, Any] = Field(default_factory=dict, description="a list is a grid axis; a scalar is fixed")
+
+
+class RecordingSpec(_Strict):
+    """Recorded ranges instead of a flight (docs/recorded-ranges.md): every seed re-runs the estimators on it."""
+
+    ranges: str = Field(description="recorded-ranges CSV (t_s, sysid, sensor_id, range_m), relative to the study")
+    truth: str | None = Field(None, description="truth CSV (t_s, sysid, north_m, east_m, down_m); None: unscored")
+    rate_hz: PositiveFloat | None = Field(None, description="framing rate (default: the ranges' own)")
 
 
 AttackEntry = Annotated[Literal["none"] | AttackSpec, Field(description="'none' (clean runs) or a profile")]
@@ -75,6 +84,9 @@ class Study(_Strict):
     dims: Literal[2, 3] = Field(
         3, description="anchor scenarios: 3 = full position with the downward laser a reading; 2 = height known"
     )
+    recording: RecordingSpec | None = Field(
+        None, description="offline: recorded ranges instead of flights (legs, positions, duration_s unused)"
+    )
 
     @field_validator("estimators", mode="before")
     @classmethod
@@ -101,6 +113,15 @@ class Study(_Strict):
         if isinstance(seeds, list) and (not seeds or len(set(seeds)) != len(seeds)):
             raise ValueError("an explicit seed list must be non-empty and without repeats")
         return seeds
+
+    @model_validator(mode="after")
+    def _recording_rules(self) -> Study:
+        if self.recording is not None:
+            if self.mode != "offline":
+                raise ValueError("recording: only offline studies read recorded ranges")
+            if self.legs != ["hover"] or self.positions is not None:
+                raise ValueError("recording: the recording fixes the path, so leave legs and positions out")
+        return self
 
     @model_validator(mode="after")
     def _mode_rules(self) -> Study:
@@ -138,6 +159,7 @@ class Cell:
     settle_s: float
     estimator_params: dict[str, Any] = dataclasses.field(default_factory=dict)  # one grid point of the study's
     dims: int = 3  # test case 1's model (evaluation.trial.run_trial)
+    recording: Any = None  # evaluation.recorded.Recorded: framed recorded streams instead of a flight
 
 
 def load_study(path: str | Path) -> Study:
@@ -223,6 +245,7 @@ def expand(study: Study, source: str) -> list[Cell]:
                 reason = f"does not run on scenario {scenario.name!r} (these do: {', '.join(fits)})"
                 raise InputError(source, f"estimators[{i}]", name, reason)
     duration = study.duration_s or scenario.duration_s
+    recording, recording_hash = _recording(study, scenario, base, source)
     positions: list[tuple[float, float] | None] = list(study.positions) if study.positions else [None]
     variants: list[tuple[tuple[float, float] | None, Scenario]] = []
     for i, pos in enumerate(positions):
@@ -266,13 +289,33 @@ def expand(study: Study, source: str) -> list[Cell]:
             # dims always: the default model changed from 2-D to 3-D (the laser a reading), so a directory of
             # older rows must not pass for this model's. estimator_params only when set.
             dims=study.dims, **({"estimator_params": tuning} if tuning else {}),
+            **({"recording": recording_hash} if recording_hash else {}),
         )  # fmt: skip
         if key in seen:  # two attack entries that resolve to the same profile: one cell
             continue
         seen.add(key)
         cells.append(Cell(key, study.name, study.mode, scen, duration, leg, pos, name, ref, values, profile, seed,
-                          study.settle_s, tuning, study.dims))  # fmt: skip
+                          study.settle_s, tuning, study.dims, recording))  # fmt: skip
     return cells
+
+
+def _recording(study: Study, scenario: Scenario, base: Path, source: str) -> tuple[Any, str | None]:
+    """The study's recording framed once (cells carry it: workers share no disk) and its content hash."""
+    spec = study.recording
+    if spec is None:
+        return None, None
+    from evaluation.recorded import load_recording
+
+    ranges = Path(_resolve_near(spec.ranges, base))
+    truth = None if spec.truth is None else Path(_resolve_near(spec.truth, base))
+    try:
+        rec = load_recording(scenario, ranges=ranges, truth=truth, rate_hz=spec.rate_hz)
+    except InputError as err:
+        raise InputError(source, "recording", spec.ranges, str(err)) from None
+    digest = hashlib.sha256(ranges.read_bytes())
+    if truth is not None:
+        digest.update(truth.read_bytes())
+    return rec, f"{digest.hexdigest()[:16]}@{rec.rate_hz:.6g}"
 
 
 def _check_tunings(study: Study, tunings: list[dict[str, Any]], scenario: Scenario, source: str) -> None:
@@ -283,6 +326,6 @@ def _check_tunings(study: Study, tunings: list[dict[str, Any]], scenario: Scenar
     for tuning in tunings:
         for i, name in enumerate(study.estimators):
             try:
-                estimators.create(name, model, **tuning)
+                noise.create(name, model, **tuning)  # estimators.create, plus calibration_s
             except (TypeError, ValueError) as exc:
                 raise InputError(source, f"estimator_params ({study.estimators[i]})", tuning, str(exc)) from None

@@ -1,0 +1,406 @@
+"""Decode the LIAS-CUHKSZ planar UWB dataset into SecUAV's recorded-ranges format, and fit its noise.
+
+Dataset: "Efficient Planar Pose Estimation via UWB Measurements" (Jiang et al., ICRA 2023), folder
+``Planar_Dataset/Dynamic`` of https://github.com/LIAS-CUHKSZ/Efficient-Pose-Estimation-via-UWB-measurements
+(MIT licence, commit ``cabd39232cb855d3c1160ed16692034f4d41a092``). A trolley carrying three UWB tags
+moves among eight two-way-ranging anchors while a motion-capture system tracks it. The data are not
+bundled with SecUAV: this script downloads them (where the machine is online) or reads a local copy.
+
+Two CSV files per run (``fast``, ``mid``, ``slow``):
+
+- ``UWB_dynamic_exp_<run>.csv``: no header; column 1 a wall-clock stamp ``YYYY-MM-DD H:MM:SS.fff``,
+  columns 2-25 the ranges in metres, anchor-major (a0-t0, a0-t1, a0-t2, a1-t0, ...).
+- ``motion_capture_dynamic_exp_<run>.csv``: one header line, then the stamp, the rigid body's
+  centroid x, y, z (metres) and its attitude quaternion (w, x, y, z).
+
+The tags sit at fixed offsets in the body frame (``TAG_OFFSETS_M``, from the dataset's README); the
+motion-capture body frame has z pointing down, so the README's y offsets enter with their sign
+flipped (:data:`BODY_Y_SIGN`; measured: the median absolute range residual is 0.046 m this way
+against 0.15-0.25 m for the other readings of the frame). SecUAV's frame is NED: north = y,
+east = x, down = -z of the dataset (a proper rotation of its right-handed, z-up frame).
+
+    python scripts/datasets/lias_planar_uwb.py convert --run fast --tag 0 --out out/lias-fast
+    python scripts/datasets/lias_planar_uwb.py convert --source DIR --run mid --out out/lias-mid
+    python scripts/datasets/lias_planar_uwb.py fit --source DIR --runs fast,mid
+
+``convert`` writes ``ranges.csv`` and ``truth.csv`` (docs/recorded-ranges.md) and ``scenario.yaml``
+(the anchors, the vehicle as sysid 1, the dataset's provenance in its description), ready for
+``secuav-eval --scenario OUT/scenario.yaml --ranges OUT/ranges.csv --truth OUT/truth.csv``.
+``fit`` prints the noise parameters of every anchor-tag link as JSON (what the ``uwb-lias-planar``
+noise preset holds, see docs/datasets.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+import urllib.request
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+
+NAME = "LIAS-CUHKSZ planar UWB dataset (Jiang et al., ICRA 2023), Planar_Dataset/Dynamic"
+REPO_URL = "https://github.com/LIAS-CUHKSZ/Efficient-Pose-Estimation-via-UWB-measurements"
+COMMIT = "cabd39232cb855d3c1160ed16692034f4d41a092"
+LICENCE = "MIT"
+RAW_URL = f"https://raw.githubusercontent.com/LIAS-CUHKSZ/Efficient-Pose-Estimation-via-UWB-measurements/{COMMIT}"
+FOLDER = "Planar_Dataset/Dynamic"
+RUNS = ("fast", "mid", "slow")
+
+# Anchor positions in the dataset's frame (x, y, z metres), from its README.
+ANCHORS_M = np.array(
+    [
+        [-3.4203, 3.0053, 1.0442],
+        [0.0016, 3.0110, 1.0446],
+        [3.6056, 2.9795, 1.0463],
+        [3.6011, -0.0008, 1.0422],
+        [3.5674, -3.0087, 1.0443],
+        [-0.0072, -2.9652, 1.0444],
+        [-3.4673, -2.9587, 1.0445],
+        [-3.4858, -0.0098, 1.0457],
+    ]
+)
+# The three tags in the rigid body's frame (x, y, z metres), from its README.
+TAG_OFFSETS_M = np.array([[-0.0689, -0.1423, 0.0011], [-0.0750, 0.1402, 0.0016], [0.2034, 0.1451, -0.0008]])
+BODY_Y_SIGN = -1.0
+N_TAGS = 3
+N_ANCHORS = 8
+STAMP = "%Y-%m-%d %H:%M:%S.%f"
+GROSS_M = 1.0  # a reading this far from its link's median error is a gross error, not noise
+
+
+class DatasetError(ValueError):
+    """A file of the dataset that does not parse: the message names the file, line and value."""
+
+
+@dataclass(frozen=True)
+class Recording:
+    """One run, decoded: UWB rows and motion capture, on one clock (seconds since the first UWB row)."""
+
+    t_uwb_s: np.ndarray  # (N,)
+    ranges_m: np.ndarray  # (N, 8, 3) anchor x tag; NaN = empty cell
+    t_mocap_s: np.ndarray  # (M,)
+    centroid_m: np.ndarray  # (M, 3) dataset frame
+    quat_wxyz: np.ndarray  # (M, 4)
+    epoch_s: float  # wall-clock time of t = 0 (POSIX seconds, the stamps' local time read as UTC)
+
+
+def _stamp(text: str, path: Path, line: int) -> float:
+    try:
+        # Read as UTC whatever this machine's zone: only differences are used, and no zone shifts them.
+        return datetime.strptime(text.strip(), STAMP).replace(tzinfo=UTC).timestamp()
+    except ValueError:
+        raise DatasetError(f"{path}: line {line}: time {text!r} is not {STAMP}") from None
+
+
+def _floats(cells: list[str], path: Path, line: int) -> list[float]:
+    out = []
+    for c in cells:
+        c = c.strip()
+        if not c:
+            out.append(math.nan)
+            continue
+        try:
+            out.append(float(c))
+        except ValueError:
+            raise DatasetError(f"{path}: line {line}: value {c!r} is not a number") from None
+    return out
+
+
+def read_uwb(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(stamps, (N, 8, 3) ranges) of a UWB file; an empty cell is NaN."""
+    stamps, rows = [], []
+    with path.open(newline="") as fh:
+        for line, rec in enumerate(csv.reader(fh), start=1):
+            if not rec:
+                continue
+            if len(rec) != 1 + N_ANCHORS * N_TAGS:
+                raise DatasetError(f"{path}: line {line}: {len(rec)} columns, expected {1 + N_ANCHORS * N_TAGS}")
+            stamps.append(_stamp(rec[0], path, line))
+            rows.append(_floats(rec[1:], path, line))
+    if not rows:
+        raise DatasetError(f"{path}: no UWB rows")
+    return np.array(stamps), np.array(rows).reshape(-1, N_ANCHORS, N_TAGS)
+
+
+def read_mocap(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(stamps, (M, 3) centroid, (M, 4) quaternion w, x, y, z) of a motion-capture file."""
+    stamps, rows = [], []
+    with path.open(newline="") as fh:
+        for line, rec in enumerate(csv.reader(fh), start=1):
+            if not rec or (line == 1 and rec[0].strip().lower() == "time"):
+                continue
+            if len(rec) < 8:
+                raise DatasetError(f"{path}: line {line}: {len(rec)} columns, expected 8")
+            stamps.append(_stamp(rec[0], path, line))
+            rows.append(_floats(rec[1:8], path, line))
+    if not rows:
+        raise DatasetError(f"{path}: no motion-capture rows")
+    arr = np.array(rows)
+    return np.array(stamps), arr[:, :3], arr[:, 3:7]
+
+
+def read_run(folder: Path, run: str) -> Recording:
+    t_u, ranges = read_uwb(folder / f"UWB_dynamic_exp_{run}.csv")
+    t_m, centroid, quat = read_mocap(folder / f"motion_capture_dynamic_exp_{run}.csv")
+    t0 = float(t_u[0])
+    return Recording(t_u - t0, ranges, t_m - t0, centroid, quat, t0)
+
+
+def rotation(quat_wxyz: np.ndarray) -> np.ndarray:
+    """(M, 3, 3) body-to-world rotations of unit quaternions (w, x, y, z)."""
+    q = quat_wxyz / np.linalg.norm(quat_wxyz, axis=1, keepdims=True)
+    w, x, y, z = q.T
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
+        ],
+        axis=1,
+    )
+
+
+def tag_positions(rec: Recording, tag: int) -> np.ndarray:
+    """(M, 3) the tag's position in the dataset frame at the motion-capture stamps."""
+    offset = TAG_OFFSETS_M[tag] * np.array([1.0, BODY_Y_SIGN, 1.0])
+    return rec.centroid_m + np.einsum("nij,j->ni", rotation(rec.quat_wxyz), offset)
+
+
+def at_uwb_times(rec: Recording, pos_m: np.ndarray, lag_s: float = 0.0) -> np.ndarray:
+    """Positions interpolated at the UWB stamps (minus ``lag_s``); NaN outside the capture."""
+    t = rec.t_uwb_s - lag_s
+    return np.column_stack([np.interp(t, rec.t_mocap_s, pos_m[:, c], left=np.nan, right=np.nan) for c in range(3)])
+
+
+def range_errors(rec: Recording, lag_s: float = 0.0) -> np.ndarray:
+    """(N, 8, 3) measured minus true range per anchor and tag."""
+    out = np.full(rec.ranges_m.shape, np.nan)
+    for tag in range(N_TAGS):
+        pos = at_uwb_times(rec, tag_positions(rec, tag), lag_s)
+        for a in range(N_ANCHORS):
+            out[:, a, tag] = rec.ranges_m[:, a, tag] - np.linalg.norm(pos - ANCHORS_M[a], axis=1)
+    return out
+
+
+def to_ned(xyz_m: np.ndarray) -> np.ndarray:
+    """Dataset (x, y, z up) -> NED (north = y, east = x, down = -z)."""
+    xyz = np.asarray(xyz_m, dtype=float)
+    return np.stack([xyz[..., 1], xyz[..., 0], -xyz[..., 2]], axis=-1)
+
+
+# ---------------------------------------------------------------- convert
+
+
+def write_recording(rec: Recording, tag: int, out: Path, run: str, sysid: int = 1) -> dict[str, int]:
+    """``ranges.csv``, ``truth.csv`` and ``scenario.yaml`` for one tag as the vehicle; returns row counts."""
+    out.mkdir(parents=True, exist_ok=True)
+    n_ranges = 0
+    with (out / "ranges.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["t_s", "sysid", "sensor_id", "range_m"])
+        for k, t in enumerate(rec.t_uwb_s):
+            for a in range(N_ANCHORS):
+                value = rec.ranges_m[k, a, tag]
+                w.writerow([f"{t:.3f}", sysid, 10 + a, "" if math.isnan(value) else f"{value:.3f}"])
+                n_ranges += 1
+    ned = to_ned(tag_positions(rec, tag))
+    with (out / "truth.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["t_s", "sysid", "north_m", "east_m", "down_m"])
+        for t, p in zip(rec.t_mocap_s, ned, strict=True):
+            if np.isfinite(p).all():
+                w.writerow([f"{t:.4f}", sysid, f"{p[0]:.4f}", f"{p[1]:.4f}", f"{p[2]:.4f}"])
+    (out / "scenario.yaml").write_text(scenario_yaml(rec, tag, run, sysid, float(np.nanmedian(ned[:, 2]))))
+    return {"ranges": n_ranges, "truth": int(np.isfinite(ned).all(axis=1).sum())}
+
+
+def scenario_yaml(rec: Recording, tag: int, run: str, sysid: int, down_m: float) -> str:
+    anchors = to_ned(ANCHORS_M)
+    lines = [
+        f"# Decoded by scripts/datasets/lias_planar_uwb.py from {NAME}, run {run!r}, tag {tag}.",
+        f"# Source: {REPO_URL} at commit {COMMIT} ({LICENCE} licence).",
+        f"name: lias-planar-{run}-tag{tag}",
+        "description: >-",
+        f"  Recorded two-way UWB ranges of tag {tag} ({run} run) to eight anchors, motion-capture truth;",
+        f"  {NAME}, {REPO_URL} @ {COMMIT[:12]}, {LICENCE}.",
+        f"duration_s: {float(rec.t_uwb_s[-1]):.1f}",
+        "world:",
+        "  anchors:",
+    ]
+    for a, p in enumerate(anchors):
+        lines.append(f"    - {{id: {a}, pos_ned_m: [{p[0]:.4f}, {p[1]:.4f}, {p[2]:.4f}]}}")
+    lines += [
+        "vehicles:",
+        f"  - sysid: {sysid}",
+        f"    name: tag{tag}",
+        "    start: {pos_ned_m: [0.0, 0.0, 0.0], yaw_deg: 0}",
+        f"    target: {{kind: hold, pos_ned_m: [0.0, 0.0, {down_m:.4f}]}}",
+        "    sensors:",
+        "      uwb: {anchors: all, noise_std_m: 0.07, rate_hz: 100, noise: {preset: uwb-lias-planar}}",
+        "      gps: {enabled: false}",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------- fit
+
+
+def best_lag_s(rec: Recording, lags_s: np.ndarray) -> float:
+    """The clock offset (UWB minus motion capture) that makes the residuals tightest (median |r - median|)."""
+
+    def spread(lag: float) -> float:
+        e = range_errors(rec, lag)
+        return float(np.nanmean(np.nanmedian(np.abs(e - np.nanmedian(e, axis=0)), axis=0)))
+
+    return float(min(lags_s, key=spread))
+
+
+def link_series(rec: Recording, lag_s: float, rate_hz: float = 10.0) -> np.ndarray:
+    """(K, 24) errors per link resampled at ``rate_hz`` (the last UWB row at or before each tick)."""
+    e = range_errors(rec, lag_s).reshape(len(rec.t_uwb_s), -1)
+    ticks = np.arange(rec.t_uwb_s[0], rec.t_uwb_s[-1], 1.0 / rate_hz)
+    idx = np.searchsorted(rec.t_uwb_s, ticks + 1e-9, side="right") - 1
+    return e[np.maximum(idx, 0)]
+
+
+def fit_noise(series: list[np.ndarray], rate_hz: float = 10.0) -> dict[str, object]:
+    """Noise parameters from per-link error series (each (K, L), one per run): see docs/datasets.md."""
+    offsets, sigmas, acf_lags = [], [], {}
+    z_all, gross, total, gross_values = [], 0, 0, []
+    episodes, episode_len, episode_excess, link_time_s = 0, [], [], 0.0
+    lags = (1, 2, 5, 10, 20, 50)
+    for e in series:
+        med = np.nanmedian(e, axis=0)
+        r = e - med
+        mad = 1.4826 * np.nanmedian(np.abs(r), axis=0)
+        offsets += med.tolist()
+        sigmas += mad.tolist()
+        bad = np.abs(r) > GROSS_M
+        gross += int(bad.sum())
+        gross_values += r[bad].tolist()
+        total += int(np.isfinite(r).sum())
+        core = np.where(bad, np.nan, r)
+        z_all.append((core / mad)[np.isfinite(core)])
+        for lag in lags:
+            for c in range(r.shape[1]):
+                x = core[:, c] - np.nanmean(core[:, c])
+                a, b = x[:-lag], x[lag:]
+                ok = np.isfinite(a) & np.isfinite(b)
+                acf_lags.setdefault(lag, []).append(
+                    float(np.sum(a[ok] * b[ok]) / np.sqrt(np.sum(a[ok] ** 2) * np.sum(b[ok] ** 2)))
+                )
+        # NLOS-like episodes: runs of at least 0.3 s above +3 sigma of the link
+        for c in range(r.shape[1]):
+            above = np.nan_to_num(core[:, c] / mad[c], nan=0.0) > 3.0
+            link_time_s += r.shape[0] / rate_hz
+            k = 0
+            while k < above.size:
+                if above[k]:
+                    j = k
+                    while j < above.size and above[j]:
+                        j += 1
+                    if j - k >= round(0.3 * rate_hz):
+                        episodes += 1
+                        episode_len.append((j - k) / rate_hz)
+                        episode_excess.append(float(np.nanmean(core[k:j, c])))
+                    k = j
+                else:
+                    k += 1
+    z = np.concatenate(z_all)
+    acf = {f"{lag / rate_hz:.1f}": float(np.median(v)) for lag, v in sorted(acf_lags.items())}
+    # ACF(lag) ~ share * exp(-lag / tau) for lags >= 1 tick: a least-squares line through log ACF.
+    x = np.array([lag / rate_hz for lag in lags])
+    y = np.log(np.clip([acf[f"{v:.1f}"] for v in x], 1e-3, None))
+    slope, intercept = np.polyfit(x, y, 1)
+    kurt = float(np.mean(z**4) / np.mean(z**2) ** 2)
+    dof = 4.0 + 6.0 / (kurt - 3.0) if kurt > 3.0 else None  # Student-t: kurtosis 3 + 6 / (dof - 4)
+    return {
+        "links": len(offsets),
+        "offset_m": {
+            "mean": float(np.mean(offsets)),
+            "std": float(np.std(offsets)),
+            "min": float(np.min(offsets)),
+            "max": float(np.max(offsets)),
+        },
+        "sigma_m": {"median": float(np.median(sigmas)), "min": float(np.min(sigmas)), "max": float(np.max(sigmas))},
+        "acf": acf,
+        "correlated_share": float(min(1.0, math.exp(intercept))),
+        "correlation_time_s": float(-1.0 / slope) if slope < 0 else None,
+        "kurtosis": kurt,
+        "student_t_dof": dof,
+        "tail_share_beyond_3_sigma": float(np.mean(np.abs(z) > 3.0)),
+        "tail_share_beyond_5_sigma": float(np.mean(np.abs(z) > 5.0)),
+        "gross_error_share": gross / max(total, 1),
+        "gross_error_rms_m": float(np.sqrt(np.mean(np.square(gross_values)))) if gross_values else None,
+        "gross_error_range_m": [float(min(gross_values)), float(max(gross_values))] if gross_values else None,
+        "nlos_episode_rate_hz": episodes / max(link_time_s, 1e-9),
+        "nlos_episode_mean_s": float(np.mean(episode_len)) if episode_len else None,
+        "nlos_episode_excess_m": float(np.mean(episode_excess)) if episode_excess else None,
+    }
+
+
+# ---------------------------------------------------------------- cli
+
+
+def fetch(folder: Path, run: str) -> None:
+    """Download one run's two files from the dataset's repository at the pinned commit."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for name in (f"UWB_dynamic_exp_{run}.csv", f"motion_capture_dynamic_exp_{run}.csv"):
+        target = folder / name
+        if not target.exists():
+            with urllib.request.urlopen(f"{RAW_URL}/{FOLDER}/{name}", timeout=60) as resp:
+                target.write_bytes(resp.read())
+
+
+def _source(args: argparse.Namespace, run: str) -> Path:
+    if args.source is not None:
+        return args.source
+    fetch(args.cache, run)
+    return args.cache
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    sub = p.add_subparsers(dest="cmd", required=True)
+    for name in ("convert", "fit"):
+        c = sub.add_parser(name)
+        c.add_argument("--source", type=Path, default=None, help="a local copy of Planar_Dataset/Dynamic")
+        c.add_argument("--cache", type=Path, default=Path("out/datasets/lias-planar"), help="download folder")
+    conv = sub.choices["convert"]
+    conv.add_argument("--run", choices=RUNS, default="fast")
+    conv.add_argument("--tag", type=int, choices=range(N_TAGS), default=0)
+    conv.add_argument("--out", type=Path, required=True)
+    fit = sub.choices["fit"]
+    fit.add_argument("--runs", default="fast,mid", help="comma-separated runs")
+    args = p.parse_args(argv)
+    try:
+        if args.cmd == "convert":
+            rec = read_run(_source(args, args.run), args.run)
+            counts = write_recording(rec, args.tag, args.out, args.run)
+            print(
+                f"wrote {args.out}/ranges.csv ({counts['ranges']} rows), truth.csv ({counts['truth']}), scenario.yaml"
+            )
+            return 0
+        series, lags = [], {}
+        for run in [r.strip() for r in args.runs.split(",") if r.strip()]:
+            rec = read_run(_source(args, run), run)
+            lags[run] = best_lag_s(rec, np.round(np.arange(-0.3, 0.301, 0.02), 3))
+            series.append(link_series(rec, lags[run]))
+        result = {"dataset": NAME, "url": REPO_URL, "commit": COMMIT, "licence": LICENCE, "clock_lag_s": lags}
+        result.update(fit_noise(series))
+        print(json.dumps(result, indent=2))
+        return 0
+    except (DatasetError, OSError) as err:
+        print(f"lias_planar_uwb: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
