@@ -85,10 +85,9 @@ class Study(_Strict):
     @field_validator("estimators")
     @classmethod
     def _known_estimators(cls, names: list[str]) -> list[str]:
-        known = estimators.names()
         for name in names:
-            if name not in known and name != SECURE_OFF:
-                raise ValueError(f"unknown estimator {name!r}; choose from {', '.join(known)}")
+            if name != SECURE_OFF and not estimators.known(name):  # imports only that plugin
+                raise ValueError(f"unknown estimator {name!r}; choose from {', '.join(estimators.names())}")
         if len(set(names)) != len(names):
             raise ValueError("an estimator is listed twice")
         return names
@@ -217,10 +216,10 @@ def expand(study: Study, source: str) -> list[Cell]:
     from evaluation.cli import model_for
 
     if study.mode == "offline":
-        fits = estimators.names(model_for(scenario, study.dims))
+        model = model_for(scenario, study.dims)
         for i, name in enumerate(study.estimators):
-            if name not in fits:
-                reason = f"does not run on scenario {scenario.name!r} (these do: {', '.join(fits)})"
+            if not estimators.registry.get(name).applies_to(model):
+                reason = f"does not run on scenario {scenario.name!r} (these do: {', '.join(estimators.names(model))})"
                 raise InputError(source, f"estimators[{i}]", name, reason)
     duration = study.duration_s or scenario.duration_s
     positions: list[tuple[float, float] | None] = list(study.positions) if study.positions else [None]
