@@ -81,7 +81,14 @@ class Profile(Strict):
     def __hash__(self) -> int:
         return hash(self.canonical_json())
 
+    def __setstate__(self, state: dict[Any, Any]) -> None:
+        # Unpickled in another process (a Dask worker): the rules' primitives must be known there too,
+        # for the engine and for this model to serialise them.
+        super().__setstate__(state)
+        _know_rules(self)
+
     def canonical_json(self) -> str:
+        _know_rules(self)
         return dump_json(self)
 
     def content_hash(self) -> str:
@@ -100,6 +107,33 @@ def _sync_model() -> None:
     Profile.model_fields["rules"].annotation = list[_rule_union(list(PRIMITIVES.values()))]  # type: ignore[misc]
     Profile.model_rebuild(force=True)
     _MODEL_KINDS = tuple(PRIMITIVES)
+
+
+def _primitive_of(rule: Any) -> type[Primitive] | None:
+    """The primitive class whose rule model ``rule`` is an instance of (for a rule built in another process)."""
+    found = primitive(rule.kind)
+    if found is not None:
+        return found
+    todo = list(Primitive.__subclasses__())
+    while todo:
+        cls = todo.pop()
+        if getattr(cls, "rule_model", None) is type(rule):
+            PRIMITIVES[cls.kind] = cls
+            return cls
+        todo += cls.__subclasses__()
+    return None
+
+
+def _know_rules(profile: Profile) -> None:
+    """Enter the primitives of ``profile``'s rules in the registry and the model (cheap when they are known)."""
+    if all(rule.kind in PRIMITIVES for rule in profile.rules):  # type: ignore[attr-defined]
+        if tuple(PRIMITIVES) != _MODEL_KINDS:
+            _sync_model()
+        return
+    for rule in profile.rules:
+        if rule.kind not in PRIMITIVES:  # type: ignore[attr-defined]
+            _primitive_of(rule)
+    _sync_model()
 
 
 def _accept(data: dict[str, Any], source: str) -> dict[str, Any]:

@@ -15,6 +15,7 @@ recorded log (:func:`evaluate` with ``from_log``, streams from
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -23,7 +24,7 @@ import numpy as np
 import estimators
 from attack_profiles import Engine
 from attack_profiles.profile import Profile
-from estimators.base import Estimate
+from estimators.base import Estimate, Estimator
 from estimators.models import AnchorRangesHeight, MeasurementModel
 from estimators.scenario_models import anchor_model, two_vehicle_model, wall_group_model
 from evaluation.streams import Leg, VehicleStream, fly
@@ -31,6 +32,7 @@ from secuav_common.scenario import Scenario, WallDistanceTarget
 from secuav_common.sensor_ids import anchor_sensor_id, peer_sensor_id
 
 RATE_HZ = 10.0
+Variants = Mapping[str, tuple[str, dict[str, Any]]]  # label -> (estimator name, its own parameters)
 WARMUP_S = 1.0  # estimators' first second (start-up transient) is not scored
 
 
@@ -115,14 +117,18 @@ def run_trial(
     leg: Leg,
     params: dict[str, Any] | None = None,
     dims: int = 3,
+    variants: Variants | None = None,
 ) -> TrialResult:
     """Fly the scenario headless (seeded), attack its streams offline, run the estimators (with ``params``).
+
+    ``variants``: for an entry of ``names`` that is a label, the estimator it runs and the parameters of its own
+    (over ``params``): a study's per-estimator grid, ``huber[huber_k=1.0]`` -> ``("huber", {"huber_k": 1.0})``.
 
     ``dims`` picks test case 1's model (``anchor_model``): 3 estimates the height with the laser as a
     reading, 2 takes the laser's height as known (the seed's split)."""
     streams = fly(scenario, seed, duration_s, RATE_HZ, leg)
     engine = None if profile is None else Engine(profile, seed=seed, scenario=scenario)
-    return evaluate(scenario, streams, engine, names, params=params, dims=dims)
+    return evaluate(scenario, streams, engine, names, params=params, dims=dims, variants=variants)
 
 
 def evaluate(
@@ -134,6 +140,7 @@ def evaluate(
     from_log: bool = False,
     params: dict[str, Any] | None = None,
     dims: int = 3,
+    variants: Variants | None = None,
 ) -> TrialResult:
     """Run the estimators on framed streams (a headless flight, or a recorded log).
 
@@ -148,7 +155,7 @@ def evaluate(
     streams = {sysid: _attacked_height(engine, st) for sysid, st in streams.items()}
     s1 = streams[first]
     if is_wall(scenario):
-        return _wall_trial(scenario, s1, engine, names, from_log, params or {})
+        return _wall_trial(scenario, s1, engine, names, from_log, params or {}, variants)
     if is_formation(scenario):
         second = scenario.vehicles[1].sysid
         model: MeasurementModel = two_vehicle_model(scenario, first, second)
@@ -182,7 +189,9 @@ def evaluate(
         # A missing laser reading: keep the last height (the model's default before the first one).
         known = _hold_last(known, np.asarray(model.default_known, dtype=float).reshape(-1))
     local = None if s1.local_ned_m is None else s1.local_ned_m[:, :2]
-    traces = {name: _run_estimator(name, model, s1, z, known, truth2, local, params or {}) for name in names}
+    traces = {
+        name: _run_estimator(name, model, s1, z, known, truth2, local, params or {}, variants) for name in names
+    }
     n_anchor = len(scenario.anchor_positions())
     anchors = np.array([scenario.anchor_positions()[k] for k in sorted(scenario.anchor_positions())])[:n_anchor, :2]
     offsets, floor, scored_err, scored_det = _offsets(model, z, clean, engine, truth_state, truth_known, from_log)
@@ -252,8 +261,9 @@ def _run_estimator(
     truth2: np.ndarray | None,
     local: np.ndarray | None = None,
     params: dict[str, Any] | None = None,
+    variants: Variants | None = None,
 ) -> EstimatorTrace:
-    est = estimators.create(name, model, **(params or {}))
+    est = _create(name, model, params or {}, variants)
     n = z.shape[0]
     err = np.full(n, np.nan)
     rerr = None if truth2 is None else np.full(n, np.nan)
@@ -285,6 +295,12 @@ def _run_estimator(
     return EstimatorTrace(err, rerr, xy, times, named, alarm, dev, nees, degraded, herr, nis)
 
 
+def _create(label: str, model: MeasurementModel, params: dict[str, Any], variants: Variants | None) -> Estimator:
+    """The estimator a name or a variant label stands for, with the shared ``params`` and its own over them."""
+    name, own = (variants or {}).get(label, (label, {}))
+    return estimators.create(name, model, **{**params, **own})
+
+
 def _nis(out: Estimate) -> float:
     """The output filter's NIS per degree of freedom this step; NaN when there is none."""
     return np.nan if out.nis is None else out.nis[0] / out.nis[1]
@@ -309,6 +325,7 @@ def _wall_trial(
     names: list[str],
     from_log: bool,
     params: dict[str, Any],
+    variants: Variants | None = None,
 ) -> TrialResult:
     target = scenario.vehicles[0].target
     assert isinstance(target, WallDistanceTarget)
@@ -321,7 +338,7 @@ def _wall_trial(
     true_d = (s1.truth_ned_m - np.asarray(wall.point_ned_m)) @ np.asarray(wall.normal_ned)
     traces = {}
     for name in names:
-        est = estimators.create(name, model, **params)
+        est = _create(name, model, params, variants)
         n = z.shape[0]
         d_est, times = np.full(n, np.nan), np.zeros(n)
         named, alarm = np.zeros(z.shape, dtype=bool), np.zeros(n, dtype=bool)

@@ -8,8 +8,11 @@
     secuav-study schema
 
 ``run`` prints a progress bar (cells done, failed, ETA) and, last, one JSON
-line ``{"cells", "ran", "skipped", "failed", "out"}``: ``failed`` counts the
-cells of the study whose rows in DIR carry an error. Exit 0 when none failed,
+line ``{"cells", "ran", "skipped", "failed", "changed", "out"}``: ``failed`` counts the
+cells of the study whose rows in DIR carry an error; ``changed`` the cells run
+again only because the code of a row changed (an estimator's source or default,
+a primitive's, the secuav version: docs/study.md, "Provenance"), also said on
+stderr. Exit 0 when none failed,
 1 when some did (they are in the results), 2 on bad input, 130 when
 interrupted (what finished is kept; run again to go on).
 """
@@ -98,7 +101,7 @@ def _run(args: argparse.Namespace) -> int:
     summary = runner.Summary(cells=len(cells))
     try:
         with runner.dask_client(args.workers, args.scheduler) as client:
-            summary = runner.run(cells, study.estimators, args.out, client, done, label=study.name,
+            summary = runner.run(cells, study.variants(), args.out, client, done, label=study.name,
                                  progress=not args.no_progress)  # fmt: skip
     except KeyboardInterrupt:
         summary.interrupted = True
@@ -132,8 +135,8 @@ def main(argv: list[str] | None = None) -> int:
         except InputError as err:
             print(f"secuav-study: {err}", file=sys.stderr)
             return 2
-        runs = len(cells) * len(study.estimators)
-        print(f"{args.study}: ok; {len(cells)} cells x {len(study.estimators)} estimators = {runs} runs ({study.mode})")
+        n = len(study.variants())
+        print(f"{args.study}: ok; {len(cells)} cells x {n} estimator variants = {len(cells) * n} runs ({study.mode})")
         return 0
     if args.command == "report":
         from study.report import write_report
