@@ -6,6 +6,7 @@
     secuav-study report out/stealth                                          # rewrite report.md and figures/
     secuav-study validate studies/stealth.yaml
     secuav-study schema
+    secuav-study export out/stealth bundle/                                   # study, inputs, environment, results
 
 ``run`` prints a progress bar (cells done, failed, ETA) and, last, one JSON
 line ``{"cells", "ran", "skipped", "failed", "changed", "out"}``: ``failed`` counts the
@@ -50,6 +51,9 @@ def build_parser() -> argparse.ArgumentParser:
     val = sub.add_parser("validate", help="check a study file and count its cells")
     val.add_argument("study", type=Path)
     sub.add_parser("schema", help="print the JSON Schema of a study file")
+    exp = sub.add_parser("export", help="write DIR's study, inputs, environment and results to BUNDLE (reproducible)")
+    exp.add_argument("out", type=Path, metavar="DIR")
+    exp.add_argument("bundle", type=Path, metavar="BUNDLE")
     return p
 
 
@@ -96,6 +100,9 @@ def _run(args: argparse.Namespace) -> int:
         print(f"secuav-study: {err}", file=sys.stderr)
         return 2
     store.save_study(args.out, definition)
+    from study.bundle import save_inputs
+
+    save_inputs(args.out, study, args.study)
     done = store.done(args.out, retry_failed=args.retry_failed)
     signal.signal(signal.SIGTERM, _terminate)
     summary = runner.Summary(cells=len(cells))
@@ -137,6 +144,15 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         n = len(study.variants())
         print(f"{args.study}: ok; {len(cells)} cells x {n} estimator variants = {len(cells) * n} runs ({study.mode})")
+        return 0
+    if args.command == "export":
+        from study.bundle import export
+
+        try:
+            print(export(args.out, args.bundle))
+        except InputError as err:
+            print(f"secuav-study: {err}", file=sys.stderr)
+            return 2
         return 0
     if args.command == "report":
         from study.report import write_report
