@@ -53,6 +53,22 @@ class EstimatorTrace:
     # (T,) the output filter's normalised innovation squared per degree of freedom (Estimate.nis; NaN for
     # snapshot estimators); a consistent filter averages 1. Needs no truth, so it is also there on logs.
     nis: np.ndarray | None = None
+    # The method's own claims (Estimate.own_attacked/own_alarm), None for a method that does not detect.
+    own_named: np.ndarray | None = None  # (T, p) bool
+    own_alarm: np.ndarray | None = None  # (T,) bool
+
+
+def _own(est: Estimator, shape: tuple[int, int]) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Empty per-step arrays for the method's own claims, or (None, None) when it claims none."""
+    if not (est.secure if est.detects is None else est.detects):
+        return None, None
+    return np.zeros(shape, dtype=bool), np.zeros(shape[0], dtype=bool)
+
+
+def _record_own(out: Estimate, k: int, named: np.ndarray | None, alarm: np.ndarray | None) -> None:
+    if named is not None and alarm is not None and out.own_attacked is not None:
+        named[k, list(out.own_attacked)] = True
+        alarm[k] = bool(out.own_alarm)
 
 
 @dataclass(frozen=True, eq=False)
@@ -264,6 +280,7 @@ def _run_estimator(
     variants: Variants | None = None,
 ) -> EstimatorTrace:
     est = _create(name, model, params or {}, variants)
+    own_named, own_alarm = _own(est, z.shape)
     n = z.shape[0]
     err = np.full(n, np.nan)
     rerr = None if truth2 is None else np.full(n, np.nan)
@@ -280,6 +297,7 @@ def _run_estimator(
         times[k] = out.step_time_s
         alarm[k], degraded[k] = out.alarm, not out.valid
         named[k, list(out.attacked)] = True
+        _record_own(out, k, own_named, own_alarm)
         pos = out.position_m
         xy[k] = pos[:2]
         err[k] = float(np.linalg.norm(pos[:2] - s1.truth_ned_m[k, :2]))
@@ -292,7 +310,7 @@ def _run_estimator(
             true_range = float(np.linalg.norm(s1.truth_ned_m[k] - truth2[k]))
             rerr[k] = abs(est_range - true_range)
     dev = None if local is None else np.linalg.norm(xy - local, axis=1)
-    return EstimatorTrace(err, rerr, xy, times, named, alarm, dev, nees, degraded, herr, nis)
+    return EstimatorTrace(err, rerr, xy, times, named, alarm, dev, nees, degraded, herr, nis, own_named, own_alarm)
 
 
 def _create(label: str, model: MeasurementModel, params: dict[str, Any], variants: Variants | None) -> Estimator:
@@ -339,6 +357,7 @@ def _wall_trial(
     traces = {}
     for name in names:
         est = _create(name, model, params, variants)
+        own_named, own_alarm = _own(est, z.shape)
         n = z.shape[0]
         d_est, times = np.full(n, np.nan), np.zeros(n)
         named, alarm = np.zeros(z.shape, dtype=bool), np.zeros(n, dtype=bool)
@@ -347,10 +366,12 @@ def _wall_trial(
             out = est.step(float(s1.t_s[k]), z[k])
             d_est[k], times[k], alarm[k], degraded[k] = out.position_m[0], out.step_time_s, out.alarm, not out.valid
             named[k, list(out.attacked)] = True
+            _record_own(out, k, own_named, own_alarm)
             nees[k] = _nees(np.array([d_est[k] - true_d[k]]), out.covariance)
             nis[k] = _nis(out)
         traces[name] = EstimatorTrace(
-            np.abs(d_est - true_d), None, d_est[:, None], times, named, alarm, None, nees, degraded, None, nis
+            np.abs(d_est - true_d), None, d_est[:, None], times, named, alarm, None, nees, degraded, None, nis,
+            own_named, own_alarm,
         )
     offsets, floor, scored_err, scored_det = _offsets(
         model, z, clean, engine, true_d[:, None], np.zeros((z.shape[0], 1)), from_log

@@ -7,6 +7,8 @@
     secuav-study validate studies/stealth.yaml
     secuav-study schema
     secuav-study export out/stealth bundle/                                   # study, inputs, environment, results
+    secuav-study suite run --quick --out out/suite --add huber                # the benchmark suite, your method added
+    secuav-study suite check out/suite                                        # leaderboard and expected bands
 
 ``run`` prints a progress bar (cells done, failed, ETA) and, last, one JSON
 line ``{"cells", "ran", "skipped", "failed", "changed", "out"}``: ``failed`` counts the
@@ -51,6 +53,25 @@ def build_parser() -> argparse.ArgumentParser:
     val = sub.add_parser("validate", help="check a study file and count its cells")
     val.add_argument("study", type=Path)
     sub.add_parser("schema", help="print the JSON Schema of a study file")
+    suite = sub.add_parser("suite", help="the versioned benchmark suite: list, run, check (docs/bench.md)")
+    steps = suite.add_subparsers(dest="suite_command", required=True)
+    steps.add_parser("list", help="the suite's studies and their cells (quick and full)").add_argument(
+        "--version", default="v1", help="suite version (default v1)")
+    srun = steps.add_parser("run", help="run every study of the suite into OUT/<study>")
+    srun.add_argument("--out", required=True, type=Path)
+    srun.add_argument("--quick", action="store_true", help="the quick variant (minutes on a laptop)")
+    srun.add_argument("--version", default="v1", help="suite version (default v1)")
+    srun.add_argument("--add", action="append", default=[], metavar="ENTRY",
+                      help="a method under test, as in a study's estimators: NAME, package.module:Class, or "
+                      "'{name: huber, params: {huber_k: [1.0, 1.345]}}' (YAML); repeatable")  # fmt: skip
+    srun.add_argument("--only", action="append", default=[], metavar="STUDY", help="run only this study (repeatable)")
+    swhere = srun.add_mutually_exclusive_group()
+    swhere.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes (default: cores)")
+    swhere.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="a running dask scheduler")
+    srun.add_argument("--no-progress", action="store_true", help="no progress bars")
+    scheck = steps.add_parser("check", help="the leaderboard (Markdown and CSV) and the built-ins' expected bands")
+    scheck.add_argument("out", type=Path, metavar="OUT")
+    scheck.add_argument("--version", default="v1", help="suite version (default v1)")
     exp = sub.add_parser("export", help="write DIR's study, inputs, environment and results to BUNDLE (reproducible)")
     exp.add_argument("out", type=Path, metavar="DIR")
     exp.add_argument("bundle", type=Path, metavar="BUNDLE")
@@ -128,6 +149,28 @@ def _run(args: argparse.Namespace) -> int:
     return 1 if summary.failed else 0
 
 
+def _suite(args: argparse.Namespace) -> int:
+    import yaml
+
+    from study.suite import run as suite
+
+    try:
+        if args.suite_command == "list":
+            print(suite.list_text(args.version))
+            return 0
+        if args.suite_command == "check":
+            return suite.check(args.out, args.version)
+        added = [yaml.safe_load(text) for text in args.add]
+        extra = [*(["--workers", str(args.workers)] if args.workers else []),
+                 *(["--scheduler", args.scheduler] if args.scheduler else []),
+                 *(["--no-progress"] if args.no_progress else [])]  # fmt: skip
+        return suite.run(args.out, quick=args.quick, version=args.version, added=added, runner_args=extra,
+                         only=args.only)  # fmt: skip
+    except (InputError, ValueError) as err:
+        print(f"secuav-study: {err}", file=sys.stderr)
+        return 2
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     require("secuav-study")
@@ -145,6 +188,8 @@ def main(argv: list[str] | None = None) -> int:
         n = len(study.variants())
         print(f"{args.study}: ok; {len(cells)} cells x {n} estimator variants = {len(cells) * n} runs ({study.mode})")
         return 0
+    if args.command == "suite":
+        return _suite(args)
     if args.command == "export":
         from study.bundle import export
 

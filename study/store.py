@@ -41,6 +41,9 @@ SCHEMA = pa.schema([
     ("recall_by_sigma", _S), ("attacked_fraction", _F),
     ("valid_fraction", _F), ("valid_rmse_m", _F), ("valid_max_error_m", _F), ("nees_mean", _F),
     ("nis_mean", _F),  # the output filter's NIS per degree of freedom, over the steps claimed valid (1: consistent)
+    # The method's own detection (its own attacked/alarm, before the shared attribution judged its output);
+    # null for a method that claims none. The detection columns above are the shared attribution's.
+    ("own_alarm_fraction", _F), ("own_recall_all", _F), ("own_precision_all", _F), ("own_false_alarm_rate", _F),
     ("step_time_us_median", _F), ("step_time_us_p99", _F),
     ("collided", pa.bool_()), ("min_distance_m", _F), ("flagged", _S),  # closed loop
     ("worker", _S), ("started_at", pa.timestamp("ms", tz="UTC")), ("wall_s", _F),
