@@ -5,8 +5,8 @@ and lies only while the vehicle is faster than ``min_speed_mps``: a filter that
 trusts its motion model most while it manoeuvres is hit exactly then, and a
 hovering vehicle (where a test bench usually looks) sees clean readings.
 
-The speed is the distance between the last two distinct positions read, over the
-time between them, per vehicle; until two positions have been read it is unknown
+The speed is the distance the vehicle's position moved over the last ``window_s``
+seconds (0.5 s), per vehicle; until that much history has been read it is unknown
 and nothing is added. ``stateful``: the primitive watches positions outside its
 window too, so it knows the speed the moment the window opens.
 """
@@ -14,6 +14,7 @@ window too, so it knows the speed the moment the window opens.
 from __future__ import annotations
 
 import math
+from collections import deque
 from typing import ClassVar, Literal
 
 from pydantic import Field
@@ -41,21 +42,23 @@ class MovingBias(Primitive):
         super().__init__(rule, ctx)
         self.offset = rule.offset
         self.min_speed_mps = rule.min_speed_mps
-        self._track: dict[int, tuple[float, Vec3, float]] = {}  # sysid -> (time, position, speed) at the last move
+        self.window_s = 0.5
+        self._seen: dict[int, deque[tuple[float, Vec3]]] = {}  # sysid -> (time, position) over the last window
 
     def speed_mps(self, s: Sample) -> float | None:
-        pos, sysid = s.position_ned_m, s.key[0]
-        last = self._track.get(sysid)
+        """The vehicle's speed over the last ``window_s`` as the attacker reads it; None until known."""
+        pos = s.position_ned_m
         if pos is None:
-            return None if last is None else last[2]
-        if last is None:
-            self._track[sysid] = (s.t_s, pos, math.nan)
             return None
-        t0, p0, speed = last
-        if pos != p0 and s.t_s > t0:
-            speed = math.dist(pos, p0) / (s.t_s - t0)
-            self._track[sysid] = (s.t_s, pos, speed)
-        return None if math.isnan(speed) else speed
+        seen = self._seen.setdefault(s.key[0], deque())
+        if not seen or s.t_s > seen[-1][0]:
+            seen.append((s.t_s, pos))
+        while len(seen) > 1 and seen[1][0] <= s.t_s - self.window_s:  # keep one sample at least window_s old
+            seen.popleft()
+        t0, p0 = seen[0]
+        if s.t_s - t0 < self.window_s - 1e-9:
+            return None
+        return math.dist(pos, p0) / (s.t_s - t0)
 
     def apply(self, s: Sample, tau_s: float | None) -> None:
         speed = self.speed_mps(s)
