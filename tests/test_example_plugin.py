@@ -213,3 +213,32 @@ def test_the_live_proxy_runs_the_plugin_estimator_and_primitive(
     notes = [n for frame in json.loads((rec / "v1" / "index.json").read_text()) for n in frame["notes"]]
     assert notes.count("attack:moving-live:rules[0]") > 10, sorted(set(notes))
     assert notes.count("secure:huber") > 10
+
+
+def test_the_console_offers_the_plugin_profile_and_estimator() -> None:
+    import estimators
+    from webconsole.api import library_json, profile_request
+
+    entry = next(e for e in library_json() if e["name"] == "anchors-moving-bias")
+    assert "moving_bias" in entry["text"]
+    assert profile_request({"profile": "anchors-moving-bias"}) == {"library": "anchors-moving-bias", "parameters": {}}
+    assert "huber" in estimators.names()  # what GET /api/estimators lists beside "off"
+
+
+@pytest.mark.slow
+def test_a_closed_loop_flight_with_the_plugin_estimator_and_primitive(tmp_path: Path) -> None:
+    """secuav-demo starts its own secuav-proxy with --secure huber and the profile: that process finds both."""
+    (tmp_path / "wall-moving.yaml").write_text(
+        "name: wall-moving\nrules:\n  - kind: moving_bias\n    target: {message: DISTANCE_SENSOR, sensor_id: 0}\n"
+        "    offset: 0.3\n    min_speed_mps: 0.001\n"
+    )
+    study = tmp_path / "flight.yaml"
+    study.write_text("name: flight\nmode: closed-loop\nscenario: wall_hover\nduration_s: 6\nsettle_s: 2\n"
+                     "estimators: [huber]\nseeds: [1]\nattacks:\n  - profile: wall-moving.yaml\n")  # fmt: skip
+    out = tmp_path / "out"
+    done = _cmd("secuav-study", "run", str(study), "--out", str(out), "--workers", "1", "--no-progress", timeout=400)
+    assert done.returncode == 0, done.stderr + done.stdout
+    (row,) = pd.read_parquet(out / "results.parquet").to_dict("records")
+    assert row["status"] == "ok" and row["mode"] == "closed-loop" and not row["collided"], row["error"]
+    assert row["estimator_dist"] == DIST and json.loads(row["primitives"])["moving_bias"]["dist"] == DIST
+    assert row["max_error_m"] < 1.5  # flown on the plugin's estimate, distance to the wall from truth

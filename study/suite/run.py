@@ -206,6 +206,32 @@ def markdown(board: pd.DataFrame, provenance: list[str]) -> str:
     return "\n".join(lines)
 
 
+BAND_LOW, BAND_HIGH = 0.8, 1.25  # a band is the measured mean RMSE x [0.8, 1.25], widened by 5 mm each way
+
+
+def record_bands(out: Path, version: str = LATEST) -> Path:
+    """Write ``expected-<variant>.yaml`` from the built-ins' rows in ``out`` (a maintainer's step, after a
+    measured run; the file says which run)."""
+    board, provenance = leaderboard(out, version)
+    meta = json.loads((out / "suite.json").read_text(encoding="utf-8"))
+    builtin = board[board["origin"].str.startswith("secuav ") & ~board["method"].str.contains(r"\[")]
+    bands: dict[str, dict[str, list[float]]] = {}
+    for r in builtin.itertuples(index=False):
+        if r.rmse_m is None or r.rmse_m != r.rmse_m:
+            continue
+        lo, hi = max(0.0, r.rmse_m * BAND_LOW - 0.005), r.rmse_m * BAND_HIGH + 0.005
+        bands.setdefault(r.study, {})[r.method] = [round(lo, 3), round(hi, 3)]
+    path = SUITES / version / f"expected-{meta['variant']}.yaml"
+    head = (f"# Expected mean RMSE [m] of the built-in estimators, SecUAV suite {version} ({meta['variant']}).\n"
+            f"# Measured: `secuav-study suite run --{meta['variant']}` then `suite check --record-bands`, rows by\n"
+            f"# {'; '.join(provenance[1:])}.\n"
+            f"# Band = measured mean x [{BAND_LOW}, {BAND_HIGH}], widened by 5 mm: the rows are deterministic for\n"
+            f"# one code version (seeded flights), so leaving a band means the estimator's or the bench's code\n"
+            f"# changed what it computes.\n")  # fmt: skip
+    path.write_text(head + yaml.safe_dump({"bands": bands}, sort_keys=False), encoding="utf-8")
+    return path
+
+
 def check(out: Path, version: str = LATEST) -> int:
     """Write ``OUT/leaderboard.md`` and ``.csv``, print the Markdown; 1 when a built-in left its band."""
     if not (out / "suite.json").is_file():
