@@ -87,6 +87,11 @@ def known(name: str) -> bool:
         return False
 
 
+def builtin_names() -> list[str]:
+    """The built-in estimators' names, baselines first (no plugin is looked at)."""
+    return list(_REGISTRY)
+
+
 def names(model: MeasurementModel | None = None) -> list[str]:
     """Estimator names, built-in (baselines first) then plugins; with ``model``, only those that run on it.
 
