@@ -174,6 +174,7 @@ def leaderboard(out: Path, version: str = LATEST) -> tuple[pd.DataFrame, list[st
                 "study": stem, "method": label, "origin": f"{dist} {version_}" if isinstance(dist, str) else "",
                 "n": n, "rmse_m": mean, "rmse_lo": lo, "rmse_hi": hi,
                 "valid_fraction": g["valid_fraction"].mean(), "recall": g["attack_detection_recall"].mean(),
+                "own_recall": g["own_recall_all"].mean() if "own_recall_all" in g else None,
                 "false_alarm_rate": g["false_alarm_rate"].mean(),
                 "cell_wall_s": float(frame.drop_duplicates("cell")["wall_s"].median()),
                 "step_us": g["step_time_us_median"].median(),
@@ -193,14 +194,15 @@ def _num(v: Any, digits: int = 3) -> str:
 
 def markdown(board: pd.DataFrame, provenance: list[str]) -> str:
     lines = [f"# {provenance[0]}", "", *(f"- computed by: {p}" for p in provenance[1:]), ""]
-    cols = ["method", "from", "n", "RMSE [m] mean [95% CI]", "valid", "recall", "false alarms", "cell [s]",
-            "step [us]", "expected band", "check"]  # fmt: skip
+    cols = ["method", "from", "n", "RMSE [m] mean [95% CI]", "valid", "own recall", "attribution recall",
+            "false alarms", "cell [s]", "step [us]", "expected band", "check"]  # fmt: skip
     for study, g in board.groupby("study", sort=False):
         lines += [f"## {study}", "", "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
         for r in g.itertuples(index=False):
             ci = f"{_num(r.rmse_m)} [{_num(r.rmse_lo)}, {_num(r.rmse_hi)}]"
             lines.append(f"| {r.method} | {r.origin} | {r.n} | {ci} | "
-                         f"{_num(r.valid_fraction, 2)} | {_num(r.recall, 2)} | {_num(r.false_alarm_rate, 3)} | "
+                         f"{_num(r.valid_fraction, 2)} | {_num(r.own_recall, 2)} | {_num(r.recall, 2)} | "
+                         f"{_num(r.false_alarm_rate, 3)} | "
                          f"{_num(r.cell_wall_s, 1)} | {_num(r.step_us, 0)} | {r.band} | {r.check} |")  # fmt: skip
         lines.append("")
     return "\n".join(lines)
