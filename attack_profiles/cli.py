@@ -138,7 +138,9 @@ def build_parser(
     p.set_defaults(func=live["mode"])
 
     p = sub.add_parser("secure", help="choose the secure stage's estimator on a running proxy, or 'off'")
-    p.add_argument("estimator", metavar="NAME", help="secekf, secopt, recap, rarse, l1, l0, milp, ekf, ls, or off")
+    p.add_argument("estimator", metavar="NAME",
+                   help="secekf, secopt, recap, rarse, l1, l0, milp, ekf, ls, a plugin's name (secuav-plugins), "
+                   "package.module:Class, or off")
     p.add_argument("--vehicle", type=int, metavar="N", help="only this vehicle's sysid")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="estimator parameter")
     p.set_defaults(func=live["secure"])
