@@ -59,9 +59,11 @@ def _needs_scenario(profile: Profile) -> bool:
 
 def cmd_list(args: argparse.Namespace) -> int:
     entries = library.describe()
+    bundled = set(library.names(plugins=False))
     width = max(len(name) for name, _ in entries)
     for name, description in entries:
-        print(f"{name:<{width}}  {description}")
+        source = "" if name in bundled else " [from {} {}]".format(*library.origin(name))
+        print(f"{name:<{width}}  {description}{source}")
     return 0
 
 
@@ -75,7 +77,7 @@ def cmd_show(args: argparse.Namespace) -> int:
 
 
 def cmd_schema(args: argparse.Namespace) -> int:
-    sys.stdout.write(profile_schema_text())
+    sys.stdout.write(profile_schema_text(plugins=True))  # what this installation accepts, plugins included
     return 0
 
 
@@ -136,7 +138,9 @@ def build_parser(
     p.set_defaults(func=live["mode"])
 
     p = sub.add_parser("secure", help="choose the secure stage's estimator on a running proxy, or 'off'")
-    p.add_argument("estimator", metavar="NAME", help="secekf, secopt, recap, rarse, l1, l0, milp, ekf, ls, or off")
+    p.add_argument("estimator", metavar="NAME",
+                   help="secekf, secopt, recap, rarse, l1, l0, milp, ekf, ls, a plugin's name (secuav-plugins), "
+                   "package.module:Class, or off")
     p.add_argument("--vehicle", type=int, metavar="N", help="only this vehicle's sysid")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="estimator parameter")
     p.set_defaults(func=live["secure"])

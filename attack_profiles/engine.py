@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from attack_profiles.action import FORWARD, Action
-from attack_profiles.primitives import PRIMITIVES, Context, Primitive, Sample
+from attack_profiles.primitives import PRIMITIVES, Context, Primitive, Sample, primitive
 from attack_profiles.primitives.base import Vec3
 from attack_profiles.profile import Profile
 from attack_profiles.rule import IdRange, RuleBase
@@ -382,7 +382,9 @@ class Engine:
         plans: dict[int, list[_Compiled]] = {mid: [] for mid in self.message_ids}
         for i, rule in enumerate(self.profile.rules):
             msg = MESSAGES[rule.target.message]
-            cls = PRIMITIVES[rule.kind]  # type: ignore[attr-defined]
+            cls = PRIMITIVES.get(rule.kind) or primitive(rule.kind)  # type: ignore[attr-defined]
+            if cls is None:  # a plugin's rule that reached a process without the plugin
+                raise InputError(self.profile.source, f"rules[{i}].kind", rule.kind, "no such primitive installed here")
             for name in rule.fields_of(msg):
                 spec = msg.fields[name] if name is not None else None
                 seed = _rule_seed(self.profile.seed, self.seed, i if name is None else f"{i}.{name}")

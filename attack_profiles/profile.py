@@ -23,9 +23,9 @@ from functools import reduce
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import Field, JsonValue, PrivateAttr, ValidationError
+from pydantic import Field, JsonValue, PrivateAttr, ValidationError, create_model
 
-from attack_profiles.primitives import PRIMITIVES
+from attack_profiles.primitives import BUILTIN_KINDS, PRIMITIVES, Primitive, kinds, load_all, primitive
 from attack_profiles.rule import Strict
 from secuav_common.loading import (
     _MISSING,  # the "no value to show" sentinel InputError understands
@@ -34,10 +34,17 @@ from secuav_common.loading import (
     dump_json,
     parse_document,
 )
+from secuav_common.plugins import PluginError
 
-# One discriminated union over every registered primitive's rule model: adding a
-# primitive to the registry is all it takes for profiles and the schema to accept it.
-Rule = Annotated[reduce(operator.or_, (cls.rule_model for cls in PRIMITIVES.values())), Field(discriminator="kind")]
+
+def _rule_union(classes: list[type[Primitive]]) -> Any:
+    """One discriminated union over these primitives' rule models (on ``kind``)."""
+    return Annotated[reduce(operator.or_, (cls.rule_model for cls in classes)), Field(discriminator="kind")]
+
+
+# The built-ins' union; the profile model's own grows with every primitive the registry enters
+# (a plugin's, when a profile names it: see _accept), so a new primitive is declared once, in its module.
+Rule = _rule_union(list(PRIMITIVES.values()))
 
 
 class Parameter(Strict):
@@ -58,7 +65,7 @@ class Profile(Strict):
     )
     seed: int = Field(0, ge=0, lt=2**63, description="seeds noise, drop and garbage; with the engine's seed")
     parameters: dict[str, Parameter] = Field(default_factory=dict)
-    rules: list[Rule] = Field(default_factory=list)
+    rules: list[Rule] = Field(default_factory=list)  # type: ignore[valid-type]
 
     _source: str = PrivateAttr("<profile>")
 
@@ -74,12 +81,79 @@ class Profile(Strict):
     def __hash__(self) -> int:
         return hash(self.canonical_json())
 
+    def __setstate__(self, state: dict[Any, Any]) -> None:
+        # Unpickled in another process (a Dask worker): the rules' primitives must be known there too,
+        # for the engine and for this model to serialise them.
+        super().__setstate__(state)
+        _know_rules(self)
+
     def canonical_json(self) -> str:
+        _know_rules(self)
         return dump_json(self)
 
     def content_hash(self) -> str:
         """SHA-256 of the canonical JSON: equal for equal profiles, whatever their source or spelling."""
         return hashlib.sha256(self.canonical_json().encode()).hexdigest()
+
+
+_MODEL_KINDS: tuple[str, ...] = tuple(PRIMITIVES)  # the kinds the Profile model is built with now
+
+
+def _sync_model() -> None:
+    """Rebuild the profile model's rule union when the registry has entered new primitives."""
+    global _MODEL_KINDS
+    if tuple(PRIMITIVES) == _MODEL_KINDS:
+        return
+    Profile.model_fields["rules"].annotation = list[_rule_union(list(PRIMITIVES.values()))]  # type: ignore[misc]
+    Profile.model_rebuild(force=True)
+    _MODEL_KINDS = tuple(PRIMITIVES)
+
+
+def _primitive_of(rule: Any) -> type[Primitive] | None:
+    """The primitive class whose rule model ``rule`` is an instance of (for a rule built in another process)."""
+    found = primitive(rule.kind)
+    if found is not None:
+        return found
+    todo = list(Primitive.__subclasses__())
+    while todo:
+        cls = todo.pop()
+        if getattr(cls, "rule_model", None) is type(rule):
+            PRIMITIVES[cls.kind] = cls
+            return cls
+        todo += cls.__subclasses__()
+    return None
+
+
+def _know_rules(profile: Profile) -> None:
+    """Enter the primitives of ``profile``'s rules in the registry and the model (cheap when they are known)."""
+    if all(rule.kind in PRIMITIVES for rule in profile.rules):  # type: ignore[attr-defined]
+        if tuple(PRIMITIVES) != _MODEL_KINDS:
+            _sync_model()
+        return
+    for rule in profile.rules:
+        if rule.kind not in PRIMITIVES:  # type: ignore[attr-defined]
+            _primitive_of(rule)
+    _sync_model()
+
+
+def _accept(data: dict[str, Any], source: str) -> dict[str, Any]:
+    """Enter the plugin primitives the rules name, spelling a ``module:Class`` kind as the class's own kind."""
+    rules = data.get("rules")
+    if not isinstance(rules, list):
+        return data
+    out: list[Any] = []
+    for i, rule in enumerate(rules):
+        kind = rule.get("kind") if isinstance(rule, dict) else None
+        if isinstance(kind, str) and kind not in PRIMITIVES:
+            try:
+                cls = primitive(kind)
+            except PluginError as exc:
+                raise InputError(source, f"rules[{i}].kind", kind, str(exc)) from None
+            if cls is not None and cls.kind != kind:
+                rule = {**rule, "kind": cls.kind}
+        out.append(rule)
+    _sync_model()
+    return {**data, "rules": out}
 
 
 def _path(loc: tuple[int | str, ...] | list[int | str]) -> str:
@@ -133,7 +207,7 @@ def _to_input_error(err: ValidationError, data: Any, source: str) -> InputError:
     paths = [_user_path(tuple(d["loc"]), data) for d in details]
     best = max(range(len(details)), key=lambda i: (paths[i][1], len(paths[i][0])))  # first of the deepest
     detail, loc = details[best], paths[best][0]
-    known = ", ".join(PRIMITIVES)
+    known = ", ".join(kinds())
     if detail["type"] == "union_tag_not_found":
         return InputError(source, _path((*loc, "kind")), _MISSING, f"missing; one of {known}")
     if detail["type"] == "union_tag_invalid":
@@ -213,7 +287,7 @@ def parse_profile(data_or_text: Any, source: str = "<mqtt>", **params: Any) -> P
         raise InputError(source, "profile", None, "document is empty")
     if not isinstance(data, dict):
         raise InputError(source, "profile", data, "a profile must be a mapping (name, rules, ...)")
-    data = _apply_parameters(data, params, source)
+    data = _accept(_apply_parameters(data, params, source), source)
     try:
         profile = Profile.model_validate(data)
     except ValidationError as err:
@@ -237,14 +311,23 @@ def load_profile(path: str | Path, **params: Any) -> Profile:
 SCHEMA_PATH = Path(__file__).resolve().parent / "schema" / "profile.schema.json"
 
 
-def profile_json_schema() -> dict[str, Any]:
-    """The JSON Schema of a profile document, as exported to ``schema/profile.schema.json``."""
-    schema = Profile.model_json_schema()
+def profile_json_schema(plugins: bool = False) -> dict[str, Any]:
+    """The JSON Schema of a profile document: the built-in primitives' (as exported to
+    ``schema/profile.schema.json``), or with ``plugins`` every primitive installed here."""
+    if plugins:
+        load_all()
+        _sync_model()
+        schema = Profile.model_json_schema()
+    else:
+        builtin = [cls for kind, cls in PRIMITIVES.items() if kind in BUILTIN_KINDS]
+        rules = (list[_rule_union(builtin)], Field(default_factory=list))
+        model = create_model("Profile", __base__=Profile, __doc__=Profile.__doc__, rules=rules)
+        schema = model.model_json_schema()
     schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
     schema["$id"] = "https://secuav.example/schema/profile.schema.json"
     return schema
 
 
-def profile_schema_text() -> str:
+def profile_schema_text(plugins: bool = False) -> str:
     """The exported schema file's exact content (a test keeps the file in step with the models)."""
-    return json.dumps(profile_json_schema(), indent=2, sort_keys=True) + "\n"
+    return json.dumps(profile_json_schema(plugins), indent=2, sort_keys=True) + "\n"

@@ -23,7 +23,7 @@ from estimators.models import (
 from estimators.poly import Polyhedral
 from estimators.rarse import Rarse
 from estimators.recap import Recap
-from estimators.registry import create, names, register
+from estimators.registry import create, known, names, register
 from estimators.secekf import SecEkf
 from estimators.secopt import SecOpt
 
@@ -41,5 +41,6 @@ __all__ = [
     "ScalarGroup",
     "TwoVehicleRanges",
     "create",
+    "known",
     "names",
 ]

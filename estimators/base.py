@@ -65,6 +65,10 @@ class Estimate:
     ok: bool = True
     valid: bool = True
     nis: tuple[float, int] | None = None
+    # The method's own claim, before the shared attribution judged its output (``attacked``/``alarm`` as its
+    # ``_step`` returned them); None for a method that does not detect (``Estimator.detects`` False).
+    own_attacked: frozenset[int] | None = None
+    own_alarm: bool | None = None
 
 
 def _indices(mask: np.ndarray) -> frozenset[int]:
@@ -86,6 +90,9 @@ class Estimator:
 
     name: ClassVar[str] = ""
     secure: ClassVar[bool] = False
+    # Whether the method itself claims detections (its _step's attacked/alarm are recorded as own_*);
+    # None: as ``secure``. The shared attribution runs on the output of every ``secure`` method either way.
+    detects: ClassVar[bool | None] = None
 
     def __init__(
         self,
@@ -146,6 +153,9 @@ class Estimator:
         self.t_s = float(t_s)
         kn = self.model.default_known if known is None else known
         est = self._step(float(t_s), dt_s, zv, kn)
+        if self.secure if self.detects is None else self.detects:
+            object.__setattr__(est, "own_attacked", est.attacked)
+            object.__setattr__(est, "own_alarm", est.alarm)
         if est.ok and self.secure:
             self._attribute(zv, est, kn)
         # The Estimate is frozen for its readers; stamping our own fresh instance costs far less than replace().

@@ -189,6 +189,14 @@ class Calibrated:
         self._t: list[float] = []
         self._done = False
 
+    @property
+    def secure(self) -> bool:
+        return self.inner.secure
+
+    @property
+    def detects(self) -> bool | None:
+        return self.inner.detects
+
     def step(self, t_s: float, z: np.ndarray, known: Known = None) -> Estimate:
         zv = np.asarray(z, dtype=float).reshape(-1)
         if self._done:
@@ -200,7 +208,9 @@ class Calibrated:
         out = self.inner.step(t_s, zv, known)
         # Calibrating: the estimate is the estimator's, but nothing is tested yet (no alarm, nobody named) and
         # it is not claimed valid.
-        out = replace(out, attacked=frozenset(), alarm=False, valid=False)
+        out = replace(out, attacked=frozenset(), alarm=False, valid=False,
+                      own_attacked=None if out.own_attacked is None else frozenset(),
+                      own_alarm=None if out.own_alarm is None else False)  # fmt: skip
         self._z.append(zv)
         self._known.append(self.model.default_known if known is None else known)
         self._t.append(float(t_s))

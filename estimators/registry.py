@@ -1,13 +1,39 @@
-"""Name -> estimator class, so callers say ``create("secekf", model, s=2)``."""
+"""Name -> estimator class, so callers say ``create("secekf", model, s=2)``.
+
+Three kinds of names, tried in this order:
+
+- the built-ins, registered by :mod:`estimators` with :func:`register`;
+- plugins: the ``secuav.estimators`` entry points of other installed
+  distributions (docs/plugins.md), imported only when their name is asked for
+  or a listing (:func:`names`) is;
+- ``package.module:Class``: imported directly.
+
+Each estimator's parameters are its constructors' keyword parameters with their
+defaults (read from the signatures, so they cannot drift from the code); a class
+may add ranges in ``param_ranges`` (``{"huber_k": (0.5, 3.0)}``), and the shared
+ones have theirs here. :func:`describe` gives both, for listings.
+"""
 
 from __future__ import annotations
 
+import inspect
+from dataclasses import dataclass
 from typing import Any
 
 from estimators.base import Estimator
 from estimators.models import MeasurementModel
+from secuav_common import plugins
 
 _REGISTRY: dict[str, type[Estimator]] = {}
+
+# Ranges of the parameters every estimator shares (estimators.base.Estimator).
+SHARED_RANGES: dict[str, tuple[float, float]] = {
+    "alpha": (1e-6, 0.5),
+    "q_mps2": (0.0, 50.0),
+    "p0_pos_m": (0.0, 1e4),
+    "p0_vel_mps": (0.0, 1e3),
+    "n_iter": (1, 50),
+}
 
 
 def register(cls: type[Estimator]) -> type[Estimator]:
@@ -17,15 +43,109 @@ def register(cls: type[Estimator]) -> type[Estimator]:
     return cls
 
 
+def _plugin(name: str) -> type[Estimator] | None:
+    obj = plugins.load(plugins.ESTIMATORS, name)
+    if obj is None:
+        return None
+    if not (isinstance(obj, type) and issubclass(obj, Estimator)):
+        plugins.reject(plugins.ESTIMATORS, name, f"{obj!r} is not an estimators.base.Estimator subclass")
+        return None
+    return obj
+
+
+def lookup(name: str) -> type[Estimator] | None:
+    """The class ``name`` stands for (built-in, plugin or ``module:Class``), or None; imports only that one."""
+    cls = _REGISTRY.get(name)
+    if cls is not None:
+        return cls
+    if name in plugins.found(plugins.ESTIMATORS):
+        return _plugin(name)
+    if plugins.is_ref(name):
+        obj = plugins.load_ref(name)  # PluginError says why it cannot be imported
+        if not (isinstance(obj, type) and issubclass(obj, Estimator)):
+            raise plugins.PluginError(f"{name} is not an estimators.base.Estimator subclass")
+        return obj
+    return None
+
+
+def get(name: str) -> type[Estimator]:
+    """Like :func:`lookup`, but a name that stands for nothing is a ``ValueError`` listing the known ones."""
+    try:
+        cls = lookup(name)
+    except plugins.PluginError as exc:
+        raise ValueError(str(exc)) from None
+    if cls is None:
+        raise ValueError(f"unknown estimator {name!r}; choose one of {', '.join(names())} or package.module:Class")
+    return cls
+
+
+def known(name: str) -> bool:
+    """Whether ``name`` stands for an estimator that can be built here."""
+    try:
+        return lookup(name) is not None
+    except plugins.PluginError:
+        return False
+
+
+def builtin_names() -> list[str]:
+    """The built-in estimators' names, baselines first (no plugin is looked at)."""
+    return list(_REGISTRY)
+
+
 def names(model: MeasurementModel | None = None) -> list[str]:
-    """Registered estimator names, baselines first; with ``model``, only those that can run on it."""
-    return [name for name, cls in _REGISTRY.items() if model is None or cls.applies_to(model)]
+    """Estimator names, built-in (baselines first) then plugins; with ``model``, only those that run on it.
+
+    A listing: it imports every plugin estimator (one that fails is reported and left out).
+    """
+    out = list(_REGISTRY)
+    out += [n for n in plugins.found(plugins.ESTIMATORS) if n not in _REGISTRY and _plugin(n) is not None]
+    return [n for n in out if model is None or get(n).applies_to(model)]
 
 
 def create(name: str, model: MeasurementModel, **params: Any) -> Estimator:
     """Build estimator ``name`` on ``model``; ``params`` are its keyword parameters (s, alpha, ...)."""
-    try:
-        cls = _REGISTRY[name]
-    except KeyError:
-        raise ValueError(f"unknown estimator {name!r}; choose one of {', '.join(_REGISTRY)}") from None
-    return cls(model, **params)
+    return get(name)(model, **params)
+
+
+@dataclass(frozen=True, slots=True)
+class Param:
+    """One keyword parameter of an estimator: its default and, where declared, its range."""
+
+    name: str
+    default: Any
+    low: float | None = None
+    high: float | None = None
+
+    def text(self) -> str:
+        span = "" if self.low is None else f" in [{self.low:g}, {self.high:g}]"
+        return f"{self.name}={self.default!r}{span}"
+
+
+def parameters(cls: type[Estimator]) -> list[Param]:
+    """The keyword parameters of ``cls``'s constructors, its own first, with defaults and ranges."""
+    ranges = {**SHARED_RANGES, **getattr(cls, "param_ranges", {})}
+    out: dict[str, Param] = {}
+    for klass in cls.__mro__:
+        init = klass.__dict__.get("__init__")
+        if init is None:
+            continue
+        for p in inspect.signature(init).parameters.values():
+            if p.kind is not inspect.Parameter.KEYWORD_ONLY or p.name in out:
+                continue
+            low, high = ranges.get(p.name, (None, None))
+            default = None if p.default is inspect.Parameter.empty else p.default
+            out[p.name] = Param(p.name, default, low, high)
+    return list(out.values())
+
+
+def origin(name: str) -> tuple[str, str]:
+    """(distribution, version) providing estimator ``name`` ("secuav" and its version for the built-ins)."""
+    entry = plugins.found(plugins.ESTIMATORS).get(name)
+    if name not in _REGISTRY and entry is not None:
+        return entry.dist, entry.version
+    return plugins.origin(get(name))
+
+
+def code_hash(name: str) -> str:
+    """A hash of the source of estimator ``name`` and its bases: changes when its code or a default does."""
+    return plugins.source_hash(get(name))

@@ -135,6 +135,24 @@ def _check_scenario(scenario: Scenario, source: str) -> None:
         raise InputError(source, "vehicles[1].sensors.uwb.anchors", None, reason)
 
 
+def _estimators(given: str | None, model: Any) -> list[str]:
+    """``--estimators``: names, plugin names or package.module:Class, each able to run on ``model``."""
+    if given is None:
+        return estimators.names(model)  # a listing: every built-in and plugin that runs on it
+    names = [n.strip() for n in given.split(",") if n.strip()]
+    for name in names:
+        try:
+            cls = estimators.registry.get(name)
+        except ValueError as exc:
+            raise InputError("--estimators", "", name, str(exc)) from None
+        if not cls.applies_to(model):
+            fits = ", ".join(estimators.names(model))
+            raise InputError("--estimators", "", name, f"does not run on this scenario; choose from {fits}")
+    if not names:
+        raise InputError("--estimators", "", given, f"choose from {', '.join(estimators.names(model))}")
+    return names
+
+
 def _trial(args: tuple[Scenario, Profile | None, list[str], int, float, str, int, dict[str, Any]]) -> TrialResult:
     scenario, profile, names, seed, duration_s, leg, dims, params = args
     return run_trial(scenario, profile, names, seed, duration_s, leg, params, dims=dims)  # type: ignore[arg-type]
@@ -173,11 +191,7 @@ def main(argv: list[str] | None = None) -> int:
         profile = resolve_attack(args.attack or "none", parse_params(args.param))
         if profile is not None:
             Engine(profile, scenario=scenario)  # checks the profile's sensor ids against the scenario
-        fits = estimators.names(model_for(scenario, args.dims))
-        names = fits if args.estimators is None else [n.strip() for n in args.estimators.split(",") if n.strip()]
-        unknown = [n for n in names if n not in fits]
-        if unknown or not names:
-            raise InputError("--estimators", "", args.estimators, f"choose from {', '.join(fits)} (on this scenario)")
+        names = _estimators(args.estimators, model_for(scenario, args.dims))
         if args.calibrate is not None and not 0 < args.calibrate <= 3600:
             raise InputError("--calibrate", "", args.calibrate, "must lie in (0, 3600] seconds")
         if args.tail_dof is not None and (args.calibrate is None or not 2 < args.tail_dof <= 1000):

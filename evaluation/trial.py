@@ -15,6 +15,7 @@ recorded log (:func:`evaluate` with ``from_log``, streams from
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -23,7 +24,7 @@ import numpy as np
 from attack_profiles import Engine
 from attack_profiles.profile import Profile
 from estimators import noise
-from estimators.base import Estimate
+from estimators.base import Estimate, Estimator
 from estimators.models import AnchorRangesHeight, MeasurementModel
 from estimators.scenario_models import anchor_model, two_vehicle_model, wall_group_model
 from evaluation.streams import Leg, VehicleStream, fly
@@ -31,6 +32,7 @@ from secuav_common.scenario import Scenario, WallDistanceTarget
 from secuav_common.sensor_ids import anchor_sensor_id, peer_sensor_id
 
 RATE_HZ = 10.0
+Variants = Mapping[str, tuple[str, dict[str, Any]]]  # label -> (estimator name, its own parameters)
 WARMUP_S = 1.0  # estimators' first second (start-up transient) is not scored
 
 
@@ -51,6 +53,22 @@ class EstimatorTrace:
     # (T,) the output filter's normalised innovation squared per degree of freedom (Estimate.nis; NaN for
     # snapshot estimators); a consistent filter averages 1. Needs no truth, so it is also there on logs.
     nis: np.ndarray | None = None
+    # The method's own claims (Estimate.own_attacked/own_alarm), None for a method that does not detect.
+    own_named: np.ndarray | None = None  # (T, p) bool
+    own_alarm: np.ndarray | None = None  # (T,) bool
+
+
+def _own(est: Estimator | noise.Calibrated, shape: tuple[int, int]) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Empty per-step arrays for the method's own claims, or (None, None) when it claims none."""
+    if not (est.secure if est.detects is None else est.detects):
+        return None, None
+    return np.zeros(shape, dtype=bool), np.zeros(shape[0], dtype=bool)
+
+
+def _record_own(out: Estimate, k: int, named: np.ndarray | None, alarm: np.ndarray | None) -> None:
+    if named is not None and alarm is not None and out.own_attacked is not None:
+        named[k, list(out.own_attacked)] = True
+        alarm[k] = bool(out.own_alarm)
 
 
 @dataclass(frozen=True, eq=False)
@@ -127,14 +145,18 @@ def run_trial(
     leg: Leg,
     params: dict[str, Any] | None = None,
     dims: int = 3,
+    variants: Variants | None = None,
 ) -> TrialResult:
     """Fly the scenario headless (seeded), attack its streams offline, run the estimators (with ``params``).
+
+    ``variants``: for an entry of ``names`` that is a label, the estimator it runs and the parameters of its own
+    (over ``params``): a study's per-estimator grid, ``huber[huber_k=1.0]`` -> ``("huber", {"huber_k": 1.0})``.
 
     ``dims`` picks test case 1's model (``anchor_model``): 3 estimates the height with the laser as a
     reading, 2 takes the laser's height as known (the seed's split)."""
     streams = fly(scenario, seed, duration_s, RATE_HZ, leg)
     engine = None if profile is None else Engine(profile, seed=seed, scenario=scenario)
-    return evaluate(scenario, streams, engine, names, params=params, dims=dims)
+    return evaluate(scenario, streams, engine, names, params=params, dims=dims, variants=variants)
 
 
 def evaluate(
@@ -146,6 +168,7 @@ def evaluate(
     from_log: bool = False,
     params: dict[str, Any] | None = None,
     dims: int = 3,
+    variants: Variants | None = None,
 ) -> TrialResult:
     """Run the estimators on framed streams (a headless flight, or a recorded log).
 
@@ -160,7 +183,7 @@ def evaluate(
     streams = {sysid: _attacked_height(engine, st) for sysid, st in streams.items()}
     s1 = streams[first]
     if is_wall(scenario):
-        return _wall_trial(scenario, s1, engine, names, from_log, params or {})
+        return _wall_trial(scenario, s1, engine, names, from_log, params or {}, variants)
     if is_formation(scenario):
         second = scenario.vehicles[1].sysid
         model: MeasurementModel = two_vehicle_model(scenario, first, second)
@@ -194,7 +217,9 @@ def evaluate(
         # A missing laser reading: keep the last height (the model's default before the first one).
         known = _hold_last(known, np.asarray(model.default_known, dtype=float).reshape(-1))
     local = None if s1.local_ned_m is None else s1.local_ned_m[:, :2]
-    traces = {name: _run_estimator(name, model, s1, z, known, truth2, local, params or {}) for name in names}
+    traces = {
+        name: _run_estimator(name, model, s1, z, known, truth2, local, params or {}, variants) for name in names
+    }
     n_anchor = len(scenario.anchor_positions())
     anchors = np.array([scenario.anchor_positions()[k] for k in sorted(scenario.anchor_positions())])[:n_anchor, :2]
     offsets, floor, scored_err, scored_det = _offsets(model, z, clean, engine, truth_state, truth_known, from_log)
@@ -266,8 +291,10 @@ def _run_estimator(
     truth2: np.ndarray | None,
     local: np.ndarray | None = None,
     params: dict[str, Any] | None = None,
+    variants: Variants | None = None,
 ) -> EstimatorTrace:
-    est = noise.create(name, model, **(params or {}))  # estimators.create, plus calibration_s (estimators.noise)
+    est = _create(name, model, params or {}, variants)
+    own_named, own_alarm = _own(est, z.shape)
     n = z.shape[0]
     err = np.full(n, np.nan)
     rerr = None if truth2 is None else np.full(n, np.nan)
@@ -284,6 +311,7 @@ def _run_estimator(
         times[k] = out.step_time_s
         alarm[k], degraded[k] = out.alarm, not out.valid
         named[k, list(out.attacked)] = True
+        _record_own(out, k, own_named, own_alarm)
         pos = out.position_m
         xy[k] = pos[:2]
         err[k] = float(np.linalg.norm(pos[:2] - s1.truth_ned_m[k, :2]))
@@ -296,7 +324,16 @@ def _run_estimator(
             true_range = float(np.linalg.norm(s1.truth_ned_m[k] - truth2[k]))
             rerr[k] = abs(est_range - true_range)
     dev = None if local is None else np.linalg.norm(xy - local, axis=1)
-    return EstimatorTrace(err, rerr, xy, times, named, alarm, dev, nees, degraded, herr, nis)
+    return EstimatorTrace(err, rerr, xy, times, named, alarm, dev, nees, degraded, herr, nis, own_named, own_alarm)
+
+
+def _create(
+    label: str, model: MeasurementModel, params: dict[str, Any], variants: Variants | None
+) -> Estimator | noise.Calibrated:
+    """The estimator a name or a variant label stands for, with the shared ``params`` and its own over them
+    (``estimators.noise.create``: ``estimators.create`` plus a calibration window when the params ask for one)."""
+    name, own = (variants or {}).get(label, (label, {}))
+    return noise.create(name, model, **{**params, **own})
 
 
 def _nis(out: Estimate) -> float:
@@ -323,6 +360,7 @@ def _wall_trial(
     names: list[str],
     from_log: bool,
     params: dict[str, Any],
+    variants: Variants | None = None,
 ) -> TrialResult:
     target = scenario.vehicles[0].target
     assert isinstance(target, WallDistanceTarget)
@@ -335,7 +373,8 @@ def _wall_trial(
     true_d = (s1.truth_ned_m - np.asarray(wall.point_ned_m)) @ np.asarray(wall.normal_ned)
     traces = {}
     for name in names:
-        est = noise.create(name, model, **params)
+        est = _create(name, model, params, variants)
+        own_named, own_alarm = _own(est, z.shape)
         n = z.shape[0]
         d_est, times = np.full(n, np.nan), np.zeros(n)
         named, alarm = np.zeros(z.shape, dtype=bool), np.zeros(n, dtype=bool)
@@ -344,10 +383,12 @@ def _wall_trial(
             out = est.step(float(s1.t_s[k]), z[k])
             d_est[k], times[k], alarm[k], degraded[k] = out.position_m[0], out.step_time_s, out.alarm, not out.valid
             named[k, list(out.attacked)] = True
+            _record_own(out, k, own_named, own_alarm)
             nees[k] = _nees(np.array([d_est[k] - true_d[k]]), out.covariance)
             nis[k] = _nis(out)
         traces[name] = EstimatorTrace(
-            np.abs(d_est - true_d), None, d_est[:, None], times, named, alarm, None, nees, degraded, None, nis
+            np.abs(d_est - true_d), None, d_est[:, None], times, named, alarm, None, nees, degraded, None, nis,
+            own_named, own_alarm,
         )
     offsets, floor, scored_err, scored_det = _offsets(
         model, z, clean, engine, true_d[:, None], np.zeros((z.shape[0], 1)), from_log

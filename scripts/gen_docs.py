@@ -50,6 +50,7 @@ COMMANDS: list[tuple[str, Callable[[], argparse.ArgumentParser]]] = [
     ("secuav-study", _parser_of("study.cli")),
     ("secuav-record", _parser_of("mitm_proxy.tools.record", "_parser")),
     ("secuav-console", _parser_of("webconsole.cli")),
+    ("secuav-plugins", _parser_of("secuav_common.plugins_cli")),
 ]
 
 
@@ -126,7 +127,7 @@ def library_doc() -> str:
     from attack_profiles import library
 
     rows = ["| profile | what it models |", "|---|---|"]
-    rows += [f"| `{name}` | {_cell(desc)} |" for name, desc in library.describe()]
+    rows += [f"| `{name}` | {_cell(desc)} |" for name, desc in library.describe(plugins=False)]
     return "\n".join(rows) + "\n"
 
 

@@ -17,10 +17,16 @@ if [ ! -x .venv/bin/python ]; then
   fi
 fi
 stamp=.venv/.setup-stamp
-want=$(sha256sum pyproject.toml | cut -d' ' -f1)
+# The stamp covers the example plugin too: it is installed as a distribution of its own (not editable),
+# as a researcher's package would be, so a change to it needs a reinstall.
+want=$( (cat pyproject.toml; find examples/plugin -path examples/plugin/build -prune -o -type f \
+  \( -name '*.py' -o -name '*.yaml' -o -name '*.toml' -o -name '*.md' \) -print | LC_ALL=C sort | xargs cat) \
+  | sha256sum | cut -d' ' -f1)
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   echo "setup: installing SecUAV and its dependencies into .venv (first run takes a minute)" >&2
   .venv/bin/python -m pip install -q --upgrade pip
   .venv/bin/python -m pip install -q -e ".[test]"
+  # The example plugin (examples/plugin/): entry points in its own metadata; tests/test_example_plugin.py uses it.
+  .venv/bin/python -m pip install -q --no-deps --force-reinstall ./examples/plugin
   echo "$want" > "$stamp"
 fi

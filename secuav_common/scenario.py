@@ -17,6 +17,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from secuav_common import plugins
 from secuav_common.loading import load_model, parse_document, validate
 from secuav_common.sensor_ids import MAX_ANCHORS, MAX_PEER_SYSID, MAX_RANGEFINDERS
 
@@ -308,11 +309,22 @@ DEFAULT_SCENARIO = SCENARIO_DIR / "wall_hover.yaml"
 
 
 def resolve_scenario_path(name_or_path: str | Path) -> Path:
-    """Accept a path, or a bare name of a bundled scenario (``anchors8``)."""
+    """Accept a path, or a bare name of a bundled scenario (``anchors8``) or of a plugin's (docs/plugins.md)."""
     path = Path(name_or_path)
     if path.exists() or path.suffix:
         return path
-    return SCENARIO_DIR / f"{name_or_path}.yaml"
+    bundled = SCENARIO_DIR / f"{name_or_path}.yaml"
+    if bundled.is_file() or "/" in str(name_or_path):
+        return bundled
+    found = plugins.yaml_catalogue(plugins.SCENARIOS).get(str(name_or_path))
+    return bundled if found is None else found[0]
+
+
+def scenario_names(with_plugins: bool = True) -> list[str]:
+    """Bundled scenario names, sorted, then (``with_plugins``) the installed plugins' that are not bundled."""
+    bundled = sorted(p.stem for p in SCENARIO_DIR.glob("*.yaml"))
+    extra = sorted(set(plugins.yaml_catalogue(plugins.SCENARIOS)) - set(bundled)) if with_plugins else []
+    return bundled + extra
 
 
 def load_scenario(name_or_path: str | Path = DEFAULT_SCENARIO) -> Scenario:

@@ -12,7 +12,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from study.spec import Cell
+from study import provenance
+from study.spec import Cell, Variant
 from study.store import as_json
 
 
@@ -25,7 +26,9 @@ def _worker_address() -> str:
         return "local"
 
 
-def base_row(cell: Cell, estimator: str) -> dict[str, Any]:
+def base_row(cell: Cell, variant: Variant | str) -> dict[str, Any]:
+    v = Variant(variant, variant, {}) if isinstance(variant, str) else variant
+    estimator = v.label
     return {
         "study": cell.study,
         "cell": cell.key,
@@ -39,41 +42,57 @@ def base_row(cell: Cell, estimator: str) -> dict[str, Any]:
         "seed": cell.seed,
         "estimator": estimator,
         "estimator_params": as_json(cell.estimator_params) if cell.estimator_params else None,
+        "estimator_name": v.name,
     }
 
 
-def run_offline(cell: Cell, names: list[str]) -> dict[str, dict[str, Any]]:
-    """Every estimator on the same attacked streams of one seeded headless flight."""
+def _variants(given: list[Variant] | list[str]) -> list[Variant]:
+    return [Variant(v, v, {}) if isinstance(v, str) else v for v in given]
+
+
+def run_offline(cell: Cell, variants: list[Variant] | list[str]) -> dict[str, dict[str, Any]]:
+    """Every estimator variant (or plain name) on the same attacked streams of one seeded headless flight,
+    or of the cell's recording (recorded ranges: the seed seeds the attack engine only)."""
     from evaluation.trial import evaluate, run_trial
     from study.metrics import trial_rows
 
-    if cell.recording is not None:  # recorded ranges: the seed seeds the attack engine only
+    variants = _variants(variants)
+    labels = [v.label for v in variants]
+    own = {v.label: (v.name, v.params) for v in variants}
+    if cell.recording is not None:
         from attack_profiles import Engine
 
         engine = None if cell.profile is None else Engine(cell.profile, seed=cell.seed, scenario=cell.scenario)
         trial = evaluate(
-            cell.scenario, cell.recording.streams, engine, names, from_log=True, params=cell.estimator_params,
-            dims=cell.dims,
+            cell.scenario, cell.recording.streams, engine, labels, from_log=True, params=cell.estimator_params,
+            dims=cell.dims, variants=own,
         )  # fmt: skip
         return trial_rows(trial)
-    trial = run_trial(
-        cell.scenario, cell.profile, names, cell.seed, cell.duration_s, cell.leg, cell.estimator_params, cell.dims
-    )
+    trial = run_trial(cell.scenario, cell.profile, labels, cell.seed, cell.duration_s, cell.leg,
+                      cell.estimator_params, cell.dims, variants=own)  # fmt: skip
     return trial_rows(trial)
 
 
-def run_cell(cell: Cell, names: list[str]) -> list[dict[str, Any]]:
-    """The rows of one cell for the estimators ``names`` (status ok, or error with its text)."""
+def _provenance(cell: Cell, v: Variant) -> dict[str, Any]:
+    try:
+        return provenance.row_columns(v.name, cell.profile)
+    except Exception as exc:  # a plugin gone from this worker: the row says so rather than losing the cell
+        return {"code_key": None, "estimator_code": f"unavailable: {type(exc).__name__}: {exc}"}
+
+
+def run_cell(cell: Cell, variants: list[Variant] | list[str]) -> list[dict[str, Any]]:
+    """The rows of one cell for the estimator ``variants`` (status ok, or error with its text)."""
+    variants = _variants(variants)
     started = datetime.now(UTC)
     t0 = time.perf_counter()
     worker = _worker_address()
     try:
         if cell.mode == "offline":
-            figures = run_offline(cell, names)
+            figures = run_offline(cell, variants)
         else:
             from study.closed_loop import run_closed_loop
 
-            figures = run_closed_loop(cell, names)
+            figures = run_closed_loop(cell, [v.name for v in variants])
         failure = None
     except Exception as exc:  # recorded in the results; the study goes on with the other cells
         figures = {}
@@ -81,9 +100,10 @@ def run_cell(cell: Cell, names: list[str]) -> list[dict[str, Any]]:
         failure = f"{type(exc).__name__}: {exc} (at {Path(where.filename).name}:{where.lineno} in {where.name})"
     wall_s = time.perf_counter() - t0
     rows = []
-    for name in names:
-        row = base_row(cell, name)
-        per = figures.get(name)
+    for v in variants:
+        row = base_row(cell, v)
+        row.update(_provenance(cell, v))
+        per = figures.get(v.label)
         if per is None:
             row.update(status="error", error=failure or "no result for this estimator")
         else:

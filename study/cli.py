@@ -6,10 +6,16 @@
     secuav-study report out/stealth                                          # rewrite report.md and figures/
     secuav-study validate studies/stealth.yaml
     secuav-study schema
+    secuav-study export out/stealth bundle/                                   # study, inputs, environment, results
+    secuav-study suite run --quick --out out/suite --add huber                # the benchmark suite, your method added
+    secuav-study suite check out/suite                                        # leaderboard and expected bands
 
 ``run`` prints a progress bar (cells done, failed, ETA) and, last, one JSON
-line ``{"cells", "ran", "skipped", "failed", "out"}``: ``failed`` counts the
-cells of the study whose rows in DIR carry an error. Exit 0 when none failed,
+line ``{"cells", "ran", "skipped", "failed", "changed", "out"}``: ``failed`` counts the
+cells of the study whose rows in DIR carry an error; ``changed`` the cells run
+again only because the code of a row changed (an estimator's source or default,
+a primitive's, the secuav version: docs/study.md, "Provenance"), also said on
+stderr. Exit 0 when none failed,
 1 when some did (they are in the results), 2 on bad input, 130 when
 interrupted (what finished is kept; run again to go on).
 """
@@ -47,6 +53,30 @@ def build_parser() -> argparse.ArgumentParser:
     val = sub.add_parser("validate", help="check a study file and count its cells")
     val.add_argument("study", type=Path)
     sub.add_parser("schema", help="print the JSON Schema of a study file")
+    suite = sub.add_parser("suite", help="the versioned benchmark suite: list, run, check (docs/bench.md)")
+    steps = suite.add_subparsers(dest="suite_command", required=True)
+    steps.add_parser("list", help="the suite's studies and their cells (quick and full)").add_argument(
+        "--version", default="v1", help="suite version (default v1)")
+    srun = steps.add_parser("run", help="run every study of the suite into OUT/<study>")
+    srun.add_argument("--out", required=True, type=Path)
+    srun.add_argument("--quick", action="store_true", help="the quick variant (minutes on a laptop)")
+    srun.add_argument("--version", default="v1", help="suite version (default v1)")
+    srun.add_argument("--add", action="append", default=[], metavar="ENTRY",
+                      help="a method under test, as in a study's estimators: NAME, package.module:Class, or "
+                      "'{name: huber, params: {huber_k: [1.0, 1.345]}}' (YAML); repeatable")  # fmt: skip
+    srun.add_argument("--only", action="append", default=[], metavar="STUDY", help="run only this study (repeatable)")
+    swhere = srun.add_mutually_exclusive_group()
+    swhere.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes (default: cores)")
+    swhere.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="a running dask scheduler")
+    srun.add_argument("--no-progress", action="store_true", help="no progress bars")
+    scheck = steps.add_parser("check", help="the leaderboard (Markdown and CSV) and the built-ins' expected bands")
+    scheck.add_argument("out", type=Path, metavar="OUT")
+    scheck.add_argument("--version", default="v1", help="suite version (default v1)")
+    scheck.add_argument("--record-bands", action="store_true",
+                        help="(maintainers) write the suite's expected bands from OUT's built-in rows")  # fmt: skip
+    exp = sub.add_parser("export", help="write DIR's study, inputs, environment and results to BUNDLE (reproducible)")
+    exp.add_argument("out", type=Path, metavar="DIR")
+    exp.add_argument("bundle", type=Path, metavar="BUNDLE")
     return p
 
 
@@ -93,12 +123,15 @@ def _run(args: argparse.Namespace) -> int:
         print(f"secuav-study: {err}", file=sys.stderr)
         return 2
     store.save_study(args.out, definition)
+    from study.bundle import save_inputs
+
+    save_inputs(args.out, study, args.study)
     done = store.done(args.out, retry_failed=args.retry_failed)
     signal.signal(signal.SIGTERM, _terminate)
     summary = runner.Summary(cells=len(cells))
     try:
         with runner.dask_client(args.workers, args.scheduler) as client:
-            summary = runner.run(cells, study.estimators, args.out, client, done, label=study.name,
+            summary = runner.run(cells, study.variants(), args.out, client, done, label=study.name,
                                  progress=not args.no_progress)  # fmt: skip
     except KeyboardInterrupt:
         summary.interrupted = True
@@ -118,6 +151,30 @@ def _run(args: argparse.Namespace) -> int:
     return 1 if summary.failed else 0
 
 
+def _suite(args: argparse.Namespace) -> int:
+    import yaml
+
+    from study.suite import run as suite
+
+    try:
+        if args.suite_command == "list":
+            print(suite.list_text(args.version))
+            return 0
+        if args.suite_command == "check":
+            if args.record_bands:
+                print(suite.record_bands(args.out, args.version))
+            return suite.check(args.out, args.version)
+        added = [yaml.safe_load(text) for text in args.add]
+        extra = [*(["--workers", str(args.workers)] if args.workers else []),
+                 *(["--scheduler", args.scheduler] if args.scheduler else []),
+                 *(["--no-progress"] if args.no_progress else [])]  # fmt: skip
+        return suite.run(args.out, quick=args.quick, version=args.version, added=added, runner_args=extra,
+                         only=args.only)  # fmt: skip
+    except (InputError, ValueError) as err:
+        print(f"secuav-study: {err}", file=sys.stderr)
+        return 2
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     require("secuav-study")
@@ -132,8 +189,19 @@ def main(argv: list[str] | None = None) -> int:
         except InputError as err:
             print(f"secuav-study: {err}", file=sys.stderr)
             return 2
-        runs = len(cells) * len(study.estimators)
-        print(f"{args.study}: ok; {len(cells)} cells x {len(study.estimators)} estimators = {runs} runs ({study.mode})")
+        n = len(study.variants())
+        print(f"{args.study}: ok; {len(cells)} cells x {n} estimator variants = {len(cells) * n} runs ({study.mode})")
+        return 0
+    if args.command == "suite":
+        return _suite(args)
+    if args.command == "export":
+        from study.bundle import export
+
+        try:
+            print(export(args.out, args.bundle))
+        except InputError as err:
+            print(f"secuav-study: {err}", file=sys.stderr)
+            return 2
         return 0
     if args.command == "report":
         from study.report import write_report

@@ -80,6 +80,7 @@ def detection_figures(trial: TrialResult, name: str) -> dict[str, Any]:
         by_bin[_bin_label(lo, hi)] = float((named & sel).sum() / sel.sum()) if sel.any() else None
     herr = _finite(trace.height_err_m, keep)
     return {
+        **_own_figures(trace, keep, attacked, has_estimate),
         "height_rmse_m": None if herr is None else float(np.sqrt(np.mean(herr**2))),
         "detection_delay_s": delay,
         "false_alarm_rate": float(wrong.sum() / n_est) if n_est else None,
@@ -92,6 +93,22 @@ def detection_figures(trial: TrialResult, name: str) -> dict[str, Any]:
         "valid_max_error_m": float(valid_err.max()) if valid_err.size else None,
         "nees_mean": None if nees is None else float(np.mean(nees)),
         "nis_mean": None if nis is None else float(np.mean(nis)),
+    }
+
+
+def _own_figures(trace: Any, keep: np.ndarray, attacked: np.ndarray, has_estimate: np.ndarray) -> dict[str, Any]:
+    """The method's own detection (None for a method that claims none): alarm share, recall, precision, false
+    alarms, scored exactly as the shared attribution's columns are."""
+    if trace.own_named is None or trace.own_alarm is None:
+        return dict.fromkeys(("own_alarm_fraction", "own_recall_all", "own_precision_all", "own_false_alarm_rate"))
+    named, alarm = trace.own_named[keep], trace.own_alarm[keep]
+    wrong = (named & ~attacked).any(axis=1) & has_estimate
+    n_est = int(has_estimate.sum())
+    return {
+        "own_alarm_fraction": float(alarm.mean()) if alarm.size else None,
+        "own_recall_all": float((named & attacked).sum() / attacked.sum()) if attacked.any() else None,
+        "own_precision_all": float((named & attacked).sum() / named.sum()) if named.any() else None,
+        "own_false_alarm_rate": float(wrong.sum() / n_est) if n_est else None,
     }
 
 

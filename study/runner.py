@@ -11,7 +11,9 @@ running; a re-run with the same ``DIR`` picks up from there.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import logging
+import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -20,8 +22,9 @@ from typing import Any
 
 from tqdm import tqdm
 
+from study import provenance
 from study.cells import base_row, run_cell
-from study.spec import Cell
+from study.spec import Cell, Variant
 from study.store import Writer, load
 
 
@@ -32,19 +35,40 @@ class Summary:
     skipped: int = 0
     failed: int = 0
     interrupted: bool = False
+    changed: int = 0  # cells re-run because the code of one of their rows changed
 
     def as_dict(self, out: Path) -> dict[str, Any]:
-        return {"cells": self.cells, "ran": self.ran, "skipped": self.skipped, "failed": self.failed, "out": str(out)}
+        return {"cells": self.cells, "ran": self.ran, "skipped": self.skipped, "failed": self.failed,
+                "changed": self.changed, "out": str(out)}  # fmt: skip
 
 
-def plan(cells: list[Cell], names: list[str], done: set[tuple[str, str]]) -> list[tuple[Cell, list[str]]]:
-    """Per cell, the estimators it still lacks (cells with none left are skipped)."""
+def _expected_key(cell: Cell, v: Variant, cache: dict[tuple[str, str], str]) -> str:
+    k = (v.name, "" if cell.profile is None else cell.profile.content_hash())
+    if k not in cache:
+        cache[k] = provenance.code_key(v.name, cell.profile)
+    return cache[k]
+
+
+def plan(
+    cells: list[Cell], variants: list[Variant], done: dict[tuple[str, str], str | None]
+) -> tuple[list[tuple[Cell, list[Variant]]], int]:
+    """Per cell, the estimator variants it still lacks or whose code changed since their row was computed
+    (cells with none left are skipped); and how many cells run again only because code changed."""
     out = []
+    changed = 0
+    cache: dict[tuple[str, str], str] = {}
     for cell in cells:
-        missing = [n for n in names if (cell.key, n) not in done]
+        missing, stale = [], False
+        for v in variants:
+            if (cell.key, v.label) not in done:
+                missing.append(v)
+            elif done[(cell.key, v.label)] != _expected_key(cell, v, cache):
+                missing.append(v)
+                stale = True
         if missing:
             out.append((cell, missing))
-    return out
+            changed += stale
+    return out, changed
 
 
 @contextlib.contextmanager
@@ -68,10 +92,10 @@ def dask_client(workers: int | None, scheduler: str | None) -> Iterator[Any]:
         yield client
 
 
-def _failed_rows(cell: Cell, names: list[str], error: BaseException) -> list[dict[str, Any]]:
+def _failed_rows(cell: Cell, variants: list[Variant], error: BaseException) -> list[dict[str, Any]]:
     rows = []
-    for name in names:
-        row = base_row(cell, name)
+    for v in variants:
+        row = base_row(cell, v)
         row.update(status="error", error=f"{type(error).__name__}: {error}", worker=None,
                    started_at=datetime.now(UTC), wall_s=None)  # fmt: skip
         rows.append(row)
@@ -85,10 +109,10 @@ def failed_cells(out: Path) -> int:
 
 def run(
     cells: list[Cell],
-    names: list[str],
+    variants: list[Variant] | list[str],
     out: Path,
     client: Any,
-    done: set[tuple[str, str]],
+    done: dict[tuple[str, str], str | None],
     *,
     label: str = "cells",
     progress: bool = True,
@@ -96,14 +120,18 @@ def run(
     """Submit what is not done, write rows as cells finish; returns the counts of this run."""
     from distributed import as_completed
 
-    todo = plan(cells, names, done)
-    summary = Summary(cells=len(cells), skipped=len(cells) - len(todo))
+    variants = [Variant(v, v, {}) if isinstance(v, str) else v for v in variants]
+    todo, changed = plan(cells, variants, done)
+    summary = Summary(cells=len(cells), skipped=len(cells) - len(todo), changed=changed)
+    if changed:
+        print(f"secuav-study: {changed} cells re-run because their code changed", file=sys.stderr, flush=True)
     if not todo:
         return summary
     writer = Writer(out)
     by_future = {}
     for cell, missing in todo:
-        future = client.submit(run_cell, cell, missing, key=f"cell-{cell.key}-{'-'.join(missing)}", pure=False)
+        tag = hashlib.sha256("\0".join(v.label for v in missing).encode()).hexdigest()[:12]
+        future = client.submit(run_cell, cell, missing, key=f"cell-{cell.key}-{tag}", pure=False)
         by_future[future] = (cell, missing)
     bar = tqdm(total=len(todo), desc=label, unit="cell", disable=not progress, dynamic_ncols=True)
     failed_now = 0

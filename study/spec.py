@@ -61,6 +61,32 @@ class RecordingSpec(_Strict):
 AttackEntry = Annotated[Literal["none"] | AttackSpec, Field(description="'none' (clean runs) or a profile")]
 
 
+class EstimatorSpec(_Strict):
+    """An estimator with parameters of its own (a list is a grid axis for this estimator alone)."""
+
+    name: str = Field(description="estimator name, plugin name, or package.module:Class")
+    params: dict[str, Any] = Field(default_factory=dict, description="its keyword parameters; a list is a grid axis")
+
+
+EstimatorEntry = Annotated[str | EstimatorSpec, Field(description="a name, or {name, params}")]
+
+
+@dataclass(frozen=True, slots=True)
+class Variant:
+    """One estimator at one point of its own parameter grid: what a row's ``estimator`` column names."""
+
+    label: str  # the name, or name[k=v,...] when it has parameters of its own
+    name: str
+    params: dict[str, Any]
+
+
+def variant_label(name: str, params: dict[str, Any]) -> str:
+    if not params:
+        return name
+    inner = ",".join(f"{k}={json.dumps(v, sort_keys=True, separators=(',', ':'))}" for k, v in sorted(params.items()))
+    return f"{name}[{inner}]"
+
+
 class Study(_Strict):
     """A sweep of attacks x magnitudes x legs x positions x seeds over a set of estimators."""
 
@@ -73,11 +99,20 @@ class Study(_Strict):
     positions: list[tuple[float, float]] | None = Field(
         None, description="hover points (north, east) in metres, scenario frame; default the scenario's target"
     )
-    estimators: list[str] = Field(min_length=1, description="estimator names; closed loop also 'off'")
+    estimators: list[EstimatorEntry] = Field(
+        min_length=1,
+        description="names (built-in, plugin, package.module:Class), or {name, params} to tune one estimator alone "
+        "(a list in its params is a grid axis for it only); closed loop also 'off'",
+    )
     estimator_params: dict[str, Any] = Field(
         default_factory=dict,
         description="keyword parameters every estimator of a cell gets (alpha, s, ...); a list is a grid axis",
     )
+    tuning_budget: int | None = Field(
+        None, ge=1, le=1000,
+        description="the most parameter points any one estimator may be run at (its own grid); the suite fixes it "
+        "so that every method gets the same budget",
+    )  # fmt: skip
     seeds: int | list[int] = Field(description="a count (0..N-1) or an explicit list")
     attacks: list[AttackEntry] = Field(min_length=1)
     settle_s: PositiveFloat = Field(5.0, description="closed loop: hold before the attack and the scoring start")
@@ -96,14 +131,31 @@ class Study(_Strict):
 
     @field_validator("estimators")
     @classmethod
-    def _known_estimators(cls, names: list[str]) -> list[str]:
-        known = estimators.names()
+    def _known_estimators(cls, entries: list[str | EstimatorSpec]) -> list[str | EstimatorSpec]:
+        names = [e if isinstance(e, str) else e.name for e in entries]
         for name in names:
-            if name not in known and name != SECURE_OFF:
-                raise ValueError(f"unknown estimator {name!r}; choose from {', '.join(known)}")
+            if name != SECURE_OFF and not estimators.known(name):  # imports only that plugin
+                raise ValueError(f"unknown estimator {name!r}; choose from {', '.join(estimators.names())}")
         if len(set(names)) != len(names):
-            raise ValueError("an estimator is listed twice")
-        return names
+            raise ValueError("an estimator is listed twice (give one entry, with a list in params to sweep)")
+        return entries
+
+    def estimator_names(self) -> list[str]:
+        return [e if isinstance(e, str) else e.name for e in self.estimators]
+
+    def variants(self) -> list[Variant]:
+        """Every estimator at every point of its own grid, in the order written (``ValueError`` on a bad grid)."""
+        out: list[Variant] = []
+        for entry in self.estimators:
+            if isinstance(entry, str):
+                out.append(Variant(entry, entry, {}))
+                continue
+            points = _grid(entry.params, set())
+            if self.tuning_budget is not None and len(points) > self.tuning_budget:
+                raise ValueError(f"{entry.name}: {len(points)} parameter points exceed tuning_budget "
+                                 f"{self.tuning_budget}")  # fmt: skip
+            out += [Variant(variant_label(entry.name, p), entry.name, p) for p in points]
+        return out
 
     @field_validator("seeds")
     @classmethod
@@ -125,10 +177,10 @@ class Study(_Strict):
 
     @model_validator(mode="after")
     def _mode_rules(self) -> Study:
-        if self.mode == "offline" and SECURE_OFF in self.estimators:
+        if self.mode == "offline" and SECURE_OFF in self.estimator_names():
             raise ValueError(f"estimators: {SECURE_OFF!r} is for closed-loop studies only")
         if self.mode == "closed-loop":
-            if self.estimator_params or self.dims != 3:
+            if self.estimator_params or self.dims != 3 or any(isinstance(e, EstimatorSpec) for e in self.estimators):
                 raise ValueError("estimator_params, dims: closed-loop flights fly the demo's secure stage as it is")
             if self.legs != ["hover"]:
                 raise ValueError("legs: closed-loop flights hold the demo's target, so only [hover]")
@@ -239,10 +291,10 @@ def expand(study: Study, source: str) -> list[Cell]:
     from evaluation.cli import model_for
 
     if study.mode == "offline":
-        fits = estimators.names(model_for(scenario, study.dims))
-        for i, name in enumerate(study.estimators):
-            if name not in fits:
-                reason = f"does not run on scenario {scenario.name!r} (these do: {', '.join(fits)})"
+        model = model_for(scenario, study.dims)
+        for i, name in enumerate(study.estimator_names()):
+            if not estimators.registry.get(name).applies_to(model):
+                reason = f"does not run on scenario {scenario.name!r} (these do: {', '.join(estimators.names(model))})"
                 raise InputError(source, f"estimators[{i}]", name, reason)
     duration = study.duration_s or scenario.duration_s
     recording, recording_hash = _recording(study, scenario, base, source)
@@ -274,6 +326,11 @@ def expand(study: Study, source: str) -> list[Cell]:
         tunings = _grid(study.estimator_params, set())
     except ValueError as exc:
         raise InputError(source, "estimator_params", study.estimator_params, str(exc)) from None
+    for i, entry in enumerate(study.estimators):
+        try:
+            Study.variants(study.model_copy(update={"estimators": [entry]}))
+        except ValueError as exc:
+            raise InputError(source, f"estimators[{i}].params", getattr(entry, "params", None), str(exc)) from None
     if study.mode == "offline":
         _check_tunings(study, tunings, scenario, source)
     cells: list[Cell] = []
@@ -324,8 +381,9 @@ def _check_tunings(study: Study, tunings: list[dict[str, Any]], scenario: Scenar
 
     model = model_for(scenario, study.dims)
     for tuning in tunings:
-        for i, name in enumerate(study.estimators):
+        for v in study.variants():
             try:
-                noise.create(name, model, **tuning)  # estimators.create, plus calibration_s
+                noise.create(v.name, model, **{**tuning, **v.params})  # estimators.create, plus calibration_s
             except (TypeError, ValueError) as exc:
-                raise InputError(source, f"estimator_params ({study.estimators[i]})", tuning, str(exc)) from None
+                where = f"estimators ({v.label})" if v.params else f"estimator_params ({v.name})"
+                raise InputError(source, where, {**tuning, **v.params}, str(exc)) from None

@@ -41,9 +41,18 @@ SCHEMA = pa.schema([
     ("recall_by_sigma", _S), ("attacked_fraction", _F),
     ("valid_fraction", _F), ("valid_rmse_m", _F), ("valid_max_error_m", _F), ("nees_mean", _F),
     ("nis_mean", _F),  # the output filter's NIS per degree of freedom, over the steps claimed valid (1: consistent)
+    # The method's own detection (its own attacked/alarm, before the shared attribution judged its output);
+    # null for a method that claims none. The detection columns above are the shared attribution's.
+    ("own_alarm_fraction", _F), ("own_recall_all", _F), ("own_precision_all", _F), ("own_false_alarm_rate", _F),
     ("step_time_us_median", _F), ("step_time_us_p99", _F),
     ("collided", pa.bool_()), ("min_distance_m", _F), ("flagged", _S),  # closed loop
     ("worker", _S), ("started_at", pa.timestamp("ms", tz="UTC")), ("wall_s", _F),
+    # Provenance (study.provenance): the variant's estimator, where its code and the attack's came from, the
+    # environment, and code_key, which decides whether a recorded row still stands for the code of today.
+    ("estimator_name", _S), ("estimator_dist", _S), ("estimator_version", _S), ("estimator_code", _S),
+    ("attack_code", _S), ("primitives", _S), ("code_key", _S),
+    ("secuav_version", _S), ("secuav_commit", _S), ("secuav_dirty", pa.bool_()),
+    ("python_version", _S), ("numpy_version", _S), ("scipy_version", _S),
 ])  # fmt: skip
 COLUMNS = SCHEMA.names
 
@@ -95,12 +104,14 @@ def load(out: Path) -> pd.DataFrame:
     return frame.drop_duplicates(["cell", "estimator"], keep="last").reset_index(drop=True)
 
 
-def done(out: Path, *, retry_failed: bool = False) -> set[tuple[str, str]]:
-    """(cell, estimator) pairs already recorded (with ``retry_failed``: only those that succeeded)."""
+def done(out: Path, *, retry_failed: bool = False) -> dict[tuple[str, str], str | None]:
+    """(cell, estimator) pairs already recorded, with the ``code_key`` they were computed with
+    (with ``retry_failed``: only those that succeeded)."""
     frame = load(out)
     if retry_failed:
         frame = frame[frame["status"] == "ok"]
-    return set(zip(frame["cell"], frame["estimator"], strict=True))
+    keys = [None if k is None or k != k else str(k) for k in frame["code_key"]]  # NaN: a row from before provenance
+    return dict(zip(zip(frame["cell"], frame["estimator"], strict=True), keys, strict=True))
 
 
 def save_study(out: Path, definition: dict[str, Any]) -> None:

@@ -1,8 +1,11 @@
 """The attack primitives, one module each, all of the shape of :class:`~.base.Primitive`.
 
-Adding a primitive means adding a module with its rule model and its class and
-listing the class here; the profile schema and the engine pick it up from
-:data:`PRIMITIVES`.
+Adding a built-in primitive means adding a module with its rule model and its
+class and listing the class here. Another distribution adds one without touching
+this tree: a ``secuav.primitives`` entry point named by the primitive's ``kind``
+(docs/plugins.md), or ``kind: package.module:Class`` in a profile. Either way
+:func:`primitive` finds it, enters it in :data:`PRIMITIVES`, and the profile
+model, its schema and the engine take it from there.
 """
 
 from __future__ import annotations
@@ -21,6 +24,8 @@ from attack_profiles.primitives.replay import Replay
 from attack_profiles.primitives.scale import Scale
 from attack_profiles.primitives.set import Set
 from attack_profiles.primitives.sinusoid import Sinusoid
+from attack_profiles.rule import RuleBase
+from secuav_common import plugins
 
 PRIMITIVES: dict[str, type[Primitive]] = {
     cls.kind: cls
@@ -41,4 +46,64 @@ PRIMITIVES: dict[str, type[Primitive]] = {
     )
 }
 
-__all__ = ["PRIMITIVES", "Context", "Primitive", "Sample"]
+BUILTIN_KINDS = frozenset(PRIMITIVES)
+
+
+def _checked(cls: object, where: str) -> type[Primitive]:
+    if not (isinstance(cls, type) and issubclass(cls, Primitive)):
+        raise plugins.PluginError(f"{where}: {cls!r} is not an attack_profiles Primitive subclass")
+    kind = getattr(cls, "kind", None)
+    rule_model = getattr(cls, "rule_model", None)
+    if not isinstance(kind, str) or not (isinstance(rule_model, type) and issubclass(rule_model, RuleBase)):
+        raise plugins.PluginError(f"{where}: {cls.__name__} needs a str kind and a RuleBase rule_model")
+    if rule_model.model_fields.get("kind") is None or rule_model.model_fields["kind"].default != kind:
+        raise plugins.PluginError(f"{where}: {rule_model.__name__}.kind must be Literal[{kind!r}] = {kind!r}")
+    taken = PRIMITIVES.get(kind)
+    if taken is not None and taken is not cls:
+        raise plugins.PluginError(f"{where}: kind {kind!r} is taken by {taken.__module__}.{taken.__name__}")
+    return cls
+
+
+def primitive(kind: str) -> type[Primitive] | None:
+    """The primitive of ``kind`` (built-in, plugin entry point, or ``package.module:Class``), or None.
+
+    Imports only that one plugin; a plugin is entered in :data:`PRIMITIVES` under its kind.
+    Raises ``PluginError`` for a ``module:Class`` reference that cannot be used.
+    """
+    cls = PRIMITIVES.get(kind)
+    if cls is not None:
+        return cls
+    if kind in plugins.found(plugins.PRIMITIVES):
+        obj = plugins.load(plugins.PRIMITIVES, kind)
+        if obj is None:
+            return None
+        try:
+            cls = _checked(obj, f"entry point {kind}")
+        except plugins.PluginError as exc:
+            plugins.reject(plugins.PRIMITIVES, kind, str(exc))
+            return None
+        if cls.kind != kind:
+            plugins.reject(plugins.PRIMITIVES, kind, f"the entry point is named {kind!r} but the class's kind is "
+                           f"{cls.kind!r}")  # fmt: skip
+            return None
+    elif plugins.is_ref(kind):
+        cls = _checked(plugins.load_ref(kind), kind)
+    else:
+        return None
+    PRIMITIVES[cls.kind] = cls
+    return cls
+
+
+def kinds() -> list[str]:
+    """Every kind a profile may name: the built-ins, then the plugins' (metadata only, nothing imported)."""
+    return [*PRIMITIVES, *(k for k in plugins.found(plugins.PRIMITIVES) if k not in PRIMITIVES)]
+
+
+def load_all() -> dict[str, type[Primitive]]:
+    """Every primitive, plugins imported (a listing, a schema); those that fail are reported and left out."""
+    for kind in plugins.found(plugins.PRIMITIVES):
+        primitive(kind)
+    return dict(PRIMITIVES)
+
+
+__all__ = ["BUILTIN_KINDS", "PRIMITIVES", "Context", "Primitive", "Sample", "kinds", "load_all", "primitive"]

@@ -51,7 +51,7 @@ def test_small_study_on_a_local_cluster_writes_rows_report_and_figures(tmp_path:
     out = tmp_path / "out"
     done = _run("run", str(_study(tmp_path, SMALL)), "--out", str(out), "--workers", "2", "--no-progress")
     assert done.returncode == 0, done.stderr
-    assert _summary(done) == {"cells": 4, "ran": 4, "skipped": 0, "failed": 0, "out": str(out)}
+    assert _summary(done) == {"cells": 4, "ran": 4, "skipped": 0, "failed": 0, "changed": 0, "out": str(out)}
     rows = pd.read_parquet(out / "results.parquet")
     assert len(rows) == 8 and set(rows["estimator"]) == {"ekf", "secekf"} and (rows["status"] == "ok").all()
     for column in ("cell", "params", "seed", "rmse_m", "p95_error_m", "max_error_m", "estimate_fraction",

@@ -14,8 +14,9 @@ from evaluation.trial import EstimatorTrace, TrialResult
 from secuav_common.loading import InputError
 from study.cli import main
 from study.metrics import detection_figures
+from study.provenance import code_key
 from study.runner import plan
-from study.spec import _grid, expand, parse_study
+from study.spec import Variant, _grid, expand, parse_study
 
 BASE = """
 name: t
@@ -56,10 +57,21 @@ def test_cell_keys_are_stable_and_ignore_the_estimator_list() -> None:
 
 def test_plan_runs_only_missing_estimators() -> None:
     cells = _cells(BASE)
-    done = {(cells[0].key, "ekf"), (cells[0].key, "secekf"), (cells[1].key, "ekf")}
-    todo = plan(cells, ["ekf", "secekf"], done)
-    assert len(todo) == len(cells) - 1
-    assert todo[0] == (cells[1], ["secekf"])
+    ekf, secekf = Variant("ekf", "ekf", {}), Variant("secekf", "secekf", {})
+    key = {n: {c.key: code_key(n, c.profile) for c in cells[:2]} for n in ("ekf", "secekf")}
+    done = {(cells[0].key, "ekf"): key["ekf"][cells[0].key], (cells[0].key, "secekf"): key["secekf"][cells[0].key],
+            (cells[1].key, "ekf"): key["ekf"][cells[1].key]}  # fmt: skip
+    todo, changed = plan(cells, [ekf, secekf], done)
+    assert len(todo) == len(cells) - 1 and changed == 0
+    assert todo[0] == (cells[1], [secekf])
+
+
+def test_plan_runs_again_a_row_whose_code_changed() -> None:
+    cells = _cells(BASE)[:2]
+    ekf = Variant("ekf", "ekf", {})
+    done = {(cells[0].key, "ekf"): code_key("ekf", cells[0].profile), (cells[1].key, "ekf"): "computed-by-old-code"}
+    todo, changed = plan(cells, [ekf], done)
+    assert todo == [(cells[1], [ekf])] and changed == 1
 
 
 def test_positions_move_start_and_hold_target() -> None:
@@ -192,3 +204,14 @@ def test_a_cell_runs_its_estimators_with_the_grid_point() -> None:
     assert rows[0.3]["estimator_params"] == '{"alpha":0.3}'
     # Naming readings is a test at level alpha: a loose alpha names honest readings, a strict one hardly ever.
     assert rows[0.3]["false_alarm_rate"] > rows[0.001]["false_alarm_rate"] + 0.05
+
+
+def test_an_estimators_own_params_are_a_grid_for_it_alone() -> None:
+    text = BASE.replace("estimators: [ekf, secekf]", "estimators: [ekf, {name: secekf, params: {window: [5, 10]}}]")
+    study = parse_study(text, "s.yaml")
+    assert [v.label for v in study.variants()] == ["ekf", "secekf[window=5]", "secekf[window=10]"]
+    assert len(expand(study, "s.yaml")) == len(_cells(BASE))  # the same cells: the grid is per estimator
+    with pytest.raises(InputError, match=r"estimators\[1\]\.params.*tuning_budget 1"):
+        expand(parse_study(text + "tuning_budget: 1\n", "s.yaml"), "s.yaml")
+    with pytest.raises(InputError, match="window"):
+        expand(parse_study(text.replace("window: [5, 10]", "windoww: 5"), "s.yaml"), "s.yaml")

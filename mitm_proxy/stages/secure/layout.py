@@ -116,7 +116,7 @@ def build_layout(config: SecureConfig, scenario: Scenario, sysid: int, source: s
 def build_estimator(config: SecureConfig, layout: Layout, source: str = "<secure>") -> estimators.Estimator:
     """The configured estimator on the layout's model; bad name or parameter -> ``InputError``."""
     name = config.estimator
-    if name not in estimators.names():
+    if not estimators.known(name):  # a built-in, a plugin's entry point, or package.module:Class
         raise InputError(source, "estimator", name, f"unknown estimator; choose one of {', '.join(estimators.names())}")
     try:
         return estimators.create(name, layout.model, **config.params)

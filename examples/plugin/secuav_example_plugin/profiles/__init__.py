@@ -1,0 +1,1 @@
+"""Attack profiles of the example plugin: every *.yaml here is a SecUAV library profile."""
