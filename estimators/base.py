@@ -15,9 +15,10 @@ from typing import ClassVar
 
 import numpy as np
 
-from estimators.attribution import Namer, Trail, agreeing, explain
+from estimators.attribution import Namer, Trail, agreeing, explain, sidak_gate
 from estimators.bank import Chi2Table, cv_matrices, gauss_newton, inv_small
 from estimators.models import Known, MeasurementModel
+from estimators.observability import mirrors
 
 EVIDENCE_STEPS = 10  # the evidence window: the last second at 10 Hz
 EVIDENCE_MIN = 3  # a reading counts as accused when named on at least this many of its steps
@@ -51,7 +52,10 @@ class Estimate:
     a manoeuvre) leaves it valid. ``nis``: for estimators whose output is a Kalman filter's, that filter's
     normalised innovation squared this step and its degrees of freedom, ``(nu^T S^-1 nu, readings used)``;
     a consistent filter averages 1 per degree of freedom. None for snapshot estimators and steps without
-    an update.
+    an update. ``ambiguous`` (then ``valid`` is False too): a tie, two explanations with no more liars than the
+    one output that put the vehicle in different places: the mirror image of the output across a line or plane
+    of anchors (``observability.mirrors``; the layout check refuses an ``s`` that allows it inside the flight
+    region, so it fires outside it), or fewest-liars explanations that disagree beyond tolerance.
     """
 
     t_s: float
@@ -65,6 +69,7 @@ class Estimate:
     ok: bool = True
     valid: bool = True
     nis: tuple[float, int] | None = None
+    ambiguous: bool = False
 
 
 def _indices(mask: np.ndarray) -> frozenset[int]:
@@ -100,8 +105,12 @@ class Estimator:
     ) -> None:
         self.model = model
         self.s = model.max_correctable if s is None else int(s)
-        if not 0 <= self.s < model.p:
-            raise ValueError(f"s={self.s} must lie in 0..{model.p - 1}")
+        if self.s < 0:
+            raise ValueError(f"s={self.s} must not be negative")
+        if self.s > model.max_correctable:
+            # More liars than the layout can correct over its flight region: two explanations with s liars each
+            # could put the vehicle in different places, and no estimator can tell which (observability.py).
+            raise ValueError(model.support().explain(self.s))
         self.alpha = alpha
         self.chi = Chi2Table(alpha, 4 * model.p)
         # Confirming an alarm from one step's readings alone: ten times stricter, so noise alone seldom degrades.
@@ -113,6 +122,8 @@ class Estimator:
         self.p0_vel_mps = p0_vel_mps
         self.n_iter = n_iter
         self.t_s: float | None = None
+        # Lines and planes of anchors on which p - 2s readings could sit: where a tie is possible at all.
+        self.mirrors = mirrors(model, model.p - 2 * self.s) if self.secure and self.s > 0 else []
         self.reset()
 
     @classmethod
@@ -187,6 +198,7 @@ class Estimator:
                 found = explain(model, z, self.s, self.chi, pos, known, prior, self.n_iter)
                 named = found.named
                 object.__setattr__(est, "valid", False)
+                object.__setattr__(est, "ambiguous", found.tied)
                 object.__setattr__(est, "alarm", True)  # confirmed beyond tolerance, whoever noticed first
                 if found.pos is not None and found.cov is not None:
                     pos, cov, used = found.pos, found.cov, found.used
@@ -213,6 +225,31 @@ class Estimator:
             # together, whichever s of them this step's readings let the estimator leave out. The answer stays
             # (it is the best the readings of this step allow); the claim that it can be trusted does not.
             object.__setattr__(est, "valid", False)
+        if est.valid and self.mirrors and self._tie(z, est.position_m, known):
+            object.__setattr__(est, "valid", False)
+            object.__setattr__(est, "ambiguous", True)
+
+    def _tie(self, z: np.ndarray, pos: np.ndarray, known: Known) -> bool:
+        """Whether the output's mirror image across a line or plane of anchors explains the readings with no more
+        liars than the output (a reading is a liar when it fails its gate, family-wise at alpha / 10 per step)."""
+        model = self.model
+        sig2, gate = model.sigma_m**2, sidak_gate(self.alpha / 10.0, model.p)
+        sep = 4.0 * float(np.max(model.sigma_m))
+
+        def liars(x: np.ndarray) -> int:
+            r = z - model.h(x, known)
+            return int(np.sum(np.where(np.isnan(r), False, r * r > gate * sig2)))
+
+        mine = None
+        for mirror in self.mirrors:
+            alt = mirror.reflect(pos)
+            if np.linalg.norm(alt - pos) <= sep or np.linalg.norm(model.clip(alt) - alt) > 1e-9:
+                continue  # the mirror is where the output is, or where the vehicle cannot be
+            mine = liars(pos) if mine is None else mine
+            n_alt = liars(alt)
+            if n_alt <= mine:
+                return True
+        return False
 
     def _replace(self, est: Estimate, pos: np.ndarray, cov: np.ndarray, used: np.ndarray) -> None:
         """Make ``est`` another fit's answer: its position and covariance, the trail's velocity, its readings."""
