@@ -16,7 +16,7 @@ from typing import ClassVar
 import numpy as np
 
 from estimators.attribution import Namer, Trail, agreeing, explain, sidak_gate
-from estimators.bank import Chi2Table, cv_matrices, gauss_newton, inv_small
+from estimators.bank import Chi2Table, EkfBank, cv_matrices, gauss_newton, inv_small
 from estimators.models import Known, MeasurementModel
 from estimators.observability import mirrors
 
@@ -91,6 +91,7 @@ class Estimator:
 
     name: ClassVar[str] = ""
     secure: ClassVar[bool] = False
+    motion_input: ClassVar[bool] = False  # reads the vehicle's own velocity (``step(..., velocity=)``)
 
     def __init__(
         self,
@@ -102,8 +103,20 @@ class Estimator:
         p0_pos_m: float = 0.5,
         p0_vel_mps: float = 0.5,
         n_iter: int = 6,
+        velocity_std_mps: float | None = None,
     ) -> None:
         self.model = model
+        if velocity_std_mps is not None and not (self.motion_input and velocity_std_mps > 0):
+            raise ValueError(
+                f"velocity_std_mps={velocity_std_mps}: {self.name} has no motion input"
+                if not self.motion_input
+                else f"velocity_std_mps={velocity_std_mps} must be positive"
+            )
+        # The motion input: the vehicle's own velocity estimate (LOCAL_POSITION_NED vx, vy, vz), read by the filters
+        # as a measurement of their velocity state with this std, so the process model follows how the vehicle
+        # says it moves. It must come from sensors the attacked readings do not feed (IMU, flow, GPS).
+        self.velocity_std_mps = velocity_std_mps
+        self.velocity_in: np.ndarray | None = None
         self.s = model.max_correctable if s is None else int(s)
         if self.s < 0:
             raise ValueError(f"s={self.s} must not be negative")
@@ -145,9 +158,15 @@ class Estimator:
             x = np.concatenate([x0, np.zeros(self.model.d)]) if x0.size == self.model.d else x0.copy()
         self._reset(x, self._initial_cov() if P0 is None else np.asarray(P0, dtype=float))
 
-    def step(self, t_s: float, z: np.ndarray, known: Known = None) -> Estimate:
-        """Take one reading vector (NaN = missing) at time t_s; ``known`` e.g. the laser height."""
+    def step(self, t_s: float, z: np.ndarray, known: Known = None, velocity: np.ndarray | None = None) -> Estimate:
+        """Take one reading vector (NaN = missing) at time t_s; ``known`` e.g. the laser height; ``velocity`` the
+        vehicle's own NED velocity estimate (m/s; its first d components are used), read only by estimators built
+        with ``velocity_std_mps``."""
         t0 = time.perf_counter()
+        self.velocity_in = None
+        if velocity is not None and self.velocity_std_mps is not None:
+            vel = np.asarray(velocity, dtype=float).reshape(-1)[: self.model.d]
+            self.velocity_in = vel if vel.shape[0] == self.model.d and np.isfinite(vel).all() else None
         zv = np.asarray(z, dtype=float).reshape(-1)
         if zv.shape[0] != self.model.p:
             raise ValueError(f"{self.name}: expected {self.model.p} readings, got {zv.shape[0]}")
@@ -268,6 +287,11 @@ class Estimator:
     def _initial_cov(self) -> np.ndarray:
         d = self.model.d
         return np.diag([self.p0_pos_m**2] * d + [self.p0_vel_mps**2] * d)
+
+    def _motion(self, bank: EkfBank) -> None:
+        """Feed this step's velocity input, if any, to every filter of ``bank`` (after its prediction)."""
+        if self.velocity_in is not None and self.velocity_std_mps is not None:
+            bank.update_velocity(self.velocity_in, self.velocity_std_mps**2)
 
     def _cv(self, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
         return cv_matrices(self.model.d, dt_s, self.q_axes)
