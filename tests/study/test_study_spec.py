@@ -192,3 +192,18 @@ def test_a_cell_runs_its_estimators_with_the_grid_point() -> None:
     assert rows[0.3]["estimator_params"] == '{"alpha":0.3}'
     # Naming readings is a test at level alpha: a loose alpha names honest readings, a strict one hardly ever.
     assert rows[0.3]["false_alarm_rate"] > rows[0.001]["false_alarm_rate"] + 0.05
+
+
+def test_validate_refuses_more_liars_than_the_layout_supports(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 26: four collinear anchors of eight support s = 1, not the 2 that counting sensors gives."""
+    studies = Path(__file__).resolve().parents[2] / "studies"
+    (tmp_path / "scenarios").mkdir()
+    (tmp_path / "scenarios" / "collinear4.yaml").write_text((studies / "scenarios" / "collinear4.yaml").read_text())
+    text = (studies / "geometry-collinear.yaml").read_text()
+    path = tmp_path / "refused.yaml"
+    path.write_text(text.replace("estimators: [", "estimator_params: {s: 2}\nestimators: ["))
+    assert main(["validate", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "s=2 exceeds" in err and "can correct, 1:" in err and "10, 11, 12, 13" in err
