@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -147,3 +148,19 @@ def test_a_tie_outside_the_checked_region_is_flagged_ambiguous_not_claimed_valid
         assert sum(o.ambiguous for o in out) >= 30, seed
         clean = _mirror_run(model, truth, [], mirror, seed)  # the mirror needs two liars, the truth none
         assert sum(o.valid for o in clean) >= 34 and not any(o.ambiguous for o in clean), seed
+
+
+def test_scenario_models_check_the_hover_band() -> None:
+    """A scenario's model is checked over its anchors' box within 0.5 m of the hold height: the seed's layout
+    keeps 2, the collinear one gets 1, and a hover band reaching down to 1.5 m (where the anchor plane's mirror
+    lies above the ground and only the laser tells them apart) would leave none."""
+    from estimators.scenario_models import anchor_model
+    from secuav_common.scenario import load_scenario
+
+    model = anchor_model(load_scenario("anchors8"))
+    assert model.region_m is not None and model.region_m[0][2] == pytest.approx(-3.0)
+    assert model.max_correctable == 2
+    studies = Path(__file__).resolve().parents[2] / "studies"
+    assert anchor_model(load_scenario(studies / "scenarios" / "collinear4.yaml")).max_correctable == 1
+    low = (np.array([0.0, 0.0, -3.5]), np.array([5.0, 5.0, -1.5]))
+    assert AnchorRangesHeight.build_with_laser(ANCHORS8_NED_M, SIGMA_M, 0.03, region_m=low).max_correctable == 0
