@@ -250,7 +250,8 @@ class Estimator:
 
     def _tie(self, z: np.ndarray, pos: np.ndarray, known: Known) -> bool:
         """Whether the output's mirror image across a line or plane of anchors explains the readings with no more
-        liars than the output (a reading is a liar when it fails its gate, family-wise at alpha / 10 per step)."""
+        liars than the output, which leaves at least one unexplained (a reading is a liar when it fails its gate,
+        family-wise at alpha / 10 per step)."""
         model = self.model
         sig2, gate = model.sigma_m**2, sidak_gate(self.alpha / 10.0, model.p)
         sep = 4.0 * float(np.max(model.sigma_m))
@@ -265,8 +266,11 @@ class Estimator:
             if np.linalg.norm(alt - pos) <= sep or np.linalg.norm(model.clip(alt) - alt) > 1e-9:
                 continue  # the mirror is where the output is, or where the vehicle cannot be
             mine = liars(pos) if mine is None else mine
-            n_alt = liars(alt)
-            if n_alt <= mine:
+            if mine == 0:
+                # Every reading fits the output: nothing lies, and the prior picks the side (on the ground before
+                # take-off the laser has no reading yet and the coplanar anchors' mirror is 2 m up).
+                return False
+            if liars(alt) <= mine:
                 return True
         return False
 

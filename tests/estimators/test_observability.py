@@ -164,3 +164,20 @@ def test_scenario_models_check_the_hover_band() -> None:
     assert anchor_model(load_scenario(studies / "scenarios" / "collinear4.yaml")).max_correctable == 1
     low = (np.array([0.0, 0.0, -3.5]), np.array([5.0, 5.0, -1.5]))
     assert AnchorRangesHeight.build_with_laser(ANCHORS8_NED_M, SIGMA_M, 0.03, region_m=low).max_correctable == 0
+
+
+def test_on_the_ground_before_take_off_nothing_is_ambiguous() -> None:
+    """The laser has no reading below its minimum range, and the coplanar anchors' mirror is 2 m up: with every
+    reading explained nothing lies, the prior picks the ground, and the estimate stays valid (the live stage
+    must not mark the vehicle's position unknown before it takes off)."""
+    from estimators.scenario_models import anchor_model
+    from secuav_common.scenario import load_scenario
+
+    model = anchor_model(load_scenario("anchors8"))
+    est = estimators.create("secekf", model)
+    rng = np.random.default_rng(0)
+    for k in range(30):
+        z = model.h(np.array([2.5, 2.5, 0.0])) + model.sigma_m * rng.standard_normal(9)
+        z[8] = np.nan
+        out = est.step(0.1 * k, z)
+        assert not out.ambiguous and out.valid and abs(out.position_m[2]) < 0.3, (k, out)
