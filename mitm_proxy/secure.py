@@ -176,6 +176,8 @@ class SecureStage:
         self._peer_flagged = set()
         self._last_valid = None
         self._height_rx = -math.inf
+        self._velocity: np.ndarray | None = None
+        self._velocity_rx = -math.inf
 
     def close(self) -> None:
         """Stop the worker thread (the proxy calls this on shutdown)."""
@@ -203,6 +205,10 @@ class SecureStage:
             self.counters.decode_errors += 1
             return [pkt]
         msgid = pkt.header.msgid
+        if msgid == LOCAL_POSITION_NED:  # the vehicle's own velocity: the filters' motion input, if configured
+            vel = [fields.get(k) for k in ("vx", "vy", "vz")]
+            if all(isinstance(v, float) and math.isfinite(v) for v in vel):
+                self._velocity, self._velocity_rx = np.array(vel, dtype=float), now_s
         if msgid == DISTANCE_SENSOR:
             self._take_reading(layout, fields, now_s)
         elif msgid == LOCAL_POSITION_NED and layout.height_sensor_id is None:
@@ -278,7 +284,8 @@ class SecureStage:
         if self.layout is not None and self.layout.position_dims == 2:
             fresh_height = self._height_m is not None and now_s - self._height_rx <= 2.0
             known = self._height_m if fresh_height else None  # None: the model's hold height
-        job = Job(t_s=now_s, z=z, known=known, sim_t_s=self._sim_t_s, rx_s=now_s)
+        velocity = self._velocity if now_s - self._velocity_rx <= 0.5 else None
+        job = Job(t_s=now_s, z=z, known=known, sim_t_s=self._sim_t_s, rx_s=now_s, velocity=velocity)
         self._fresh[:] = False
         self._pending_since = None
         self._last_submit_s = now_s
