@@ -215,6 +215,9 @@ def part_scaling(seed: int) -> None:
             if name == "l0" and math.comb(p, p - s) > 500:  # the exact reference refuses searches this large
                 row.append(f"{'refused':>15}")
                 continue
+            if s > model.max_correctable and name not in ("ls", "ekf"):  # more liars than the layout can correct
+                row.append(f"{'beyond s_max':>15}")
+                continue
             med = run(name, model, no_attack(model), 40 if p > 16 else 80, seed, **params)["median_us"]
             row.append(f"{med:>14.0f}{'*' if med > REALTIME_50HZ_US else ' '}")
             if med > REALTIME_50HZ_US and name not in breaks:

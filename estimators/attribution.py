@@ -226,6 +226,7 @@ class Explanation:
     pos: np.ndarray | None  # their common position, None if they disagree or none passed
     cov: np.ndarray | None
     used: np.ndarray  # (p,) bool: the readings of the best explanation (none when pos is None)
+    tied: bool = False  # several fewest-liars explanations put the vehicle in different places
 
 
 @dataclass(frozen=True, eq=False)
@@ -299,6 +300,6 @@ def explain(
         # The explanations agree on one position when every one lies inside the best one's 3-sigma ellipse.
         agree = bool(np.all(np.einsum("jd,de,je->j", spread, np.linalg.pinv(cov), spread) <= _agree_gate(d)))
         if not agree:
-            return Explanation(named, None, None, np.zeros(p, dtype=bool))
+            return Explanation(named, None, None, np.zeros(p, dtype=bool), tied=True)
         return Explanation(named, level.pos[best], cov, level.masks[best] & avail)
     return Explanation(np.zeros(p, dtype=bool), None, None, np.zeros(p, dtype=bool))

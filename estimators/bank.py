@@ -258,6 +258,18 @@ class EkfBank:
         self.x = self.x @ f.T
         self.P = f @ self.P @ f.T + q
 
+    def update_velocity(self, vel: np.ndarray, var: float) -> None:
+        """Every filter reads the vehicle's own velocity (``H = [0 I]``, ``R = var I``): the motion input.
+
+        Gain form: ``S = P_vv + R``, ``K = P[:, :, d:] S^-1``, ``x+ = x + K (v - x_v)``,
+        ``P+ = P - K P[d:, :]`` (d x d solves, batched over filters)."""
+        d = self.d
+        s_mat = self.P[:, d:, d:] + var * np.eye(d)
+        gain = np.linalg.solve(s_mat, self.P[:, d:, :]).mT  # S symmetric: (S^-1 P_v.)^T = P_.v S^-1
+        self.x = self.x + (gain @ (vel - self.x[:, d:])[..., None])[..., 0]
+        p_new = self.P - gain @ self.P[:, d:, :]
+        self.P = 0.5 * (p_new + p_new.mT)
+
     def update(
         self, z: np.ndarray, known: Known = None, at_prior: tuple[np.ndarray, np.ndarray] | None = None
     ) -> tuple[np.ndarray, np.ndarray]:

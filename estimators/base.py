@@ -15,9 +15,10 @@ from typing import ClassVar
 
 import numpy as np
 
-from estimators.attribution import Namer, Trail, agreeing, explain
-from estimators.bank import Chi2Table, cv_matrices, gauss_newton, inv_small
+from estimators.attribution import Namer, Trail, agreeing, explain, sidak_gate
+from estimators.bank import Chi2Table, EkfBank, cv_matrices, gauss_newton, inv_small
 from estimators.models import Known, MeasurementModel
+from estimators.observability import mirrors
 
 EVIDENCE_STEPS = 10  # the evidence window: the last second at 10 Hz
 EVIDENCE_MIN = 3  # a reading counts as accused when named on at least this many of its steps
@@ -51,7 +52,10 @@ class Estimate:
     a manoeuvre) leaves it valid. ``nis``: for estimators whose output is a Kalman filter's, that filter's
     normalised innovation squared this step and its degrees of freedom, ``(nu^T S^-1 nu, readings used)``;
     a consistent filter averages 1 per degree of freedom. None for snapshot estimators and steps without
-    an update.
+    an update. ``ambiguous`` (then ``valid`` is False too): a tie, two explanations with no more liars than the
+    one output that put the vehicle in different places: the mirror image of the output across a line or plane
+    of anchors (``observability.mirrors``; the layout check refuses an ``s`` that allows it inside the flight
+    region, so it fires outside it), or fewest-liars explanations that disagree beyond tolerance.
     """
 
     t_s: float
@@ -69,6 +73,7 @@ class Estimate:
     # ``_step`` returned them); None for a method that does not detect (``Estimator.detects`` False).
     own_attacked: frozenset[int] | None = None
     own_alarm: bool | None = None
+    ambiguous: bool = False
 
 
 def _indices(mask: np.ndarray) -> frozenset[int]:
@@ -93,6 +98,7 @@ class Estimator:
     # Whether the method itself claims detections (its _step's attacked/alarm are recorded as own_*);
     # None: as ``secure``. The shared attribution runs on the output of every ``secure`` method either way.
     detects: ClassVar[bool | None] = None
+    motion_input: ClassVar[bool] = False  # reads the vehicle's own velocity (``step(..., velocity=)``)
 
     def __init__(
         self,
@@ -104,11 +110,27 @@ class Estimator:
         p0_pos_m: float = 0.5,
         p0_vel_mps: float = 0.5,
         n_iter: int = 6,
+        velocity_std_mps: float | None = None,
     ) -> None:
         self.model = model
+        if velocity_std_mps is not None and not (self.motion_input and velocity_std_mps > 0):
+            raise ValueError(
+                f"velocity_std_mps={velocity_std_mps}: {self.name} has no motion input"
+                if not self.motion_input
+                else f"velocity_std_mps={velocity_std_mps} must be positive"
+            )
+        # The motion input: the vehicle's own velocity estimate (LOCAL_POSITION_NED vx, vy, vz), read by the filters
+        # as a measurement of their velocity state with this std, so the process model follows how the vehicle
+        # says it moves. It must come from sensors the attacked readings do not feed (IMU, flow, GPS).
+        self.velocity_std_mps = velocity_std_mps
+        self.velocity_in: np.ndarray | None = None
         self.s = model.max_correctable if s is None else int(s)
-        if not 0 <= self.s < model.p:
-            raise ValueError(f"s={self.s} must lie in 0..{model.p - 1}")
+        if self.s < 0:
+            raise ValueError(f"s={self.s} must not be negative")
+        if self.s > model.max_correctable:
+            # More liars than the layout can correct over its flight region: two explanations with s liars each
+            # could put the vehicle in different places, and no estimator can tell which (observability.py).
+            raise ValueError(model.support().explain(self.s))
         self.alpha = alpha
         self.chi = Chi2Table(alpha, 4 * model.p)
         # Confirming an alarm from one step's readings alone: ten times stricter, so noise alone seldom degrades.
@@ -120,6 +142,8 @@ class Estimator:
         self.p0_vel_mps = p0_vel_mps
         self.n_iter = n_iter
         self.t_s: float | None = None
+        # Lines and planes of anchors on which p - 2s readings could sit: where a tie is possible at all.
+        self.mirrors = mirrors(model, model.p - 2 * self.s) if self.secure and self.s > 0 else []
         self.reset()
 
     @classmethod
@@ -141,9 +165,15 @@ class Estimator:
             x = np.concatenate([x0, np.zeros(self.model.d)]) if x0.size == self.model.d else x0.copy()
         self._reset(x, self._initial_cov() if P0 is None else np.asarray(P0, dtype=float))
 
-    def step(self, t_s: float, z: np.ndarray, known: Known = None) -> Estimate:
-        """Take one reading vector (NaN = missing) at time t_s; ``known`` e.g. the laser height."""
+    def step(self, t_s: float, z: np.ndarray, known: Known = None, velocity: np.ndarray | None = None) -> Estimate:
+        """Take one reading vector (NaN = missing) at time t_s; ``known`` e.g. the laser height; ``velocity`` the
+        vehicle's own NED velocity estimate (m/s; its first d components are used), read only by estimators built
+        with ``velocity_std_mps``."""
         t0 = time.perf_counter()
+        self.velocity_in = None
+        if velocity is not None and self.velocity_std_mps is not None:
+            vel = np.asarray(velocity, dtype=float).reshape(-1)[: self.model.d]
+            self.velocity_in = vel if vel.shape[0] == self.model.d and np.isfinite(vel).all() else None
         zv = np.asarray(z, dtype=float).reshape(-1)
         if zv.shape[0] != self.model.p:
             raise ValueError(f"{self.name}: expected {self.model.p} readings, got {zv.shape[0]}")
@@ -197,6 +227,7 @@ class Estimator:
                 found = explain(model, z, self.s, self.chi, pos, known, prior, self.n_iter)
                 named = found.named
                 object.__setattr__(est, "valid", False)
+                object.__setattr__(est, "ambiguous", found.tied)
                 object.__setattr__(est, "alarm", True)  # confirmed beyond tolerance, whoever noticed first
                 if found.pos is not None and found.cov is not None:
                     pos, cov, used = found.pos, found.cov, found.used
@@ -223,6 +254,35 @@ class Estimator:
             # together, whichever s of them this step's readings let the estimator leave out. The answer stays
             # (it is the best the readings of this step allow); the claim that it can be trusted does not.
             object.__setattr__(est, "valid", False)
+        if est.valid and self.mirrors and self._tie(z, est.position_m, known):
+            object.__setattr__(est, "valid", False)
+            object.__setattr__(est, "ambiguous", True)
+
+    def _tie(self, z: np.ndarray, pos: np.ndarray, known: Known) -> bool:
+        """Whether the output's mirror image across a line or plane of anchors explains the readings with no more
+        liars than the output, which leaves at least one unexplained (a reading is a liar when it fails its gate,
+        family-wise at alpha / 10 per step)."""
+        model = self.model
+        sig2, gate = model.sigma_m**2, sidak_gate(self.alpha / 10.0, model.p)
+        sep = 4.0 * float(np.max(model.sigma_m))
+
+        def liars(x: np.ndarray) -> int:
+            r = z - model.h(x, known)
+            return int(np.sum(np.where(np.isnan(r), False, r * r > gate * sig2)))
+
+        mine = None
+        for mirror in self.mirrors:
+            alt = mirror.reflect(pos)
+            if np.linalg.norm(alt - pos) <= sep or np.linalg.norm(model.clip(alt) - alt) > 1e-9:
+                continue  # the mirror is where the output is, or where the vehicle cannot be
+            mine = liars(pos) if mine is None else mine
+            if mine == 0:
+                # Every reading fits the output: nothing lies, and the prior picks the side (on the ground before
+                # take-off the laser has no reading yet and the coplanar anchors' mirror is 2 m up).
+                return False
+            if liars(alt) <= mine:
+                return True
+        return False
 
     def _replace(self, est: Estimate, pos: np.ndarray, cov: np.ndarray, used: np.ndarray) -> None:
         """Make ``est`` another fit's answer: its position and covariance, the trail's velocity, its readings."""
@@ -241,6 +301,11 @@ class Estimator:
     def _initial_cov(self) -> np.ndarray:
         d = self.model.d
         return np.diag([self.p0_pos_m**2] * d + [self.p0_vel_mps**2] * d)
+
+    def _motion(self, bank: EkfBank) -> None:
+        """Feed this step's velocity input, if any, to every filter of ``bank`` (after its prediction)."""
+        if self.velocity_in is not None and self.velocity_std_mps is not None:
+            bank.update_velocity(self.velocity_in, self.velocity_std_mps**2)
 
     def _cv(self, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
         return cv_matrices(self.model.d, dt_s, self.q_axes)

@@ -10,7 +10,8 @@ Predict ``x <- F x``, ``P <- F P F^T + Q`` with ``F = [[I, dt I], [0, I]]``,
 Update with every reading present: ``nu = z - h(pos)``, ``H = [dh/dpos, 0]``,
 gain form ``K = P H^T (H P H^T + R)^-1``, ``x+ = x- + K nu``, ``P+ = P- - K H P-``,
 computed with d x d algebra only (push-through identity; see ``bank.EkfBank``). The first step, without ``x0``,
-starts from a least-squares fix of the first readings.
+starts from a least-squares fix of the first readings. With ``velocity_std_mps`` the vehicle's own velocity
+(``step(..., velocity=)``) updates the velocity state after each prediction (``bank.EkfBank.update_velocity``).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from estimators.models import Known
 
 class ExtendedKalman(Estimator):
     name = "ekf"
+    motion_input = True
 
     def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:
         self.bank = EkfBank(self.model, np.ones((1, self.model.p), dtype=bool), self.q_axes)
@@ -46,6 +48,7 @@ class ExtendedKalman(Estimator):
             nis = None
         else:
             self.bank.predict(dt_s)
+            self._motion(self.bank)
             nis = self.bank.update(z, known)
         x, P = self.bank.x[0], self.bank.P[0]
         return self._estimate(t_s, x[:d], x[d:], P, used=avail, nis=nis)

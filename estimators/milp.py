@@ -18,8 +18,13 @@ variables ``u >= +-v``) finds the fewest attacked sensors that explain the
 readings within the noise bound, and among those the smallest noise. The
 current step's ``g + dx`` is the estimate; the guess is moved there and the
 program solved again (``passes``), because the ranges are not linear.
-Infeasible: no set of s sensors explains the readings; the estimate is raised
-as an alarm (degraded) at the last guess. Attacked: sensors with ``b_i = 1``
+Infeasible (HiGHS proved it): no set of s sensors explains the readings; the
+estimate is raised as an alarm (degraded) at the last guess. A solve that hits
+``time_limit_s`` is not that proof: with a feasible incumbent (at most s
+attacked explain the readings, fewest not proven) its answer is used; without
+one the step is marked not valid *without* an alarm, at the last guess.
+``status_counts`` counts each outcome (optimal, infeasible, timeout with and
+without an incumbent), so a run can report its timeouts apart from its alarms. Attacked: sensors with ``b_i = 1``
 that fail the tests of ``attribution.py``. A missing reading drops its rows.
 RECON: the window with free per-step positions (no dynamics), the objective's
 noise term and the re-linearisation are ours. Defaults: T = 5, k = 3, M = 100 m (capped at twice the largest
@@ -51,9 +56,12 @@ class Milp(Estimator):
         big_m: float = 100.0,
         passes: int = 1,
         eps: float = 1e-3,
+        time_limit_s: float = 1.0,
         **params,
     ) -> None:
         self.window, self.k_sigma, self.big_m, self.passes, self.eps = int(window), k_sigma, big_m, int(passes), eps
+        self.time_limit_s = float(time_limit_s)
+        self.status_counts = {"optimal": 0, "infeasible": 0, "timeout_incumbent": 0, "timeout_none": 0, "other": 0}
         super().__init__(model, **params)
 
     def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:
@@ -70,23 +78,30 @@ class Milp(Estimator):
             self.pos = secure_snapshot(model, z, self.s, self.chi, None, known, 20).pos
         guess = self.pos.copy()
         self.hist.append((z, known, guess))
-        result = None
+        result, status = None, "optimal"
         for _ in range(self.passes):
-            result = self._solve()
+            result, status = self._solve()
             if result is None:
                 break
             dx_now, b = result
             guess = model.clip(guess + dx_now)
             self.hist[-1] = (z, known, guess)
         if result is None:
-            return self._estimate(t_s, self.pos, alarm=True, used=avail)
+            if status == "infeasible":
+                return self._estimate(t_s, self.pos, alarm=True, used=avail)
+            # Out of time (or the solver failed) before any answer: nothing is proven, neither an attack beyond s
+            # nor an explanation within it. Not an alarm; not an estimate to trust either.
+            est = self._estimate(t_s, self.pos, alarm=False, used=np.zeros_like(avail))
+            object.__setattr__(est, "valid", False)
+            return est
         self.pos = guess
         jac = model.jac(guess, known)
         cov = _covariance(jac[avail & ~b], model.sigma_m[avail & ~b], model.d)
         return self._estimate(t_s, self.pos, cov=cov, used=avail & ~b)
 
-    def _solve(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """The program over the window; (current step's dx, attacked mask), or None if infeasible."""
+    def _solve(self) -> tuple[tuple[np.ndarray, np.ndarray] | None, str]:
+        """The program over the window: ((current step's dx, attacked mask) or None, the outcome counted in
+        ``status_counts``)."""
         model = self.model
         p, d, steps = model.p, model.d, len(self.hist)
         per = d + 2 * p  # per step: dx (d), e (p), u (p); the p binaries b come first
@@ -139,11 +154,21 @@ class Milp(Estimator):
         caps = [float(k) for _, k in groups]
         constraints = [LinearConstraint(np.vstack(blocks), lo, hi), LinearConstraint(budget, 0.0, caps)]
         res = milp(cost, constraints=constraints, integrality=integrality, bounds=Bounds(var_lo, var_hi),
-                   options={"time_limit": 1.0})  # fmt: skip
-        if res.x is None:
-            return None
+                   options={"time_limit": self.time_limit_s})  # fmt: skip
+        # scipy.optimize.milp: 0 optimal, 1 iteration or time limit, 2 infeasible, 3 unbounded, 4 other.
+        if res.status == 0:
+            status = "optimal"
+        elif res.status == 2:
+            status = "infeasible"
+        elif res.status == 1:
+            status = "timeout_incumbent" if res.x is not None else "timeout_none"
+        else:
+            status = "other"
+        self.status_counts[status] += 1
+        if res.x is None or status in ("infeasible", "other"):
+            return None, status
         last = p + (steps - 1) * per
-        return res.x[last : last + d], res.x[:p] > 0.5
+        return (res.x[last : last + d], res.x[:p] > 0.5), status
 
 
 def _covariance(jac: np.ndarray, sigma: np.ndarray, d: int) -> np.ndarray:

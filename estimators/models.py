@@ -12,8 +12,10 @@ as ``known`` (a float or an array); ``default_known`` is used when the caller
 gives none.
 
 ``max_correctable`` is the largest number of attacked sensors for which the
-state can still be recovered from one snapshot (2s-sparse observability, notes
-§1.4): deleting any 2s sensors must leave ``min_sensors`` of them.
+state can still be recovered from one snapshot (2s-sparse observability):
+deleting any 2s sensors must leave readings that pin the position down. For
+anchor ranges that is decided from the geometry over the flight region
+(``region_m``; ``estimators.observability``), not only by counting sensors.
 
 ``honest_subsets(s)`` lists the hypotheses the subset estimators weigh ("these
 readings are honest"): every way of leaving ``s`` readings out, or, for a model
@@ -67,6 +69,9 @@ class MeasurementModel:
     sigma_m: np.ndarray
     sensor_ids: tuple[int, ...] = ()
     bounds_m: tuple[np.ndarray, np.ndarray] | None = None
+    # Where the vehicle flies (a box in the model's coordinates), for the observability check; None: see
+    # observability.flight_region.
+    region_m: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def p(self) -> int:
@@ -83,7 +88,18 @@ class MeasurementModel:
 
     @property
     def max_correctable(self) -> int:
-        return max(0, (self.p - self.min_sensors) // 2)
+        """The largest s the layout supports over its flight region (``observability.support``)."""
+        return self.support().s_max
+
+    def support(self):  # -> observability.Support (imported late: observability imports the models)
+        """Why ``max_correctable`` is what it is: the count bound and the geometry (cached: the layout is fixed)."""
+        cached = self.__dict__.get("_support")
+        if cached is None:
+            from estimators.observability import support
+
+            cached = support(self)
+            object.__setattr__(self, "_support", cached)
+        return cached
 
     @property
     def default_known(self) -> Known:
@@ -165,12 +181,14 @@ class AnchorRanges2D(MeasurementModel):
         vehicle_z_ned_m: float = -2.5,
         sensor_ids: tuple[int, ...] = (),
         margin_frac: float = 0.2,
+        region_m: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> AnchorRanges2D:
         anchors = np.asarray(anchors_ned_m, dtype=float).reshape(-1, 3)
         return cls(
             sigma_m=_as_sigma(sigma_m, anchors.shape[0]),
             sensor_ids=tuple(sensor_ids),
             bounds_m=_anchor_box(anchors[:, :2], margin_frac),
+            region_m=region_m,
             anchors_ned_m=anchors,
             vehicle_z_ned_m=float(vehicle_z_ned_m),
         )
@@ -273,6 +291,7 @@ class AnchorRanges3D(MeasurementModel):
         margin_frac: float = 0.2,
         ceiling_m: float = 30.0,
         start_above_m: float = 1.5,
+        region_m: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> AnchorRanges3D:
         anchors = np.asarray(anchors_ned_m, dtype=float).reshape(-1, 3)
         lo_xy, hi_xy = _anchor_box(anchors[:, :2], margin_frac)
@@ -285,6 +304,7 @@ class AnchorRanges3D(MeasurementModel):
             sigma_m=_as_sigma(sigma_m, anchors.shape[0]),
             sensor_ids=tuple(sensor_ids),
             bounds_m=(lo, hi),
+            region_m=region_m,
             anchors_ned_m=anchors,
             start_above_m=start_above_m,
         )
@@ -349,6 +369,7 @@ class AnchorRangesHeight(AnchorRanges3D):
         ground_down_m: float = 0.0,
         margin_frac: float = 0.2,
         ceiling_m: float = 30.0,
+        region_m: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> AnchorRangesHeight:
         base = AnchorRanges3D.build(anchors_ned_m, sigma_m, margin_frac=margin_frac, ceiling_m=ceiling_m)
         lo, hi = base.bounds_m if base.bounds_m is not None else (None, None)
@@ -358,6 +379,7 @@ class AnchorRangesHeight(AnchorRanges3D):
             sigma_m=np.append(base.sigma_m, float(laser_sigma_m)),
             sensor_ids=tuple(sensor_ids),
             bounds_m=None if lo is None or hi is None else (lo, np.array([hi[0], hi[1], ground_down_m])),
+            region_m=region_m,
             anchors_ned_m=base.anchors_ned_m,
             start_above_m=base.start_above_m,
             ground_down_m=float(ground_down_m),
@@ -457,17 +479,17 @@ class LinearModel(MeasurementModel):
 
     @property
     def max_correctable(self) -> int:
-        # Exact sparse-observability index: largest s with rank kept after removing any 2s rows.
-        p, n = self.C.shape
-        best = 0
-        for s in range(1, p // 2 + 1):
-            keep = p - 2 * s
-            if keep < n or not all(
-                np.linalg.matrix_rank(self.C[list(rows)]) == n for rows in itertools.combinations(range(p), keep)
-            ):
-                break
-            best = s
-        return best
+        return self.support().s_max
+
+    def support(self):  # -> observability.Support
+        """Exact sparse-observability index (``observability.linear_correctable``): the largest s with full column
+        rank after removing any 2s rows."""
+        from estimators.observability import Support, linear_correctable
+
+        best, failing = linear_correctable(self.C)
+        count = max(0, (self.p - self.d) // 2)
+        reason = f"rows {', '.join(map(str, failing))} alone do not have full column rank" if failing else ""
+        return Support(best, count, (failing,) if failing else (), reason)
 
     def h(self, pos: np.ndarray, known: Known = None) -> np.ndarray:
         return pos @ self.C.T
@@ -505,6 +527,7 @@ class TwoVehicleRanges(MeasurementModel):
         vehicle_z_ned_m: tuple[float, float] = (-2.5, -2.5),
         sensor_ids: tuple[int, ...] = (),
         margin_frac: float = 0.2,
+        region_m: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> TwoVehicleRanges:
         anchors = np.asarray(anchors_ned_m, dtype=float).reshape(-1, 3)
         lo, hi = _anchor_box(anchors[:, :2], margin_frac)
@@ -512,6 +535,7 @@ class TwoVehicleRanges(MeasurementModel):
             sigma_m=_as_sigma(sigma_m, 2 * anchors.shape[0] + 1),
             sensor_ids=tuple(sensor_ids),
             bounds_m=(np.tile(lo, 2), np.tile(hi, 2)),
+            region_m=region_m,
             anchors_ned_m=anchors,
             vehicle_z_ned_m=(float(vehicle_z_ned_m[0]), float(vehicle_z_ned_m[1])),
         )
@@ -527,11 +551,6 @@ class TwoVehicleRanges(MeasurementModel):
     @property
     def min_sensors(self) -> int:
         return 6
-
-    @property
-    def max_correctable(self) -> int:
-        # Each vehicle alone must survive: its anchors obey the 2-D bound (estimators/README.md#api).
-        return max(0, (self.n_anchors - 3) // 2)
 
     def tolerance_groups(self, s: int) -> Groups:
         """Each vehicle its own tolerance: ``s`` of its anchor links may lie, and so may the inter-vehicle

@@ -187,6 +187,7 @@ class Calibrated:
         self._z: list[np.ndarray] = []
         self._known: list[Known] = []
         self._t: list[float] = []
+        self._velocity: list[np.ndarray | None] = []
         self._done = False
 
     @property
@@ -197,15 +198,15 @@ class Calibrated:
     def detects(self) -> bool | None:
         return self.inner.detects
 
-    def step(self, t_s: float, z: np.ndarray, known: Known = None) -> Estimate:
+    def step(self, t_s: float, z: np.ndarray, known: Known = None, velocity: np.ndarray | None = None) -> Estimate:
         zv = np.asarray(z, dtype=float).reshape(-1)
         if self._done:
             if self.calibration is None:
-                return self.inner.step(t_s, zv, known)
-            return self.inner.step(t_s, zv - self.calibration.offsets_m, known)
+                return self.inner.step(t_s, zv, known, velocity=velocity)
+            return self.inner.step(t_s, zv - self.calibration.offsets_m, known, velocity=velocity)
         if self._t0 is None:
             self._t0 = float(t_s)
-        out = self.inner.step(t_s, zv, known)
+        out = self.inner.step(t_s, zv, known, velocity=velocity)
         # Calibrating: the estimate is the estimator's, but nothing is tested yet (no alarm, nobody named) and
         # it is not claimed valid.
         out = replace(out, attacked=frozenset(), alarm=False, valid=False,
@@ -214,6 +215,7 @@ class Calibrated:
         self._z.append(zv)
         self._known.append(self.model.default_known if known is None else known)
         self._t.append(float(t_s))
+        self._velocity.append(velocity)
         if float(t_s) - self._t0 >= self.window_s:
             self._finish()
         return out
@@ -232,8 +234,9 @@ class Calibrated:
             if isinstance(drift, InnovationWindow):
                 drift.vif = self.calibration.window_vif
             for k in range(max(0, len(self._t) - WARM_STEPS), len(self._t)):
-                self.inner.step(self._t[k], z[k] - self.calibration.offsets_m, self._known[k])
-        self._z, self._known = [], []
+                self.inner.step(self._t[k], z[k] - self.calibration.offsets_m, self._known[k],
+                                velocity=self._velocity[k])  # fmt: skip
+        self._z, self._known, self._velocity = [], [], []
 
 
 def create(name: str, model: MeasurementModel, **params: Any) -> Estimator | Calibrated:

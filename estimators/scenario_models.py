@@ -25,6 +25,7 @@ def _uwb_anchor_ids(scenario: Scenario, vehicle: Vehicle) -> list[int]:
 # 1.5 % at 10 deg), a bias with the tilt. The model treats 1 % of the hold height as extra noise on top of the
 # laser's own.
 LASER_TILT_FRACTION = 0.01
+HOVER_BAND_M = 0.5  # the flight region's half height around the hold height (observability.flight_region)
 
 
 def anchor_model(
@@ -46,11 +47,19 @@ def anchor_model(
     wire = tuple(anchor_sensor_id(k) for k in ids)
     z = _hold_z(vehicle)
     if dims == 3:
+        # The flight region the layout check (estimators/observability.py) covers: over the anchors, within
+        # HOVER_BAND_M of the hold height. Take-off and landing are outside it, and so are its claims.
+        region = (
+            np.array([*anchors[:, :2].min(axis=0), z - HOVER_BAND_M]),
+            np.array([*anchors[:, :2].max(axis=0), z + HOVER_BAND_M]),
+        )
         laser = down_rangefinder(vehicle)
         if laser is None:
-            return AnchorRanges3D.build(anchors, sigma, sensor_ids=wire)
+            return AnchorRanges3D.build(anchors, sigma, sensor_ids=wire, region_m=region)
         laser_sigma = float(np.hypot(max(laser.noise_std_m, 1e-3), LASER_TILT_FRACTION * abs(z)))
-        return AnchorRangesHeight.build_with_laser(anchors, sigma, laser_sigma, sensor_ids=(*wire, laser.id))
+        return AnchorRangesHeight.build_with_laser(
+            anchors, sigma, laser_sigma, sensor_ids=(*wire, laser.id), region_m=region
+        )
     return AnchorRanges2D.build(anchors, sigma, vehicle_z_ned_m=z, sensor_ids=wire)
 
 

@@ -36,7 +36,10 @@ box was not readable; estimators/README.md#what-the-sources-allow-us-to-check):
    the winner with an inflated covariance and their window cleared, so they can
    win again when the attack moves; their accumulated evidence stays, so a
    re-seeded filter does not win a tie against one that was clean all along.
-Defaults: alpha = 0.01, T = 10 steps, q = 0.5 m/s^2. The full bank runs every
+6. Motion input (option ``velocity_std_mps``, ours): after each prediction every filter reads the vehicle's own
+   velocity estimate as a measurement of its velocity state, so a filter cannot explain a drift of the readings
+   by a velocity the vehicle does not report (``bank.EkfBank.update_velocity``).
+Defaults: alpha = 0.01, T = 10 steps, q = 0.5 m/s^2, no motion input. The full bank runs every
 step (no "lazy" single-filter mode), vectorised over subsets.
 """
 
@@ -53,6 +56,7 @@ from estimators.subsets import Evidence, choose, secure_snapshot
 class SecEkf(Estimator):
     name = "secekf"
     secure = True
+    motion_input = True
 
     def __init__(self, model: MeasurementModel, *, window: int = 10, reseed_inflation: float = 2.0, **params) -> None:
         self.window = int(window)
@@ -91,6 +95,7 @@ class SecEkf(Estimator):
                 return self._estimate(t_s, None, alarm=True)
         else:
             self.bank.predict(dt_s)
+            self._motion(self.bank)
         innovation = self.bank.update(z, known)
         nis, dof = innovation
         slot = self.k % self.window

@@ -6,6 +6,13 @@ amplitude ``MOVING_SPEED_M_S``, swinging about 1.6 m either side of the hold
 point). Every reading the sensors produce is kept; a frame at time t holds,
 per sensor id, the last reading in (t - period, t], NaN if none
 (dropout, out of range, not due). Truth is sampled at the frame times.
+
+Each frame also carries the vehicle's own velocity estimate (what
+LOCAL_POSITION_NED vx, vy, vz report): flightsim's estimate (truth plus white
+noise of 0.03 m/s) plus a slowly wandering error, first-order Gauss-Markov of
+std ``VEL_DRIFT_STD_M_S`` and time constant ``VEL_DRIFT_TAU_S`` per axis, as an
+IMU or optical-flow velocity drifts between corrections. The estimators' motion
+input (``velocity_std_mps``) reads it.
 """
 
 from __future__ import annotations
@@ -23,6 +30,8 @@ from secuav_common.scenario import Scenario
 Leg = Literal["hover", "moving"]
 MOVING_SPEED_M_S = 0.5
 MOVING_PERIOD_S = 20.0
+VEL_DRIFT_STD_M_S = 0.05
+VEL_DRIFT_TAU_S = 10.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -38,6 +47,7 @@ class VehicleStream:
     # carries, noise and all); flights only (a log has local_ned_m)
     attacker_view_ned_m: np.ndarray | None = None
     laser_down_id: int | None = None  # DISTANCE_SENSOR id of the downward laser (attacked like any reading)
+    velocity_ned_m_s: np.ndarray | None = None  # (T, 3) the vehicle's own velocity estimate (module docstring)
 
 
 def _altitude(scenario: Scenario, sysid: int) -> float:
@@ -65,6 +75,10 @@ def fly(
     }
     truth = {s: np.zeros((n_frames, 3)) for s in sysids}
     seen = {s: np.zeros((n_frames, 3)) for s in sysids}
+    vel = {s: np.zeros((n_frames, 3)) for s in sysids}
+    drift_rng = np.random.default_rng([seed, 7])  # its own stream: the flight itself is unchanged
+    keep = math.exp(-period / VEL_DRIFT_TAU_S)
+    drift = {s: VEL_DRIFT_STD_M_S * drift_rng.standard_normal(3) for s in sysids}
     frames: dict[int, list[dict[int, float]]] = {s: [] for s in sysids}
     if leg == "moving":
         for v in sim.vehicles.values():
@@ -87,11 +101,14 @@ def fly(
             frames[s].append(latest)
             truth[s][k] = v.truth.pos_ned_m
             seen[s][k] = v.estimate.pos_ned_m
+            drift[s] = keep * drift[s] + VEL_DRIFT_STD_M_S * math.sqrt(1.0 - keep * keep) * drift_rng.standard_normal(3)
+            vel[s][k] = np.asarray(v.estimate.vel_ned_m_s) + drift[s]
     t_rel = (np.arange(n_frames) + 1) * period
     out = {}
     for s in sysids:
         ids = sorted({i for f in frames[s] for i in f})
         readings = {i: np.array([f.get(i, np.nan) for f in frames[s]], dtype=float) for i in ids}
         laser = readings.pop(down[s]) if down[s] is not None and down[s] in readings else np.full(n_frames, np.nan)
-        out[s] = VehicleStream(s, t_rel, truth[s], readings, laser, attacker_view_ned_m=seen[s], laser_down_id=down[s])
+        out[s] = VehicleStream(s, t_rel, truth[s], readings, laser, attacker_view_ned_m=seen[s], laser_down_id=down[s],
+                               velocity_ned_m_s=vel[s])  # fmt: skip
     return out

@@ -307,7 +307,8 @@ def _run_estimator(
     herr = np.full(n, np.nan) if isinstance(model, AnchorRangesHeight) else None
     for k in range(n):
         kn = None if known.shape[1] == 0 else float(known[k, 0]) if known.shape[1] == 1 else known[k]
-        out = est.step(float(s1.t_s[k]), z[k], kn)
+        vel = None if s1.velocity_ned_m_s is None else s1.velocity_ned_m_s[k]
+        out = est.step(float(s1.t_s[k]), z[k], kn, velocity=vel)
         times[k] = out.step_time_s
         alarm[k], degraded[k] = out.alarm, not out.valid
         named[k, list(out.attacked)] = True

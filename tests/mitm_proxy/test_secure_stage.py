@@ -393,3 +393,22 @@ def test_a_spoofed_downward_laser_is_outvoted_live(anchors8: Scenario, dims: int
         assert np.mean(np.isnan(lpn)) > 0.9
         ranges = [o for o in outs if o.msgid == DS and o.fields["id"] >= 10 and o.frame.t_s >= 10.0]
         assert np.mean([o.fields["signal_quality"] == FLAGGED_QUALITY for o in ranges]) > 0.9
+
+
+@pytest.mark.timeout(60)
+def test_the_vehicles_velocity_reaches_a_filter_built_with_the_motion_input(anchors8: Scenario) -> None:
+    """params velocity_std_mps: the stage hands the vx, vy, vz of the vehicle's LOCAL_POSITION_NED to the filter
+    with every reading set (issue 26's motion input); without the parameter the filter ignores them."""
+    maker = StreamMaker(anchors8, seed=23)
+    config = SecureConfig(estimator="secekf", executor="inline", dims=3, params={"velocity_std_mps": 0.1})
+    stage = SecureStage(config, anchors8, 1)
+    run(stage, maker, 6.0)
+    stepper = stage._stepper
+    assert stepper is not None and stepper.steps > 20
+    vel = stepper.estimator.velocity_in
+    assert vel is not None and vel.shape == (3,) and np.all(np.abs(vel) < 0.5)  # hovering
+    stage.close()
+    plain = SecureStage(SecureConfig(estimator="secekf", executor="inline", dims=3), anchors8, 1)
+    run(plain, StreamMaker(anchors8, seed=23), 3.0)
+    assert plain._stepper is not None and plain._stepper.estimator.velocity_in is None
+    plain.close()

@@ -215,3 +215,16 @@ def test_an_estimators_own_params_are_a_grid_for_it_alone() -> None:
         expand(parse_study(text + "tuning_budget: 1\n", "s.yaml"), "s.yaml")
     with pytest.raises(InputError, match="window"):
         expand(parse_study(text.replace("window: [5, 10]", "windoww: 5"), "s.yaml"), "s.yaml")
+def test_validate_refuses_more_liars_than_the_layout_supports(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 26: four collinear anchors of eight support s = 1, not the 2 that counting sensors gives."""
+    studies = Path(__file__).resolve().parents[2] / "studies"
+    (tmp_path / "scenarios").mkdir()
+    (tmp_path / "scenarios" / "collinear4.yaml").write_text((studies / "scenarios" / "collinear4.yaml").read_text())
+    text = (studies / "geometry-collinear.yaml").read_text()
+    path = tmp_path / "refused.yaml"
+    path.write_text(text.replace("estimators: [", "estimator_params: {s: 2}\nestimators: ["))
+    assert main(["validate", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "s=2 exceeds" in err and "can correct, 1:" in err and "10, 11, 12, 13" in err

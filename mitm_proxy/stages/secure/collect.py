@@ -21,6 +21,7 @@ from mitm_proxy.stages.secure.worker import Job
 
 NO_TARGET_QUALITY = 0  # DISTANCE_SENSOR.signal_quality: 0 = unknown / no target
 HEIGHT_MAX_AGE_S = 2.0  # a known height older than this is not used (the model's hold height is)
+VELOCITY_MAX_AGE_S = 0.5  # an older velocity is not the motion input (the filter then predicts without it)
 
 Due = Literal["complete", "timed_out", "rate"]
 
@@ -38,6 +39,8 @@ class Readings:
         self.sim_t_s: float | None = None  # the vehicle's clock of the newest reading, to join with truth
         self.height_m: float | None = None  # known NED z (2-D anchors)
         self.height_rx = -math.inf
+        self.velocity: np.ndarray | None = None  # the vehicle's own NED velocity: the filters' motion input
+        self.velocity_rx = -math.inf
 
     def take_range(self, layout: Layout, fields: dict[str, Any], now_s: float) -> bool:
         """A DISTANCE_SENSOR frame's fields; True when it was one of the group's readings."""
@@ -62,6 +65,12 @@ class Readings:
     def take_height(self, z_ned_m: float, now_s: float) -> None:
         self.height_m, self.height_rx = z_ned_m, now_s
 
+    def take_velocity(self, fields: dict[str, Any], now_s: float) -> None:
+        """LOCAL_POSITION_NED's vx, vy, vz (a filter built with ``velocity_std_mps`` reads them)."""
+        vel = [fields.get(k) for k in ("vx", "vy", "vz")]
+        if all(isinstance(v, float) and math.isfinite(v) for v in vel):
+            self.velocity, self.velocity_rx = np.array(vel, dtype=float), now_s
+
     def due(self, cfg: SecureConfig, now_s: float) -> Due | None:
         """Why a step is due now, or None."""
         if self.pending_since is None:
@@ -82,4 +91,5 @@ class Readings:
         self.fresh[:] = False
         self.pending_since = None
         self.last_submit_s = now_s
-        return Job(t_s=now_s, z=z, known=known, sim_t_s=self.sim_t_s, rx_s=now_s)
+        velocity = self.velocity if now_s - self.velocity_rx <= VELOCITY_MAX_AGE_S else None
+        return Job(t_s=now_s, z=z, known=known, sim_t_s=self.sim_t_s, rx_s=now_s, velocity=velocity)

@@ -165,6 +165,8 @@ class SecureStage:
             self.counters.decode_errors += 1
             return [pkt]
         msgid = pkt.header.msgid
+        if msgid == LOCAL_POSITION_NED:  # the vehicle's own velocity: the filters' motion input, if configured
+            readings.take_velocity(fields, now_s)
         if msgid == DISTANCE_SENSOR:
             if readings.take_range(layout, fields, now_s):
                 self.counters.readings += 1

@@ -56,6 +56,7 @@ class Job:
     known: Known
     sim_t_s: float | None  # the vehicle's clock (time_boot_ms) of the newest reading, to join with truth
     rx_s: float  # proxy monotonic time the set was submitted
+    velocity: np.ndarray | None = None  # the vehicle's own NED velocity (LOCAL_POSITION_NED), the motion input
 
 
 @dataclass(frozen=True, slots=True)
@@ -69,7 +70,7 @@ class StepResult:
 
 
 def run_step(estimator: Estimator, model: MeasurementModel, job: Job) -> StepResult:
-    est = estimator.step(job.t_s, job.z, job.known)
+    est = estimator.step(job.t_s, job.z, job.known, velocity=job.velocity)
     if est.ok:
         implied = np.asarray(model.h(est.position_m, job.known), dtype=float).reshape(-1)
     else:
