@@ -3,7 +3,7 @@
 1. Record real telemetry: ``secuav-sim wall_hover --fast`` for ``--record-s``
    simulated seconds, captured from its UDP socket (one datagram per frame);
    or, with ``--tlog F``, the vehicle's frames of a recorded .tlog (e.g. ArduPilot
-   SITL through the proxy: benchmarks/data/README.md), one frame per datagram.
+   SITL through the proxy: tests/data/README.md), one frame per datagram.
 2. Replay it, paced, from a sender process into each relay under test and
    count what comes out at a receiver; every relay runs as its own process:
 
@@ -379,7 +379,7 @@ def main() -> int:
     ap.add_argument("--relay", nargs=3, metavar=("IN", "OUT", "LOOP"), help=argparse.SUPPRESS)
     ap.add_argument("--record-s", type=float, default=5.0, help="seconds of flightsim telemetry to record (1x)")
     ap.add_argument("--tlog", type=Path, help="replay this recorded .tlog's vehicle frames instead of recording "
-                    "secuav-sim (e.g. benchmarks/data/ardupilot-copter-guided.tlog)")
+                    "secuav-sim (e.g. tests/data/ardupilot-copter-guided.tlog)")
     ap.add_argument("--rates", default="500,1000,2000,5000,10000,20000,30000,40000,50000,60000,70000,85000,100000",
                     help="offered datagrams/s (= frames/s with --batching frame)")
     ap.add_argument("--step-s", type=float, default=2.0, help="seconds per offered rate")
