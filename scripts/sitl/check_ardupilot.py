@@ -19,7 +19,9 @@ offset (+5, +6, +7 m for ids 0, 1, 2) and records (``--record``). Printed, per r
   its distance (DISTANCE_SENSOR of that id; RANGEFINDER #173, which ArduPilot fills from the
   first downward rangefinder), how many of those frames the proxy changed, and by how much.
   A message that carries the quantity and was left unchanged is reported as a true value
-  left on the wire: the acceptance check for the proxy fix that must rewrite it.
+  left on the wire: the acceptance check for the proxy fix that must rewrite it;
+- then the secure stage (``--scenario wall_hover --secure secekf``) in front of a SITL whose
+  rangefinders are not the scenario's: whether the proxy says so.
 
     .venv/bin/python scripts/sitl/check_ardupilot.py [--vehicles 1,3] [--keep DIR] [--tlog-out F]
 
@@ -543,11 +545,49 @@ def run(n: int, work: Path, cache: Path) -> tuple[bool, Path]:
     return ok, work
 
 
+def secure_probe(work: Path, cache: Path, seconds: float = 30.0) -> None:
+    """The secure stage with a scenario whose sensor layout ArduPilot does not send: does it say so?
+
+    ``--scenario wall_hover`` expects forward rangefinders 0-4 and a downward 5; this SITL sends
+    downward ids 0, 1, 2. Reported, not failed: today the stage is silently inert (issue 27).
+    """
+    work.mkdir(parents=True, exist_ok=True)
+    print(f"\n=== secure stage, --scenario wall_hover --secure secekf, 1 vehicle, {seconds:g} s ===")
+    (cache / "run" / "0" / "sitl.log").unlink(missing_ok=True)
+    sitl = subprocess.Popen(["bash", str(SITL_SH), "run", "1"], stdout=(work / "sitl-run.log").open("wb"),
+                            stderr=subprocess.STDOUT, start_new_session=True)
+    proxy = None
+    try:
+        if not wait_for_text(cache / "run" / "0" / "sitl.log", "Waiting for connection", 1, 60):
+            print("SITL did not start; skipped")
+            return
+        log = work / "proxy.log"
+        proxy = subprocess.Popen([str(BIN / "secuav-proxy"), "--scenario", "wall_hover", "--secure", "secekf",
+                                  "--vehicle", "tcp://127.0.0.1:5760", "--ground", f"udpout://127.0.0.1:{free_udp_port()}",
+                                  "--broker", "none", "--stats-interval", "5"],
+                                 stdout=log.open("wb"), stderr=subprocess.STDOUT, start_new_session=True)
+        time.sleep(seconds)
+    finally:
+        stop(proxy)
+        stop(sitl)
+    lines = (work / "proxy.log").read_text(errors="replace").splitlines()
+    stats = [ln for ln in lines if "proxy.stats" in ln]
+    warnings = [ln for ln in lines if " WARNING " in ln or " ERROR " in ln]
+    rewritten = stats[-1].split(" rewritten=")[1].split()[0] if stats else "?"
+    print(f"frames rewritten by the secure stage: {rewritten}; warnings or errors in the proxy's log: {len(warnings)}")
+    for ln in warnings[:5]:
+        print("  " + ln.split(" ", 1)[-1][:200])
+    if not warnings:
+        print("  the stage received DISTANCE_SENSOR ids 0-2 (down) where the scenario expects 0-4 (forward) "
+              "and 5 (down), and said nothing: SILENTLY INERT")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--vehicles", default="1,3", help="comma list of vehicle counts to run (default 1,3)")
     ap.add_argument("--keep", type=Path, help="keep logs and recordings in this directory")
     ap.add_argument("--tlog-out", type=Path, help="copy the 1-vehicle run's original.tlog here")
+    ap.add_argument("--no-secure-probe", action="store_true", help="skip the secure stage's layout probe")
     args = ap.parse_args()
     cache = Path(os.environ.get("SECUAV_ARDUPILOT_CACHE", Path.home() / ".cache/secuav/ardupilot"))
     if not (cache / "latest" / "arducopter").exists() and "ARDUPILOT_BIN" not in os.environ:
@@ -561,6 +601,8 @@ def main() -> int:
         if n == 1 and args.tlog_out:
             shutil.copy(work / "record" / "v1" / "original.tlog", args.tlog_out)
             print(f"copied {work}/record/v1/original.tlog to {args.tlog_out}")
+    if not args.no_secure_probe:
+        secure_probe(base / "secure", cache)
     print(f"\nresult: {'every figure that should hold held' if all_ok else 'FAILED (see above)'}; logs in {base}")
     if not args.keep:
         shutil.rmtree(base, ignore_errors=True)
