@@ -135,7 +135,6 @@ cmd_build() {
   )
   mkdir -p "$out"
   cp "$tree/build/sitl/bin/arducopter" "$out/arducopter.tmp" && mv "$out/arducopter.tmp" "$out/arducopter"
-  "$out/arducopter" --help 2>&1 | head -1 >/dev/null || true
   git -C "$tree" describe --always --dirty 2>/dev/null > "$out/commit" || echo "$commit" > "$out/commit"
   grep -h 'define THISFIRMWARE' "$tree/ArduCopter/version.h" | head -1 | sed 's/.*"\(.*\)".*/\1/' > "$out/version" || true
   cp "$tree/Tools/autotest/default_params/copter.parm" "$out/copter.parm"
@@ -153,8 +152,11 @@ cmd_run() {
   local n=${1:-1}
   [[ $n =~ ^[1-9][0-9]*$ ]] || die "run: N must be a positive integer, got '$n'"
   local bin; bin=$(binary)
-  local dir; dir=$(dirname "$bin")
-  local defaults=$dir/copter.parm,$here/rangefinders.parm${SITL_EXTRA_PARM:+,$SITL_EXTRA_PARM}
+  # ArduPilot's own copter defaults, kept beside each cached build (or the newest one for ARDUPILOT_BIN)
+  local base=$(dirname "$bin")/copter.parm
+  [[ -f $base ]] || base=$cache/latest/copter.parm
+  [[ -f $base ]] || die "no copter.parm beside $bin or in $cache/latest: run '$0 build SOURCE' first"
+  local defaults=$base,$here/rangefinders.parm${SITL_EXTRA_PARM:+,$SITL_EXTRA_PARM}
   local home=${SITL_HOME:--35.363261,149.165230,584,353}
   local pids=()
   trap 'kill "${pids[@]}" 2>/dev/null; wait' EXIT INT TERM
