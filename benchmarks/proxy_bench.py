@@ -1,7 +1,9 @@
 """The whole proxy on loopback, against a bare relay and MAVProxy, in one run: rates, latency, memory.
 
 1. Record real telemetry: ``secuav-sim wall_hover --fast`` for ``--record-s``
-   simulated seconds, captured from its UDP socket (one datagram per frame).
+   simulated seconds, captured from its UDP socket (one datagram per frame);
+   or, with ``--tlog F``, the vehicle's frames of a recorded .tlog (e.g. ArduPilot
+   SITL through the proxy: tests/data/README.md), one frame per datagram.
 2. Replay it, paced, from a sender process into each relay under test and
    count what comes out at a receiver; every relay runs as its own process:
 
@@ -110,6 +112,21 @@ def record_telemetry(seconds: float) -> list[bytes]:
     if not out:
         raise SystemExit("secuav-sim sent nothing")
     return out
+
+
+def load_tlog(path: Path) -> list[bytes]:
+    """The vehicle's frames of a recorded .tlog (e.g. ArduPilot SITL through ``secuav-proxy --record``).
+
+    The vehicle is the sysid that sent the most frames; the ground station's uplink frames are left
+    out. Each frame becomes one datagram: a TCP or serial recording has no datagram boundaries.
+    """
+    from mavframe import tlog
+
+    entries = list(tlog.TlogReader(path.read_bytes()))
+    if not entries:
+        raise SystemExit(f"{path}: no MAVLink frames")
+    vehicle = Counter(e.header.sysid for e in entries).most_common(1)[0][0]
+    return [e.raw for e in entries if e.header.sysid == vehicle]
 
 
 def frames_of(datagram: bytes) -> list[bytes]:
@@ -361,6 +378,8 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--relay", nargs=3, metavar=("IN", "OUT", "LOOP"), help=argparse.SUPPRESS)
     ap.add_argument("--record-s", type=float, default=5.0, help="seconds of flightsim telemetry to record (1x)")
+    ap.add_argument("--tlog", type=Path, help="replay this recorded .tlog's vehicle frames instead of recording "
+                    "secuav-sim (e.g. tests/data/ardupilot-copter-guided.tlog)")
     ap.add_argument("--rates", default="500,1000,2000,5000,10000,20000,30000,40000,50000,60000,70000,85000,100000",
                     help="offered datagrams/s (= frames/s with --batching frame)")
     ap.add_argument("--step-s", type=float, default=2.0, help="seconds per offered rate")
@@ -381,7 +400,7 @@ def main() -> int:
         args.rates, args.step_s, args.latency_s, args.soak_s = "2000,10000,30000,50000,80000", 1.0, 2.0, 5.0
         args.cpu_s, args.tries = 2.0, 1
     rates = [float(r) for r in args.rates.split(",")]
-    recorded = record_telemetry(args.record_s)
+    recorded = load_tlog(args.tlog) if args.tlog else record_telemetry(args.record_s)
     frames_per_dgram = statistics.mean(len(frames_of(d)) for d in recorded)
     datagrams = recorded if args.batching == "recorded" else [f for d in recorded for f in frames_of(d)]
     ids, share = rewrite_ids(datagrams)
@@ -390,8 +409,8 @@ def main() -> int:
     profile.write_text("name: bench-rewrite-10pc\nrules:\n  - target: {message: DISTANCE_SENSOR, "
                        f"sensor_id: {ids}, field: current_distance}}\n    kind: bias\n    offset_m: 0.5\n")  # fmt: skip
     mode = "one frame per datagram" if args.batching == "frame" else "as recorded"
-    print(f"telemetry: {len(recorded)} datagrams from secuav-sim ({args.record_s:g} s at 1x, "
-          f"{frames_per_dgram:.2f} frames each), replayed {mode}; "
+    origin = str(args.tlog) if args.tlog else f"secuav-sim ({args.record_s:g} s at 1x)"
+    print(f"telemetry: {len(recorded)} datagrams from {origin}, {frames_per_dgram:.2f} frames each, replayed {mode}; "
           f"rewrite profile: DISTANCE_SENSOR ids {ids} = {share:.1%} of frames")
     print(f"machine: {os.cpu_count()} cores, load {os.getloadavg()[0]:.2f}; rates {args.rates}, {args.step_s:g} s each")
     rows = []
