@@ -26,7 +26,7 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   echo "setup: installing SecUAV and its dependencies into .venv (first run takes a minute)" >&2
   .venv/bin/python -m pip install -q --upgrade pip
   .venv/bin/python -m pip install -q -e ".[test]"
-  # The example plugin (examples/plugin/): entry points in its own metadata; tests/test_example_plugin.py uses it.
+  # The example plugin (examples/plugin/): entry points in its own metadata; tests/test_example_plugin.py runs it, examples/plugin/tests/ tests its parts.
   .venv/bin/python -m pip install -q --no-deps --force-reinstall ./examples/plugin
   echo "$want" > "$stamp"
 fi
