@@ -167,13 +167,12 @@ class Estimator:
 
     def step(self, t_s: float, z: np.ndarray, known: Known = None, velocity: np.ndarray | None = None) -> Estimate:
         """Take one reading vector (NaN = missing) at time t_s; ``known`` e.g. the laser height; ``velocity`` the
-        vehicle's own NED velocity estimate (m/s; its first d components are used), read only by estimators built
-        with ``velocity_std_mps``."""
+        vehicle's own NED velocity estimate (m/s; ``model.state_velocity`` maps it onto the state), read only by
+        estimators built with ``velocity_std_mps``."""
         t0 = time.perf_counter()
         self.velocity_in = None
         if velocity is not None and self.velocity_std_mps is not None:
-            vel = np.asarray(velocity, dtype=float).reshape(-1)[: self.model.d]
-            self.velocity_in = vel if vel.shape[0] == self.model.d and np.isfinite(vel).all() else None
+            self.velocity_in = self.model.state_velocity(velocity)
         zv = np.asarray(z, dtype=float).reshape(-1)
         if zv.shape[0] != self.model.p:
             raise ValueError(f"{self.name}: expected {self.model.p} readings, got {zv.shape[0]}")

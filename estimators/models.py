@@ -141,6 +141,15 @@ class MeasurementModel:
         """Starting point for a cold start given this step's readings (default: :meth:`initial_pos`)."""
         return self.initial_pos()
 
+    def state_velocity(self, velocity_ned_m_s: np.ndarray) -> np.ndarray | None:
+        """The rate of the model's position state given the vehicle's own NED velocity (the motion input).
+
+        Positions in north, east (and down): the first ``d`` components; a model whose state is not a
+        position (a distance to a wall) projects. None when the velocity cannot be read.
+        """
+        vel = np.asarray(velocity_ned_m_s, dtype=float).reshape(-1)[: self.d]
+        return vel if vel.shape[0] == self.d and np.isfinite(vel).all() else None
+
     def axis_noise(self, q_mps2: float) -> tuple[float, ...]:
         """The white-acceleration std of the constant-velocity model per axis (default: ``q_mps2`` on each)."""
         return (float(q_mps2),) * self.d
@@ -428,15 +437,36 @@ class ScalarGroup(MeasurementModel):
     """A redundant group of m sensors measuring one scalar ``d`` (ReCaP's setting).
 
     ``z_i = d + v_i + e_i``; the wall distance measured by lasers, sonar,
-    infrared and radar at once. The "position" is the scalar itself.
+    infrared and radar at once. The "position" is the scalar itself. With
+    ``normal_ned`` (the unit normal of the wall, pointing to the side the
+    vehicle flies on) the motion input is the vehicle's velocity along it,
+    the rate of the distance; without it the group has no motion input.
     """
+
+    normal_ned: tuple[float, float, float] | None = None
 
     @classmethod
     def build(
-        cls, sigma_m: float | np.ndarray | list[float], m: int | None = None, sensor_ids: tuple[int, ...] = ()
+        cls,
+        sigma_m: float | np.ndarray | list[float],
+        m: int | None = None,
+        sensor_ids: tuple[int, ...] = (),
+        normal_ned: tuple[float, float, float] | None = None,
     ) -> ScalarGroup:
         count = m if m is not None else len(np.atleast_1d(sigma_m))
-        return cls(sigma_m=_as_sigma(sigma_m, count), sensor_ids=tuple(sensor_ids))
+        unit = None
+        if normal_ned is not None:
+            n = np.asarray(normal_ned, dtype=float)
+            if n.shape != (3,) or not np.isfinite(n).all() or np.linalg.norm(n) == 0:
+                raise ValueError(f"normal_ned={normal_ned}: expected a non-zero vector of 3 numbers")
+            unit = tuple(float(c) for c in n / np.linalg.norm(n))
+        return cls(sigma_m=_as_sigma(sigma_m, count), sensor_ids=tuple(sensor_ids), normal_ned=unit)
+
+    def state_velocity(self, velocity_ned_m_s: np.ndarray) -> np.ndarray | None:
+        vel = np.asarray(velocity_ned_m_s, dtype=float).reshape(-1)
+        if self.normal_ned is None or vel.shape[0] != 3 or not np.isfinite(vel).all():
+            return None
+        return np.array([float(np.dot(vel, self.normal_ned))])
 
     @property
     def d(self) -> int:

@@ -84,7 +84,9 @@ def wall_group_model(scenario: Scenario, sysid: int = 1) -> ScalarGroup:
         raise ValueError(f"vehicle {sysid} of scenario {scenario.name!r} has no wall_distance target")
     by_id = {r.id: r for r in vehicle.sensors.rangefinders}
     return ScalarGroup.build(
-        [max(by_id[i].noise_std_m, 1e-3) for i in target.sensor_ids], sensor_ids=tuple(target.sensor_ids)
+        [max(by_id[i].noise_std_m, 1e-3) for i in target.sensor_ids],
+        sensor_ids=tuple(target.sensor_ids),
+        normal_ned=tuple(scenario.wall(target.wall).normal_ned),
     )
 
 

@@ -381,7 +381,8 @@ def _wall_trial(
         named, alarm = np.zeros(z.shape, dtype=bool), np.zeros(n, dtype=bool)
         nees, nis, degraded = np.full(n, np.nan), np.full(n, np.nan), np.zeros(n, dtype=bool)
         for k in range(n):
-            out = est.step(float(s1.t_s[k]), z[k])
+            vel = None if s1.velocity_ned_m_s is None else s1.velocity_ned_m_s[k]
+            out = est.step(float(s1.t_s[k]), z[k], velocity=vel)
             d_est[k], times[k], alarm[k], degraded[k] = out.position_m[0], out.step_time_s, out.alarm, not out.valid
             named[k, list(out.attacked)] = True
             _record_own(out, k, own_named, own_alarm)

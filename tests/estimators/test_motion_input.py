@@ -65,3 +65,19 @@ def test_the_vehicles_motion_holds_the_filter_against_a_slow_three_link_ramp() -
     for seed in range(3):
         plain, told = _ramp(None, seed), _ramp(0.1, seed)
         assert told[1] < plain[1], (seed, plain, told)
+
+
+def test_a_wall_group_moves_at_the_velocity_along_its_normal() -> None:
+    """The distance to a wall changes at the velocity along the wall's normal; a group without one has no
+    motion input rather than a wrong one."""
+    from estimators.models import ScalarGroup
+
+    toward_north_wall = ScalarGroup.build([0.02] * 5, normal_ned=(-2.0, 0.0, 0.0))
+    assert toward_north_wall.normal_ned == (-1.0, 0.0, 0.0)
+    np.testing.assert_allclose(toward_north_wall.state_velocity(np.array([0.8, 0.3, -0.1])), [-0.8])
+    diagonal = ScalarGroup.build([0.02] * 3, normal_ned=(1.0, 1.0, 0.0))
+    np.testing.assert_allclose(diagonal.state_velocity(np.array([1.0, 0.0, 0.0])), [np.sqrt(0.5)])
+    assert ScalarGroup.build([0.02] * 3).state_velocity(np.array([1.0, 0.0, 0.0])) is None
+    assert toward_north_wall.state_velocity(np.array([np.nan, 0.0, 0.0])) is None
+    with pytest.raises(ValueError, match="normal_ned"):
+        ScalarGroup.build([0.02] * 3, normal_ned=(0.0, 0.0, 0.0))

@@ -412,3 +412,22 @@ def test_the_vehicles_velocity_reaches_a_filter_built_with_the_motion_input(anch
     run(plain, StreamMaker(anchors8, seed=23), 3.0)
     assert plain._stepper is not None and plain._stepper.estimator.velocity_in is None
     plain.close()
+
+
+@pytest.mark.timeout(60)
+def test_a_wall_group_reads_the_velocity_along_the_walls_normal(wall: Scenario) -> None:
+    """The wall group's state is the distance, whose rate is the velocity along the wall's normal (here -vx:
+    flying north closes on the wall north of home); the stage reads LOCAL_POSITION_NED for it only when asked."""
+    config = SecureConfig(estimator="secekf", executor="inline", params={"velocity_std_mps": 0.1})
+    stage = SecureStage(config, wall, 1)
+    assert LPN in stage.message_ids
+    maker = StreamMaker(wall, seed=5, sway_m=0.5)
+    outs = run(stage, maker, 4.0)
+    stepper = stage._stepper
+    assert stepper is not None and stepper.steps > 20
+    vel = stepper.estimator.velocity_in
+    last = max(o.frame.t_s for o in outs if o.msgid == LPN)
+    assert vel is not None and vel.shape == (1,)
+    assert vel[0] == pytest.approx(-maker.velocity(last)[0], abs=0.03) and abs(vel[0]) > 0.05  # the step before
+    stage.close()
+    assert LPN not in SecureStage(SecureConfig(estimator="secekf", executor="inline"), wall, 1).message_ids

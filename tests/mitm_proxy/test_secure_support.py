@@ -97,6 +97,11 @@ class StreamMaker:
         a = self.sway_m
         return self.hold + np.array([a * math.sin(0.5 * t_s), a * math.cos(0.3 * t_s), 0.0])
 
+    def velocity(self, t_s: float) -> np.ndarray:
+        """The rate of :meth:`truth`, which LOCAL_POSITION_NED's vx, vy, vz carry (the autopilot's own estimate)."""
+        a = self.sway_m
+        return np.array([0.5 * a * math.cos(0.5 * t_s), -0.3 * a * math.sin(0.3 * t_s), 0.0])
+
     def wall_distance(self, pos: np.ndarray) -> float:
         tgt = self.veh.target
         assert isinstance(tgt, WallDistanceTarget)
@@ -192,7 +197,7 @@ class StreamMaker:
                     )
             gps = 0.05 * self.rng.standard_normal(3)
             own = pos + gps  # the autopilot's own (GPS) estimate
-            msgs.append((self.mav.local_position_ned_encode(ms, *own, 0.0, 0.0, 0.0), {"n": pos[0], "e": pos[1]}))
+            msgs.append((self.mav.local_position_ned_encode(ms, *own, *self.velocity(t)), {"n": pos[0], "e": pos[1]}))
             if k % 2 == 0:
                 lat, lon, alt = ned_to_geodetic(self.sc.world.home, *own)
                 msgs.append(

@@ -90,6 +90,8 @@ def build_layout(config: SecureConfig, scenario: Scenario, sysid: int, source: s
     peer_of: dict[int, int] = {}
     iv = vehicle.sensors.inter_vehicle
     wanted = {DISTANCE_SENSOR}
+    if config.params.get("velocity_std_mps") is not None:
+        wanted.add(LOCAL_POSITION_NED)  # the vehicle's own velocity: the filters' motion input
     if group == "anchors":
         position_dims = config.dims
         wanted |= {LOCAL_POSITION_NED, GLOBAL_POSITION_INT, HOME_POSITION}
