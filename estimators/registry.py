@@ -11,12 +11,15 @@ Three kinds of names, tried in this order:
 Each estimator's parameters are its constructors' keyword parameters with their
 defaults (read from the signatures, so they cannot drift from the code); a class
 may add ranges in ``param_ranges`` (``{"huber_k": (0.5, 3.0)}``), and the shared
-ones have theirs here. :func:`describe` gives both, for listings.
+ones have theirs here. :func:`parameters` gives both and :func:`describe` an
+estimator's whole entry, for listings (``secuav-plugins``, the console).
 """
 
 from __future__ import annotations
 
 import inspect
+import math
+import sys
 from dataclasses import dataclass
 from typing import Any
 
@@ -120,6 +123,23 @@ class Param:
         span = "" if self.low is None else f" in [{self.low:g}, {self.high:g}]"
         return f"{self.name}={self.default!r}{span}"
 
+    def as_json(self) -> dict[str, Any]:
+        """``{"default", "low", "high"}`` with JSON values: a default JSON cannot hold is given as its repr,
+        an infinite or missing bound as None (unbounded)."""
+        return {"default": _plain(self.default), "low": _bound(self.low), "high": _bound(self.high)}
+
+
+def _bound(value: float | None) -> float | None:
+    return value if value is not None and math.isfinite(value) else None
+
+
+def _plain(value: Any) -> Any:
+    if value is None or isinstance(value, bool | int | str):
+        return value
+    if isinstance(value, float) and math.isfinite(value):
+        return value
+    return repr(value)
+
 
 def parameters(cls: type[Estimator]) -> list[Param]:
     """The keyword parameters of ``cls``'s constructors, its own first, with defaults and ranges."""
@@ -136,6 +156,24 @@ def parameters(cls: type[Estimator]) -> list[Param]:
             default = None if p.default is inspect.Parameter.empty else p.default
             out[p.name] = Param(p.name, default, low, high)
     return list(out.values())
+
+
+def summary(cls: type[Estimator]) -> str:
+    """The first line of ``cls``'s docstring (or, without one, its module's), less its "``name``:" label."""
+    module = sys.modules.get(cls.__module__)
+    text = (cls.__doc__ or getattr(module, "__doc__", None) or "").strip()
+    line = text.splitlines()[0] if text else ""
+    label = f"``{cls.name}``:"
+    return line[len(label):].strip() if line.startswith(label) else line
+
+
+def describe(name: str) -> dict[str, Any]:
+    """Estimator ``name`` for a listing, JSON-ready: ``name``, ``dist``, ``version``, ``object``,
+    ``summary`` and ``params`` (parameter name -> ``default``, ``low``, ``high``; no range: None)."""
+    cls = get(name)
+    dist, version = origin(name)
+    return {"name": name, "dist": dist, "version": version, "object": f"{cls.__module__}:{cls.__qualname__}",
+            "summary": summary(cls), "params": {p.name: p.as_json() for p in parameters(cls)}}  # fmt: skip
 
 
 def origin(name: str) -> tuple[str, str]:

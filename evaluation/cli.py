@@ -58,7 +58,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenario", required=True, help="scenario file or bundled name (anchors8, formation)")
     p.add_argument("--attack", default=None, help="profile file, library name, or 'none' (required unless --tlog)")
     p.add_argument("--param", action="append", default=[], metavar="K=V", help="library profile parameter")
-    p.add_argument("--estimators", default=None, help="comma-separated (default: all that run on the scenario)")
+    p.add_argument(
+        "--estimators",
+        default=None,
+        help="comma-separated (default: all that run on the scenario); `secuav-plugins --builtin` lists them "
+        "with their parameters",
+    )
     p.add_argument("--trials", type=int, default=3)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--duration", type=float, default=None, help="seconds per trial (default: the scenario's)")

@@ -65,7 +65,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="initial attack profile: a file (reloaded on change) or a library name (secuav-attack list)",
     )
     p.add_argument("--attack", choices=("on", "bypass"), help="attack stage active or bypassed (default on)")
-    p.add_argument("--secure", metavar="NAME", help="secure estimator, or off (default off)")
+    p.add_argument("--secure", metavar="NAME", help="secure estimator, or off (default off); "
+                   "`secuav-plugins --estimator NAME` lists its parameters")  # fmt: skip
     p.add_argument(
         "--broker",
         metavar="URL",

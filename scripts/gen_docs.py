@@ -108,11 +108,21 @@ def field_table(model: type[BaseModel], title: str, seen: set[type[BaseModel]] |
 
 
 def _help(build: Callable[[], argparse.ArgumentParser]) -> str:
-    parser = build()
+    return _help_tree(build(), "")
+
+
+def _help_tree(parser: argparse.ArgumentParser, path: str) -> str:
+    """``parser``'s help, then every subcommand's under a ``--- path name ---`` line, nested ones too
+    (``secuav-study suite run``); an alias is not repeated."""
     text = parser.format_help()
     for action in (a for a in parser._actions if isinstance(a, argparse._SubParsersAction)):
+        done: set[int] = set()
         for name, child in action.choices.items():
-            text += f"\n--- {name} ---\n" + child.format_help()
+            if id(child) in done:
+                continue
+            done.add(id(child))
+            label = f"{path} {name}".strip()
+            text += f"\n--- {label} ---\n" + _help_tree(child, label)
     return text
 
 

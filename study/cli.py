@@ -55,10 +55,12 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser("schema", help="print the JSON Schema of a study file")
     suite = sub.add_parser("suite", help="the versioned benchmark suite: list, run, check (docs/bench.md)")
     steps = suite.add_subparsers(dest="suite_command", required=True)
-    steps.add_parser("list", help="the suite's studies and their cells (quick and full)").add_argument(
+    what = "the suite's studies and their cells (quick and full)"
+    steps.add_parser("list", help=what, description=what).add_argument(
         "--version", default="v1", help="suite version (default v1)")
-    srun = steps.add_parser("run", help="run every study of the suite into OUT/<study>")
-    srun.add_argument("--out", required=True, type=Path)
+    what = "run every study of the suite into OUT/<study>"
+    srun = steps.add_parser("run", help=what, description=what)
+    srun.add_argument("--out", required=True, type=Path, help="where the results go: OUT/<study> for each study")
     srun.add_argument("--quick", action="store_true", help="the quick variant (minutes on a laptop)")
     srun.add_argument("--version", default="v1", help="suite version (default v1)")
     srun.add_argument("--add", action="append", default=[], metavar="ENTRY",
@@ -69,8 +71,9 @@ def build_parser() -> argparse.ArgumentParser:
     swhere.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes (default: cores)")
     swhere.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="a running dask scheduler")
     srun.add_argument("--no-progress", action="store_true", help="no progress bars")
-    scheck = steps.add_parser("check", help="the leaderboard (Markdown and CSV) and the built-ins' expected bands")
-    scheck.add_argument("out", type=Path, metavar="OUT")
+    what = "the leaderboard (Markdown and CSV) and the built-ins' expected bands"
+    scheck = steps.add_parser("check", help=what, description=what)
+    scheck.add_argument("out", type=Path, metavar="OUT", help="what `suite run --out OUT` wrote")
     scheck.add_argument("--version", default="v1", help="suite version (default v1)")
     scheck.add_argument("--record-bands", action="store_true",
                         help="(maintainers) write the suite's expected bands from OUT's built-in rows")  # fmt: skip

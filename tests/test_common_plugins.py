@@ -11,6 +11,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import ClassVar
 
 import pytest
 
@@ -106,3 +107,29 @@ def test_declared_parameters_come_from_the_signatures() -> None:
     params = {p.name: p for p in registry.parameters(registry.get("secekf"))}
     assert params["window"].default == 10 and params["alpha"].default == 0.01
     assert (params["alpha"].low, params["alpha"].high) == registry.SHARED_RANGES["alpha"]
+
+
+def test_a_listing_entry_is_json_whatever_the_defaults_and_ranges() -> None:
+    import json
+    import math
+
+    from estimators import registry
+    from estimators.base import Estimator
+
+    class Odd(Estimator):
+        """``odd``: an estimator whose default and range JSON cannot hold as they are."""
+
+        name = "odd"
+        param_ranges: ClassVar[dict[str, tuple[float, float]]] = {"gain": (0.0, math.inf)}
+
+        def __init__(self, model: object, *, gain: float = math.nan, shape: tuple[int, int] = (2, 3),
+                     **params: object) -> None:  # fmt: skip
+            super().__init__(model, **params)  # type: ignore[arg-type]
+
+    params = {p.name: p.as_json() for p in registry.parameters(Odd)}
+    assert params["gain"] == {"default": "nan", "low": 0.0, "high": None}  # unbounded above
+    assert params["shape"] == {"default": "(2, 3)", "low": None, "high": None}
+    assert params["alpha"]["low"] == registry.SHARED_RANGES["alpha"][0]
+    json.dumps(params, allow_nan=False)  # what the console's JSONResponse does
+    assert registry.summary(Odd) == "an estimator whose default and range JSON cannot hold as they are."
+    assert registry.summary(registry.get("ekf")).startswith("constant-velocity extended Kalman")  # its module's

@@ -52,6 +52,19 @@ def test_the_listing_names_every_part_and_its_distribution() -> None:
     assert "anchors-moving-bias" in found["secuav.profiles"] and "anchors6_small" in found["secuav.scenarios"]
 
 
+def test_one_estimator_described_as_help_would() -> None:
+    done = _cmd("secuav-plugins", "--estimator", "huber")
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    assert lines[0].startswith("huber: a Huber M-estimator") and f"from {DIST} 0.1.0" in lines[1]
+    assert lines[4].split() == ["huber_k", "1.345", "in", "[0.5,", "5]"]  # its own parameters first
+    assert ["s", "null"] in [line.split() for line in lines]
+    row = json.loads(_cmd("secuav-plugins", "--estimator", "huber", "--json").stdout)
+    assert row["parameters"]["n_irls"] == {"default": 8, "low": 1, "high": 50} and row["dist"] == DIST
+    unknown = _cmd("secuav-plugins", "--estimator", "hubr")
+    assert unknown.returncode == 2 and "unknown estimator 'hubr'" in unknown.stderr and "huber" in unknown.stderr
+
+
 def test_the_primitive_is_in_validation_schema_and_list() -> None:
     done = _cmd("secuav-attack", "validate", "anchors-moving-bias", "--scenario", "anchors6_small")
     assert done.returncode == 0 and done.stdout.startswith("ok: anchors-moving-bias"), done.stderr

@@ -6,6 +6,7 @@
 ``GET /api/vehicles/{sysid}``              that row plus the scenario's world for the top view
 ``GET /api/library``                       the library profiles with their parameters and defaults
 ``GET /api/estimators``                    what ``secure`` accepts
+``GET /api/estimators/params``             every estimator with its declared parameters (default, range)
 ``POST /api/vehicles/{sysid}/attack``      ``{"profile": name | object | YAML text | null, "params": {}}``
 ``POST /api/vehicles/{sysid}/attack/mode``  ``{"mode": "on" | "bypass"}``
 ``POST /api/vehicles/{sysid}/secure``      ``{"estimator": name | "off", "params": {}}``
@@ -114,6 +115,15 @@ def library_json() -> list[dict[str, Any]]:
     return out
 
 
+def estimators_json() -> list[dict[str, Any]]:
+    """Every estimator (built-in, then the installed plugins') with its origin, summary and declared
+    parameters (``estimators.registry.describe``); imports them all, so asked for once and kept."""
+    import estimators  # numpy/scipy: only when asked
+    from estimators import registry
+
+    return [registry.describe(name) for name in estimators.names()]
+
+
 class LoginThrottle:
     """Wrong passwords per client address: after a few, the address waits (doubling, up to five minutes)."""
 
@@ -217,6 +227,7 @@ def build_app(fleet: Fleet, session: Session, password: str | None = None, ack_t
     """The ASGI application behind ``webconsole.security``'s guards (``hosts``: the Host names it answers
     to), and behind :class:`BasicAuth` when a password is given."""
     library_cache: list[dict[str, Any]] = []
+    estimators_cache: list[dict[str, Any]] = []
     slots = streams or StreamSlots()
 
     async def json_body(request: Request) -> Any:
@@ -276,6 +287,13 @@ def build_app(fleet: Fleet, session: Session, password: str | None = None, ack_t
 
         return JSONResponse(["off", *estimators.names()])
 
+    async def estimator_params(request: Request) -> Response:
+        if not estimators_cache:  # imports numpy, scipy and every plugin: off the loop, the streams keep going
+            described = await asyncio.to_thread(estimators_json)
+            if not estimators_cache:  # another request may have filled it meanwhile
+                estimators_cache.extend(described)
+        return JSONResponse(estimators_cache)
+
     async def attack(request: Request) -> Response:
         return await send(request, "attack", lambda body: profile_request(body) or {})
 
@@ -319,6 +337,7 @@ def build_app(fleet: Fleet, session: Session, password: str | None = None, ack_t
         Route("/api/vehicles/{sysid:int}/secure", secure, methods=["POST"]),
         Route("/api/library", profiles),
         Route("/api/estimators", estimators_list),
+        Route("/api/estimators/params", estimator_params),
         Route("/api/stream", stream),
         Mount("/static", StaticFiles(directory=STATIC), name="static"),
     ]

@@ -217,6 +217,7 @@ class Fleet:
                 "attack_ok": attack.get("ok", True), "attack_error": attack.get("error"),
                 "mode": mode,
                 "secure": secure.get("estimator"), "secure_available": secure.get("available", True) is not False,
+                "secure_params": secure.get("params") or {},
                 "frames_in_per_s": view.rate_in if fresh else None,
                 "frames_out_per_s": view.rate_out if fresh else None,
                 "rewritten": down.get("rewritten", 0) + up.get("rewritten", 0),

@@ -22,6 +22,7 @@ from mitm_proxy.control.plane import ControlPlane
 from mitm_proxy.control.switches import vehicle_controls
 from mitm_proxy.stages.attack import AttackStage
 from mitm_proxy.stages.attack_slot import AttackSlot
+from mitm_proxy.stages.secure.stage import SecureSlot
 from secuav_common.broker import BrokerAddress, EmbeddedBroker
 from secuav_common.scenario import load_scenario
 from tests.conftest import free_tcp_port
@@ -79,13 +80,14 @@ async def serve(fleet: Fleet, session: Session, password: str | None = None, **o
         await task
 
 
-@pytest.fixture
-async def bench() -> AsyncIterator[Bench]:
+@contextlib.asynccontextmanager
+async def _bench(secure: dict[int, SecureSlot] | None = None) -> AsyncIterator[Bench]:
     port = free_tcp_port()
     slots = {1: AttackSlot(1)}
     async with EmbeddedBroker(port=port):
         url = f"mqtt://127.0.0.1:{port}"
-        plane = ControlPlane(url, vehicle_controls("lab", slots, {1: AttackStage(slots[1])}), stats=_stats)
+        controls = vehicle_controls("lab", slots, {1: AttackStage(slots[1])}, secure)
+        plane = ControlPlane(url, controls, stats=_stats)
         fleet = Fleet([load_scenario("wall_hover")])
         session = Session(BrokerAddress("127.0.0.1", port), fleet, "http://test/")
         mqtt = asyncio.create_task(session.run())
@@ -98,6 +100,23 @@ async def bench() -> AsyncIterator[Bench]:
                 await asyncio.sleep(0.1)
             yield Bench(base, fleet, slots, plane)
         mqtt.cancel()
+
+
+@pytest.fixture
+async def bench() -> AsyncIterator[Bench]:
+    async with _bench() as b:
+        yield b
+
+
+@pytest.fixture
+async def secure_bench() -> AsyncIterator[Bench]:
+    """The bench with a real secure stage on vehicle 1 (the wall scenario's rangefinder group)."""
+    slot = SecureSlot(1, load_scenario("wall_hover"))
+    try:
+        async with _bench({1: slot}) as b:
+            yield b
+    finally:
+        slot.close()
 
 
 async def test_vehicles_library_and_a_profile_round_trip(bench: Bench) -> None:
@@ -155,6 +174,46 @@ async def test_mode_secure_unknown_vehicles_and_a_silent_proxy(bench: Bench) -> 
     await bench.plane.aclose()  # the proxy goes; the console still knows the vehicle
     status, ack = await asyncio.to_thread(call, bench.base, "/api/vehicles/1/attack", {"profile": "wall-spoof"})
     assert status == 504 and "no acknowledgement" in ack["error"]
+
+
+async def test_estimators_are_listed_with_their_declared_parameters(bench: Bench) -> None:
+    status, names = await asyncio.to_thread(call, bench.base, "/api/estimators")
+    assert status == 200 and names[0] == "off"
+    status, described = await asyncio.to_thread(call, bench.base, "/api/estimators/params")
+    assert status == 200 and [e["name"] for e in described] == names[1:]
+    by_name = {e["name"]: e for e in described}
+    secekf = by_name["secekf"]
+    assert secekf["dist"] == "secuav" and secekf["object"] == "estimators.secekf:SecEkf"
+    assert secekf["summary"].startswith("SecEKF")
+    assert secekf["params"]["window"] == {"default": 10, "low": None, "high": None}
+    assert secekf["params"]["alpha"] == {"default": 0.01, "low": 1e-6, "high": 0.5}
+    assert secekf["params"]["s"]["default"] is None
+    huber = by_name["huber"]  # examples/plugin, installed beside secuav by scripts/setup.sh
+    assert huber["dist"] == "secuav-example-plugin" and huber["object"] == "secuav_example_plugin.huber:Huber"
+    assert list(huber["params"])[:2] == ["huber_k", "n_irls"]  # its own first, then the shared ones
+    assert huber["params"]["huber_k"] == {"default": 1.345, "low": 0.5, "high": 5.0}
+
+
+async def test_secure_params_reach_the_proxy_which_checks_them(secure_bench: Bench) -> None:
+    bench = secure_bench
+    body = {"estimator": "huber", "params": {"huber_k": 2.0, "n_irls": 4}}
+    status, ack = await asyncio.to_thread(call, bench.base, "/api/vehicles/1/secure", body)
+    assert status == 200 and ack["ok"] and ack["estimator"] == "huber", ack
+    assert ack["params"] == {"huber_k": 2.0, "n_irls": 4}
+    for _ in range(50):  # the retained state comes back over the broker into the fleet's row
+        if bench.fleet.summary()[0]["secure_params"] == ack["params"]:
+            break
+        await asyncio.sleep(0.1)
+    row = bench.fleet.summary()[0]
+    assert row["secure"] == "huber" and row["secure_params"] == {"huber_k": 2.0, "n_irls": 4}
+
+    status, ack = await asyncio.to_thread(call, bench.base, "/api/vehicles/1/secure",
+                                          {"estimator": "huber", "params": {"huber_k": 9.0}})  # fmt: skip
+    assert status == 409 and not ack["ok"] and "huber_k" in ack["error"] and "[0.5, 5.0]" in ack["error"], ack
+    status, ack = await asyncio.to_thread(call, bench.base, "/api/vehicles/1/secure",
+                                          {"estimator": "secekf", "params": {"huber_k": 2.0}})  # fmt: skip
+    assert status == 409 and "huber_k" in ack["error"] and "secekf" in ack["error"], ack
+    assert ack["estimator"] == "huber" and ack["params"] == {"huber_k": 2.0, "n_irls": 4}  # the running one stays
 
 
 async def test_the_stream_sends_the_fleet_and_the_watched_vehicles_samples(bench: Bench) -> None:

@@ -153,6 +153,13 @@ async def test_the_page_shows_steers_and_refuses_as_a_user_sees_it(
             attacked = await asyncio.to_thread(_sensor0_cm, gcs, 1.0)
             assert attacked and all(700 < v < 800 for v in attacked), attacked  # 5 m * 1.5 on the ground
 
+            # The secure stage's form: a plugin estimator with its declared parameters, defaults and ranges.
+            Select(driver.find_element(By.ID, "estimator")).select_by_value("huber")  # type: ignore[attr-defined]
+            huber_k = driver.find_element(By.CSS_SELECTOR, "#estimator-params input[name='huber_k']")  # type: ignore[attr-defined]
+            assert huber_k.get_attribute("value") == "1.345"
+            assert "in [0.5, 5]" in huber_k.find_element(By.XPATH, "..").text
+            assert "secuav-example-plugin" in driver.find_element(By.ID, "estimator-summary").text  # type: ignore[attr-defined]
+
             # A bad pasted profile: the field error on the page, nothing on the broker's attack/set.
             async with aiomqtt.Client("127.0.0.1", port) as spy:
                 await spy.subscribe("secuav/v1/attack/set")

@@ -13,6 +13,7 @@ const state = {
   source: null,             // EventSource
   world: null,              // scenario geometry of the selected vehicle
   library: [],
+  estimators: [],           // GET /api/estimators/params: name, dist, version, summary, params
   trails: { truth: [], ground: [], secure: [] },   // [t, north, east]
   sensors: new Map(),       // id -> {t: [], original: [], forwarded: [], secure: [], truth: []}
   flagged: new Set(),
@@ -43,7 +44,10 @@ function showAck(what, result) {
   if (d.error) lines.push(d.error);
   if (d.profile !== undefined) lines.push(`profile: ${d.profile || "none"}${d.hash ? " (hash " + d.hash.slice(0, 12) + ")" : ""}`);
   if (d.mode) lines.push(`mode: ${d.mode}`);
-  if (d.estimator !== undefined && what.startsWith("secure")) lines.push(`estimator: ${d.estimator || "off"}`);
+  if (d.estimator !== undefined && what.startsWith("secure")) {
+    const given = d.params && Object.keys(d.params).length ? ` ${JSON.stringify(d.params)}` : "";
+    lines.push(`estimator: ${d.estimator || "off"}${given}`);
+  }
   box.textContent = lines.join("\n");
 }
 
@@ -86,7 +90,10 @@ function renderFleet(rows) {
       $("library").value = mine.profile;
       renderParams();
     }
-    if (mine.secure_available) $("estimator").value = mine.secure || "off";
+    if (mine.secure_available) {
+      $("estimator").value = mine.secure || "off";
+      renderEstimatorParams(mine.secure_params || {});
+    }
   }
   if (mine) {
     $("mode-now").textContent = mine.mode || "-";
@@ -378,6 +385,50 @@ function params() {
   return out;
 }
 
+// The secure stage's estimator: its declared parameters, each with its default and range.
+function renderEstimatorParams(inForce = {}) {
+  const entry = state.estimators.find((e) => e.name === $("estimator").value);
+  $("estimator-summary").textContent = entry ? `${entry.summary} (${entry.dist} ${entry.version})` : "";
+  $("estimator-params").replaceChildren(...Object.entries(entry ? entry.params : {}).map(([name, spec]) => {
+    const label = document.createElement("label");
+    const input = document.createElement("input");
+    const range = document.createElement("span");
+    input.name = name;
+    input.value = JSON.stringify(name in inForce ? inForce[name] : spec.default);
+    input.title = `default ${JSON.stringify(spec.default)}`;
+    range.className = "range";
+    range.textContent = spec.low === null && spec.high === null ? "" :
+      `in [${spec.low ?? "-inf"}, ${spec.high ?? "inf"}]`;
+    label.append(name, input, range);
+    return label;
+  }));
+}
+
+function estimatorParams() {
+  const out = {};
+  const entry = state.estimators.find((e) => e.name === $("estimator").value);
+  for (const input of $("estimator-params").querySelectorAll("input")) {
+    input.classList.remove("invalid");
+    const given = parseValue(input.value);
+    const declared = entry && entry.params[input.name] ? entry.params[input.name].default : undefined;
+    if (JSON.stringify(given) !== JSON.stringify(declared)) out[input.name] = given;
+  }
+  return out;
+}
+
+async function applySecure() {
+  if (state.selected === null) return;
+  const name = $("estimator").value;
+  const body = name === "off" ? { estimator: name } : { estimator: name, params: estimatorParams() };
+  const result = await api(`/api/vehicles/${state.selected}/secure`, body);
+  if (result.status !== 200 && result.data && result.data.error) {
+    for (const input of $("estimator-params").querySelectorAll("input")) {
+      if (result.data.error.includes(input.name)) input.classList.add("invalid");
+    }
+  }
+  showAck(`secure ${name}`, result);
+}
+
 async function applyLibrary() {
   if (state.selected === null) return;
   const result = await api(`/api/vehicles/${state.selected}/attack`, { profile: $("library").value, params: params() });
@@ -407,10 +458,13 @@ async function post(path, body, what) {
 }
 
 async function init() {
-  const [library, estimators] = await Promise.all([api("/api/library"), api("/api/estimators")]);
+  const [library, estimators] = await Promise.all([api("/api/library"), api("/api/estimators/params")]);
   state.library = library.data || [];
+  state.estimators = Array.isArray(estimators.data) ? estimators.data : [];
   $("library").replaceChildren(...state.library.map((p) => new Option(p.name, p.name)));
-  $("estimator").replaceChildren(...(estimators.data || ["off"]).map((n) => new Option(n, n)));
+  $("estimator").replaceChildren(new Option("off", "off"), ...state.estimators.map((e) => new Option(e.name, e.name)));
+  $("estimator").addEventListener("change", () => renderEstimatorParams());
+  renderEstimatorParams();
   $("library").addEventListener("change", renderParams);
   renderParams();
   $("apply-library").addEventListener("click", applyLibrary);
@@ -422,8 +476,7 @@ async function init() {
   });
   $("mode-on").addEventListener("click", () => post("attack/mode", { mode: "on" }, "attack stage on"));
   $("mode-bypass").addEventListener("click", () => post("attack/mode", { mode: "bypass" }, "attack stage bypass"));
-  $("apply-secure").addEventListener("click",
-    () => post("secure", { estimator: $("estimator").value }, `secure ${$("estimator").value}`));
+  $("apply-secure").addEventListener("click", applySecure);
   connect();
   requestAnimationFrame(frame);
 }
