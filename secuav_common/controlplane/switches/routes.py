@@ -19,8 +19,11 @@ from secuav_common.controlplane.switches import State, SwitchSpec, Verb, registe
 
 def _arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("endpoint", metavar="ENDPOINT", help="as the stats name it (ground:14550) or its URL")
-    parser.add_argument("rules", metavar="RULES",
-                        help="URL options as in docs/routes.md ('deny=ATTITUDE&listen_only=true'); 'none' lifts all")
+    parser.add_argument(
+        "rules",
+        metavar="RULES",
+        help="URL options as in docs/routes.md ('deny=ATTITUDE&listen_only=true'); 'none' lifts all",
+    )
 
 
 def _lifts_all(args: argparse.Namespace) -> bool:
