@@ -110,6 +110,7 @@ _DISCOVERED = False
 
 def register(spec: SwitchSpec) -> SwitchSpec:
     """Add ``spec`` (a switch's module calls this on import); a kind or verb registered twice is a bug."""
+    _discover()  # the built-ins first, so a clash with one of them is seen whoever registers first
     old = _REGISTRY.get(spec.kind)
     if old is not None and old is not spec:
         raise ValueError(f"switch {spec.kind!r} is registered twice")
@@ -129,9 +130,9 @@ def unregister(kind: str) -> None:
 def _discover() -> None:
     global _DISCOVERED
     if not _DISCOVERED:
+        _DISCOVERED = True  # first: the modules imported below register, which comes back here
         for module in sorted(m.name for m in pkgutil.iter_modules(__path__)):
             importlib.import_module(f"{__name__}.{module}")
-        _DISCOVERED = True
 
 
 def specs() -> list[SwitchSpec]:
