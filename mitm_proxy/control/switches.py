@@ -104,10 +104,12 @@ class ModeSwitch(Switch[ModeState]):
     def build(cls, host: SwitchHost, sysid: int | None) -> ModeSwitch | None:
         """The link's mode switch (the proxy makes it with the stage, for ``--attack``), else one for its
         attack stage; none where the link has no stage."""
-        parts = None if sysid is None else host.links[sysid]
-        if parts is None or parts.mode is not None:
-            return None if parts is None else parts.mode
-        return None if parts.stage is None else cls(parts.sysid, parts.stage)
+        if sysid is None:
+            return None
+        parts = host.links[sysid]
+        if parts.mode is not None:
+            return parts.mode
+        return None if parts.stage is None else cls(sysid, parts.stage)
 
     def set(self, on: bool, request_id: str | None = None, source: str = "<app>") -> ModeState:
         return self.handle("on" if on else "bypass", request_id, source)
