@@ -1,12 +1,14 @@
 """``secuav-attack``: check, list, show and export attack profiles.
 
 Offline subcommands live here: ``validate F [--scenario S]``, ``list``,
-``show NAME``, ``schema``. ``apply``, ``clear`` and ``status`` talk to a running
-proxy; their parsers are defined here so the proxy's CLI
-(``mitm_proxy.tools.attack_cli``, the installed ``secuav-attack``) can reuse
-:func:`build_parser` and plug in real handlers through ``live_handlers`` and
-its transport flags through ``live_options`` (this module alone answers them
-with one line saying so and exit 2: a library never imports the service).
+``show NAME``, ``schema``. ``status`` and each runtime switch's verbs (``apply``,
+``clear``, ``mode``, ``secure``, ``routes``: declared with their switch in
+``secuav_common/controlplane/switches/``) talk to a running proxy; their parsers
+are built here so the proxy's CLI (``mitm_proxy.tools.attack_cli``, the installed
+``secuav-attack``) can reuse :func:`build_parser` and plug in real handlers
+through ``live_handlers`` and its transport flags through ``live_options`` (this
+module alone answers them with one line saying so and exit 2: a library never
+imports the service).
 
 Every failure is one line on stderr and a non-zero exit code; no traceback.
 """
@@ -23,13 +25,19 @@ from attack_profiles import library
 from attack_profiles.engine import Engine
 from attack_profiles.profile import Profile, profile_schema_text
 from attack_profiles.resolve import parse_params, resolve_profile
+from secuav_common.controlplane import switches
 from secuav_common.loading import InputError
 from secuav_common.logs import add_common_flags
 from secuav_common.scenario import load_scenario
 
 Handler = Callable[[argparse.Namespace], int]
 OptionsHook = Callable[[str, argparse.ArgumentParser], None]  # (subcommand, its parser): add transport options
-LIVE_COMMANDS = ("apply", "clear", "status", "mode", "secure", "routes")
+VEHICLE_HELP = "only this vehicle's sysid"
+
+
+def live_commands() -> list[str]:
+    """Every subcommand that needs a running proxy: ``status`` and each switch's verbs."""
+    return ["status", *(verb.name for _, verb in switches.verbs())]
 
 
 def _params(pairs: Sequence[str]) -> dict[str, Any]:
@@ -93,9 +101,9 @@ def needs_proxy(args: argparse.Namespace) -> int:
 def build_parser(
     live_handlers: Mapping[str, Handler] | None = None, live_options: OptionsHook | None = None
 ) -> argparse.ArgumentParser:
-    """The full command line; ``live_handlers`` maps apply/clear/status to real implementations
-    and ``live_options`` adds the options they need (broker, timeout) to those subcommands."""
-    live = dict.fromkeys(LIVE_COMMANDS, needs_proxy)
+    """The full command line; ``live_handlers`` maps ``status`` and the switches' verbs to real
+    implementations and ``live_options`` adds the options they need (broker, timeout) to those subcommands."""
+    live = dict.fromkeys(live_commands(), needs_proxy)
     live.update(live_handlers or {})
     parser = argparse.ArgumentParser(prog="secuav-attack", description="Check, list and apply SecUAV attack profiles.")
     add_common_flags(parser, log_flags=False)
@@ -118,47 +126,31 @@ def build_parser(
     p = sub.add_parser("schema", help="print the profile JSON Schema")
     p.set_defaults(func=cmd_schema)
 
-    p = sub.add_parser("apply", help="activate a profile on a running proxy")
-    p.add_argument("profile", metavar="F", help="profile file (YAML/JSON) or library name")
-    p.add_argument("--vehicle", type=int, metavar="N", help="only this vehicle's sysid")
-    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="override a profile parameter")
-    p.set_defaults(func=live["apply"])
-
-    p = sub.add_parser("clear", help="remove the active profile on a running proxy")
-    p.add_argument("--vehicle", type=int, metavar="N", help="only this vehicle's sysid")
-    p.set_defaults(func=live["clear"])
-
     p = sub.add_parser("status", help="show the active profile of a running proxy")
-    p.add_argument("--vehicle", type=int, metavar="N", help="only this vehicle's sysid")
+    p.add_argument("--vehicle", type=int, metavar="N", help=VEHICLE_HELP)
     p.set_defaults(func=live["status"])
+    targets: dict[str, tuple[argparse.ArgumentParser, ...]] = {"status": (p,)}
 
-    p = sub.add_parser("mode", help="switch the attack stage on or to bypass (the profile stays installed)")
-    p.add_argument("mode", choices=["on", "bypass"])
-    p.add_argument("--vehicle", type=int, metavar="N", help="only this vehicle's sysid")
-    p.set_defaults(func=live["mode"])
-
-    p = sub.add_parser("secure", help="choose the secure stage's estimator on a running proxy, or 'off'")
-    p.add_argument("estimator", metavar="NAME",
-                   help="secekf, secopt, recap, rarse, l1, l0, milp, ekf, ls, a plugin's name (secuav-plugins), "
-                   "package.module:Class, or off")
-    p.add_argument("--vehicle", type=int, metavar="N", help="only this vehicle's sysid")
-    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="estimator parameter")
-    p.set_defaults(func=live["secure"])
-
-    p = sub.add_parser("routes", help="show or change a running proxy's per-endpoint routing rules")
-    actions = p.add_subparsers(dest="routes_action", required=True, metavar="ACTION")
-    show = actions.add_parser("show", help="every endpoint of the proxy and its rules")
-    change = actions.add_parser("set", help="replace one endpoint's rules (the others keep theirs)")
-    change.add_argument("endpoint", metavar="ENDPOINT", help="as the stats name it (ground:14550) or its URL")
-    change.add_argument("rules", metavar="RULES",
-                        help="URL options as in docs/routes.md ('deny=ATTITUDE&listen_only=true'); 'none' lifts all")
-    for q in (show, change):
-        q.add_argument("--instance", metavar="NAME", help="the proxy instance (needed when several are online)")
-        q.set_defaults(func=live["routes"])
+    for spec, verb in switches.verbs():
+        p = sub.add_parser(verb.name, help=verb.help)
+        if spec.scope == "vehicle":  # sent to one vehicle, or to every vehicle on the broker
+            verb.arguments(p)
+            p.add_argument("--vehicle", type=int, metavar="N", help=VEHICLE_HELP)
+            targets[verb.name] = (p,)
+        else:  # proxy-wide: read one instance's state, or send it a request
+            actions = p.add_subparsers(dest="action", required=True, metavar="ACTION")
+            show = actions.add_parser("show", help=verb.show_help)
+            change = actions.add_parser("set", help=verb.set_help)
+            verb.arguments(change)
+            targets[verb.name] = (show, change)
+        for q in targets[verb.name]:
+            if spec.scope == "proxy":
+                q.add_argument("--instance", metavar="NAME", help="the proxy instance (needed when several are online)")
+            q.set_defaults(func=live[verb.name])
 
     if live_options is not None:
-        for name in LIVE_COMMANDS:
-            for q in (show, change) if name == "routes" else (sub.choices[name],):
+        for name, parsers in targets.items():
+            for q in parsers:
                 live_options(name, q)
     return parser
 

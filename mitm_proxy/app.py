@@ -33,7 +33,8 @@ from typing import TYPE_CHECKING, Any
 from attack_profiles.resolve import resolve_profile
 from mavframe.signing import Signer
 from mitm_proxy.config import ProxyConfig
-from mitm_proxy.control.switches import Controls, ModeSwitch, RoutesSwitch, default_instance, vehicle_controls
+from mitm_proxy.control.switch import SwitchHost
+from mitm_proxy.control.switches import Controls, ModeSwitch, build_controls, default_instance
 from mitm_proxy.core.pipeline import Pipeline, Stage
 from mitm_proxy.core.readings import ReadingsTap
 from mitm_proxy.core.recorder import Recorder
@@ -191,11 +192,10 @@ class Proxy:
         self.routers = [GroundRouter(self.endpoints[ep], links) for ep, links in users.items()]
 
     def build_controls(self) -> Controls:
-        """Every runtime switch of this process, registered once (``mitm_proxy.control.switches``)."""
-        modes = {s: v.mode for s, v in self.vehicles.items()}
-        controls = vehicle_controls(self.instance, self.slots, modes, self.secure)
-        controls.add(RoutesSwitch(self.instance, {ep.name: ep for ep in self.endpoints.values()}))
-        return controls
+        """Every declared runtime switch of this process (``secuav_common/controlplane/switches/``), each
+        built or found by its own factory from the links' parts and the endpoints."""
+        endpoints = {ep.name: ep for ep in self.endpoints.values()}
+        return build_controls(SwitchHost(self.instance, self.vehicles, endpoints))
 
     def _describe(self) -> dict[str, Any]:
         """What the online record adds: where this proxy runs and what it connects."""

@@ -1,27 +1,35 @@
-"""The runtime switches of one proxy process, and the registry the MQTT session dispatches into.
+"""The proxy's side of the runtime switches, and the registry the MQTT session dispatches into.
 
-Everything the control plane can change at runtime is a :class:`~mitm_proxy.control.switch.Switch`:
+Each switch is declared once, in ``secuav_common/controlplane/switches/<name>.py``
+(its topic leaf, scope, state model, ``secuav-attack`` verbs and where its
+implementation lives); the proxy side is a :class:`~mitm_proxy.control.switch.Switch`:
 
-=================  ==========================================  ==============================  =====================
-kind (topic leaf)  set on                                      what it holds                   ``secuav-attack``
-=================  ==========================================  ==============================  =====================
-``attack``         ``secuav/v<N>/attack/set``                  the active attack profile       ``apply``, ``clear``
-``attack/mode``    ``secuav/v<N>/attack/mode/set``             the attack stage on or bypassed ``mode``
-``secure``         ``secuav/v<N>/secure/set``                  the secure stage's estimator    ``secure``
-``routes``         ``secuav/proxy/routes/set`` (every proxy),  the endpoints' routing rules    ``routes``
-                   ``secuav/proxy/<instance>/routes/set``
-=================  ==========================================  ==============================  =====================
+===============  ===============================  ==========================================  ===============
+kind, scope      what it holds                    implementation                              secuav-attack
+===============  ===============================  ==========================================  ===============
+``attack``       the active attack profile        :class:`~mitm_proxy.stages.attack_slot.     ``apply``,
+vehicle                                           AttackSlot`                                 ``clear``
+``attack/mode``  the attack stage on or bypassed  :class:`ModeSwitch`                         ``mode``
+vehicle
+``secure``       the secure stage's estimator     :class:`~mitm_proxy.stages.secure.stage.    ``secure``
+vehicle                                           SecureSlot`, :class:`NoSecure` (no
+                                                  scenario)
+``routes``       the endpoints' routing rules     :class:`RoutesSwitch`                       ``routes``
+proxy
+===============  ===============================  ==========================================  ===============
 
-The attack switch is :class:`~mitm_proxy.stages.attack_slot.AttackSlot`, the secure one
-:class:`~mitm_proxy.stages.secure.stage.SecureSlot` (:class:`NoSecure` where the proxy has
-no scenario); the mode and routes switches live here. Each answers on the
-retained ``.../<kind>/state`` next to its ``set`` topic (a proxy-wide switch on
-``secuav/proxy/<instance>/<kind>/state``) with its payload model of
-:mod:`secuav_common.controlplane.payloads`.
+A vehicle switch is set on ``secuav/v<N>/<kind>/set``, a proxy-wide one on
+``secuav/proxy/<kind>/set`` (every proxy) or ``secuav/proxy/<instance>/<kind>/set``.
+Each answers on the retained ``.../<kind>/state`` next to its ``set`` topic (a
+proxy-wide switch on ``secuav/proxy/<instance>/<kind>/state``) with its spec's
+state model.
 
-:class:`Controls` is the registry the proxy fills once and the MQTT session
-(:mod:`mitm_proxy.control.plane`) dispatches into; it is sans-I/O, so tests drive
-it directly.
+:func:`build_controls` fills the registry (:class:`Controls`) from the declared
+switches, calling each spec's factory for every link (or once, for a proxy-wide
+switch) with what the proxy holds (:class:`~mitm_proxy.control.switch.SwitchHost`);
+a factory that returns ``None`` leaves that switch out there. The MQTT session
+(:mod:`mitm_proxy.control.plane`) dispatches into the registry; it is sans-I/O,
+so tests drive it directly.
 """
 
 from __future__ import annotations
@@ -38,11 +46,15 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import ValidationError
 
-from mitm_proxy.control.switch import Switch
+from mitm_proxy.control.switch import Switch, SwitchHost
 from mitm_proxy.net.rules import NO_RULES, EndpointRules
 from mitm_proxy.stages.attack import AttackStage
 from mitm_proxy.stages.attack_slot import AttackSlot
+from secuav_common.controlplane import switches as declared
 from secuav_common.controlplane.payloads import ModeState, RequestError, RoutesState, SecureState
+from secuav_common.controlplane.switches import mode as mode_spec
+from secuav_common.controlplane.switches import routes as routes_spec
+from secuav_common.controlplane.switches import secure as secure_spec
 from secuav_common.controlplane.topics import (
     ANY,
     INSTANCE_RE,
@@ -78,9 +90,7 @@ class ModeSwitch(Switch[ModeState]):
     (``--attack bypass`` at start is :meth:`set` too).
     """
 
-    kind = "attack/mode"
-    state_model = ModeState
-    bare_words = frozenset(m.encode() for m in MODES)
+    spec = mode_spec.SPEC
 
     def __init__(self, sysid: int, stage: AttackStage, on: bool | None = None) -> None:
         super().__init__()
@@ -89,6 +99,17 @@ class ModeSwitch(Switch[ModeState]):
         if on is not None:
             stage.enabled = on
         self._since = time.time()
+
+    @classmethod
+    def build(cls, host: SwitchHost, sysid: int | None) -> ModeSwitch | None:
+        """The link's mode switch (the proxy makes it with the stage, for ``--attack``), else one for its
+        attack stage; none where the link has no stage."""
+        if sysid is None:
+            return None
+        parts = host.links[sysid]
+        if parts.mode is not None:
+            return parts.mode
+        return None if parts.stage is None else cls(sysid, parts.stage)
 
     def set(self, on: bool, request_id: str | None = None, source: str = "<app>") -> ModeState:
         return self.handle("on" if on else "bypass", request_id, source)
@@ -108,9 +129,7 @@ class ModeSwitch(Switch[ModeState]):
 class NoSecure(Switch[SecureState]):
     """``secure/set`` on a link without a secure stage (no ``--scenario``): every request is refused, with why."""
 
-    kind = "secure"
-    state_model = SecureState
-    bare_words = frozenset({b"off"})
+    spec = secure_spec.SPEC
 
     def __init__(self, sysid: int) -> None:
         super().__init__()
@@ -123,6 +142,14 @@ class NoSecure(Switch[SecureState]):
         return {"sysid": self.sysid, "available": False, "estimator": None}
 
 
+def secure_switch(host: SwitchHost, sysid: int | None) -> Switch[SecureState] | None:
+    """The link's secure slot (made with the link when there is a scenario), else :class:`NoSecure`."""
+    if sysid is None:
+        return None
+    slot = host.links[sysid].secure
+    return slot if slot is not None else NoSecure(sysid)
+
+
 class RoutesSwitch(Switch[RoutesState]):
     """``routes/set``: new rules for named endpoints, all checked before any is installed.
 
@@ -133,15 +160,18 @@ class RoutesSwitch(Switch[RoutesState]):
     keep their rules.
     """
 
-    kind = "routes"
-    scope = "proxy"
-    state_model = RoutesState
+    spec = routes_spec.SPEC
 
     def __init__(self, instance: str, endpoints: Mapping[str, BaseEndpoint]) -> None:
         super().__init__()
         self.instance = instance
         self.endpoints = dict(endpoints)  # name -> BaseEndpoint
         self._since = time.time()
+
+    @classmethod
+    def build(cls, host: SwitchHost, sysid: int | None) -> RoutesSwitch | None:
+        """The process's routes; none where there are no endpoints to route (a registry built for tests)."""
+        return cls(host.instance, host.endpoints) if host.endpoints else None
 
     def _find(self, key: str) -> BaseEndpoint:
         ep = self.endpoints.get(key)
@@ -264,20 +294,49 @@ class Controls:
         return None if control is None else Target(control, parsed.with_verb("state"))
 
 
+def build_controls(host: SwitchHost) -> Controls:
+    """The registry of every declared switch: each spec's factory, for every link (in sysid order) or, for a
+    proxy-wide switch, once."""
+    controls = Controls(host.instance)
+    for spec in declared.specs():
+        factory = spec.load()
+        if spec.scope == "proxy":
+            switch = factory(host, None)
+            if switch is not None:
+                controls.add(switch)
+            continue
+        for sysid in sorted(host.links):
+            switch = factory(host, sysid)
+            if switch is not None:
+                controls.add(switch, sysid)
+    return controls
+
+
+@dataclass(slots=True)
+class _Link:
+    sysid: int
+    slot: AttackSlot
+    stage: AttackStage | None = None
+    mode: ModeSwitch | None = None
+    secure: SecureSlot | None = None
+
+
 def vehicle_controls(
     instance: str,
     slots: Mapping[int, AttackSlot],
     modes: Mapping[int, ModeSwitch | AttackStage] | None = None,
     secure: Mapping[int, SecureSlot] | None = None,
 ) -> Controls:
-    """The registry for a set of links: attack on every slot, mode where there is a stage (or its switch),
-    and secure (:class:`NoSecure`, refusing every request with the reason, on a link without a secure slot)."""
-    controls = Controls(instance)
+    """The registry for a set of links without endpoints (tests, tools): :func:`build_controls` over the
+    attack slots, the mode switches or attack stages where given, and the secure slots (:class:`NoSecure`,
+    refusing every request with the reason, on a link without one)."""
+    links: dict[int, _Link] = {}
     for sysid, slot in slots.items():
-        controls.add(slot, sysid)
         mode = None if modes is None else modes.get(sysid)
-        if mode is not None:
-            controls.add(mode if isinstance(mode, ModeSwitch) else ModeSwitch(sysid, mode), sysid)
-        secure_slot = None if secure is None else secure.get(sysid)
-        controls.add(secure_slot if secure_slot is not None else NoSecure(sysid), sysid)
-    return controls
+        links[sysid] = _Link(
+            sysid, slot,
+            stage=mode.stage if isinstance(mode, ModeSwitch) else mode,
+            mode=mode if isinstance(mode, ModeSwitch) else None,
+            secure=None if secure is None else secure.get(sysid),
+        )  # fmt: skip
+    return build_controls(SwitchHost(instance, links))

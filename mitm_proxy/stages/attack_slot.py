@@ -19,8 +19,9 @@ from typing import Any, NamedTuple
 from attack_profiles.control import profile_from_payload
 from attack_profiles.engine import Engine
 from attack_profiles.profile import Profile
-from mitm_proxy.control.switch import Switch
+from mitm_proxy.control.switch import Switch, SwitchHost
 from secuav_common.controlplane.payloads import AttackState
+from secuav_common.controlplane.switches.attack import SPEC
 from secuav_common.controlplane.topics import vehicle_topic
 from secuav_common.scenario import Scenario
 
@@ -39,8 +40,7 @@ class _Built(NamedTuple):
 class AttackSlot(Switch[AttackState]):
     """Active profile of one link (one vehicle)."""
 
-    kind = "attack"
-    state_model = AttackState
+    spec = SPEC
 
     def __init__(self, sysid: int, scenario: Scenario | None = None, seed: int = 0) -> None:
         super().__init__()
@@ -50,6 +50,11 @@ class AttackSlot(Switch[AttackState]):
         self.engine: Engine | None = None
         self._hash: str | None = None  # of the engine's profile, kept with it (states are built 5 times a second)
         self._since: float | None = None
+
+    @classmethod
+    def build(cls, host: SwitchHost, sysid: int | None) -> AttackSlot | None:
+        """The link's slot: the proxy made it with the link, since the attack stage reads it."""
+        return None if sysid is None else host.links[sysid].slot
 
     @property
     def message_ids(self) -> frozenset[int]:

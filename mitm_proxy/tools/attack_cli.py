@@ -1,17 +1,20 @@
-"""``secuav-attack apply|clear|status|mode|secure|routes``: the live subcommands, over MQTT.
+"""``secuav-attack status`` and every runtime switch's verbs (``apply``, ``clear``, ``mode``, ``secure``,
+``routes``): the live subcommands, over MQTT.
 
 The offline subcommands and every parser live in :mod:`attack_profiles.cli`;
-this module plugs in the three that talk to a running proxy. ``apply`` checks
-the profile here first (a typo fails at once, with the file and field named),
-sends the resolved profile with a fresh ``request_id`` leading the JSON, and
-waits for the ``attack/state`` that carries that id: the proxy's own verdict,
-not just the broker's receipt.
+each verb is declared with its switch (``secuav_common/controlplane/switches/``:
+its arguments, the request it sends, the line it prints), and this module runs
+any of them the same way: the request is built and checked here first (a typo
+fails at once, with the file and field named), sent with a fresh
+``request_id`` leading the JSON, and the command waits for the ``.../state``
+that carries that id: the proxy's own verdict, not just the broker's receipt.
 
-Without ``--vehicle`` the command goes to every vehicle that has a retained
-``attack/state`` on the broker, i.e. every link of the running proxies.
-``status`` lists every proxy instance on the broker and its vehicles
-(``--watch``: a live table); ``routes show|set`` reads and changes one
-instance's per-endpoint rules.
+A vehicle switch's verb without ``--vehicle`` goes to every vehicle that has
+a retained state of that switch on the broker (else an ``attack/state``), i.e.
+every link of the running proxies. A proxy-wide switch's verb has ``show``
+(``routes show``) and ``set`` actions on one instance (``--instance`` when
+several are online). ``status`` lists every proxy instance on the broker and
+its vehicles (``--watch``: a live table).
 
 Exit codes: 0 accepted; 1 bad input or rejected by the proxy (the reason on
 stderr); 2 usage; 3 no broker, no proxy, or no acknowledgement in time.
@@ -28,15 +31,14 @@ import sys
 import time
 import uuid
 from collections.abc import Awaitable, Callable, Sequence
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 from attack_profiles import cli as profiles_cli
 from mitm_proxy.tools.board import Board
 from secuav_common.broker import read_secret
+from secuav_common.controlplane import switches
 from secuav_common.controlplane.address import parse_broker_url
-from secuav_common.controlplane.payloads import MAX_PAYLOAD_BYTES, request_bytes
 from secuav_common.controlplane.session import Client, MqttError
 from secuav_common.controlplane.session import Session as MqttSession
 from secuav_common.controlplane.topics import ANY, INSTANCES_ONLINE, PROXY_ONLINE, proxy_topic, vehicle_topic
@@ -56,7 +58,8 @@ def add_options(command: str, parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--username", metavar="NAME", help="broker user (or in the URL: mqtt://NAME@HOST)")
     parser.add_argument("--password-file", metavar="F", type=Path,
                         help="broker password from F (mode 600); SECUAV_BROKER_PASSWORD works too")  # fmt: skip
-    if command in ("status", "routes"):
+    found = switches.spec_for(command)
+    if command == "status" or (found is not None and found[0].scope == "proxy"):
         parser.add_argument("--json", action="store_true", help="print what the broker holds as one JSON document")
     if command == "status":
         parser.add_argument("--watch", action="store_true", help="a live table, redrawn until Ctrl-C")
@@ -114,26 +117,16 @@ def _online(board: Board) -> str:
     return "online" if value is True else "offline" if value is False else "unknown"
 
 
-def _attack_verdict(sysid: int, state: dict[str, Any]) -> str:
-    if state.get("profile") is None:
-        return f"ok: v{sysid} cleared"
-    return f"ok: v{sysid} {state['profile']} (hash {str(state.get('hash'))[:12]})"
-
-
 async def _request(
-    client: Client,
-    board: Board,
-    args: argparse.Namespace,
-    body: Any,
-    leaf: str = "attack",
-    verdict: Callable[[int, dict[str, Any]], str] = _attack_verdict,
+    client: Client, board: Board, args: argparse.Namespace, spec: switches.SwitchSpec, verb: switches.Verb, body: Any
 ) -> int:
-    """Send ``body`` to each target vehicle's ``<leaf>/set`` and report each verdict; the worst exit code wins."""
+    """Send ``body`` to each target vehicle's ``<kind>/set`` and report each verdict; the worst exit code wins."""
+    leaf = spec.kind
     if args.vehicle is not None:
         vehicles = [args.vehicle]
     else:
         await board.settle(args.timeout)
-        vehicles = board.vehicles(f"{leaf}/state") or board.vehicles()
+        vehicles = board.vehicles(spec.state_leaf) or board.vehicles()
         if not vehicles:
             print(
                 f"secuav-attack: no proxy on the broker at {args.broker} (no retained "
@@ -158,50 +151,20 @@ async def _request(
             print(f"secuav-attack: v{sysid}: rejected: {state.get('error')}", file=sys.stderr)
             worst = max(worst, EXIT_REJECTED)
         else:
-            print(verdict(sysid, state))
+            print(verb.done(f"v{sysid}", state, args))
     return worst
 
 
-def cmd_apply(args: argparse.Namespace) -> int:
-    profile = profiles_cli._resolve(args.profile, profiles_cli._params(args.param))
-    body = json.loads(profile.canonical_json())
-    size = len(request_bytes(body, uuid.uuid4().hex))
-    if size > MAX_PAYLOAD_BYTES:
-        raise InputError(args.profile, "", size, f"the proxy accepts profiles up to {MAX_PAYLOAD_BYTES} bytes of JSON")
-    topics = [vehicle_topic(ANY, "attack", "state"), PROXY_ONLINE]
-    return _session(args, topics, lambda c, b: _request(c, b, args, body))
-
-
-def cmd_clear(args: argparse.Namespace) -> int:
-    topics = [vehicle_topic(ANY, "attack", "state"), PROXY_ONLINE]
-    return _session(args, topics, lambda c, b: _request(c, b, args, None))
-
-
-def cmd_mode(args: argparse.Namespace) -> int:
-    """``mode on|bypass``: switch the attack stage, keeping its profile."""
-    topics = [vehicle_topic(ANY, "attack/mode", "state"), vehicle_topic(ANY, "attack", "state"), PROXY_ONLINE]
-    return _session(args, topics, lambda c, b: _request(
-        c, b, args, {"mode": args.mode}, "attack/mode", lambda s, st: f"ok: v{s} attack {st.get('mode')}"
-    ))  # fmt: skip
-
-
-def cmd_secure(args: argparse.Namespace) -> int:
-    """``secure NAME|off``: choose the secure stage's estimator (with --param k=v), or bypass it."""
-    body: dict[str, Any] = {"estimator": args.estimator}
-    if args.param:
-        body["params"] = profiles_cli._params(args.param)
-
-    def verdict(sysid: int, state: dict[str, Any]) -> str:
-        return f"ok: v{sysid} secure {state.get('estimator') or 'off'}"
-
-    topics = [vehicle_topic(ANY, "secure", "state"), vehicle_topic(ANY, "attack", "state"), PROXY_ONLINE]
-    return _session(args, topics, lambda c, b: _request(c, b, args, body, "secure", verdict))
-
-
-def _since(epoch_s: Any) -> str:
-    if not isinstance(epoch_s, int | float):
-        return "-"
-    return datetime.fromtimestamp(epoch_s, UTC).strftime("%Y-%m-%d %H:%M:%SZ")
+def run_verb(spec: switches.SwitchSpec, verb: switches.Verb, args: argparse.Namespace) -> int:
+    """Any switch's verb: build (and check) its request before the broker is involved, then send it."""
+    if spec.scope == "proxy":
+        body = verb.request(args) if args.action == "set" else None
+        topics = [proxy_topic(ANY, spec.kind, "state"), INSTANCES_ONLINE]
+        return _session(args, topics, lambda c, b: _proxy_verb(c, b, args, spec, verb, body))
+    body = verb.request(args)  # InputError -> exit 1, naming the file or option
+    topics = list(dict.fromkeys([vehicle_topic(ANY, spec.kind, "state"), vehicle_topic(ANY, "attack", "state"),
+                                 PROXY_ONLINE]))  # fmt: skip
+    return _session(args, topics, lambda c, b: _request(c, b, args, spec, verb, body))
 
 
 def _stats_line(stats: dict[str, Any]) -> str:
@@ -219,15 +182,20 @@ def _stats_line(stats: dict[str, Any]) -> str:
     return "; ".join(parts) or json.dumps(stats, separators=(",", ":"))
 
 
-LEAVES = ("attack/state", "attack/mode/state", "secure/state", "stats")
-STATUS_TOPICS = [*(vehicle_topic(ANY, leaf) for leaf in LEAVES), PROXY_ONLINE, INSTANCES_ONLINE]
+def _leaves() -> list[str]:
+    """What ``status`` reads of each vehicle: every vehicle switch's state, then the stats."""
+    return [*(spec.state_leaf for spec in switches.specs() if spec.scope == "vehicle"), "stats"]
+
+
+def _status_topics() -> list[str]:
+    return [*(vehicle_topic(ANY, leaf) for leaf in _leaves()), PROXY_ONLINE, INSTANCES_ONLINE]
 
 
 def _report(board: Board, vehicles: list[int]) -> dict[str, Any]:
     """What ``status --json`` prints: the proxy instances and, per vehicle, every state the broker holds."""
     report: dict[str, Any] = {"online": board.latest.get(PROXY_ONLINE), "instances": board.instances(), "vehicles": {}}
     for sysid in vehicles:
-        report["vehicles"][f"v{sysid}"] = {leaf: board.latest.get(vehicle_topic(sysid, leaf)) for leaf in LEAVES}
+        report["vehicles"][f"v{sysid}"] = {leaf: board.latest.get(vehicle_topic(sysid, leaf)) for leaf in _leaves()}
     return report
 
 
@@ -238,7 +206,7 @@ def _instance_lines(board: Board) -> list[str]:
         vehicles = [v for v in rec.get("vehicles", []) if isinstance(v, int)]
         where = f" pid {rec['pid']} on {rec.get('host')}" if rec.get("pid") else ""
         state = "online" if rec.get("online") else "offline"
-        lines.append(f"proxy {name}: {state} since {_since(rec.get('since'))}{where}; "
+        lines.append(f"proxy {name}: {state} since {switches.since_text(rec.get('since'))}{where}; "
                      f"vehicles {', '.join(f'v{v}' for v in vehicles) or 'none'}")  # fmt: skip
         if rec.get("online"):
             for v in vehicles:
@@ -267,20 +235,11 @@ async def _status(board: Board, args: argparse.Namespace) -> int:
         return EXIT_OK
     for line in _instance_lines(board):
         print(line)
+    printers = [spec.status for spec in switches.specs() if spec.scope == "vehicle" and spec.status is not None]
     for key, entry in report["vehicles"].items():
-        attack = entry["attack/state"] or {}
-        active = f"{attack.get('profile')} (hash {str(attack.get('hash'))[:12]})" if attack.get("profile") else "none"
-        last = "ok" if attack.get("ok") else f"rejected: {attack.get('error')}"
-        mode = (entry["attack/mode/state"] or {}).get("mode")
-        bypass = " (bypassed)" if mode == "bypass" else ""
-        print(f"{key}: attack {active}{bypass} since {_since(attack.get('since'))}; last request {last}")
-        secure = entry["secure/state"]
-        if isinstance(secure, dict):
-            if secure.get("available") is False:
-                print(f"{key}: secure not available in this proxy")
-            else:
-                note = "" if secure.get("ok") else f"; last request rejected: {secure.get('error')}"
-                print(f"{key}: secure {secure.get('estimator') or 'off'}{note}")
+        for status_lines in printers:
+            for line in status_lines(key, entry):
+                print(line)
         if isinstance(entry["stats"], dict):
             print(f"{key}: {_stats_line(entry['stats'])}")
     return EXIT_OK
@@ -290,21 +249,18 @@ def cmd_status(args: argparse.Namespace) -> int:
     if args.watch:
         from mitm_proxy.tools.watch import watch
 
-        return _session(args, STATUS_TOPICS, lambda c, b: watch(b, args))
-    return _session(args, STATUS_TOPICS, lambda c, b: _status(b, args))
+        return _session(args, _status_topics(), lambda c, b: watch(b, args))
+    return _session(args, _status_topics(), lambda c, b: _status(b, args))
 
 
-ROUTES_TOPICS = [proxy_topic(ANY, "routes", "state"), INSTANCES_ONLINE]
+def _states_of(board: Board, kind: str) -> dict[str, dict[str, Any]]:
+    """Instance -> its retained ``<kind>/state``."""
+    return board.by_instance(kind, "state")
 
 
-def _routes_of(board: Board) -> dict[str, dict[str, Any]]:
-    """Instance -> its retained ``routes/state``."""
-    return board.by_instance("routes", "state")
-
-
-def _pick_instance(board: Board, args: argparse.Namespace) -> str | None:
-    """The instance a routes command addresses; prints why when there is none or the choice is ambiguous."""
-    known = _routes_of(board)
+def _pick_instance(board: Board, args: argparse.Namespace, kind: str) -> str | None:
+    """The instance a proxy-wide verb addresses; prints why when there is none or the choice is ambiguous."""
+    known = _states_of(board, kind)
     online = [n for n in board.online_instances() if n in known] or list(known)
     if args.instance is not None:
         if args.instance in known:
@@ -315,7 +271,7 @@ def _pick_instance(board: Board, args: argparse.Namespace) -> str | None:
     if len(online) == 1:
         return online[0]
     if not online:
-        where = proxy_topic(ANY, "routes", "state")
+        where = proxy_topic(ANY, kind, "state")
         print(f"secuav-attack: no proxy on the broker at {args.broker} (no retained {where})", file=sys.stderr)
     else:
         print(f"secuav-attack: {len(online)} proxies are online ({', '.join(online)}): choose one with --instance",
@@ -323,65 +279,44 @@ def _pick_instance(board: Board, args: argparse.Namespace) -> str | None:
     return None
 
 
-def _print_routes(name: str, state: dict[str, Any]) -> None:
-    from mitm_proxy.net.rules import EndpointRules, rules_to_query
-
-    print(f"proxy {name}:")
-    for ep_name, ep in (state.get("endpoints") or {}).items():
-        try:
-            spelled = rules_to_query(EndpointRules.model_validate(ep.get("rules") or {})) or "no rules"
-        except ValueError:
-            spelled = json.dumps(ep.get("rules"))
-        print(f"  {ep_name:<16} {ep.get('role', '?'):<7} {ep.get('url')}  {spelled}")
-
-
-async def _routes(client: Client, board: Board, args: argparse.Namespace) -> int:
+async def _proxy_verb(
+    client: Client, board: Board, args: argparse.Namespace, spec: switches.SwitchSpec, verb: switches.Verb, body: Any
+) -> int:
+    """``<verb> show`` (one instance's state, or every one's with ``--json``) or ``<verb> set ...``."""
     await board.settle(args.timeout)
-    if args.routes_action == "show" and args.json and args.instance is None:
-        print(json.dumps(_routes_of(board), indent=2))
+    states = _states_of(board, spec.kind)
+    if args.action == "show" and args.json and args.instance is None:
+        print(json.dumps(states, indent=2))
         return EXIT_OK
-    name = _pick_instance(board, args)
+    name = _pick_instance(board, args, spec.kind)
     if name is None:
-        return EXIT_UNREACHABLE if not _routes_of(board) or args.instance else EXIT_USAGE
-    if args.routes_action == "show":
-        state = _routes_of(board)[name]
-        if args.json:
-            print(json.dumps(state, indent=2))
+        return EXIT_UNREACHABLE if not states or args.instance else EXIT_USAGE
+    if args.action == "show":
+        if args.json or verb.show is None:
+            print(json.dumps(states[name], indent=2))
         else:
-            _print_routes(name, state)
+            for line in verb.show(name, states[name]):
+                print(line)
         return EXIT_OK
-    rules = None if args.rules.strip().lower() in ("none", "") else _local_rules(args.rules)
-    body = {"endpoints": {args.endpoint: rules}}
-    (state,) = await board.acks.request_all(client, [(proxy_topic(name, "routes", "set"), body)], args.timeout)
+    (state,) = await board.acks.request_all(client, [(proxy_topic(name, spec.kind, "set"), body)], args.timeout)
     if state is None:
         print(f"secuav-attack: {name}: no acknowledgement within {args.timeout:g} s", file=sys.stderr)
         return EXIT_UNREACHABLE
     if not state.get("ok"):
         print(f"secuav-attack: {name}: rejected: {state.get('error')}", file=sys.stderr)
         return EXIT_REJECTED
-    print(f"ok: {name} {args.endpoint} {'no rules' if rules is None else args.rules}")
+    print(verb.done(name, state, args))
     return EXIT_OK
 
 
-def _local_rules(query: str) -> dict[str, Any]:
-    """The rules checked here first, as the proxy will check them (a typo fails before anything is sent)."""
-    from mitm_proxy.net.rules import rules_from_query
-
-    return rules_from_query(query, "RULES").model_dump(exclude_defaults=True)
-
-
-def cmd_routes(args: argparse.Namespace) -> int:
-    """``routes show`` / ``routes set ENDPOINT RULES``: one instance's per-endpoint rules."""
-    if args.routes_action == "set" and args.rules.strip().lower() not in ("none", ""):
-        _local_rules(args.rules)  # InputError -> exit 1 with the option named, before any broker is involved
-    return _session(args, ROUTES_TOPICS, lambda c, b: _routes(c, b, args))
+def _verb_handler(spec: switches.SwitchSpec, verb: switches.Verb) -> Callable[[argparse.Namespace], int]:
+    return lambda args: run_verb(spec, verb, args)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     return profiles_cli.main(
         argv,
-        live_handlers={"apply": cmd_apply, "clear": cmd_clear, "status": cmd_status, "mode": cmd_mode,
-                       "secure": cmd_secure, "routes": cmd_routes},
+        live_handlers={"status": cmd_status, **{v.name: _verb_handler(s, v) for s, v in switches.verbs()}},
         live_options=add_options,
     )
 

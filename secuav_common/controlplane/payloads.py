@@ -194,16 +194,13 @@ class ReadingsMessage(_Payload):
     position: dict[str, list[float | None] | None] | None = None
 
 
-# (scope, leaf, verb) -> what the message holds; a leaf not listed here is not checked.
+# (scope, leaf, verb) -> what the message holds; a leaf not listed here is not checked. A switch's state
+# (and request, where it has a model) is the switch's own: secuav_common/controlplane/switches/.
 MODELS: dict[tuple[str, str, str | None], Any] = {
-    ("vehicle", "attack", "state"): AttackState,
-    ("vehicle", "attack/mode", "state"): ModeState,
-    ("vehicle", "secure", "state"): SecureState,
     ("vehicle", "stats", None): LinkStatsMessage,
     ("vehicle", "estimate", None): EstimateMessage,
     ("vehicle", "truth", None): Truth,
     ("vehicle", "readings", None): ReadingsMessage,
-    ("proxy", "routes", "state"): RoutesState,
     ("proxy", "online", None): ProxyOnline | bool,  # the instance record; the proxy-wide flag is a bare bool
     ("console", "online", None): ConsoleOnline,
 }
@@ -218,6 +215,12 @@ def model_for(topic: Topic) -> Any | None:
     """The model of a parsed topic's payload, or ``None`` when the grammar gives it none."""
     if topic.scope == "proxy" and topic.leaf == "online" and topic.key is None:
         return bool
+    if topic.verb is not None:
+        from secuav_common.controlplane.switches import find  # the switches import the models above
+
+        spec = find(topic.scope, topic.leaf)
+        if spec is not None:
+            return spec.state_model if topic.verb == "state" else spec.request_model
     return MODELS.get((topic.scope, topic.leaf, topic.verb))
 
 

@@ -27,8 +27,8 @@ CONSOLE_KEY = "console"
 VERBS = ("set", "state")
 ANY = "+"  # one topic level, any value (MQTT wildcard)
 
-# Vehicle leaves the proxy and the simulator publish; switch leaves also take the verbs.
-SWITCHES = ("attack", "attack/mode", "secure")
+# Vehicle leaves the proxy and the simulator publish as streams; the switches' leaves, which also take the
+# verbs, are declared by the switches themselves (secuav_common/controlplane/switches/).
 STREAMS = ("stats", "estimate", "truth", "readings")
 INSTANCE_RE = re.compile(r"\A[A-Za-z0-9_.-]{1,64}\Z")
 _VEHICLE_KEY = re.compile(r"\Av(\d{1,3})\Z")

@@ -67,6 +67,7 @@ from mitm_proxy.stages.secure.report import Counters, estimate_payload, stage_st
 from mitm_proxy.stages.secure.substitute import FLAGGED_QUALITY, Substitution
 from mitm_proxy.stages.secure.worker import Stepper, StepResult
 from secuav_common.controlplane.payloads import SecureState
+from secuav_common.controlplane.switches.secure import SPEC
 from secuav_common.loading import InputError
 from secuav_common.scenario import Scenario
 
@@ -237,9 +238,7 @@ class SecureStage:
 class SecureSlot(Switch[SecureState]):
     """The secure stage of one link and the one door for changing it (``--secure``, config, MQTT): ``secure``."""
 
-    kind = "secure"
-    state_model = SecureState
-    bare_words = frozenset({b"off"})
+    spec = SPEC
 
     def __init__(
         self,

@@ -1,0 +1,61 @@
+"""``attack``: the active attack profile of one link (``secuav/v<N>/attack/set``, retained ``.../state``).
+
+The proxy's side is :class:`mitm_proxy.stages.attack_slot.AttackSlot`, which the attack stage reads.
+``secuav-attack apply F`` checks the profile here first (a typo fails at once, with the file and field
+named) and sends it resolved; ``clear`` sends ``null``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import uuid
+from typing import Any
+
+from secuav_common.controlplane.payloads import MAX_PAYLOAD_BYTES, AttackState, request_bytes
+from secuav_common.controlplane.switches import State, SwitchSpec, Verb, register, since_text
+from secuav_common.loading import InputError
+
+
+def _apply_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("profile", metavar="F", help="profile file (YAML/JSON) or library name")
+    parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                        help="override a profile parameter")  # fmt: skip
+
+
+def _apply_request(args: argparse.Namespace) -> dict[str, Any]:
+    from attack_profiles.resolve import parse_params, resolve_profile  # the profile grammar: only when a verb runs
+
+    profile = resolve_profile(args.profile, parse_params(args.param), "profile")
+    body: dict[str, Any] = json.loads(profile.canonical_json())
+    size = len(request_bytes(body, uuid.uuid4().hex))
+    if size > MAX_PAYLOAD_BYTES:
+        raise InputError(args.profile, "", size, f"the proxy accepts profiles up to {MAX_PAYLOAD_BYTES} bytes of JSON")
+    return body
+
+
+def _done(key: str, state: State, args: argparse.Namespace) -> str:
+    if state.get("profile") is None:
+        return f"ok: {key} cleared"
+    return f"ok: {key} {state['profile']} (hash {str(state.get('hash'))[:12]})"
+
+
+def _status(key: str, states: dict[str, State | None]) -> list[str]:
+    attack = states.get("attack/state") or {}
+    active = f"{attack.get('profile')} (hash {str(attack.get('hash'))[:12]})" if attack.get("profile") else "none"
+    last = "ok" if attack.get("ok") else f"rejected: {attack.get('error')}"
+    bypass = " (bypassed)" if (states.get("attack/mode/state") or {}).get("mode") == "bypass" else ""
+    return [f"{key}: attack {active}{bypass} since {since_text(attack.get('since'))}; last request {last}"]
+
+
+SPEC = register(SwitchSpec(
+    kind="attack",
+    scope="vehicle",
+    state_model=AttackState,
+    implementation="mitm_proxy.stages.attack_slot:AttackSlot.build",
+    verbs=(
+        Verb("apply", "activate a profile on a running proxy", _done, _apply_arguments, _apply_request),
+        Verb("clear", "remove the active profile on a running proxy", _done),
+    ),
+    status=_status,
+))  # fmt: skip

@@ -1,0 +1,55 @@
+"""``secure``: the secure stage's estimator on one link (``secuav/v<N>/secure/set``, retained ``.../state``).
+
+The proxy's side is :class:`mitm_proxy.stages.secure.stage.SecureSlot` where the proxy has a scenario,
+and :class:`mitm_proxy.control.switches.NoSecure` (every request refused, saying why) where it has none.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from secuav_common.controlplane.payloads import SecureState
+from secuav_common.controlplane.switches import State, SwitchSpec, Verb, register
+
+
+def _arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("estimator", metavar="NAME",
+                        help="secekf, secopt, recap, rarse, l1, l0, milp, ekf, ls, a plugin's name (secuav-plugins), "
+                        "package.module:Class, or off")  # fmt: skip
+    parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="estimator parameter")
+
+
+def _request(args: argparse.Namespace) -> dict[str, Any]:
+    body: dict[str, Any] = {"estimator": args.estimator}
+    if args.param:
+        from attack_profiles.resolve import parse_params  # NAME=VALUE as --param reads it everywhere
+
+        body["params"] = parse_params(args.param)
+    return body
+
+
+def _done(key: str, state: State, args: argparse.Namespace) -> str:
+    return f"ok: {key} secure {state.get('estimator') or 'off'}"
+
+
+def _status(key: str, states: dict[str, State | None]) -> list[str]:
+    secure = states.get("secure/state")
+    if not isinstance(secure, dict):
+        return []
+    if secure.get("available") is False:
+        return [f"{key}: secure not available in this proxy"]
+    note = "" if secure.get("ok") else f"; last request rejected: {secure.get('error')}"
+    return [f"{key}: secure {secure.get('estimator') or 'off'}{note}"]
+
+
+SPEC = register(SwitchSpec(
+    kind="secure",
+    scope="vehicle",
+    state_model=SecureState,
+    implementation="mitm_proxy.control.switches:secure_switch",
+    verbs=(Verb("secure", "choose the secure stage's estimator on a running proxy, or 'off'",
+                _done, _arguments, _request),),
+    bare_words=frozenset({b"off"}),
+    status=_status,
+))  # fmt: skip
