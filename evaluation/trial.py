@@ -28,7 +28,7 @@ from estimators.base import Estimate, Estimator
 from estimators.models import AnchorRangesHeight, MeasurementModel
 from estimators.scenario_models import anchor_model, two_vehicle_model, wall_group_model
 from evaluation.streams import Leg, VehicleStream, fly
-from secuav_common.scenario import Scenario, WallDistanceTarget
+from secuav_common.scenario import Scenario, WallDistanceTarget, with_noise_scale
 from secuav_common.sensor_ids import anchor_sensor_id, peer_sensor_id
 
 RATE_HZ = 10.0
@@ -146,6 +146,7 @@ def run_trial(
     params: dict[str, Any] | None = None,
     dims: int = 3,
     variants: Variants | None = None,
+    noise_scale: float = 1.0,
 ) -> TrialResult:
     """Fly the scenario headless (seeded), attack its streams offline, run the estimators (with ``params``).
 
@@ -153,8 +154,12 @@ def run_trial(
     (over ``params``): a study's per-estimator grid, ``huber[huber_k=1.0]`` -> ``("huber", {"huber_k": 1.0})``.
 
     ``dims`` picks test case 1's model (``anchor_model``): 3 estimates the height with the laser as a
-    reading, 2 takes the laser's height as known (the seed's split)."""
-    streams = fly(scenario, seed, duration_s, RATE_HZ, leg)
+    reading, 2 takes the laser's height as known (the seed's split).
+
+    ``noise_scale``: the flight's range sensors are that much noisier than the scenario says, while the
+    estimators are still told the scenario's stds (a noise mismatch)."""
+    flown = scenario if noise_scale == 1.0 else with_noise_scale(scenario, noise_scale)
+    streams = fly(flown, seed, duration_s, RATE_HZ, leg)
     engine = None if profile is None else Engine(profile, seed=seed, scenario=scenario)
     return evaluate(scenario, streams, engine, names, params=params, dims=dims, variants=variants)
 

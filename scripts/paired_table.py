@@ -2,7 +2,7 @@
 
     .venv/bin/python scripts/paired_table.py out/motion-input [--metric rmse_m valid_max_error_m]
 
-For every cell group (attack, its parameters, leg, position) and every estimator variant (the estimator
+For every cell group (attack, its parameters, leg, position, noise scale) and every estimator variant (the estimator
 and its non-null estimator_params), each seed's figure minus the plain EKF's (defaults) on the same
 seed: the mean difference with a 95 % bootstrap interval, and on how many seeds the variant was worse.
 Metrics: ``rmse_m`` (every step), ``valid_max_error_m`` (the worst step claimed valid; the EKF claims
@@ -40,6 +40,7 @@ def table(rows: pd.DataFrame, metrics: list[str], baseline: str = "ekf") -> list
     rows["variant"] = rows.apply(_variant, axis=1)
     rows["group"] = (
         rows["attack"] + " " + rows["params"].fillna("") + " " + rows["leg"] + " " + rows["position"].fillna("")
+        + rows["noise_scale"].map(lambda k: "" if k == 1.0 else f" noise x{k:g}")
     )
     heads = " | ".join(f"{m} (variant) | {m} minus {baseline} [95% CI] (worse on)" for m in metrics)
     out = [f"| cell | variant | n | {heads} | claimed valid |", "|---|---|---|" + "---|---|" * len(metrics) + "---|"]

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
@@ -294,6 +294,25 @@ class Scenario(_Strict):
             if wall.name == name:
                 return wall
         raise KeyError(f"scenario {self.name!r} has no wall named {name!r}")
+
+
+def with_noise_scale(scenario: Scenario, scale: float) -> Scenario:
+    """``scenario`` with the noise std of every range sensor (rangefinders, UWB, inter-vehicle ranges) times
+    ``scale``: the flight of a noise-mismatch study, whose estimators are told the scenario's own stds."""
+    if not (scale > 0 and math.isfinite(scale)):
+        raise ValueError(f"noise scale {scale}: must be a positive number")
+    vehicles = []
+    for v in scenario.vehicles:
+        s = v.sensors
+        update: dict[str, Any] = {
+            "rangefinders": [r.model_copy(update={"noise_std_m": r.noise_std_m * scale}) for r in s.rangefinders]
+        }
+        for name in ("uwb", "inter_vehicle"):
+            radio = getattr(s, name)
+            if radio is not None:
+                update[name] = radio.model_copy(update={"noise_std_m": radio.noise_std_m * scale})
+        vehicles.append(v.model_copy(update={"sensors": s.model_copy(update=update)}))
+    return scenario.model_copy(update={"vehicles": vehicles})
 
 
 def _require_unique(values: list[object], where: str, field: str) -> None:

@@ -36,6 +36,7 @@ def base_row(cell: Cell, variant: Variant | str) -> dict[str, Any]:
         "mode": cell.mode,
         "leg": cell.leg,
         "position": as_json(None if cell.position is None else list(cell.position)),
+        "noise_scale": cell.noise_scale,
         "attack": cell.attack,
         "attack_hash": None if cell.profile is None else cell.profile.content_hash()[:16],
         "params": as_json(cell.params),
@@ -69,7 +70,7 @@ def run_offline(cell: Cell, variants: list[Variant] | list[str]) -> dict[str, di
         )  # fmt: skip
         return trial_rows(trial)
     trial = run_trial(cell.scenario, cell.profile, labels, cell.seed, cell.duration_s, cell.leg,
-                      cell.estimator_params, cell.dims, variants=own)  # fmt: skip
+                      cell.estimator_params, cell.dims, variants=own, noise_scale=cell.noise_scale)  # fmt: skip
     return trial_rows(trial)
 
 

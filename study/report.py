@@ -25,7 +25,7 @@ from study.store import load, saved_study
 
 CI_LEVEL = 0.95
 RESAMPLES = 2000
-GROUP = ["attack", "params", "leg", "position", "estimator"]
+GROUP = ["attack", "params", "leg", "position", "noise_scale", "estimator"]
 
 
 def mean_ci(values: Any) -> tuple[float | None, float | None, float | None, int]:
@@ -66,8 +66,13 @@ def _magnitude_axis(frame: pd.DataFrame) -> str | None:
     return None
 
 
-def _where(leg: str, position: str | None) -> str:
-    return f"leg {leg}" + (f", position {position}" if position else "")
+def _where(leg: str, position: str | None, noise_scale: float = 1.0) -> str:
+    noise = "" if noise_scale == 1.0 else f", range noise {noise_scale:g}x what the estimators are told"
+    return f"leg {leg}" + (f", position {position}" if position else "") + noise
+
+
+def _row_where(r: pd.Series) -> str:
+    return _where(r["leg"], r["position"] if isinstance(r["position"], str) else None, r["noise_scale"])
 
 
 def _mean_or_none(values: pd.Series, *, median: bool = False) -> float | None:
@@ -78,7 +83,7 @@ def _mean_or_none(values: pd.Series, *, median: bool = False) -> float | None:
 
 
 def summarise(frame: pd.DataFrame) -> pd.DataFrame:
-    """One row per (attack, params, leg, position, estimator) of the successful rows."""
+    """One row per (attack, params, leg, position, noise scale, estimator) of the successful rows."""
     out = []
     for key, g in frame.groupby(GROUP, dropna=False, sort=False):
         row = dict(zip(GROUP, key, strict=True))
@@ -104,8 +109,8 @@ def _attack_section(name: str, s: pd.DataFrame, closed_loop: bool) -> list[str]:
     offline = ["recall (all attacked readings)", "precision (readings named)", "detection delay [s] (detected/n)",
                "false alarms", "claimed valid", "RMSE when claimed valid [m]"]  # fmt: skip
     head += ["collided"] if closed_loop else offline
-    for (leg, pos), block in s.groupby(["leg", "position"], dropna=False, sort=False):
-        lines += [f"{_where(leg, pos if isinstance(pos, str) else None)}:", ""]
+    for (leg, pos, noise), block in s.groupby(["leg", "position", "noise_scale"], dropna=False, sort=False):
+        lines += [f"{_where(leg, pos if isinstance(pos, str) else None, noise)}:", ""]
         lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         block = block.assign(_x=[_x_value(p, axis) for p in block["params"]]).sort_values(["_x", "estimator"])
         for _, r in block.iterrows():
@@ -138,7 +143,7 @@ def _x_value(params: str | None, axis: str | None) -> float:
 
 def _table51(frame: pd.DataFrame) -> list[str]:
     lines = ["## Summary in the layout of the seed's Table 5.1", "",
-             "Pooled over magnitudes, positions, legs and seeds (successful rows only).", "",
+             "Pooled over magnitudes, positions, legs, noise scales and seeds (successful rows only).", "",
              "| attack | estimator | mean abs. error [m] | max abs. error [m] | time per step [ms] |",
              "|---|---|---|---|---|"]  # fmt: skip
     for (attack, est), g in frame.groupby(["attack", "estimator"], sort=False):
@@ -163,10 +168,10 @@ def _figures(out: Path, summary: pd.DataFrame) -> list[Path]:
         axis = _magnitude_axis(s)
         if axis is None:
             continue
-        places = list(s.groupby(["leg", "position"], dropna=False, sort=False))
+        places = list(s.groupby(["leg", "position", "noise_scale"], dropna=False, sort=False))
         width = max(6.5, 4.6 * len(places))
         fig, axes = plt.subplots(2, len(places), figsize=(width, 7), squeeze=False, sharex=True)
-        for col, ((leg, pos), block) in enumerate(places):
+        for col, ((leg, pos, noise), block) in enumerate(places):
             for est, e in block.groupby("estimator", sort=False):
                 e = e.assign(_x=[_x_value(p, axis) for p in e["params"]]).sort_values("_x")
                 for row, metric in enumerate(("rmse_m", "detection_delay_s")):
@@ -175,7 +180,7 @@ def _figures(out: Path, summary: pd.DataFrame) -> list[Path]:
                     line = ax.plot(e["_x"], y, marker="o", ms=3, lw=1.2, label=est)[0]
                     lo, hi = e[f"{metric}_lo"].astype(float), e[f"{metric}_hi"].astype(float)
                     ax.fill_between(e["_x"], lo, hi, color=line.get_color(), alpha=0.15, lw=0)
-            axes[0, col].set_title(_where(leg, pos if isinstance(pos, str) else None), fontsize=9)
+            axes[0, col].set_title(_where(leg, pos if isinstance(pos, str) else None, noise), fontsize=9)
             axes[0, col].set_ylabel("RMSE [m] (mean, 95% CI)")
             axes[1, col].set_ylabel("detection delay [s]")
             axes[1, col].set_xlabel(axis)
@@ -241,7 +246,7 @@ def write_report(out: Path) -> Path:
                       "Errors count only steps with an estimate; these groups lacked one at times:", ""]  # fmt: skip
             for _, r in partial.iterrows():
                 lines.append(f"- {r['estimator']} on {r['attack']} {r['params'] or ''} "
-                             f"({_where(r['leg'], r['position'] if isinstance(r['position'], str) else None)}): "
+                             f"({_row_where(r)}): "
                              f"estimate on {r['estimate_fraction']:.1%} of steps")  # fmt: skip
             lines.append("")
         clean = summary[summary["attack"] == "none"]
@@ -256,7 +261,7 @@ def write_report(out: Path) -> Path:
                       "| NIS / dof [95% CI] |",
                       "|---|---|---|---|---|---|---|"]  # fmt: skip
             for _, r in clean.iterrows():
-                where = _where(r["leg"], r["position"] if isinstance(r["position"], str) else None)
+                where = _row_where(r)
                 lines.append(f"| {r['estimator']} | {where} | {r['n']} | "
                              f"{_fmt(r['false_alarm_rate'], r['false_alarm_rate_lo'], r['false_alarm_rate_hi'])} | "
                              f"{_fmt(r['rmse_m'], r['rmse_m_lo'], r['rmse_m_hi'])} | "

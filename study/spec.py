@@ -115,6 +115,11 @@ class Study(_Strict):
     )  # fmt: skip
     seeds: int | list[int] = Field(description="a count (0..N-1) or an explicit list")
     attacks: list[AttackEntry] = Field(min_length=1)
+    noise_scales: list[PositiveFloat] = Field(
+        default_factory=lambda: [1.0], min_length=1,
+        description="offline flights: the range sensors' noise std as a multiple of what the estimators are told "
+        "(the scenario's); a grid axis, e.g. [1.0, 1.25, 1.5] for a noise mismatch",
+    )  # fmt: skip
     settle_s: PositiveFloat = Field(5.0, description="closed loop: hold before the attack and the scoring start")
     dims: Literal[2, 3] = Field(
         3, description="anchor scenarios: 3 = full position with the downward laser a reading; 2 = height known"
@@ -173,6 +178,10 @@ class Study(_Strict):
                 raise ValueError("recording: only offline studies read recorded ranges")
             if self.legs != ["hover"] or self.positions is not None:
                 raise ValueError("recording: the recording fixes the path, so leave legs and positions out")
+        if self.noise_scales != [1.0] and (self.recording is not None or self.mode != "offline"):
+            raise ValueError("noise_scales: only offline flights can be made noisier than their scenario says")
+        if len(set(self.noise_scales)) != len(self.noise_scales):
+            raise ValueError("noise_scales: without repeats")
         return self
 
     @model_validator(mode="after")
@@ -212,6 +221,7 @@ class Cell:
     estimator_params: dict[str, Any] = dataclasses.field(default_factory=dict)  # one grid point of the study's
     dims: int = 3  # test case 1's model (evaluation.trial.run_trial)
     recording: Any = None  # evaluation.recorded.Recorded: framed recorded streams instead of a flight
+    noise_scale: float = 1.0  # the flight's range noise over what the estimators are told (Study.noise_scales)
 
 
 def load_study(path: str | Path) -> Study:
@@ -336,8 +346,8 @@ def expand(study: Study, source: str) -> list[Cell]:
     cells: list[Cell] = []
     seen: set[str] = set()
     scenario_hash = hashlib.sha256(dump_json(scenario).encode()).hexdigest()[:16]
-    for (name, ref, values, profile), tuning, leg, (pos, scen), seed in itertools.product(
-        attacks, tunings, study.legs, variants, study.seed_list()
+    for (name, ref, values, profile), tuning, leg, (pos, scen), noise_scale, seed in itertools.product(
+        attacks, tunings, study.legs, variants, study.noise_scales, study.seed_list()
     ):
         key = cell_key(
             mode=study.mode, scenario=scenario_hash, duration_s=duration, leg=leg, position=pos,
@@ -347,12 +357,13 @@ def expand(study: Study, source: str) -> list[Cell]:
             # older rows must not pass for this model's. estimator_params only when set.
             dims=study.dims, **({"estimator_params": tuning} if tuning else {}),
             **({"recording": recording_hash} if recording_hash else {}),
+            **({"noise_scale": noise_scale} if noise_scale != 1.0 else {}),  # only when set: old keys stay
         )  # fmt: skip
         if key in seen:  # two attack entries that resolve to the same profile: one cell
             continue
         seen.add(key)
         cells.append(Cell(key, study.name, study.mode, scen, duration, leg, pos, name, ref, values, profile, seed,
-                          study.settle_s, tuning, study.dims, recording))  # fmt: skip
+                          study.settle_s, tuning, study.dims, recording, noise_scale))  # fmt: skip
     return cells
 
 

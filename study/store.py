@@ -29,6 +29,7 @@ _S, _F, _I = pa.string(), pa.float64(), pa.int64()
 SCHEMA = pa.schema([
     ("study", _S), ("cell", _S), ("scenario", _S), ("mode", _S), ("leg", _S),
     ("position", _S),  # JSON [north, east] in metres, or null for the scenario's own target
+    ("noise_scale", _F),  # the flight's range noise over the stated (Study.noise_scales); null in older rows: 1
     ("attack", _S), ("attack_hash", _S), ("params", _S),  # params: JSON of this cell's parameter values
     ("seed", _I), ("estimator", _S),
     ("estimator_params", _S),  # JSON of the study's estimator_params grid point (null: the defaults)
@@ -100,6 +101,7 @@ def load(out: Path) -> pd.DataFrame:
     if not path.is_dir() or not any(path.glob("part-*.parquet")):
         return pd.DataFrame({c: pd.Series(dtype=object) for c in COLUMNS})
     frame = ds.dataset(path, format="parquet", schema=SCHEMA).to_table().to_pandas()
+    frame["noise_scale"] = frame["noise_scale"].fillna(1.0)  # rows written before the column existed
     frame = frame.sort_values("started_at", kind="stable")
     return frame.drop_duplicates(["cell", "estimator"], keep="last").reset_index(drop=True)
 

@@ -228,3 +228,48 @@ def test_validate_refuses_more_liars_than_the_layout_supports(
     assert main(["validate", str(path)]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "s=2 exceeds" in err and "can correct, 1:" in err and "10, 11, 12, 13" in err
+
+
+def test_noise_scales_are_a_grid_axis_that_leaves_the_stated_keys_alone() -> None:
+    plain = _cells(BASE)
+    mixed = _cells(BASE + "noise_scales: [1.0, 1.5]\n")
+    assert len(mixed) == 2 * len(plain)
+    assert {c.key for c in mixed if c.noise_scale == 1.0} == {c.key for c in plain}  # older rows still count
+    assert not {c.key for c in mixed if c.noise_scale == 1.5} & {c.key for c in plain}
+    for bad, field in (("noise_scales: [0]", "noise_scales"), ("noise_scales: [1.2, 1.2]", "without repeats")):
+        with pytest.raises(InputError, match=field):
+            parse_study(BASE + bad + "\n", "s.yaml")
+    closed = "name: c\nmode: closed-loop\nscenario: wall_hover\nestimators: [secekf]\nseeds: 1\nattacks: [none]\n"
+    with pytest.raises(InputError, match="noise_scales: only offline"):
+        parse_study(closed + "noise_scales: [1.5]\n", "s.yaml")
+
+
+def test_a_noisier_flight_than_stated_names_honest_readings_more_often() -> None:
+    """The flight's ranges are 1.5x noisier than the scenario says, the estimators are told the scenario's
+    sigma: the plain EKF is that much less accurate and SecEKF names honest readings more often."""
+    from study.cells import run_cell
+
+    text = BASE.replace("duration_s: 5", "duration_s: 30").replace("seeds: 3", "seeds: [7]")
+    cells = [c for c in _cells(text + "noise_scales: [1.0, 1.5]\n") if c.attack == "none"]
+    rows = {c.noise_scale: run_cell(c, ["ekf", "secekf"]) for c in cells}
+    assert all(r["status"] == "ok" for rs in rows.values() for r in rs)
+    assert {r["noise_scale"] for rs in rows.values() for r in rs} == {1.0, 1.5}
+    ekf = {k: next(r for r in rs if r["estimator"] == "ekf") for k, rs in rows.items()}
+    sec = {k: next(r for r in rs if r["estimator"] == "secekf") for k, rs in rows.items()}
+    assert ekf[1.5]["rmse_m"] > 1.2 * ekf[1.0]["rmse_m"]  # the flight really was noisier
+    assert sec[1.5]["false_alarm_rate"] > sec[1.0]["false_alarm_rate"] + 0.01
+
+
+def test_rows_written_before_noise_scales_existed_read_as_stated_noise(tmp_path: Path) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from study.store import SCHEMA, load, results_dir
+
+    old = pa.schema([f for f in SCHEMA if f.name != "noise_scale"])
+    results_dir(tmp_path).mkdir(parents=True)
+    row = {"cell": "c1", "estimator": "ekf", "status": "ok", "rmse_m": 0.1}
+    pq.write_table(pa.Table.from_pylist([{c: row.get(c) for c in old.names}], schema=old),
+                   results_dir(tmp_path) / "part-old.parquet")  # fmt: skip
+    frame = load(tmp_path)
+    assert frame["noise_scale"].tolist() == [1.0] and frame["rmse_m"].tolist() == [0.1]
