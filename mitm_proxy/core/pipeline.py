@@ -26,7 +26,10 @@ none the fast path has nothing to call and pays one truth test.
 
 A stage sees a frame only when it is active, the frame's message id is in its
 ``message_ids``, and the frame is not signed, unless the pipeline has the link's
-signing key. A stage that raises does not stop forwarding: the frame leaves as it
+signing key. A signed frame a stage wanted and did not get (no key) is counted
+under ``signed_untouched``, handed to the stage's optional ``signed_untouched(header)``
+(so its state can say it is inert) and logged once per stage and sending
+system as ``<stage>.signed_no_key``. A stage that raises does not stop forwarding: the frame leaves as it
 came, the error is counted under ``bad["stage_error"]`` and logged once.
 """
 
@@ -168,6 +171,20 @@ class Pipeline:
             self._logged.add(key)
             log.warning(event, extra={"link": self.link, **extra})
 
+    def _signed_untouched(self, header: Header, direction: Direction, active: list[Stage]) -> None:
+        """A signed frame that ``active`` stages wanted passes as it came: tell them, and say it once, loudly."""
+        for stage in active:
+            if header.msgid not in stage.message_ids:
+                continue
+            tell = getattr(stage, "signed_untouched", None)
+            if tell is not None:
+                tell(header)
+            self._log_once(f"signed:{stage.name}:{header.sysid}", f"{stage.name}.signed_no_key", sysid=header.sysid,
+                           msgid=header.msgid, direction=str(direction),
+                           detail=f"system {header.sysid} signs its frames and this proxy has no signing key: the "
+                           f"{stage.name} stage leaves them as they are (start secuav-proxy with --signing-key FILE, "
+                           "docs/interfaces.md)")  # fmt: skip
+
     def _spend(self, budget: _HostileBudget, size: int, direction: Direction, now_s: float) -> None:
         """Count a datagram that held garbage against this second's budget."""
         if now_s - budget.window_s >= 1.0:
@@ -209,6 +226,7 @@ class Pipeline:
                     slow = True
                 elif header.msgid in wanted:
                     st.signed_untouched += 1
+                    self._signed_untouched(header, direction, active)
             elif header.msgid in wanted:
                 slow = True
         if not slow:
