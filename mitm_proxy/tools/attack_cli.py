@@ -274,6 +274,7 @@ async def _status(board: Board, args: argparse.Namespace) -> int:
         mode = (entry["attack/mode/state"] or {}).get("mode")
         bypass = " (bypassed)" if mode == "bypass" else ""
         print(f"{key}: attack {active}{bypass} since {_since(attack.get('since'))}; last request {last}")
+        _print_warnings(key, attack)
         secure = entry["secure/state"]
         if isinstance(secure, dict):
             if secure.get("available") is False:
@@ -281,9 +282,16 @@ async def _status(board: Board, args: argparse.Namespace) -> int:
             else:
                 note = "" if secure.get("ok") else f"; last request rejected: {secure.get('error')}"
                 print(f"{key}: secure {secure.get('estimator') or 'off'}{note}")
+                _print_warnings(key, secure)
         if isinstance(entry["stats"], dict):
             print(f"{key}: {_stats_line(entry['stats'])}")
     return EXIT_OK
+
+
+def _print_warnings(key: str, state: dict[str, Any]) -> None:
+    """A state's ``warnings`` (what keeps its stage from working, docs/interfaces.md), one line each."""
+    for warning in state.get("warnings") or []:
+        print(f"{key}: WARNING {warning}")
 
 
 def cmd_status(args: argparse.Namespace) -> int:
