@@ -139,6 +139,7 @@ class Pipeline:
         self.observers: tuple[Observer, ...] = tuple(observers)
         self.signer = signer
         self._logged: set[str] = set()
+        self._said_signed: set[tuple[str, int]] = set()  # (stage, sysid) told about a signed stream without the key
         self._union_key: tuple[frozenset[int], ...] = ()
         self._union: frozenset[int] = _NOTHING
         self._budget = {d: _HostileBudget() for d in Direction}
@@ -172,18 +173,25 @@ class Pipeline:
             log.warning(event, extra={"link": self.link, **extra})
 
     def _signed_untouched(self, header: Header, direction: Direction, active: list[Stage]) -> None:
-        """A signed frame that ``active`` stages wanted passes as it came: tell them, and say it once, loudly."""
+        """A signed frame that ``active`` stages wanted passes as it came: tell them, and say it once, loudly.
+
+        Runs for every such frame (a stage's state must learn it again after a profile swap), so the
+        once-only log is keyed by a plain tuple, not a formatted string."""
         for stage in active:
             if header.msgid not in stage.message_ids:
                 continue
             tell = getattr(stage, "signed_untouched", None)
             if tell is not None:
                 tell(header)
-            self._log_once(f"signed:{stage.name}:{header.sysid}", f"{stage.name}.signed_no_key", sysid=header.sysid,
-                           msgid=header.msgid, direction=str(direction),
-                           detail=f"system {header.sysid} signs its frames and this proxy has no signing key: the "
-                           f"{stage.name} stage leaves them as they are (start secuav-proxy with --signing-key FILE, "
-                           "docs/interfaces.md)")  # fmt: skip
+            key = (stage.name, header.sysid)
+            if key in self._said_signed:
+                continue
+            self._said_signed.add(key)
+            log.warning(f"{stage.name}.signed_no_key", extra={
+                "link": self.link, "sysid": header.sysid, "msgid": header.msgid, "direction": str(direction),
+                "detail": f"system {header.sysid} signs its frames and this proxy has no signing key: the "
+                          f"{stage.name} stage leaves them as they are (start secuav-proxy with --signing-key FILE, "
+                          "docs/interfaces.md)"})  # fmt: skip
 
     def _spend(self, budget: _HostileBudget, size: int, direction: Direction, now_s: float) -> None:
         """Count a datagram that held garbage against this second's budget."""
