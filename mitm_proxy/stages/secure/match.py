@@ -15,6 +15,10 @@ arrives) and says so:
   out of reach may stay silent; a vehicle that reports no anchor at all is
   not the scenario's).
 
+The stage sits after the attack stage, so what it checks is what reaches it: a
+profile that drops every frame of a group sensor from the start is named too
+("never seen"), which is what the estimator then lives with.
+
 The verdict is one line of text (:attr:`LayoutCheck.mismatch`, None while the
 stream fits), which the stage logs once as ``secure.layout_mismatch`` and keeps
 in its state and stats until matching readings arrive.
@@ -104,8 +108,9 @@ class LayoutCheck:
         if missing:
             problems.append(f"never seen: {id_ranges(missing)}")
         self.fields = {"expected": self._expected(), "arrived": self.arrived(), "problem": ", ".join(problems)}
-        return (f"{CODE}: scenario {lay.scenario!r} gives vehicle {lay.sysid} {self.fields['expected']}, "
-                f"but it sends ids {self.fields['arrived']} ({self.fields['problem']}); "
+        f = self.fields
+        return (f"{CODE}: scenario {lay.scenario!r} gives vehicle {lay.sysid} {f['expected']}, "
+                f"but the DISTANCE_SENSOR frames reaching it are ids {f['arrived']} ({f['problem']}); "
                 "the secure stage cannot estimate from readings it does not have: give --scenario one "
                 "that describes this vehicle's rangefinders (docs/scenario.md)")  # fmt: skip
 
