@@ -27,6 +27,7 @@ import aiomqtt
 import pytest
 from pymavlink import mavutil
 
+from mavframe import tlog
 from secuav_common.broker import EmbeddedBroker
 from tests.conftest import free_tcp_port
 
@@ -201,10 +202,6 @@ async def test_the_page_shows_why_the_secure_stage_cannot_work(
     """A real proxy with ``--scenario wall_hover --secure secekf`` gets the recorded ArduPilot stream (downward
     rangefinders 0-2, tests/data): the page marks the vehicle's row and shows ``secure.layout_mismatch`` above its
     view (issue 27, item 2)."""
-    from selenium.webdriver.common.by import By
-
-    from mavframe import tlog
-
     driver = browser
     port, web = free_tcp_port(), free_tcp_port()
     vehicle, gcs_port = udp_port(), udp_port()  # type: ignore[operator]
@@ -245,8 +242,10 @@ async def test_the_page_shows_why_the_secure_stage_cannot_work(
             await _until(lambda: any("secure.layout_mismatch" in w for w in shown()), 15, "the warning on the page")
             (text,) = shown()
             assert "0-4 forward (0)" in text and "down (25)" in text, text
-            badge = driver.find_element(By.CSS_SELECTOR, "#fleet tbody tr .badge.warning")  # type: ignore[attr-defined]
-            assert badge.text == "warning" and "secure.layout_mismatch" in badge.get_attribute("title")
+            badge = driver.execute_script(  # one script: the table is redrawn ten times a second
+                "const b = document.querySelector('#fleet tbody tr .badge.warning');"
+                "return b ? [b.textContent, b.title] : null")  # type: ignore[attr-defined]
+            assert badge is not None and badge[0] == "warning" and "secure.layout_mismatch" in badge[1], badge
             logged = [e for e in driver.get_log("browser") if e["level"] in ("SEVERE", "WARNING")]  # type: ignore[attr-defined]
             assert logged == [], logged
         finally:
