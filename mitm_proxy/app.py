@@ -292,8 +292,11 @@ class Proxy:
             snap["pipeline_errors"] = link.pipeline_errors
             snap["endpoints"] = {ep.name: ep.snapshot() for ep in (link.vehicle, *link.grounds)}
             secure = parts.secure
+            warnings = parts.slot.warnings
             if secure is not None:
                 snap["secure"] = {"estimator": secure.stage.config.estimator, **asdict(secure.stage.counters)}
+                warnings = [*warnings, *secure.stage.warnings]
+            snap["warnings"] = warnings  # what keeps the attack or the secure stage from working, "code: text"
             out[link.sysid] = snap
         return out
 
@@ -301,17 +304,18 @@ class Proxy:
         while True:
             await asyncio.sleep(self.config.stats_interval_s)
             for sysid, snap in self.stats_snapshot().items():
-                log.info("proxy.stats", extra=stats_line(sysid, snap))
+                line = stats_line(sysid, snap)  # a link whose stages cannot work says so at warning level
+                log.log(logging.WARNING if "warnings" in line else logging.INFO, "proxy.stats", extra=line)
 
 
 def stats_line(sysid: int, snap: dict[str, Any]) -> dict[str, Any]:
-    """The fields of one link's periodic log line."""
+    """The fields of one link's periodic log line; ``warnings`` (their codes) only while there are some."""
     down, up, lat = snap["downlink"], snap["uplink"], snap["latency_ms"]
     faults: dict[str, int] = {}
     for ep in snap["endpoints"].values():
         for kind, n in ep["faults"].items():
             faults[kind] = faults.get(kind, 0) + n
-    return {
+    line: dict[str, Any] = {
         "sysid": sysid,
         "down": f"{down['frames_in']}/{down['frames_out']}",
         "up": f"{up['frames_in']}/{up['frames_out']}",
@@ -323,6 +327,10 @@ def stats_line(sysid: int, snap: dict[str, Any]) -> dict[str, Any]:
         "p99_ms": _ms(lat["p99"]),
         "faults": ",".join(f"{k}={v}" for k, v in sorted(faults.items())) or "none",
     }
+    warnings = snap.get("warnings")
+    if warnings:  # said on every line until it is fixed; the full text is in the state and the first warning
+        line["warnings"] = ",".join(dict.fromkeys(w.split(":", 1)[0] for w in warnings))
+    return line
 
 
 def _ms(value: float | None) -> str:

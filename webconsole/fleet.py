@@ -194,7 +194,8 @@ class Fleet:
         return found
 
     def summary(self) -> list[dict[str, Any]]:
-        """One row per vehicle: online, profile, mode, estimator, rates, counters, latency."""
+        """One row per vehicle: online, profile, mode, estimator, rates, counters, latency, and the warnings of
+        the attack and secure states (what keeps them from working, e.g. a signed stream and no key)."""
         owners = self.owners()
         now = time.monotonic()
         rows = []
@@ -225,8 +226,19 @@ class Fleet:
                 "bad": down.get("bad_total", 0) + up.get("bad_total", 0),
                 "latency_p50_ms": latency.get("p50"), "latency_p99_ms": latency.get("p99"),
                 "flagged": sorted((view.estimate or {}).get("attacked") or []) if secure.get("estimator") else [],
+                "warnings": _warnings(attack, secure),
             })  # fmt: skip
         return rows
+
+
+def _warnings(*states: dict[str, Any]) -> list[str]:
+    """The ``warnings`` of the states, each a ``"code: text"`` string; anything else a proxy sent is skipped."""
+    out: list[str] = []
+    for st in states:
+        found = st.get("warnings")
+        if isinstance(found, list):
+            out.extend(w for w in found if isinstance(w, str) and w not in out)
+    return out
 
 
 class Session:

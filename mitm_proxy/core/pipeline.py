@@ -26,7 +26,10 @@ none the fast path has nothing to call and pays one truth test.
 
 A stage sees a frame only when it is active, the frame's message id is in its
 ``message_ids``, and the frame is not signed, unless the pipeline has the link's
-signing key. A stage that raises does not stop forwarding: the frame leaves as it
+signing key. A signed frame a stage wanted and did not get (no key) is counted
+under ``signed_untouched``, handed to the stage's optional ``signed_untouched(header)``
+(so its state can say it is inert) and logged once per stage and sending
+system as ``<stage>.signed_no_key``. A stage that raises does not stop forwarding: the frame leaves as it
 came, the error is counted under ``bad["stage_error"]`` and logged once.
 """
 
@@ -136,6 +139,7 @@ class Pipeline:
         self.observers: tuple[Observer, ...] = tuple(observers)
         self.signer = signer
         self._logged: set[str] = set()
+        self._said_signed: set[tuple[str, int]] = set()  # (stage, sysid) told about a signed stream without the key
         self._union_key: tuple[frozenset[int], ...] = ()
         self._union: frozenset[int] = _NOTHING
         self._budget = {d: _HostileBudget() for d in Direction}
@@ -167,6 +171,27 @@ class Pipeline:
         if key not in self._logged:
             self._logged.add(key)
             log.warning(event, extra={"link": self.link, **extra})
+
+    def _signed_untouched(self, header: Header, direction: Direction, active: list[Stage]) -> None:
+        """A signed frame that ``active`` stages wanted passes as it came: tell them, and say it once, loudly.
+
+        Runs for every such frame (a stage's state must learn it again after a profile swap), so the
+        once-only log is keyed by a plain tuple, not a formatted string."""
+        for stage in active:
+            if header.msgid not in stage.message_ids:
+                continue
+            tell = getattr(stage, "signed_untouched", None)
+            if tell is not None:
+                tell(header)
+            key = (stage.name, header.sysid)
+            if key in self._said_signed:
+                continue
+            self._said_signed.add(key)
+            log.warning(f"{stage.name}.signed_no_key", extra={
+                "link": self.link, "sysid": header.sysid, "msgid": header.msgid, "direction": str(direction),
+                "detail": f"system {header.sysid} signs its frames and this proxy has no signing key: the "
+                          f"{stage.name} stage leaves them as they are (start secuav-proxy with --signing-key FILE, "
+                          "docs/interfaces.md)"})  # fmt: skip
 
     def _spend(self, budget: _HostileBudget, size: int, direction: Direction, now_s: float) -> None:
         """Count a datagram that held garbage against this second's budget."""
@@ -209,6 +234,7 @@ class Pipeline:
                     slow = True
                 elif header.msgid in wanted:
                     st.signed_untouched += 1
+                    self._signed_untouched(header, direction, active)
             elif header.msgid in wanted:
                 slow = True
         if not slow:

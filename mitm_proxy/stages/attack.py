@@ -17,7 +17,7 @@ the slot the stage is inactive too, so the pipeline skips it for free.
 from __future__ import annotations
 
 from mavframe import codec
-from mavframe.packet import Packet
+from mavframe.packet import Header, Packet
 from mitm_proxy.stages.attack_slot import AttackSlot
 
 __all__ = ["AttackStage"]
@@ -44,6 +44,10 @@ class AttackStage:
     @property
     def message_ids(self) -> frozenset[int]:
         return self.slot.message_ids
+
+    def signed_untouched(self, header: Header) -> None:
+        """The pipeline left a signed frame the profile targets alone (no key): the slot's state says so."""
+        self.slot.signed_untouched(header.sysid, header.msgid)
 
     def process(self, pkt: Packet, now_s: float) -> list[Packet]:
         engine = self.slot.engine

@@ -9,6 +9,11 @@ engine is built and checked completely before the single attribute assignment
 that installs it, and the event loop runs one callback at a time, so a swap
 always falls between two frames. A rejected profile leaves the previous engine
 in place and says why in :attr:`state`.
+
+When the vehicle signs its frames and the proxy has no key, the pipeline leaves
+the frames the profile targets alone (docs/interfaces.md); the slot then says so
+in its state's ``warnings`` (``attack.signed_no_key``, one per sending system)
+until another profile is installed.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ from typing import Any, NamedTuple
 from attack_profiles.control import profile_from_payload
 from attack_profiles.engine import Engine
 from attack_profiles.profile import Profile
+from mavframe import codec
 from mitm_proxy.control.switch import Switch, SwitchHost
 from secuav_common.controlplane.payloads import AttackState
 from secuav_common.controlplane.switches.attack import SPEC
@@ -50,6 +56,7 @@ class AttackSlot(Switch[AttackState]):
         self.engine: Engine | None = None
         self._hash: str | None = None  # of the engine's profile, kept with it (states are built 5 times a second)
         self._since: float | None = None
+        self._signed: dict[int, int] = {}  # sysid -> the first message id left alone for want of a key
 
     @classmethod
     def build(cls, host: SwitchHost, sysid: int | None) -> AttackSlot | None:
@@ -63,7 +70,17 @@ class AttackSlot(Switch[AttackState]):
     def current(self) -> dict[str, Any]:
         profile = None if self.engine is None else self.engine.profile
         return {"sysid": self.sysid, "profile": None if profile is None else profile.name,
-                "hash": self._hash, "since": self._since}  # fmt: skip
+                "hash": self._hash, "since": self._since, "warnings": self.warnings}  # fmt: skip
+
+    @property
+    def warnings(self) -> list[str]:
+        """What keeps the active profile from acting, as ``"code: text"`` (empty while nothing does)."""
+        return [signed_no_key(sysid, msgid) for sysid, msgid in sorted(self._signed.items())]
+
+    def signed_untouched(self, sysid: int, msgid: int) -> None:
+        """A signed frame of ``sysid`` the profile targets passed unchanged: the proxy has no signing key."""
+        if sysid not in self._signed and self.engine is not None and len(self._signed) < 256:
+            self._signed[sysid] = msgid
 
     def prepare(self, payload: Any, source: str) -> Any:
         """A request's JSON validated into a profile and its engine built, not started (pure: the MQTT session
@@ -80,6 +97,7 @@ class AttackSlot(Switch[AttackState]):
             engine: Engine | None = payload.engine
             payload.engine.activate(time.monotonic(), rebuild=False)  # built off the loop: only the clock starts
             self.engine, self._hash, self._since = engine, payload.hash, time.time()
+            self._signed = {}
             return
         if isinstance(payload, Engine):
             engine = payload  # built and started by the caller (secuav-record shares one clock)
@@ -92,6 +110,7 @@ class AttackSlot(Switch[AttackState]):
         self.engine = engine
         self._hash = None if engine is None else engine.profile.content_hash()
         self._since = time.time()
+        self._signed = {}  # the new profile may target what is not signed; the next frames tell
 
     def offer(self, profile: Profile | None, request_id: str | None = None, source: str = "<profile>") -> AttackState:
         """Install ``profile`` (``None`` clears); on ``InputError`` keep the old one and report it."""
@@ -108,3 +127,12 @@ class AttackSlot(Switch[AttackState]):
     def reject(self, error: str, request_id: str | None = None) -> AttackState:
         """A request that failed before it became a profile (bad JSON, oversized, binary)."""
         return self.refuse(error, request_id)
+
+
+def signed_no_key(sysid: int, msgid: int) -> str:
+    """The ``attack.signed_no_key`` warning: the frames of ``sysid`` are signed and the proxy cannot re-sign."""
+    cls = codec.MAVLINK_MAP.get(msgid)
+    what = f"message {msgid}" if cls is None else cls.msgname
+    return (f"attack.signed_no_key: system {sysid} signs its frames ({what} among them) and this proxy has no "
+            "signing key, so the profile leaves them as they are: start secuav-proxy with --signing-key FILE "
+            "(docs/interfaces.md)")

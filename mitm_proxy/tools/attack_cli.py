@@ -240,9 +240,19 @@ async def _status(board: Board, args: argparse.Namespace) -> int:
         for status_lines in printers:
             for line in status_lines(key, entry):
                 print(line)
+        for spec in switches.specs():  # what keeps a switch's stage from working, whichever switch it is
+            state = entry.get(f"{spec.kind}/state")
+            if spec.scope == "vehicle" and isinstance(state, dict):
+                _print_warnings(key, state)
         if isinstance(entry["stats"], dict):
             print(f"{key}: {_stats_line(entry['stats'])}")
     return EXIT_OK
+
+
+def _print_warnings(key: str, state: dict[str, Any]) -> None:
+    """A state's ``warnings`` (what keeps its stage from working, docs/interfaces.md), one line each."""
+    for warning in state.get("warnings") or []:
+        print(f"{key}: WARNING {warning}")
 
 
 def cmd_status(args: argparse.Namespace) -> int:

@@ -549,7 +549,8 @@ def secure_probe(work: Path, cache: Path, seconds: float = 30.0) -> None:
     """The secure stage with a scenario whose sensor layout ArduPilot does not send: does it say so?
 
     ``--scenario wall_hover`` expects forward rangefinders 0-4 and a downward 5; this SITL sends
-    downward ids 0, 1, 2. Reported, not failed: today the stage is silently inert (issue 27).
+    downward ids 0, 1, 2. Reported, not failed: the stage cannot work here, and must say so
+    (``secure.layout_mismatch``, docs/interfaces.md) rather than look busy (issue 27).
     """
     work.mkdir(parents=True, exist_ok=True)
     print(f"\n=== secure stage, --scenario wall_hover --secure secekf, 1 vehicle, {seconds:g} s ===")
@@ -576,8 +577,13 @@ def secure_probe(work: Path, cache: Path, seconds: float = 30.0) -> None:
     rewritten = stats[-1].split(" rewritten=")[1].split()[0] if stats else "?"
     print(f"frames rewritten by the secure stage: {rewritten}; warnings or errors in the proxy's log: {len(warnings)}")
     for ln in warnings[:5]:
-        print("  " + ln.split(" ", 1)[-1][:200])
-    if not warnings:
+        print("  " + ln.split(" ", 1)[-1][:400])
+    said = [ln for ln in lines if " secure.layout_mismatch " in ln]
+    kept = [ln for ln in stats if "warnings=secure.layout_mismatch" in ln]
+    if said:
+        print(f"  the stage said so at once ({len(said)} secure.layout_mismatch event) and on {len(kept)} of "
+              f"{len(stats)} stats lines")
+    else:
         print("  the stage received DISTANCE_SENSOR ids 0-2 (down) where the scenario expects 0-4 (forward) "
               "and 5 (down), and said nothing: SILENTLY INERT")
 

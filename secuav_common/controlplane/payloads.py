@@ -67,6 +67,7 @@ class AttackState(_Payload):
     profile: str | None = None  # active profile name; None when no profile is active
     hash: str | None = None
     since: float | None = None  # wall-clock time (epoch s) the active profile was installed
+    warnings: list[str] = []  # what keeps the profile from acting (e.g. signed frames, no key): "code: text"
     request_id: str | None = None  # of the last request, accepted or not
     ok: bool = True  # whether the last request was accepted
     error: str | None = None  # why it was rejected
@@ -95,6 +96,7 @@ class SecureState(_Payload):
     error: str | None = None
     since: float | None = None
     available: bool = True
+    warnings: list[str] = []  # what keeps the stage from working (e.g. the layout does not fit): "code: text"
 
 
 class RouteEntry(_Payload):
@@ -146,6 +148,7 @@ class LinkStatsMessage(_Payload):
     downlink: DirectionStats | None = None
     uplink: DirectionStats | None = None
     latency_ms: dict[str, float | int | None] = {}
+    warnings: list[str] = []  # the attack/state and secure/state warnings of the link, "code: text"
 
 
 class EstimateMessage(_Payload):

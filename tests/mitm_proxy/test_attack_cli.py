@@ -14,6 +14,7 @@ import pytest
 
 from attack_profiles import library
 from attack_profiles.profile import load_profile
+from mavframe.packet import Header
 from mitm_proxy.control.plane import ControlPlane
 from mitm_proxy.control.switches import vehicle_controls
 from mitm_proxy.stages.attack import AttackStage
@@ -180,3 +181,20 @@ def test_status_names_every_instance_and_warns_about_a_shared_sysid() -> None:
     assert lines[2].startswith("proxy old: offline")
     assert lines[3].startswith("warning: v2 is served by 2 online proxies (lab-a, lab-b)")
     assert len(lines) == 4  # v1's other claimant is offline: no warning
+
+
+async def test_status_prints_the_warning_of_an_attack_that_cannot_act(
+    bench: Bench, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A signed stream and no key (issue 27): the pipeline tells the stage, the state says it, status prints it."""
+    assert (await cli(capsys, "apply", "distance-stuck", "--vehicle", "1", "--broker", bench.url))[0] == 0
+    bench.stages[1].signed_untouched(Header(2, 132, 1, 1, 0, 39, 1, True))  # what the pipeline does without a key
+    await asyncio.sleep(0.5)  # the plane publishes changed states 5 times a second
+    code, out, _ = await cli(capsys, "status", "--vehicle", "1", "--broker", bench.url)
+    warned = [line for line in out.splitlines() if line.startswith("v1: WARNING ")]
+    assert code == 0 and len(warned) == 1, out
+    assert "attack.signed_no_key: system 1 signs its frames (DISTANCE_SENSOR among them)" in warned[0]
+    assert "--signing-key" in warned[0]
+    assert (await cli(capsys, "apply", "distance-stuck", "--vehicle", "1", "--broker", bench.url))[0] == 0
+    code, out, _ = await cli(capsys, "status", "--vehicle", "1", "--broker", bench.url)
+    assert "WARNING" not in out  # a new profile starts with a clean slate

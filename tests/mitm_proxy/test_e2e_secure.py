@@ -51,7 +51,7 @@ async def test_secure_stage_runs_on_live_ranges_and_publishes(udp_port: Callable
             run = RunConfig(load_scenario(scenario), [Endpoint("udpout", "127.0.0.1", veh)])
             async with SimRunner(run) as runner:
                 task = asyncio.create_task(runner.run(stop))
-                await asyncio.sleep(3.0)
+                await asyncio.sleep(4.0)  # past the layout check's 3 s grace
                 stop.set()
                 await asyncio.wait_for(task, 5.0)
             snap = proxy.stats_snapshot()[1]
@@ -61,6 +61,7 @@ async def test_secure_stage_runs_on_live_ranges_and_publishes(udp_port: Callable
     assert secure["readings"] > 50 and secure["substituted_frames"] > 20, secure
     assert snap["downlink"]["rewritten"] >= secure["substituted_frames"] > 0
     assert len(estimates) > 10
+    assert snap["warnings"] == []  # flightsim's wall sensors are the scenario's: no layout warning
 
 
 def test_secure_without_a_scenario_or_with_an_unknown_estimator_is_refused(capsys: pytest.CaptureFixture[str]) -> None:

@@ -3,22 +3,30 @@
 A vehicle signs with the link key (pymavlink); the proxy rewrites DISTANCE_SENSOR
 per profile and re-signs it; a ground parser holding the same key and refusing
 unsigned frames accepts every frame, and reads the profile's value. Without the
-key the proxy leaves signed frames alone (forwarded as they came, counted).
+key the proxy leaves signed frames alone (forwarded as they came, counted), and
+says so once in its log and for as long as it lasts in the ``attack/state`` it
+publishes (issue 27, item 3): an attack that does nothing must not look like one
+that works.
 """
 
 from __future__ import annotations
 
 import asyncio
+import json
+import logging
 import os
 from collections.abc import Callable
 from pathlib import Path
 
+import aiomqtt
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 from test_link import Peer
 
-from mitm_proxy.app import Proxy
+from mitm_proxy.app import Proxy, stats_line
 from mitm_proxy.config import LinkConfig, ProxyConfig
+from secuav_common.broker import EmbeddedBroker
+from secuav_common.controlplane.payloads import request_bytes
 
 pytestmark = pytest.mark.timeout(30)
 KEY = os.urandom(32)
@@ -46,7 +54,7 @@ def strict_parser() -> mavlink2.MAVLink:
 
 @pytest.mark.parametrize("with_key", [True, False])
 async def test_signed_frames_rewritten_and_resigned_or_left_alone(
-    with_key: bool, udp_port: Callable[[], int], tmp_path: Path
+    with_key: bool, udp_port: Callable[[], int], tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     key_file = tmp_path / "link.key"
     key_file.write_bytes(KEY)
@@ -65,7 +73,9 @@ async def test_signed_frames_rewritten_and_resigned_or_left_alone(
             for frame in sent:
                 vehicle.send(frame, veh)
             got, _ = await gcs.frames()
-            snap = proxy.stats_snapshot()[1]["downlink"]
+            full = proxy.stats_snapshot()[1]
+            snap = full["downlink"]
+            state = proxy.slots[1].state
     finally:
         gcs.close()
         vehicle.close()
@@ -77,9 +87,61 @@ async def test_signed_frames_rewritten_and_resigned_or_left_alone(
     if with_key:
         assert distances == [60] * 5 and snap["resigned"] == 5 and snap["rewritten"] == 5
         assert got[-1] == sent[-1]  # untargeted: byte for byte
+    said = [r for r in caplog.records if r.getMessage() == "attack.signed_no_key"]
+    if with_key:
+        assert said == [] and state.warnings == [] and full["warnings"] == []
     else:
         assert distances == [250] * 5 and got == sent  # no key: never modified
         assert snap["signed_untouched"] == 5 and snap["rewritten"] == 0
+        # ... and said: once in the log, naming the system and the option, and in the state while it lasts
+        assert len(said) == 1 and said[0].levelno == logging.WARNING
+        assert said[0].sysid == 1 and "--signing-key" in said[0].detail  # type: ignore[attr-defined]
+        (warning,) = state.warnings
+        assert warning.startswith("attack.signed_no_key:") and "system 1" in warning and "--signing-key" in warning
+        assert full["warnings"] == [warning] and stats_line(1, full)["warnings"] == "attack.signed_no_key"
+
+
+async def test_the_published_attack_state_says_the_signed_stream_defeats_the_profile(
+    udp_port: Callable[[], int], tcp_port: Callable[[], int], tmp_path: Path
+) -> None:
+    """What a console reads: ``secuav/v1/attack/state`` on a real broker carries the warning, and a new profile
+    that targets nothing signed takes it away."""
+    profile = tmp_path / "sixty.yaml"
+    profile.write_text(PROFILE)
+    veh, mqtt = udp_port(), tcp_port()
+    gcs, vehicle = Peer(), Peer()
+    link = LinkConfig(sysid=1, vehicle=f"udpin://127.0.0.1:{veh}", ground=[f"udpout://127.0.0.1:{gcs.port}"])
+    cfg = ProxyConfig(links=[link], broker=f"mqtt://127.0.0.1:{mqtt}", profile=profile)
+    states: list[dict[str, object]] = []
+    try:
+        async with EmbeddedBroker(port=mqtt), aiomqtt.Client("127.0.0.1", mqtt) as client:
+            await client.subscribe("secuav/v1/attack/state")
+
+            async def listen() -> None:
+                async for msg in client.messages:
+                    states.append(json.loads(bytes(msg.payload)))  # type: ignore[arg-type]
+
+            listener = asyncio.create_task(listen())
+            async with Proxy(cfg) as proxy:
+                assert proxy.control is not None
+                await proxy.control.wait_connected(10)
+                mav = signer(1, 1)
+                for i in range(5):
+                    vehicle.send(mav.distance_sensor_encode(1000 + i, 10, 4000, 250, 0, 0, 0, 0).pack(mav), veh)
+                await gcs.frames()
+                await asyncio.sleep(0.5)  # the control plane polls the states 5 times a second
+                with_warning = list(states)
+                await client.publish("secuav/v1/attack/set", request_bytes(None, "clear"))
+                await asyncio.sleep(0.8)
+            listener.cancel()
+    finally:
+        gcs.close()
+        vehicle.close()
+    assert with_warning[0]["warnings"] == []  # the profile at start, before any frame
+    last = with_warning[-1]
+    assert last["profile"] == "sixty" and len(last["warnings"]) == 1  # type: ignore[arg-type]
+    assert str(last["warnings"][0]).startswith("attack.signed_no_key: system 1")  # type: ignore[index]
+    assert states[-1]["profile"] is None and states[-1]["warnings"] == []  # cleared with the profile
 
 
 async def test_three_signed_vehicles_on_one_ground_port_all_hear_the_gcs(

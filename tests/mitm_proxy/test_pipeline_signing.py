@@ -5,7 +5,10 @@ The signing primitives themselves are tested in tests/mavframe/test_signing.py.
 
 from __future__ import annotations
 
+import logging
 import time
+
+import pytest
 
 from attack_profiles.profile import parse_profile
 from mavframe import codec
@@ -16,7 +19,7 @@ from mitm_proxy.core.pipeline import Pipeline
 from mitm_proxy.core.stats import LinkStats
 from mitm_proxy.stages.attack import AttackStage
 from mitm_proxy.stages.attack_slot import AttackSlot
-from tests.mavframe.frames_support import TEST_KEY, distance, heartbeat, pack, signed_mav
+from tests.mavframe.frames_support import TEST_KEY, distance, heartbeat, mav, pack, signed_mav
 from tests.mavframe.test_signing import read_strict
 
 DOWN = Direction.DOWNLINK
@@ -41,6 +44,31 @@ def test_without_a_key_signed_frames_are_left_alone_and_counted() -> None:
     assert out.data == d + hb
     s = stats[DOWN]
     assert (s.signed, s.signed_untouched, s.rewritten) == (2, 1, 0)
+
+
+def test_without_a_key_the_attack_says_so_once_per_sending_system(caplog: pytest.LogCaptureFixture) -> None:
+    """Issue 27: one warning per stage and system in the log, one per system in the slot's state."""
+    pipe, _stats = attacked_pipeline(None)
+    slot = pipe.stages[0].slot  # type: ignore[attr-defined]
+    one, two = signed_mav(sysid=1), signed_mav(sysid=2)
+    for _ in range(10):
+        pipe.feed(pack(distance(cm=500), one) + pack(distance(cm=500), two) + pack(heartbeat(), one), DOWN, 0.0)
+    said = [r for r in caplog.records if r.getMessage() == "attack.signed_no_key"]
+    assert sorted(r.sysid for r in said) == [1, 2]  # type: ignore[attr-defined]
+    assert all(r.levelno == logging.WARNING and "--signing-key" in r.detail for r in said)  # type: ignore[attr-defined]
+    assert [w.split(" signs")[0] for w in slot.state.warnings] == ["attack.signed_no_key: system 1",
+                                                                  "attack.signed_no_key: system 2"]  # fmt: skip
+    slot.offer(None)
+    assert slot.state.warnings == []  # cleared with the profile
+
+
+def test_a_key_or_unsigned_frames_raise_no_warning(caplog: pytest.LogCaptureFixture) -> None:
+    keyed, _ = attacked_pipeline(Signer(TEST_KEY))
+    keyed.feed(pack(distance(cm=500), signed_mav()), DOWN, time.monotonic())
+    plain, _ = attacked_pipeline(None)
+    plain.feed(pack(distance(cm=500), mav(1)), DOWN, time.monotonic())
+    assert not [r for r in caplog.records if "signed_no_key" in r.getMessage()]
+    assert keyed.stages[0].slot.state.warnings == plain.stages[0].slot.state.warnings == []  # type: ignore[attr-defined]
 
 
 def test_with_a_key_signed_frames_are_verified_rewritten_and_resigned() -> None:

@@ -16,6 +16,7 @@ import json
 import os
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -26,6 +27,7 @@ import aiomqtt
 import pytest
 from pymavlink import mavutil
 
+from mavframe import tlog
 from secuav_common.broker import EmbeddedBroker
 from tests.conftest import free_tcp_port
 
@@ -199,3 +201,64 @@ async def test_the_page_shows_steers_and_refuses_as_a_user_sees_it(
         (p, (tmp_path / p).read_text()[-2000:]) for p in ("p.log", "sim.log", "console.log")
     ]
     print(json.dumps({"online_on_page_s": round(shown_after_s, 2)}))
+
+
+async def test_the_page_shows_why_the_secure_stage_cannot_work(
+    browser: object, tmp_path: Path, udp_port: object
+) -> None:
+    """A real proxy with ``--scenario wall_hover --secure secekf`` gets the recorded ArduPilot stream (downward
+    rangefinders 0-2, tests/data): the page marks the vehicle's row and shows ``secure.layout_mismatch`` above its
+    view (issue 27, item 2)."""
+    driver = browser
+    port, web = free_tcp_port(), free_tcp_port()
+    vehicle, gcs_port = udp_port(), udp_port()  # type: ignore[operator]
+    broker = f"mqtt://127.0.0.1:{port}"
+    recorded = tlog.TlogReader((Path(__file__).resolve().parents[1] / "data/ardupilot-copter-guided.tlog").read_bytes())
+    frames = [e.raw for e in recorded if e.header.sysid == 1][2000:4000]  # after boot: rangefinders streaming
+
+    async def stream(stop: asyncio.Event) -> None:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            while not stop.is_set():
+                for i in range(0, len(frames), 20):  # about 400 frames a second, the recording's own rate
+                    sock.sendto(b"".join(frames[i : i + 20]), ("127.0.0.1", vehicle))
+                    await asyncio.sleep(0.05)
+                    if stop.is_set():
+                        return
+        finally:
+            sock.close()
+
+    async with EmbeddedBroker(port=port):
+        procs = [
+            _spawn(["mitm_proxy", "--broker", broker, "--instance", "bench", "--scenario", "wall_hover", "--secure",
+                    "secekf", "--vehicle", f"udpin://127.0.0.1:{vehicle}", "--ground", f"udpout://127.0.0.1:{gcs_port}"],
+                   tmp_path / "p.log"),
+            _spawn(["webconsole", "--broker", broker, "--listen", f"127.0.0.1:{web}", "--scenario", "wall_hover"],
+                   tmp_path / "console.log"),
+        ]  # fmt: skip
+        stop = asyncio.Event()
+        sender = asyncio.create_task(stream(stop))
+        try:
+            await _until(lambda: b"console.ready" in (tmp_path / "console.log").read_bytes(), 30, "console up")
+            driver.get(f"http://127.0.0.1:{web}/")  # type: ignore[attr-defined]
+
+            def shown() -> list[str]:
+                return driver.execute_script(  # type: ignore[attr-defined, no-any-return]
+                    "return [...document.querySelectorAll('#vehicle-warnings li')].map(li => li.textContent)")
+
+            await _until(lambda: any("secure.layout_mismatch" in w for w in shown()), 15, "the warning on the page")
+            (text,) = shown()
+            assert "0-4 forward (0)" in text and "down (25)" in text, text
+            badge = driver.execute_script(  # one script: the table is redrawn ten times a second
+                "const b = document.querySelector('#fleet tbody tr .badge.warning');"
+                "return b ? [b.textContent, b.title] : null")  # type: ignore[attr-defined]
+            assert badge is not None and badge[0] == "warning" and "secure.layout_mismatch" in badge[1], badge
+            logged = [e for e in driver.get_log("browser") if e["level"] in ("SEVERE", "WARNING")]  # type: ignore[attr-defined]
+            assert logged == [], logged
+        finally:
+            stop.set()
+            await sender
+            codes = _stop(procs)
+    proxy_log = (tmp_path / "p.log").read_text()
+    assert proxy_log.count("WARNING secure.layout_mismatch ") == 1, proxy_log[-3000:]  # the event, once
+    assert all(c in (0, 130) for c in codes), codes

@@ -57,3 +57,20 @@ def test_a_vehicle_leaves_the_fleet_when_its_proxy_is_gone() -> None:
     assert not row["online"]  # just stopped: shown offline until its stats are GONE_S old
     fleet.vehicles[1].stats_at = -1e9
     assert fleet.summary() == []
+
+
+def test_the_states_warnings_reach_the_vehicle_row_and_clear_with_them() -> None:
+    """A stage that cannot work says so in its state (issue 27); the console's row carries it for the page."""
+    fleet = Fleet()
+    fleet.on_message("secuav/proxy/lab/online", {"instance": "lab", "online": True, "vehicles": [1]})
+    fleet.on_message("secuav/v1/stats", {"downlink": {"frames_in": 5}})
+    assert fleet.summary()[0]["warnings"] == []
+    signed = "attack.signed_no_key: system 1 signs its frames ... --signing-key FILE"
+    layout = "secure.layout_mismatch: scenario 'wall-hover' gives vehicle 1 ..."
+    fleet.on_message("secuav/v1/attack/state", {"sysid": 1, "profile": "bias", "warnings": [signed]})
+    fleet.on_message("secuav/v1/secure/state", {"sysid": 1, "estimator": "secekf", "warnings": [layout]})
+    assert fleet.summary()[0]["warnings"] == [signed, layout]
+    fleet.on_message("secuav/v1/secure/state", {"sysid": 1, "estimator": "secekf", "warnings": []})
+    assert fleet.summary()[0]["warnings"] == [signed]
+    fleet.on_message("secuav/v1/attack/state", {"sysid": 1, "profile": "bias"})  # an older proxy: no field
+    assert fleet.summary()[0]["warnings"] == []

@@ -75,6 +75,13 @@ function renderFleet(rows) {
         badge.className = "badge " + (r.online ? "online" : "offline");
         badge.textContent = r.online ? "online" : "offline";
         td.append(badge);
+        if ((r.warnings || []).length) {   // a stage that cannot work: the state says why (vehicle panel)
+          const warn = document.createElement("span");
+          warn.className = "badge warning";
+          warn.textContent = r.warnings.length === 1 ? "warning" : `${r.warnings.length} warnings`;
+          warn.title = r.warnings.join("\n");
+          td.append(warn);
+        }
       } else {
         td.textContent = String(c);
       }
@@ -104,8 +111,24 @@ function renderFleet(rows) {
       ? `${mine.profile} (hash ${String(mine.hash).slice(0, 12)}, since ${since})` : "no attack") +
       (mine.mode === "bypass" ? ", attack stage bypassed" : "") +
       (mine.attack_ok ? "" : ` (last request rejected: ${mine.attack_error})`);
+    renderWarnings(mine.warnings || []);
   }
   if (state.selected === null && rows.length > 0) select(rows[0].sysid);
+}
+
+// What keeps the attack or the secure stage from working (a signed stream and no key, a scenario whose
+// rangefinders are not the vehicle's): each "code: text", shown until the proxy's state drops it.
+function renderWarnings(warnings) {
+  const box = $("vehicle-warnings");
+  box.hidden = warnings.length === 0;
+  box.replaceChildren(...warnings.map((w) => {
+    const li = document.createElement("li");
+    const cut = w.indexOf(": ");
+    const code = document.createElement("strong");
+    code.textContent = cut > 0 ? w.slice(0, cut) : "warning";
+    li.append(code, cut > 0 ? w.slice(cut) : `: ${w}`);
+    return li;
+  }));
 }
 
 // ---------------------------------------------------------------- live stream

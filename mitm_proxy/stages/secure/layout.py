@@ -34,7 +34,7 @@ from mavframe.layout import DISTANCE_SENSOR, GLOBAL_POSITION_INT, HOME_POSITION,
 from mitm_proxy.stages.secure.config import SecureConfig
 from secuav_common.loading import InputError
 from secuav_common.scenario import Home, Scenario, Vehicle, WallDistanceTarget
-from secuav_common.sensor_ids import peer_sensor_id
+from secuav_common.sensor_ids import ORIENTATION, SensorKind, classify, peer_sensor_id
 
 
 @dataclass(frozen=True, slots=True)
@@ -52,6 +52,9 @@ class Layout:
     peer_sigma_m: float  # noise std of the inter-vehicle ranges
     home: Home
     message_ids: frozenset[int]
+    scenario: str = ""  # the scenario's name, for what the stage says when the stream does not fit
+    orientation_of: dict[int, int] = dataclasses.field(default_factory=dict)  # wire id -> MAV_SENSOR_ORIENTATION
+    anchor_ids: tuple[int, ...] = ()  # the UWB anchor ranges among sensor_ids (anchors group)
 
     @property
     def p(self) -> int:
@@ -100,6 +103,9 @@ def build_layout(config: SecureConfig, scenario: Scenario, sysid: int, source: s
             height_id = down[0] if down else None
         if iv is not None:
             peer_of = {peer_sensor_id(n): n for n in iv.peers}
+    # How the scenario mounts the group's rangefinders (and the height laser): what their frames must say.
+    mounts = {r.id: ORIENTATION[r.orientation] for r in vehicle.sensors.rangefinders}
+    orientation_of = {sid: mounts[sid] for sid in (*ids, *(() if height_id is None else (height_id,))) if sid in mounts}
     return Layout(
         sysid=sysid,
         group=group,
@@ -112,6 +118,9 @@ def build_layout(config: SecureConfig, scenario: Scenario, sysid: int, source: s
         peer_sigma_m=iv.noise_std_m if iv is not None else 0.1,
         home=scenario.world.home,
         message_ids=frozenset(wanted),
+        scenario=scenario.name,
+        orientation_of=orientation_of,
+        anchor_ids=tuple(sid for sid in ids if classify(sid)[0] is SensorKind.ANCHOR) if group == "anchors" else (),
     )
 
 

@@ -25,6 +25,7 @@ class Counters:
     sets_timed_out: int = 0
     decode_errors: int = 0
     published: int = 0
+    signed_untouched: int = 0  # signed frames of the group the pipeline left alone (no key)
 
 
 def _num(v: float) -> float | None:
@@ -91,4 +92,5 @@ def stage_stats(active: bool, estimator: str | None, executor: str, layout: Layo
         "alarm": None if res is None else res.estimate.alarm,
         "decode_errors": c.decode_errors,
         "published": c.published,
+        "signed_untouched": c.signed_untouched,
     }

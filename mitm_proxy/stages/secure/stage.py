@@ -32,6 +32,13 @@ The estimator's clock is the proxy's monotonic clock, not the frames'
 filter run backwards. The vehicle's time of the newest reading still rides
 along in each published estimate (``sim_t_s``) to join with truth.
 
+When the vehicle's DISTANCE_SENSOR ids or orientations do not fit the layout
+(:mod:`mitm_proxy.stages.secure.match`), the stage logs ``secure.layout_mismatch``
+once and keeps the warning in :attr:`SecureStage.warnings` (the ``secure/state``
+and the stats) until matching readings arrive; when the vehicle signs its frames
+and the proxy has no key, the pipeline hands the stage nothing and it says
+``secure.signed_no_key`` the same way.
+
 Until the first estimate exists, frames pass unchanged. Frames of other
 vehicles, of the uplink, and of sensors outside the group pass untouched.
 :class:`SecureSlot` is the one door for changing the configuration at runtime
@@ -49,7 +56,7 @@ from typing import Any
 import numpy as np
 
 from mavframe import codec
-from mavframe.packet import Direction, Packet
+from mavframe.packet import Direction, Header, Packet
 from mitm_proxy.control.switch import Switch
 from mitm_proxy.stages.secure.collect import Readings
 from mitm_proxy.stages.secure.config import OFF, SecureConfig, config_from_payload
@@ -62,6 +69,7 @@ from mitm_proxy.stages.secure.layout import (
     build_estimator,
     build_layout,
 )
+from mitm_proxy.stages.secure.match import LayoutCheck
 from mitm_proxy.stages.secure.peers import PeerBoard
 from mitm_proxy.stages.secure.report import Counters, estimate_payload, stage_stats
 from mitm_proxy.stages.secure.substitute import FLAGGED_QUALITY, Substitution
@@ -109,6 +117,8 @@ class SecureStage:
         self.readings: Readings | None = None
         self._stepper: Stepper | None = None
         self._ids: frozenset[int] = frozenset()
+        self.check: LayoutCheck | None = None
+        self.signed_warning: str | None = None
         self.counters = Counters()
         self.substitution = Substitution(sysid, self.peers, HomeTracker(scenario.world.home), self.counters)
         self.reconfigure(config, source)
@@ -124,6 +134,7 @@ class SecureStage:
         if not config.enabled:
             old, self._stepper = self._stepper, None
             self.config, self.layout, self._ids = config, None, frozenset()
+            self.check, self.signed_warning = None, None
             if old is not None:
                 old.close()
             return
@@ -132,6 +143,7 @@ class SecureStage:
         stepper = Stepper(estimator, layout.model, config.executor, config.step_budget_s, name=f"secure-v{self.sysid}")
         old = self._stepper
         self.readings = Readings(layout)
+        self.check, self.signed_warning = LayoutCheck(layout), None
         self.substitution.reset()
         self.config, self.layout, self._stepper = config, layout, stepper
         self._ids = layout.message_ids
@@ -169,6 +181,7 @@ class SecureStage:
         if msgid == LOCAL_POSITION_NED:  # the vehicle's own velocity: the filters' motion input, if configured
             readings.take_velocity(fields, now_s)
         if msgid == DISTANCE_SENSOR:
+            self._check_layout(fields, now_s)
             if readings.take_range(layout, fields, now_s):
                 self.counters.readings += 1
         elif msgid == LOCAL_POSITION_NED and layout.height_sensor_id is None:
@@ -188,6 +201,35 @@ class SecureStage:
                 pkt.notes.append(f"{NOTE}:{self.config.estimator}")
                 self.counters.substituted_frames += 1
         return [pkt]
+
+    def signed_untouched(self, header: Header) -> None:
+        """The pipeline left a signed frame this stage wanted alone (no key): the stage cannot read it."""
+        if header.sysid != self.sysid:
+            return
+        self.counters.signed_untouched += 1
+        if self.signed_warning is None and self.layout is not None:
+            self.signed_warning = (
+                f"secure.signed_no_key: vehicle {self.sysid} signs its frames and this proxy has no signing key, "
+                "so the secure stage reads and rewrites none of them: start secuav-proxy with --signing-key FILE "
+                "(docs/interfaces.md)")
+
+    def _check_layout(self, fields: dict[str, Any], now_s: float) -> None:
+        check, sid, orientation = self.check, fields.get("id"), fields.get("orientation")
+        if check is None or not isinstance(sid, int) or not isinstance(orientation, int):
+            return
+        was = check.mismatch
+        if check.take(sid, orientation, now_s):
+            if was is None:
+                log.warning("secure.layout_mismatch", extra={"sysid": self.sysid, "scenario": check.layout.scenario,
+                                                             "group": check.layout.group, **check.fields})  # fmt: skip
+            elif check.mismatch is None:
+                log.info("secure.layout_match", extra={"sysid": self.sysid, "arrived": check.arrived()})
+
+    @property
+    def warnings(self) -> list[str]:
+        """What keeps the stage from doing its work now (``secure/state``, the stats); empty while it can."""
+        check = self.check
+        return [w for w in (None if check is None else check.mismatch, self.signed_warning) if w is not None]
 
     # -- stepping ----------------------------------------------------------------------------------
 
@@ -226,8 +268,8 @@ class SecureStage:
 
     def stats(self) -> dict[str, Any]:
         """Counters for ``secuav/v<sysid>/stats`` and the logs."""
-        return stage_stats(self.active, self.config.estimator, self.config.executor, self.layout, self._stepper,
-                           self.counters, self.substitution.peer_flagged)  # fmt: skip
+        return {**stage_stats(self.active, self.config.estimator, self.config.executor, self.layout, self._stepper,
+                              self.counters, self.substitution.peer_flagged), "warnings": self.warnings}  # fmt: skip
 
     def wait_idle(self, timeout_s: float = 5.0) -> bool:
         """Block until submitted sets are stepped (tests, shutdown; never on the forwarding path)."""
@@ -262,7 +304,7 @@ class SecureSlot(Switch[SecureState]):
         cfg = self.stage.config
         group = None if self.stage.layout is None else self.stage.layout.group
         return {"sysid": self.sysid, "estimator": cfg.estimator, "params": dict(cfg.params), "group": group,
-                "since": self._since}  # fmt: skip
+                "since": self._since, "warnings": self.stage.warnings}  # fmt: skip
 
     def apply(self, payload: Any, source: str) -> None:
         """A :class:`SecureConfig`, or the JSON of ``secure/set``: ``null``/``"off"``, a name, or
