@@ -38,6 +38,14 @@ from attack_profiles.action import FORWARD, Action
 from attack_profiles.primitives import PRIMITIVES, Context, Primitive, Sample, primitive
 from attack_profiles.primitives.base import Vec3
 from attack_profiles.profile import Profile
+from attack_profiles.quantities import (
+    DEFAULT_COMPONENT,
+    ORIENTATION_DOWN,
+    QUALITY_INVALID,
+    Carrier,
+    carriers_of,
+    true_copies,
+)
 from attack_profiles.rule import IdRange, RuleBase
 from attack_profiles.units import EPOCH_USEC_THRESHOLD, LOCAL_POSITION_NED_ID, MESSAGES, FieldSpec, MessageSpec
 from mavframe.packet import Direction
@@ -88,6 +96,11 @@ class _Compiled:
     field: str | None  # None: frame-level primitive
     spec: FieldSpec | None
     needs_position: bool
+    keep: bool = True  # out_of_range: keep: a frame's no-reading passes this rule by
+    clamp: bool = True  # ... and what it writes stays inside the sensor's [min, max]
+    factor: float = 1.0  # quantity targets: quantity value = field value (physical) * factor
+    lat_field: str | None = None  # ... times cos(this latitude), for a longitude
+    lat_scale: float = 0.0  # degrees per wire unit of lat_field
 
 
 @dataclass(slots=True)
@@ -98,6 +111,8 @@ class _State:
     active_at_s: float | None = None
     vehicle_time_s: dict[int, float] = field(default_factory=dict)  # sysid -> last time_boot seen
     positions: dict[int, Vec3] = field(default_factory=dict)  # sysid -> last LOCAL_POSITION_NED
+    # sysid -> DISTANCE_SENSOR id -> (min m, max m, invalid, downward), for RANGEFINDER (ArduPilot's primary)
+    rangefinders: dict[int, dict[int, tuple[float, float, bool, bool]]] = field(default_factory=dict)
     chains: dict[tuple[int, int, int, Direction], tuple[_Compiled, ...]] = field(default_factory=dict)
     sample: Sample = field(default_factory=Sample)
 
@@ -116,19 +131,30 @@ def _run_chain(rules: Sequence[_Compiled], s: Sample, working: dict[str, float])
     """
     acted: list[int] = []
     t = s.t_s
+    k = 1.0
     for r in rules:
         tau = r.window.tau(t)
         if tau is None and not r.stateful:
             continue
         name = r.field
         if name is not None:
+            if r.keep and name in s.unread:  # no reading: it stays one
+                continue
             value = working.get(name)
             if value is None:
                 raw = s.fields.get(name)
                 if raw is None:
                     continue
                 value = raw * r.spec.scale  # type: ignore[union-attr]
-            s.value = value
+            k = r.factor
+            if r.lat_field is not None:
+                lat = s.fields.get(r.lat_field)
+                if lat is None:
+                    continue
+                k *= math.cos(math.radians(lat * r.lat_scale))
+                if abs(k) < 1e-9:  # at a pole a longitude carries no east
+                    continue
+            s.value = value * k if k != 1.0 else value
         r.prim.apply(s, tau)
         if tau is None:
             continue
@@ -137,7 +163,9 @@ def _run_chain(rules: Sequence[_Compiled], s: Sample, working: dict[str, float])
         if s.drop:
             break
         if name is not None:
-            working[name] = s.value
+            working[name] = s.value / k if k != 1.0 else s.value
+            if not r.clamp:
+                s.free.add(name)
     return tuple(acted)
 
 
@@ -164,12 +192,17 @@ class Engine:
             if rule.needs_anchors and scenario is None:
                 raise InputError(profile.source, f"rules[{i}].kind", rule.kind, "needs a scenario for anchor positions")
         self._msg_by_id: dict[int, MessageSpec] = {
-            MESSAGES[r.target.message].msgid: MESSAGES[r.target.message] for r in profile.rules
+            MESSAGES[name].msgid: MESSAGES[name] for r in profile.rules for name in _messages_of(r)
         }
         self._tracks_position = any(r.needs_position for r in profile.rules)
+        # RANGEFINDER follows ArduPilot's primary downward rangefinder: learnt from DISTANCE_SENSOR.
+        self._tracks_rangefinders = _RANGEFINDER_ID in self._msg_by_id
         ids = set(self._msg_by_id)
         if self._tracks_position:
             ids.add(LOCAL_POSITION_NED_ID)
+        if self._tracks_rangefinders:
+            ids.add(_DISTANCE_SENSOR_ID)
+        self.warnings: tuple[str, ...] = tuple(true_copies(profile))
         self.message_ids: frozenset[int] = frozenset(ids)
         self._live = self._new_state()
 
@@ -187,7 +220,7 @@ class Engine:
                     source, f"rules[{i}].target.sysid", target.sysid, f"scenario {scenario.name!r} has no such vehicle"
                 )
             wanted = target.sensor_ids()
-            if wanted is None or MESSAGES[target.message].id_field is None:
+            if wanted is None or (target.message is not None and MESSAGES[target.message].id_field is None):
                 continue
             vehicles = [v for v in scenario.vehicles if target.sysid in (None, v.sysid)]
             present = set().union(*(_sensor_ids(v, anchors) for v in vehicles))
@@ -245,13 +278,18 @@ class Engine:
             x, y, z = fields.get("x"), fields.get("y"), fields.get("z")
             if x is not None and y is not None and z is not None:
                 st.positions[sysid] = (x, y, z)
+        if self._tracks_rangefinders and msgid == _DISTANCE_SENSOR_ID and direction is Direction.DOWNLINK:
+            _track_rangefinder(st, sysid, fields)
         msg = self._msg_by_id.get(msgid)
         if msg is None:  # watched only for the position
             return FORWARD
         t = self._clock(st, now_s, msg, fields, sysid)  # first: it also tracks the vehicle's clock
         if t is None:
             return FORWARD
-        sid = fields.get(msg.id_field, -1) if msg.id_field is not None else -1
+        if msgid == _RANGEFINDER_ID:
+            sid = _primary(st, sysid)
+        else:
+            sid = fields.get(msg.id_field, -1) if msg.id_field is not None else -1
         rules = self._chain(st, msgid, sysid, sid, direction)
         if not rules:
             return FORWARD
@@ -259,6 +297,10 @@ class Engine:
         s.t_s, s.key, s.fields = t, (sysid, sid), fields
         s.drop, s.delay_s, s.offline = False, 0.0, False
         s.position_ned_m = st.positions.get(sysid)
+        limits = _limits(st, msgid, fields, sysid, sid)
+        s.unread = _unread(msgid, fields, limits)
+        if s.free:
+            s.free.clear()
         working: dict[str, float] = {}
         acted = _run_chain(rules, s, working)
         if not acted:
@@ -268,8 +310,12 @@ class Engine:
         changed: dict[str, Any] = {}
         clamped: list[str] = []
         for name, value in working.items():
+            lim = limits.get(name) if limits else None
+            if lim is not None and name not in s.free and lim[0] <= lim[1] and not lim[0] <= value <= lim[1]:
+                value = min(max(value, lim[0]), lim[1])  # an attacked reading stays inside the sensor's range
+                clamped.append(name)
             wire, was_clamped = msg.fields[name].to_wire(value)
-            if was_clamped:
+            if was_clamped and name not in clamped:
                 clamped.append(name)
             if wire != fields.get(name):
                 changed[name] = wire
@@ -342,6 +388,7 @@ class Engine:
             raise ValueError(f"{message}.{field} is not an attackable field")
         spec = msg.fields[field]
         st = self._new_state()
+        st.sample.unread = frozenset()
         columns = [
             tuple(
                 r for r in self._chain(st, msg.msgid, sysid, int(sid), Direction.DOWNLINK) if r.field in (None, field)
@@ -381,29 +428,126 @@ class Engine:
     def _new_state(self) -> _State:
         plans: dict[int, list[_Compiled]] = {mid: [] for mid in self.message_ids}
         for i, rule in enumerate(self.profile.rules):
-            msg = MESSAGES[rule.target.message]
             cls = PRIMITIVES.get(rule.kind) or primitive(rule.kind)  # type: ignore[attr-defined]
             if cls is None:  # a plugin's rule that reached a process without the plugin
                 raise InputError(self.profile.source, f"rules[{i}].kind", rule.kind, "no such primitive installed here")
-            for name in rule.fields_of(msg):
-                spec = msg.fields[name] if name is not None else None
-                seed = _rule_seed(self.profile.seed, self.seed, i if name is None else f"{i}.{name}")
+            keep = rule.out_of_range == "keep" and rule.within_limits
+            clamp = keep and rule.clamps_to_limits
+            common = {"index": i, "window": Window.of(rule), "stateful": cls.stateful, "sysid": rule.target.sysid,
+                      "directions": _DIRECTIONS[rule.target.direction], "ids": rule.target.sensor_ids(),
+                      "needs_position": rule.needs_position, "keep": keep, "clamp": clamp}  # fmt: skip
+            if rule.target.message is not None:
+                msg = MESSAGES[rule.target.message]
+                for name in rule.fields_of(msg):
+                    spec = msg.fields[name] if name is not None else None
+                    seed = _rule_seed(self.profile.seed, self.seed, i if name is None else f"{i}.{name}")
+                    ctx = Context(i, spec, random.Random(seed), self._anchors, self._noise)
+                    plans[msg.msgid].append(_Compiled(prim=cls(rule, ctx), field=name, spec=spec, **common))
+                continue
+            for message, carrier in _carriers(rule):
+                msg = MESSAGES[message]
+                spec = None if carrier is None else msg.fields[carrier.field]
+                name = None if carrier is None else carrier.field
+                seed = _rule_seed(self.profile.seed, self.seed, f"{i}.{message}" + ("" if name is None else f".{name}"))
                 ctx = Context(i, spec, random.Random(seed), self._anchors, self._noise)
-                plans[msg.msgid].append(
-                    _Compiled(
-                        index=i,
-                        prim=cls(rule, ctx),
-                        window=Window.of(rule),
-                        stateful=cls.stateful,
-                        directions=_DIRECTIONS[rule.target.direction],
-                        sysid=rule.target.sysid,
-                        ids=rule.target.sensor_ids(),
-                        field=name,
-                        spec=spec,
-                        needs_position=rule.needs_position,
-                    )
-                )
+                conv: dict[str, Any] = {}
+                if carrier is not None:
+                    conv["factor"] = carrier.factor
+                    if carrier.lat_field is not None:
+                        conv["lat_field"] = carrier.lat_field
+                        conv["lat_scale"] = msg.fields[carrier.lat_field].scale
+                plans[msg.msgid].append(_Compiled(prim=cls(rule, ctx), field=name, spec=spec, **common, **conv))
         return _State(plans={mid: tuple(rs) for mid, rs in plans.items()})
+
+
+_DISTANCE_SENSOR_ID = MESSAGES["DISTANCE_SENSOR"].msgid
+_RANGEFINDER_ID = MESSAGES["RANGEFINDER"].msgid
+# Messages whose lat/lon read 0/0 before the vehicle has a position (ArduPilot, PX4): no reading then.
+_LATLON = {MESSAGES[n].msgid: (lat, lon) for n, lat, lon in (
+    ("GLOBAL_POSITION_INT", "lat", "lon"), ("TERRAIN_REPORT", "lat", "lon"), ("AHRS2", "lat", "lng"),
+    ("AHRS3", "lat", "lng"), ("SIMSTATE", "lat", "lng"))}  # fmt: skip
+_NO_FIX = {  # what a missing position leaves without meaning, per message
+    MESSAGES["GLOBAL_POSITION_INT"].msgid: frozenset({"lat", "lon", "alt"}),
+    MESSAGES["TERRAIN_REPORT"].msgid: frozenset({"lat", "lon", "current_height"}),
+    MESSAGES["AHRS2"].msgid: frozenset({"lat", "lng", "altitude"}),
+    MESSAGES["AHRS3"].msgid: frozenset({"lat", "lng", "altitude"}),
+    MESSAGES["SIMSTATE"].msgid: frozenset({"lat", "lng"}),
+}
+_GPS = frozenset({MESSAGES["GPS_RAW_INT"].msgid, MESSAGES["GPS2_RAW"].msgid})
+_GPS_NO_FIX = frozenset({"lat", "lon", "alt", "alt_ellipsoid"})
+_NOTHING: frozenset[str] = frozenset()
+
+
+def _messages_of(rule: RuleBase) -> list[str]:
+    if rule.target.message is not None:
+        return [rule.target.message]
+    return list(dict.fromkeys(m for m, _ in _carriers(rule)))
+
+
+def _carriers(rule: RuleBase) -> list[tuple[str, Carrier | None]]:
+    """(message, carrier) pairs a quantity rule acts on; frame-level rules: (message, None) once a message."""
+    q = rule.target.quantity
+    assert q is not None
+    if rule.frame_level:
+        return [(m, None) for m in dict.fromkeys(c.message for c in carriers_of(q, rule.target.field))]
+    return [(c.message, c) for c in carriers_of(q, rule.target.field or DEFAULT_COMPONENT[q])]
+
+
+def _track_rangefinder(st: _State, sysid: int, fields: Mapping[str, Any]) -> None:
+    sid = fields.get("id")
+    lo, hi, q = fields.get("min_distance"), fields.get("max_distance"), fields.get("signal_quality", 0)
+    if sid is None or lo is None or hi is None:
+        return
+    known = st.rangefinders.setdefault(sysid, {})
+    if len(known) < 256 or sid in known:
+        known[sid] = (lo * 0.01, hi * 0.01, q == QUALITY_INVALID, fields.get("orientation") == ORIENTATION_DOWN)
+
+
+def _primary(st: _State, sysid: int) -> int:
+    """ArduPilot's RANGEFINDER carries its first downward rangefinder: the lowest downward id seen (0 before)."""
+    known = st.rangefinders.get(sysid)
+    if not known:
+        return 0
+    down = [sid for sid, info in known.items() if info[3]]
+    return min(down) if down else 0
+
+
+def _limits(st: _State, msgid: int, fields: Mapping[str, Any], sysid: int, sid: int) -> dict[str, tuple[float, float]]:
+    """The sensor's own [min, max] (metres) for the readings of this frame, where it has one."""
+    if msgid == _DISTANCE_SENSOR_ID:
+        lo, hi = fields.get("min_distance"), fields.get("max_distance")
+        if lo is not None and hi is not None:
+            return {"current_distance": (lo * 0.01, hi * 0.01)}
+    elif msgid == _RANGEFINDER_ID:
+        info = st.rangefinders.get(sysid, {}).get(sid)
+        if info is not None:  # the primary flagged invalid: an empty range, nothing inside it is a reading
+            return {"distance": (math.inf, -math.inf) if info[2] else (info[0], info[1])}
+    return {}
+
+
+def _unread(msgid: int, fields: Mapping[str, Any], limits: dict[str, tuple[float, float]]) -> frozenset[str]:
+    """Fields of this frame that carry no reading: a range outside the sensor's limits or flagged
+    invalid, a position before a fix (lat/lon 0/0, GPS fix_type below 2D)."""
+    if msgid == _DISTANCE_SENSOR_ID:
+        cm, lim = fields.get("current_distance"), limits.get("current_distance")
+        invalid = fields.get("signal_quality") == QUALITY_INVALID
+        if cm is not None and (invalid or (lim is not None and not lim[0] <= cm * 0.01 <= lim[1])):
+            return frozenset(("current_distance",))
+        return _NOTHING
+    if msgid == _RANGEFINDER_ID:
+        m, lim = fields.get("distance"), limits.get("distance")
+        if m is None:
+            return _NOTHING
+        if lim is None:  # no DISTANCE_SENSOR seen yet: ArduPilot reports 0 when it has no reading
+            return frozenset(("distance",)) if not m > 0.0 else _NOTHING
+        return frozenset(("distance",)) if not lim[0] <= m <= lim[1] else _NOTHING
+    if msgid in _GPS:
+        fix = fields.get("fix_type")
+        return _GPS_NO_FIX if fix is not None and fix < 2 else _NOTHING
+    names = _LATLON.get(msgid)
+    if names is not None and fields.get(names[0]) == 0 and fields.get(names[1]) == 0:
+        return _NO_FIX[msgid]
+    return _NOTHING
 
 
 def _noise_by_id(scenario: Scenario) -> dict[int, float]:
