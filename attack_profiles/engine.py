@@ -475,6 +475,14 @@ _NO_FIX = {  # what a missing position leaves without meaning, per message
 }
 _GPS = frozenset({MESSAGES["GPS_RAW_INT"].msgid, MESSAGES["GPS2_RAW"].msgid})
 _GPS_NO_FIX = frozenset({"lat", "lon", "alt", "alt_ellipsoid"})
+_NO_ELLIPSOID = frozenset({"alt_ellipsoid"})
+_ALTITUDE_ID = MESSAGES["ALTITUDE"].msgid
+_ALTITUDE_UNKNOWN = {  # ALTITUDE: terrain below -1000 m and a negative clearance mean "unknown"
+    (False, False): frozenset(),
+    (True, False): frozenset({"altitude_terrain"}),
+    (False, True): frozenset({"bottom_clearance"}),
+    (True, True): frozenset({"altitude_terrain", "bottom_clearance"}),
+}
 _NOTHING: frozenset[str] = frozenset()
 
 
@@ -527,7 +535,8 @@ def _limits(st: _State, msgid: int, fields: Mapping[str, Any], sysid: int, sid: 
 
 def _unread(msgid: int, fields: Mapping[str, Any], limits: dict[str, tuple[float, float]]) -> frozenset[str]:
     """Fields of this frame that carry no reading: a range outside the sensor's limits or flagged
-    invalid, a position before a fix (lat/lon 0/0, GPS fix_type below 2D)."""
+    invalid, a position before a fix (lat/lon 0/0, GPS fix_type below 2D), a GPS ellipsoid height
+    of 0, ALTITUDE's "unknown" terrain height and clearance."""
     if msgid == _DISTANCE_SENSOR_ID:
         cm, lim = fields.get("current_distance"), limits.get("current_distance")
         invalid = fields.get("signal_quality") == QUALITY_INVALID
@@ -543,7 +552,13 @@ def _unread(msgid: int, fields: Mapping[str, Any], limits: dict[str, tuple[float
         return frozenset(("distance",)) if not lim[0] <= m <= lim[1] else _NOTHING
     if msgid in _GPS:
         fix = fields.get("fix_type")
-        return _GPS_NO_FIX if fix is not None and fix < 2 else _NOTHING
+        if fix is not None and fix < 2:
+            return _GPS_NO_FIX
+        return _NO_ELLIPSOID if fields.get("alt_ellipsoid") == 0 else _NOTHING  # 0: a receiver that gives none
+    if msgid == _ALTITUDE_ID:
+        terrain, clearance = fields.get("altitude_terrain"), fields.get("bottom_clearance")
+        unknown = (terrain is not None and terrain < -1000.0, clearance is not None and clearance < 0.0)
+        return _ALTITUDE_UNKNOWN[unknown]
     names = _LATLON.get(msgid)
     if names is not None and fields.get(names[0]) == 0 and fields.get(names[1]) == 0:
         return _NO_FIX[msgid]

@@ -76,7 +76,7 @@ def _c(q: str, comp: str, msg: str, fields: str, factor: float = 1.0, **kw: obje
 
 
 _AP = {"dialect": "ardupilotmega"}
-_ALTITUDES = "altitude_monotonic altitude_amsl altitude_local altitude_relative altitude_terrain"
+_ALTITUDES = "altitude_monotonic altitude_amsl altitude_local altitude_relative altitude_terrain bottom_clearance"
 
 CARRIERS: tuple[Carrier, ...] = tuple(
     [
@@ -117,7 +117,7 @@ CARRIERS: tuple[Carrier, ...] = tuple(
 NOT_COVERED: dict[str, tuple[tuple[str, str], ...]] = {
     "rangefinder": (
         ("OBSTACLE_DISTANCE.distances", "proximity sectors; which sector a rangefinder feeds is the autopilot's setup"),
-        ("ALTITUDE.bottom_clearance", "names no sensor"),
+        ("ALTITUDE.bottom_clearance", "a fused clearance naming no sensor: it moves with the altitude quantity"),
         ("RANGEFINDER.voltage", "an analog sensor's raw voltage, from which its distance can be worked out"),
     ),
     "altitude": (
