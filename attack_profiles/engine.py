@@ -21,6 +21,32 @@ that drops the frame ends the chain. Stateful primitives keep their state per
 target (vehicle, sensor id), and every call of :meth:`Engine.apply_array` starts
 from fresh state, so it is repeatable; the live state starts at
 :meth:`Engine.activate`.
+
+No reading: A sensor says "I have no reading" in the value itself, and an offset
+must not turn that into a believable one (ArduPilot on the ground sends
+DISTANCE_SENSOR ``current_distance`` 0 under ``min_distance`` 20 cm; +5 m made it
+5 m). With a rule's ``out_of_range: keep`` (the default) these pass the rule by,
+unchanged:
+
+- DISTANCE_SENSOR ``current_distance`` outside ``[min_distance, max_distance]``,
+  or ``signal_quality`` 1 (invalid);
+- RANGEFINDER ``distance`` outside the limits of the DISTANCE_SENSOR it mirrors
+  (ArduPilot's primary downward one), or while that one is flagged invalid; 0 m
+  before any DISTANCE_SENSOR was seen;
+- lat/lon (and the AMSL height beside them) of GLOBAL_POSITION_INT,
+  TERRAIN_REPORT, AHRS2, AHRS3, SIMSTATE while they read 0/0 (no position yet),
+  and of GPS_RAW_INT / GPS2_RAW below a 2-D fix; their ``alt_ellipsoid`` when 0;
+- ALTITUDE ``altitude_terrain`` below -1000 m and ``bottom_clearance`` below 0
+  (both "unknown").
+
+An attacked range that was a reading stays one: it is clamped to the sensor's
+own ``[min_distance, max_distance]`` and the field is named in ``Action.clamped``
+(the proxy notes it on the frame), so a bias never pushes a reading into the
+"no target" band either. ``set`` writes the profile's value as given (a profile
+that forges "reads 0" says so), and ``garbage`` ignores both (a sensor gone
+mad). ``out_of_range: attack`` attacks every value and bounds it by the wire type
+only, as before. Frame rules (drop, delay, intermittent) act on every frame.
+Offline arrays (``Engine.apply_array``) carry no limits: NaN is their "no reading".
 """
 
 from __future__ import annotations

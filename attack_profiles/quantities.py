@@ -18,9 +18,29 @@ with the same value in the quantity's own unit (metres), converted per carrier:
   WGS-84 equatorial radius at the message's own latitude (1e-7 degrees is 1.1 cm
   on the wire).
 
-Carriers the table does not rewrite are listed in :data:`NOT_COVERED`; a
-profile that leaves any carrier of an attacked quantity true on the wire gets a
-warning from :func:`true_copies` when it is validated or applied.
+Offsets that depend only on time (bias, ramp, sinusoid) are the same in every
+carrier at the same moment; noise draws afresh per frame and carrier; freeze,
+replay and delay keep their state per carrier. On ``altitude`` and ``position``
+only such relative rules and frame rules are allowed: ``set``, ``scale`` and
+``garbage`` would put each datum somewhere else. Frame rules (drop, delay,
+intermittent) act on every carrier message of the quantity.
+
+A +5 m lie on ArduPilot's downward rangefinder 0, in DISTANCE_SENSOR and RANGEFINDER alike::
+
+    rules:
+      - target: {quantity: rangefinder, sensor_id: 0}
+        kind: bias
+        offset: 5
+      - target: {quantity: position, field: north}
+        kind: ramp
+        rate_per_s: 0.1
+
+What still reveals a quantity and is not rewritten is listed below the table. A
+profile that leaves any carrier of an attacked quantity true on the wire (a
+message target with twins, or a quantity with uncovered carriers) is warned
+about when it is validated (``secuav-attack validate``, on stderr) and when it is
+applied (the proxy's log, event ``attack.true_copy``, and ``warnings`` in
+``secuav/v<N>/attack/state``).
 """
 
 from __future__ import annotations
@@ -158,6 +178,7 @@ def true_copies(profile: Profile) -> list[str]:
         else:
             hit.add((t.message, t.field or MESSAGES[t.message].default_field or ""))
     out: list[str] = []
+    groups: dict[tuple[str, str], tuple[list[int], list[str]]] = {}  # (quantity, component) -> rules, messages
     for i, rule in enumerate(profile.rules):
         t = rule.target
         if t.quantity is not None:
@@ -169,17 +190,21 @@ def true_copies(profile: Profile) -> list[str]:
         spec = MESSAGES[t.message]
         names = list(spec.fields) if rule.frame_level or getattr(rule, "scope", None) == "frame" else [
             t.field or spec.default_field or ""]  # fmt: skip
-        twins: dict[tuple[str, str], list[str]] = {}
         for name in names:
             mine = by_field.get((t.message, name))
-            if mine is None:
-                continue
-            for c in carriers_of(mine.quantity, mine.component):
-                if (c.message, c.field) not in hit:
-                    twins.setdefault((mine.quantity, mine.component), []).append(f"{c.message}.{c.field}")
-        for (q, comp), left in twins.items():
-            out.append(f"rules[{i}] rewrites {q} {comp} in {t.message} only: {', '.join(left)} still carry the "
-                       f"true value (target quantity: {q} rewrites them all)")  # fmt: skip
+            if mine is not None:
+                rules, messages = groups.setdefault((mine.quantity, mine.component), ([], []))
+                if i not in rules:
+                    rules.append(i)
+                if t.message not in messages:
+                    messages.append(t.message)
+    for (q, comp), (rules, messages) in groups.items():
+        left = [f"{c.message}.{c.field}" for c in carriers_of(q, comp) if (c.message, c.field) not in hit]
+        if left:
+            verb = "still carries" if len(left) == 1 else "still carry"
+            spelled = f"quantity: {q}" + (f", field: {comp}" if DEFAULT_COMPONENT[q] is None else "")
+            out.append(f"rules[{', '.join(map(str, rules))}] rewrite {q} {comp} in {', '.join(messages)}; "
+                       f"{', '.join(left)} {verb} the true value (target {spelled} rewrites them all)")  # fmt: skip
     return out
 
 

@@ -13,6 +13,7 @@ in place and says why in :attr:`state`.
 
 from __future__ import annotations
 
+import logging
 import time
 from typing import Any, NamedTuple
 
@@ -27,6 +28,8 @@ from secuav_common.scenario import Scenario
 SlotState = AttackState  # what ``secuav/v<sysid>/attack/state`` carries (retained)
 
 __all__ = ["AttackSlot", "SlotState"]
+
+log = logging.getLogger(__name__)
 
 
 class _Built(NamedTuple):
@@ -58,7 +61,8 @@ class AttackSlot(Switch[AttackState]):
     def current(self) -> dict[str, Any]:
         profile = None if self.engine is None else self.engine.profile
         return {"sysid": self.sysid, "profile": None if profile is None else profile.name,
-                "hash": self._hash, "since": self._since}  # fmt: skip
+                "hash": self._hash, "since": self._since,
+                "warnings": [] if self.engine is None else list(self.engine.warnings)}  # fmt: skip
 
     def prepare(self, payload: Any, source: str) -> Any:
         """A request's JSON validated into a profile and its engine built, not started (pure: the MQTT session
@@ -75,6 +79,7 @@ class AttackSlot(Switch[AttackState]):
             engine: Engine | None = payload.engine
             payload.engine.activate(time.monotonic(), rebuild=False)  # built off the loop: only the clock starts
             self.engine, self._hash, self._since = engine, payload.hash, time.time()
+            self._warn(engine)
             return
         if isinstance(payload, Engine):
             engine = payload  # built and started by the caller (secuav-record shares one clock)
@@ -87,6 +92,13 @@ class AttackSlot(Switch[AttackState]):
         self.engine = engine
         self._hash = None if engine is None else engine.profile.content_hash()
         self._since = time.time()
+        self._warn(engine)
+
+    def _warn(self, engine: Engine | None) -> None:
+        """Say once per install what the profile leaves true on the wire (the state carries it too)."""
+        for warning in () if engine is None else engine.warnings:
+            log.warning("attack.true_copy", extra={"sysid": self.sysid, "profile": engine.profile.name,
+                                                   "warning": warning})  # fmt: skip
 
     def offer(self, profile: Profile | None, request_id: str | None = None, source: str = "<profile>") -> AttackState:
         """Install ``profile`` (``None`` clears); on ``InputError`` keep the old one and report it."""

@@ -67,6 +67,8 @@ class AttackState(_Payload):
     profile: str | None = None  # active profile name; None when no profile is active
     hash: str | None = None
     since: float | None = None  # wall-clock time (epoch s) the active profile was installed
+    # What the active profile leaves true on the wire (a carrier of an attacked quantity it does not rewrite)
+    warnings: list[str] = []
     request_id: str | None = None  # of the last request, accepted or not
     ok: bool = True  # whether the last request was accepted
     error: str | None = None  # why it was rejected
