@@ -146,3 +146,24 @@ def test_validate_prints_the_warnings(tmp_path: Path) -> None:
     assert done.returncode == 0 and done.stdout.startswith("ok: p")
     want = "warning: rules[0] rewrite rangefinder distance in DISTANCE_SENSOR; RANGEFINDER.distance still carries"
     assert want in done.stderr
+
+
+@FAST
+@given(
+    quantity=st.sampled_from(["rangefinder", "altitude", "position"]),
+    data=st.data(),
+    kind=st.sampled_from(["bias", "ramp", "noise", "drop", "delay", "freeze"]),
+    keep=st.sampled_from(["keep", "attack"]),
+)
+def test_quantity_profiles_round_trip_and_build(quantity: str, data: st.DataObject, kind: str, keep: str) -> None:
+    field = data.draw(st.sampled_from({"rangefinder": [None, "distance"], "altitude": [None, "up"],
+                                       "position": ["north", "east"]}[quantity]))  # fmt: skip
+    params = {"bias": {"offset": 1.0}, "ramp": {"rate_per_s": 0.5}, "noise": {"std": 0.3}, "drop": {},
+              "delay": {"delay_s": 0.2}, "freeze": {}}[kind]  # fmt: skip
+    with_id = quantity == "rangefinder" and data.draw(st.booleans())
+    extra = {"sensor_id": data.draw(st.integers(0, 255))} if with_id else {}
+    profile = make_profile(q(quantity, kind, field, out_of_range=keep, **extra, **params))
+    again = parse_profile(profile.canonical_json(), "again.json")
+    assert again == profile and again.content_hash() == profile.content_hash()
+    engine = started(profile)
+    assert engine.message_ids  # every carrier message, decoded only for these

@@ -7,11 +7,18 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
+import signal
 import socket
+import subprocess
+import sys
+import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+import yaml
 
 from attack_profiles.profile import parse_profile
 from flightsim.runner import RunConfig, SimRunner
@@ -102,3 +109,73 @@ def test_flightsim_stream_keeps_no_true_copy() -> None:
                  "ALTITUDE.bottom_clearance", "GPS_RAW_INT.lat", "GPS_RAW_INT.alt"):  # fmt: skip
         assert s[name] > 0, name
     print(f"shifted {dict(s)} kept {dict(report.kept)} exact {report.exact}")
+
+
+@pytest.mark.timeout(90)
+def test_real_proxy_on_loopback_rewrites_every_carrier_and_keeps_no_reading(
+    tmp_path: Path, udp_port: Callable[[], int]
+) -> None:
+    """``secuav-proxy --profile F`` as a process, the recorded ArduCopter stream sent to it over UDP."""
+    veh, gcs = udp_port(), udp_port()
+    profile = tmp_path / "quantities.yaml"
+    profile.write_text(yaml.safe_dump(OFFSETS.profile()), encoding="utf-8")
+    frames = [e.raw for e in tlog.read(ARDUPILOT_TLOG) if e.header.sysid == 1]
+    ground = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    ground.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 23)
+    ground.bind(("127.0.0.1", gcs))
+    ground.settimeout(0.2)
+    log = tmp_path / "proxy.log"
+    with log.open("wb") as sink:
+        proxy = subprocess.Popen(
+            [sys.executable, "-m", "mitm_proxy", "--broker", "none", "--profile", str(profile),
+             "--vehicle", f"udpin://127.0.0.1:{veh}", "--ground", f"udpout://127.0.0.1:{gcs}"],
+            stdout=sink, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )  # fmt: skip
+    vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        # The first frame (a HEARTBEAT) until the proxy forwards it: then it is up.
+        deadline = time.monotonic() + 30.0
+        got: list[bytes] = []
+        while not got:
+            assert time.monotonic() < deadline and proxy.poll() is None, log.read_text()
+            vehicle.sendto(frames[0], ("127.0.0.1", veh))
+            with contextlib.suppress(TimeoutError):
+                got.append(ground.recv(65536))
+        received: list[bytes] = []
+        done = threading.Event()
+
+        def drain() -> None:
+            while not done.is_set() or len(received) < len(frames) - 1:
+                try:
+                    received.append(ground.recv(65536))
+                except TimeoutError:
+                    if done.is_set():
+                        return
+
+        reader = threading.Thread(target=drain)
+        reader.start()
+        for k, raw in enumerate(frames[1:]):
+            vehicle.sendto(raw, ("127.0.0.1", veh))
+            if k % 20 == 19:
+                time.sleep(0.002)  # a radio's pace, well above the 100 Hz the recording was made at
+        time.sleep(1.0)
+        done.set()
+        reader.join(10)
+    finally:
+        proxy.send_signal(signal.SIGTERM)
+        try:
+            proxy.wait(10)
+        finally:
+            if proxy.poll() is None:
+                proxy.kill()
+        vehicle.close()
+        ground.close()
+    # The warm-up heartbeats were forwarded too: keep only what the stream itself became.
+    out = [raw for datagram in received for _h, raw in split(datagram).frames]
+    sent = frames[1:]
+    out = out[len(out) - len(sent) :] if len(out) >= len(sent) else out
+    report = Checker(OFFSETS).check(sent, out)
+    assert report.shifted["RANGEFINDER.distance"] > 0 and report.shifted["DISTANCE_SENSOR.current_distance"] > 0
+    assert report.kept["DISTANCE_SENSOR.current_distance"] > 0  # on the ground: 0 cm stayed 0 cm
+    assert report.shifted["GLOBAL_POSITION_INT.lat"] > 0 and report.shifted["LOCAL_POSITION_NED.z"] > 0
+    assert "attack.true_copy" in log.read_text()  # what the table does not cover, said when applied
