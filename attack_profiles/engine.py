@@ -323,8 +323,8 @@ class Engine:
         s.t_s, s.key, s.fields = t, (sysid, sid), fields
         s.drop, s.delay_s, s.offline = False, 0.0, False
         s.position_ned_m = st.positions.get(sysid)
-        limits = _limits(st, msgid, fields, sysid, sid)
-        s.unread = _unread(msgid, fields, limits)
+        limits = _limits(st, msgid, fields, sysid, sid) if msgid in _RANGED else None
+        s.unread = _unread(msgid, fields, limits) if msgid in _MAY_BE_UNREAD else _NOTHING
         if s.free:
             s.free.clear()
         working: dict[str, float] = {}
@@ -336,10 +336,11 @@ class Engine:
         changed: dict[str, Any] = {}
         clamped: list[str] = []
         for name, value in working.items():
-            lim = limits.get(name) if limits else None
-            if lim is not None and name not in s.free and lim[0] <= lim[1] and not lim[0] <= value <= lim[1]:
-                value = min(max(value, lim[0]), lim[1])  # an attacked reading stays inside the sensor's range
-                clamped.append(name)
+            if limits is not None and name == limits[0] and name not in s.free:
+                lo, hi = limits[1], limits[2]
+                if lo <= hi and not lo <= value <= hi:
+                    value = min(max(value, lo), hi)  # an attacked reading stays inside the sensor's range
+                    clamped.append(name)
             wire, was_clamped = msg.fields[name].to_wire(value)
             if was_clamped and name not in clamped:
                 clamped.append(name)
@@ -510,6 +511,8 @@ _ALTITUDE_UNKNOWN = {  # ALTITUDE: terrain below -1000 m and a negative clearanc
     (True, True): frozenset({"altitude_terrain", "bottom_clearance"}),
 }
 _NOTHING: frozenset[str] = frozenset()
+_RANGED = frozenset({_DISTANCE_SENSOR_ID, _RANGEFINDER_ID})  # messages whose range has the sensor's limits
+_MAY_BE_UNREAD = _RANGED | _GPS | set(_LATLON) | {_ALTITUDE_ID}
 
 
 def _messages_of(rule: RuleBase) -> list[str]:
@@ -546,36 +549,44 @@ def _primary(st: _State, sysid: int) -> int:
     return min(down) if down else 0
 
 
-def _limits(st: _State, msgid: int, fields: Mapping[str, Any], sysid: int, sid: int) -> dict[str, tuple[float, float]]:
-    """The sensor's own [min, max] (metres) for the readings of this frame, where it has one."""
+_Limits = tuple[str, float, float]  # (field, min m, max m)
+
+
+def _limits(st: _State, msgid: int, fields: Mapping[str, Any], sysid: int, sid: int) -> _Limits | None:
+    """The sensor's own [min, max] (metres) for the range this frame carries, when known."""
     if msgid == _DISTANCE_SENSOR_ID:
         lo, hi = fields.get("min_distance"), fields.get("max_distance")
         if lo is not None and hi is not None:
-            return {"current_distance": (lo * 0.01, hi * 0.01)}
-    elif msgid == _RANGEFINDER_ID:
-        info = st.rangefinders.get(sysid, {}).get(sid)
-        if info is not None:  # the primary flagged invalid: an empty range, nothing inside it is a reading
-            return {"distance": (math.inf, -math.inf) if info[2] else (info[0], info[1])}
-    return {}
+            return ("current_distance", lo * 0.01, hi * 0.01)
+        return None
+    info = st.rangefinders.get(sysid, {}).get(sid)  # RANGEFINDER: its primary DISTANCE_SENSOR's
+    if info is None:
+        return None
+    # The primary flagged invalid: an empty range, nothing inside it is a reading.
+    return ("distance", math.inf, -math.inf) if info[2] else ("distance", info[0], info[1])
 
 
-def _unread(msgid: int, fields: Mapping[str, Any], limits: dict[str, tuple[float, float]]) -> frozenset[str]:
+_CURRENT_DISTANCE = frozenset(("current_distance",))
+_DISTANCE = frozenset(("distance",))
+
+
+def _unread(msgid: int, fields: Mapping[str, Any], limits: _Limits | None) -> frozenset[str]:
     """Fields of this frame that carry no reading: a range outside the sensor's limits or flagged
     invalid, a position before a fix (lat/lon 0/0, GPS fix_type below 2D), a GPS ellipsoid height
     of 0, ALTITUDE's "unknown" terrain height and clearance."""
     if msgid == _DISTANCE_SENSOR_ID:
-        cm, lim = fields.get("current_distance"), limits.get("current_distance")
+        cm = fields.get("current_distance")
         invalid = fields.get("signal_quality") == QUALITY_INVALID
-        if cm is not None and (invalid or (lim is not None and not lim[0] <= cm * 0.01 <= lim[1])):
-            return frozenset(("current_distance",))
+        if cm is not None and (invalid or (limits is not None and not limits[1] <= cm * 0.01 <= limits[2])):
+            return _CURRENT_DISTANCE
         return _NOTHING
     if msgid == _RANGEFINDER_ID:
-        m, lim = fields.get("distance"), limits.get("distance")
+        m = fields.get("distance")
         if m is None:
             return _NOTHING
-        if lim is None:  # no DISTANCE_SENSOR seen yet: ArduPilot reports 0 when it has no reading
-            return frozenset(("distance",)) if not m > 0.0 else _NOTHING
-        return frozenset(("distance",)) if not lim[0] <= m <= lim[1] else _NOTHING
+        if limits is None:  # no DISTANCE_SENSOR seen yet: ArduPilot reports 0 when it has no reading
+            return _DISTANCE if not m > 0.0 else _NOTHING
+        return _DISTANCE if not limits[1] <= m <= limits[2] else _NOTHING
     if msgid in _GPS:
         fix = fields.get("fix_type")
         if fix is not None and fix < 2:
