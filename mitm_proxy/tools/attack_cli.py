@@ -159,6 +159,8 @@ async def _request(
             worst = max(worst, EXIT_REJECTED)
         else:
             print(verdict(sysid, state))
+            for warning in state.get("warnings") or ():  # applied, but a true copy stays on the wire
+                print(f"secuav-attack: v{sysid}: warning: {warning}", file=sys.stderr)
     return worst
 
 
@@ -274,6 +276,8 @@ async def _status(board: Board, args: argparse.Namespace) -> int:
         mode = (entry["attack/mode/state"] or {}).get("mode")
         bypass = " (bypassed)" if mode == "bypass" else ""
         print(f"{key}: attack {active}{bypass} since {_since(attack.get('since'))}; last request {last}")
+        for warning in attack.get("warnings") or ():
+            print(f"{key}: warning: {warning}")
         secure = entry["secure/state"]
         if isinstance(secure, dict):
             if secure.get("available") is False:
