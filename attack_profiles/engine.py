@@ -37,7 +37,7 @@ unchanged:
   TERRAIN_REPORT, AHRS2, AHRS3, SIMSTATE while they read 0/0 (no position yet),
   and of GPS_RAW_INT / GPS2_RAW below a 2-D fix; their ``alt_ellipsoid`` when 0;
 - ALTITUDE ``altitude_terrain`` below -1000 m and ``bottom_clearance`` below 0
-  (both "unknown").
+  (both "unknown"); HIGHRES_IMU ``pressure_alt`` when ``fields_updated`` lacks its bit.
 
 An attacked range that was a reading stays one: it is clamped to the sensor's
 own ``[min_distance, max_distance]`` and the field is named in ``Action.clamped``
@@ -512,7 +512,10 @@ _ALTITUDE_UNKNOWN = {  # ALTITUDE: terrain below -1000 m and a negative clearanc
 }
 _NOTHING: frozenset[str] = frozenset()
 _RANGED = frozenset({_DISTANCE_SENSOR_ID, _RANGEFINDER_ID})  # messages whose range has the sensor's limits
-_MAY_BE_UNREAD = _RANGED | _GPS | set(_LATLON) | {_ALTITUDE_ID}
+_HIGHRES_IMU_ID = MESSAGES["HIGHRES_IMU"].msgid
+_PRESSURE_ALT_BIT = 0x800  # HIGHRES_IMU_UPDATED_PRESSURE_ALT
+_PRESSURE_ALT = frozenset(("pressure_alt",))
+_MAY_BE_UNREAD = _RANGED | _GPS | set(_LATLON) | {_ALTITUDE_ID, _HIGHRES_IMU_ID}
 
 
 def _messages_of(rule: RuleBase) -> list[str]:
@@ -592,6 +595,9 @@ def _unread(msgid: int, fields: Mapping[str, Any], limits: _Limits | None) -> fr
         if fix is not None and fix < 2:
             return _GPS_NO_FIX
         return _NO_ELLIPSOID if fields.get("alt_ellipsoid") == 0 else _NOTHING  # 0: a receiver that gives none
+    if msgid == _HIGHRES_IMU_ID:  # pressure_alt means something only when its bit says it was updated
+        updated = fields.get("fields_updated")
+        return _PRESSURE_ALT if updated is not None and not updated & _PRESSURE_ALT_BIT else _NOTHING
     if msgid == _ALTITUDE_ID:
         terrain, clearance = fields.get("altitude_terrain"), fields.get("bottom_clearance")
         unknown = (terrain is not None and terrain < -1000.0, clearance is not None and clearance < 0.0)

@@ -112,6 +112,7 @@ CARRIERS: tuple[Carrier, ...] = tuple(
         *_c("altitude", "up", "TERRAIN_REPORT", "current_height"),
         *_c("altitude", "up", "AHRS2", "altitude", **_AP),
         *_c("altitude", "up", "AHRS3", "altitude", **_AP),
+        *_c("altitude", "up", "HIGHRES_IMU", "pressure_alt"),
         *_c("position", "north", "LOCAL_POSITION_NED", "x"),
         *_c("position", "north", "ODOMETRY", "x"),
         *_c("position", "north", "GLOBAL_POSITION_INT", "lat", M_PER_DEG),
@@ -141,7 +142,7 @@ NOT_COVERED: dict[str, tuple[tuple[str, str], ...]] = {
         ("RANGEFINDER.voltage", "an analog sensor's raw voltage, from which its distance can be worked out"),
     ),
     "altitude": (
-        ("SCALED_PRESSURE*.press_abs, HIGHRES_IMU.abs_pressure/pressure_alt", "barometric pressure, not metres"),
+        ("SCALED_PRESSURE*.press_abs, HIGHRES_IMU.abs_pressure", "barometric pressure, not metres"),
         ("GLOBAL_POSITION_INT_COV.alt, LOCAL_POSITION_NED_COV.z", "not decoded by the attack engine"),
         ("NAV_CONTROLLER_OUTPUT.alt_error", "a difference to the setpoint"),
     ),

@@ -265,6 +265,12 @@ MESSAGES: dict[str, MessageSpec] = {
             time_field=None,
         ),
         _message(
+            "HIGHRES_IMU",  # pressure_alt: metres from the barometer (the XML gives it no unit)
+            105,
+            [("pressure_alt", "float", "")],
+            time_field="time_usec",
+        ),
+        _message(
             "SIMSTATE",  # ArduPilot SITL's own truth: a real vehicle does not send it
             164,
             [("lat", "int32_t", "degE7"), ("lng", "int32_t", "degE7")],

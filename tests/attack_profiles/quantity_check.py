@@ -175,6 +175,8 @@ class Checker:
             return self._latlon(t, a, b, "lat", "lon", fix) | self._heights(t, a, b, {"current_height": 1.0}, fix)
         if t in ("LOCAL_POSITION_NED", "ODOMETRY"):
             return self._local(t, a, b)
+        if t == "HIGHRES_IMU":
+            return self._heights(t, a, b, {"pressure_alt": 1.0}, bool(a.fields_updated & 0x800))
         if t == "VFR_HUD":
             return self._heights(t, a, b, {"alt": 1.0})
         if t == "ALTITUDE":
@@ -209,7 +211,8 @@ class Checker:
 
 
 _CARRIERS = {"DISTANCE_SENSOR", "RANGEFINDER", "GLOBAL_POSITION_INT", "GPS_RAW_INT", "GPS2_RAW", "AHRS2", "AHRS3",
-             "SIMSTATE", "TERRAIN_REPORT", "LOCAL_POSITION_NED", "ODOMETRY", "VFR_HUD", "ALTITUDE"}  # fmt: skip
+             "SIMSTATE", "TERRAIN_REPORT", "LOCAL_POSITION_NED", "ODOMETRY", "VFR_HUD", "ALTITUDE",
+             "HIGHRES_IMU"}  # fmt: skip
 
 
 def _carrier(msg: Any) -> bool:

@@ -167,3 +167,10 @@ def test_quantity_profiles_round_trip_and_build(quantity: str, data: st.DataObje
     assert again == profile and again.content_hash() == profile.content_hash()
     engine = started(profile)
     assert engine.message_ids  # every carrier message, decoded only for these
+
+
+def test_barometric_height_moves_only_when_the_imu_says_it_is_fresh() -> None:
+    engine = started(make_profile(q("altitude", offset=2.0)))
+    imu = {"time_usec": 0, "pressure_alt": 488.0, "fields_updated": 0x800}
+    assert send(engine, 0.0, imu, msgid=105).fields == {"pressure_alt": 490.0}
+    assert send(engine, 0.0, {**imu, "fields_updated": 0x1FF}, msgid=105).untouched  # not updated: not a reading
