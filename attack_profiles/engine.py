@@ -60,18 +60,12 @@ from typing import Any
 
 import numpy as np
 
+from attack_profiles import readings
 from attack_profiles.action import FORWARD, Action
 from attack_profiles.primitives import PRIMITIVES, Context, Primitive, Sample, primitive
 from attack_profiles.primitives.base import Vec3
 from attack_profiles.profile import Profile
-from attack_profiles.quantities import (
-    DEFAULT_COMPONENT,
-    ORIENTATION_DOWN,
-    QUALITY_INVALID,
-    Carrier,
-    carriers_of,
-    true_copies,
-)
+from attack_profiles.quantities import DEFAULT_COMPONENT, Carrier, carriers_of, true_copies
 from attack_profiles.rule import IdRange, RuleBase
 from attack_profiles.units import EPOCH_USEC_THRESHOLD, LOCAL_POSITION_NED_ID, MESSAGES, FieldSpec, MessageSpec
 from mavframe.packet import Direction
@@ -138,7 +132,7 @@ class _State:
     vehicle_time_s: dict[int, float] = field(default_factory=dict)  # sysid -> last time_boot seen
     positions: dict[int, Vec3] = field(default_factory=dict)  # sysid -> last LOCAL_POSITION_NED
     # sysid -> DISTANCE_SENSOR id -> (min m, max m, invalid, downward), for RANGEFINDER (ArduPilot's primary)
-    rangefinders: dict[int, dict[int, tuple[float, float, bool, bool]]] = field(default_factory=dict)
+    rangefinders: readings.Rangefinders = field(default_factory=dict)
     chains: dict[tuple[int, int, int, Direction], tuple[_Compiled, ...]] = field(default_factory=dict)
     sample: Sample = field(default_factory=Sample)
 
@@ -222,12 +216,12 @@ class Engine:
         }
         self._tracks_position = any(r.needs_position for r in profile.rules)
         # RANGEFINDER follows ArduPilot's primary downward rangefinder: learnt from DISTANCE_SENSOR.
-        self._tracks_rangefinders = _RANGEFINDER_ID in self._msg_by_id
+        self._tracks_rangefinders = readings.RANGEFINDER_ID in self._msg_by_id
         ids = set(self._msg_by_id)
         if self._tracks_position:
             ids.add(LOCAL_POSITION_NED_ID)
         if self._tracks_rangefinders:
-            ids.add(_DISTANCE_SENSOR_ID)
+            ids.add(readings.DISTANCE_SENSOR_ID)
         self.warnings: tuple[str, ...] = tuple(true_copies(profile))
         self.message_ids: frozenset[int] = frozenset(ids)
         self._live = self._new_state()
@@ -304,16 +298,16 @@ class Engine:
             x, y, z = fields.get("x"), fields.get("y"), fields.get("z")
             if x is not None and y is not None and z is not None:
                 st.positions[sysid] = (x, y, z)
-        if self._tracks_rangefinders and msgid == _DISTANCE_SENSOR_ID and direction is Direction.DOWNLINK:
-            _track_rangefinder(st, sysid, fields)
+        if self._tracks_rangefinders and msgid == readings.DISTANCE_SENSOR_ID and direction is Direction.DOWNLINK:
+            readings.track_rangefinder(st.rangefinders, sysid, fields)
         msg = self._msg_by_id.get(msgid)
         if msg is None:  # watched only for the position
             return FORWARD
         t = self._clock(st, now_s, msg, fields, sysid)  # first: it also tracks the vehicle's clock
         if t is None:
             return FORWARD
-        if msgid == _RANGEFINDER_ID:
-            sid = _primary(st, sysid)
+        if msgid == readings.RANGEFINDER_ID:
+            sid = readings.primary(st.rangefinders, sysid)
         else:
             sid = fields.get(msg.id_field, -1) if msg.id_field is not None else -1
         rules = self._chain(st, msgid, sysid, sid, direction)
@@ -323,8 +317,8 @@ class Engine:
         s.t_s, s.key, s.fields = t, (sysid, sid), fields
         s.drop, s.delay_s, s.offline = False, 0.0, False
         s.position_ned_m = st.positions.get(sysid)
-        limits = _limits(st, msgid, fields, sysid, sid) if msgid in _RANGED else None
-        s.unread = _unread(msgid, fields, limits) if msgid in _MAY_BE_UNREAD else _NOTHING
+        limits = readings.limits(st.rangefinders, msgid, fields, sysid, sid) if msgid in readings.RANGED else None
+        s.unread = readings.unread(msgid, fields, limits) if msgid in readings.MAY_BE_UNREAD else readings.NOTHING
         if s.free:
             s.free.clear()
         working: dict[str, float] = {}
@@ -487,37 +481,6 @@ class Engine:
         return _State(plans={mid: tuple(rs) for mid, rs in plans.items()})
 
 
-_DISTANCE_SENSOR_ID = MESSAGES["DISTANCE_SENSOR"].msgid
-_RANGEFINDER_ID = MESSAGES["RANGEFINDER"].msgid
-# Messages whose lat/lon read 0/0 before the vehicle has a position (ArduPilot, PX4): no reading then.
-_LATLON = {MESSAGES[n].msgid: (lat, lon) for n, lat, lon in (
-    ("GLOBAL_POSITION_INT", "lat", "lon"), ("TERRAIN_REPORT", "lat", "lon"), ("AHRS2", "lat", "lng"),
-    ("AHRS3", "lat", "lng"), ("SIMSTATE", "lat", "lng"))}  # fmt: skip
-_NO_FIX = {  # what a missing position leaves without meaning, per message
-    MESSAGES["GLOBAL_POSITION_INT"].msgid: frozenset({"lat", "lon", "alt"}),
-    MESSAGES["TERRAIN_REPORT"].msgid: frozenset({"lat", "lon", "current_height"}),
-    MESSAGES["AHRS2"].msgid: frozenset({"lat", "lng", "altitude"}),
-    MESSAGES["AHRS3"].msgid: frozenset({"lat", "lng", "altitude"}),
-    MESSAGES["SIMSTATE"].msgid: frozenset({"lat", "lng"}),
-}
-_GPS = frozenset({MESSAGES["GPS_RAW_INT"].msgid, MESSAGES["GPS2_RAW"].msgid})
-_GPS_NO_FIX = frozenset({"lat", "lon", "alt", "alt_ellipsoid"})
-_NO_ELLIPSOID = frozenset({"alt_ellipsoid"})
-_ALTITUDE_ID = MESSAGES["ALTITUDE"].msgid
-_ALTITUDE_UNKNOWN = {  # ALTITUDE: terrain below -1000 m and a negative clearance mean "unknown"
-    (False, False): frozenset(),
-    (True, False): frozenset({"altitude_terrain"}),
-    (False, True): frozenset({"bottom_clearance"}),
-    (True, True): frozenset({"altitude_terrain", "bottom_clearance"}),
-}
-_NOTHING: frozenset[str] = frozenset()
-_RANGED = frozenset({_DISTANCE_SENSOR_ID, _RANGEFINDER_ID})  # messages whose range has the sensor's limits
-_HIGHRES_IMU_ID = MESSAGES["HIGHRES_IMU"].msgid
-_PRESSURE_ALT_BIT = 0x800  # HIGHRES_IMU_UPDATED_PRESSURE_ALT
-_PRESSURE_ALT = frozenset(("pressure_alt",))
-_MAY_BE_UNREAD = _RANGED | _GPS | set(_LATLON) | {_ALTITUDE_ID, _HIGHRES_IMU_ID}
-
-
 def _messages_of(rule: RuleBase) -> list[str]:
     if rule.target.message is not None:
         return [rule.target.message]
@@ -531,81 +494,6 @@ def _carriers(rule: RuleBase) -> list[tuple[str, Carrier | None]]:
     if rule.frame_level:
         return [(m, None) for m in dict.fromkeys(c.message for c in carriers_of(q, rule.target.field))]
     return [(c.message, c) for c in carriers_of(q, rule.target.field or DEFAULT_COMPONENT[q])]
-
-
-def _track_rangefinder(st: _State, sysid: int, fields: Mapping[str, Any]) -> None:
-    sid = fields.get("id")
-    lo, hi, q = fields.get("min_distance"), fields.get("max_distance"), fields.get("signal_quality", 0)
-    if sid is None or lo is None or hi is None:
-        return
-    known = st.rangefinders.setdefault(sysid, {})
-    if len(known) < 256 or sid in known:
-        known[sid] = (lo * 0.01, hi * 0.01, q == QUALITY_INVALID, fields.get("orientation") == ORIENTATION_DOWN)
-
-
-def _primary(st: _State, sysid: int) -> int:
-    """ArduPilot's RANGEFINDER carries its first downward rangefinder: the lowest downward id seen (0 before)."""
-    known = st.rangefinders.get(sysid)
-    if not known:
-        return 0
-    down = [sid for sid, info in known.items() if info[3]]
-    return min(down) if down else 0
-
-
-_Limits = tuple[str, float, float]  # (field, min m, max m)
-
-
-def _limits(st: _State, msgid: int, fields: Mapping[str, Any], sysid: int, sid: int) -> _Limits | None:
-    """The sensor's own [min, max] (metres) for the range this frame carries, when known."""
-    if msgid == _DISTANCE_SENSOR_ID:
-        lo, hi = fields.get("min_distance"), fields.get("max_distance")
-        if lo is not None and hi is not None:
-            return ("current_distance", lo * 0.01, hi * 0.01)
-        return None
-    info = st.rangefinders.get(sysid, {}).get(sid)  # RANGEFINDER: its primary DISTANCE_SENSOR's
-    if info is None:
-        return None
-    # The primary flagged invalid: an empty range, nothing inside it is a reading.
-    return ("distance", math.inf, -math.inf) if info[2] else ("distance", info[0], info[1])
-
-
-_CURRENT_DISTANCE = frozenset(("current_distance",))
-_DISTANCE = frozenset(("distance",))
-
-
-def _unread(msgid: int, fields: Mapping[str, Any], limits: _Limits | None) -> frozenset[str]:
-    """Fields of this frame that carry no reading: a range outside the sensor's limits or flagged
-    invalid, a position before a fix (lat/lon 0/0, GPS fix_type below 2D), a GPS ellipsoid height
-    of 0, ALTITUDE's "unknown" terrain height and clearance."""
-    if msgid == _DISTANCE_SENSOR_ID:
-        cm = fields.get("current_distance")
-        invalid = fields.get("signal_quality") == QUALITY_INVALID
-        if cm is not None and (invalid or (limits is not None and not limits[1] <= cm * 0.01 <= limits[2])):
-            return _CURRENT_DISTANCE
-        return _NOTHING
-    if msgid == _RANGEFINDER_ID:
-        m = fields.get("distance")
-        if m is None:
-            return _NOTHING
-        if limits is None:  # no DISTANCE_SENSOR seen yet: ArduPilot reports 0 when it has no reading
-            return _DISTANCE if not m > 0.0 else _NOTHING
-        return _DISTANCE if not limits[1] <= m <= limits[2] else _NOTHING
-    if msgid in _GPS:
-        fix = fields.get("fix_type")
-        if fix is not None and fix < 2:
-            return _GPS_NO_FIX
-        return _NO_ELLIPSOID if fields.get("alt_ellipsoid") == 0 else _NOTHING  # 0: a receiver that gives none
-    if msgid == _HIGHRES_IMU_ID:  # pressure_alt means something only when its bit says it was updated
-        updated = fields.get("fields_updated")
-        return _PRESSURE_ALT if updated is not None and not updated & _PRESSURE_ALT_BIT else _NOTHING
-    if msgid == _ALTITUDE_ID:
-        terrain, clearance = fields.get("altitude_terrain"), fields.get("bottom_clearance")
-        unknown = (terrain is not None and terrain < -1000.0, clearance is not None and clearance < 0.0)
-        return _ALTITUDE_UNKNOWN[unknown]
-    names = _LATLON.get(msgid)
-    if names is not None and fields.get(names[0]) == 0 and fields.get(names[1]) == 0:
-        return _NO_FIX[msgid]
-    return _NOTHING
 
 
 def _noise_by_id(scenario: Scenario) -> dict[int, float]:
