@@ -24,6 +24,7 @@ from typing import Any
 from attack_profiles import library
 from attack_profiles.engine import Engine
 from attack_profiles.profile import Profile, profile_schema_text
+from attack_profiles.quantities import true_copies
 from attack_profiles.resolve import parse_params, resolve_profile
 from secuav_common.controlplane import switches
 from secuav_common.loading import InputError
@@ -58,6 +59,8 @@ def cmd_validate(args: argparse.Namespace) -> int:
     elif not _needs_scenario(profile):
         Engine(profile)  # builds every rule, as the proxy will
     print(f"ok: {profile.name} ({len(profile.rules)} rules, hash {profile.content_hash()[:12]}{where})")
+    for warning in true_copies(profile):  # valid, but a true copy of the attacked value stays on the wire
+        print(f"warning: {warning}", file=sys.stderr)
     return 0
 
 

@@ -21,6 +21,32 @@ that drops the frame ends the chain. Stateful primitives keep their state per
 target (vehicle, sensor id), and every call of :meth:`Engine.apply_array` starts
 from fresh state, so it is repeatable; the live state starts at
 :meth:`Engine.activate`.
+
+No reading: A sensor says "I have no reading" in the value itself, and an offset
+must not turn that into a believable one (ArduPilot on the ground sends
+DISTANCE_SENSOR ``current_distance`` 0 under ``min_distance`` 20 cm; +5 m made it
+5 m). With a rule's ``out_of_range: keep`` (the default) these pass the rule by,
+unchanged:
+
+- DISTANCE_SENSOR ``current_distance`` outside ``[min_distance, max_distance]``,
+  or ``signal_quality`` 1 (invalid);
+- RANGEFINDER ``distance`` outside the limits of the DISTANCE_SENSOR it mirrors
+  (ArduPilot's primary downward one), or while that one is flagged invalid; 0 m
+  before any DISTANCE_SENSOR was seen;
+- lat/lon (and the AMSL height beside them) of GLOBAL_POSITION_INT,
+  TERRAIN_REPORT, AHRS2, AHRS3, SIMSTATE while they read 0/0 (no position yet),
+  and of GPS_RAW_INT / GPS2_RAW below a 2-D fix; their ``alt_ellipsoid`` when 0;
+- ALTITUDE ``altitude_terrain`` below -1000 m and ``bottom_clearance`` below 0
+  (both "unknown"); HIGHRES_IMU ``pressure_alt`` when ``fields_updated`` lacks its bit.
+
+An attacked range that was a reading stays one: it is clamped to the sensor's
+own ``[min_distance, max_distance]`` and the field is named in ``Action.clamped``
+(the proxy notes it on the frame), so a bias never pushes a reading into the
+"no target" band either. ``set`` writes the profile's value as given (a profile
+that forges "reads 0" says so), and ``garbage`` ignores both (a sensor gone
+mad). ``out_of_range: attack`` attacks every value and bounds it by the wire type
+only, as before. Frame rules (drop, delay, intermittent) act on every frame.
+Offline arrays (``Engine.apply_array``) carry no limits: NaN is their "no reading".
 """
 
 from __future__ import annotations
@@ -34,10 +60,12 @@ from typing import Any
 
 import numpy as np
 
+from attack_profiles import readings
 from attack_profiles.action import FORWARD, Action
 from attack_profiles.primitives import PRIMITIVES, Context, Primitive, Sample, primitive
 from attack_profiles.primitives.base import Vec3
 from attack_profiles.profile import Profile
+from attack_profiles.quantities import DEFAULT_COMPONENT, Carrier, carriers_of, true_copies
 from attack_profiles.rule import IdRange, RuleBase
 from attack_profiles.units import EPOCH_USEC_THRESHOLD, LOCAL_POSITION_NED_ID, MESSAGES, FieldSpec, MessageSpec
 from mavframe.packet import Direction
@@ -88,6 +116,11 @@ class _Compiled:
     field: str | None  # None: frame-level primitive
     spec: FieldSpec | None
     needs_position: bool
+    keep: bool = True  # out_of_range: keep: a frame's no-reading passes this rule by
+    clamp: bool = True  # ... and what it writes stays inside the sensor's [min, max]
+    factor: float = 1.0  # quantity targets: quantity value = field value (physical) * factor
+    lat_field: str | None = None  # ... times cos(this latitude), for a longitude
+    lat_scale: float = 0.0  # degrees per wire unit of lat_field
 
 
 @dataclass(slots=True)
@@ -98,6 +131,8 @@ class _State:
     active_at_s: float | None = None
     vehicle_time_s: dict[int, float] = field(default_factory=dict)  # sysid -> last time_boot seen
     positions: dict[int, Vec3] = field(default_factory=dict)  # sysid -> last LOCAL_POSITION_NED
+    # sysid -> DISTANCE_SENSOR id -> (min m, max m, invalid, downward), for RANGEFINDER (ArduPilot's primary)
+    rangefinders: readings.Rangefinders = field(default_factory=dict)
     chains: dict[tuple[int, int, int, Direction], tuple[_Compiled, ...]] = field(default_factory=dict)
     sample: Sample = field(default_factory=Sample)
 
@@ -116,19 +151,30 @@ def _run_chain(rules: Sequence[_Compiled], s: Sample, working: dict[str, float])
     """
     acted: list[int] = []
     t = s.t_s
+    k = 1.0
     for r in rules:
         tau = r.window.tau(t)
         if tau is None and not r.stateful:
             continue
         name = r.field
         if name is not None:
+            if r.keep and name in s.unread:  # no reading: it stays one
+                continue
             value = working.get(name)
             if value is None:
                 raw = s.fields.get(name)
                 if raw is None:
                     continue
                 value = raw * r.spec.scale  # type: ignore[union-attr]
-            s.value = value
+            k = r.factor
+            if r.lat_field is not None:
+                lat = s.fields.get(r.lat_field)
+                if lat is None:
+                    continue
+                k *= math.cos(math.radians(lat * r.lat_scale))
+                if abs(k) < 1e-9:  # at a pole a longitude carries no east
+                    continue
+            s.value = value * k if k != 1.0 else value
         r.prim.apply(s, tau)
         if tau is None:
             continue
@@ -137,7 +183,9 @@ def _run_chain(rules: Sequence[_Compiled], s: Sample, working: dict[str, float])
         if s.drop:
             break
         if name is not None:
-            working[name] = s.value
+            working[name] = s.value / k if k != 1.0 else s.value
+            if not r.clamp:
+                s.free.add(name)
     return tuple(acted)
 
 
@@ -164,12 +212,17 @@ class Engine:
             if rule.needs_anchors and scenario is None:
                 raise InputError(profile.source, f"rules[{i}].kind", rule.kind, "needs a scenario for anchor positions")
         self._msg_by_id: dict[int, MessageSpec] = {
-            MESSAGES[r.target.message].msgid: MESSAGES[r.target.message] for r in profile.rules
+            MESSAGES[name].msgid: MESSAGES[name] for r in profile.rules for name in _messages_of(r)
         }
         self._tracks_position = any(r.needs_position for r in profile.rules)
+        # RANGEFINDER follows ArduPilot's primary downward rangefinder: learnt from DISTANCE_SENSOR.
+        self._tracks_rangefinders = readings.RANGEFINDER_ID in self._msg_by_id
         ids = set(self._msg_by_id)
         if self._tracks_position:
             ids.add(LOCAL_POSITION_NED_ID)
+        if self._tracks_rangefinders:
+            ids.add(readings.DISTANCE_SENSOR_ID)
+        self.warnings: tuple[str, ...] = tuple(true_copies(profile))
         self.message_ids: frozenset[int] = frozenset(ids)
         self._live = self._new_state()
 
@@ -187,7 +240,7 @@ class Engine:
                     source, f"rules[{i}].target.sysid", target.sysid, f"scenario {scenario.name!r} has no such vehicle"
                 )
             wanted = target.sensor_ids()
-            if wanted is None or MESSAGES[target.message].id_field is None:
+            if wanted is None or (target.message is not None and MESSAGES[target.message].id_field is None):
                 continue
             vehicles = [v for v in scenario.vehicles if target.sysid in (None, v.sysid)]
             present = set().union(*(_sensor_ids(v, anchors) for v in vehicles))
@@ -245,13 +298,18 @@ class Engine:
             x, y, z = fields.get("x"), fields.get("y"), fields.get("z")
             if x is not None and y is not None and z is not None:
                 st.positions[sysid] = (x, y, z)
+        if self._tracks_rangefinders and msgid == readings.DISTANCE_SENSOR_ID and direction is Direction.DOWNLINK:
+            readings.track_rangefinder(st.rangefinders, sysid, fields)
         msg = self._msg_by_id.get(msgid)
         if msg is None:  # watched only for the position
             return FORWARD
         t = self._clock(st, now_s, msg, fields, sysid)  # first: it also tracks the vehicle's clock
         if t is None:
             return FORWARD
-        sid = fields.get(msg.id_field, -1) if msg.id_field is not None else -1
+        if msgid == readings.RANGEFINDER_ID:
+            sid = readings.primary(st.rangefinders, sysid)
+        else:
+            sid = fields.get(msg.id_field, -1) if msg.id_field is not None else -1
         rules = self._chain(st, msgid, sysid, sid, direction)
         if not rules:
             return FORWARD
@@ -259,6 +317,10 @@ class Engine:
         s.t_s, s.key, s.fields = t, (sysid, sid), fields
         s.drop, s.delay_s, s.offline = False, 0.0, False
         s.position_ned_m = st.positions.get(sysid)
+        limits = readings.limits(st.rangefinders, msgid, fields, sysid, sid) if msgid in readings.RANGED else None
+        s.unread = readings.unread(msgid, fields, limits) if msgid in readings.MAY_BE_UNREAD else readings.NOTHING
+        if s.free:
+            s.free.clear()
         working: dict[str, float] = {}
         acted = _run_chain(rules, s, working)
         if not acted:
@@ -268,8 +330,13 @@ class Engine:
         changed: dict[str, Any] = {}
         clamped: list[str] = []
         for name, value in working.items():
+            if limits is not None and name == limits[0] and name not in s.free:
+                lo, hi = limits[1], limits[2]
+                if lo <= hi and not lo <= value <= hi:
+                    value = min(max(value, lo), hi)  # an attacked reading stays inside the sensor's range
+                    clamped.append(name)
             wire, was_clamped = msg.fields[name].to_wire(value)
-            if was_clamped:
+            if was_clamped and name not in clamped:
                 clamped.append(name)
             if wire != fields.get(name):
                 changed[name] = wire
@@ -342,6 +409,7 @@ class Engine:
             raise ValueError(f"{message}.{field} is not an attackable field")
         spec = msg.fields[field]
         st = self._new_state()
+        st.sample.unread = frozenset()
         columns = [
             tuple(
                 r for r in self._chain(st, msg.msgid, sysid, int(sid), Direction.DOWNLINK) if r.field in (None, field)
@@ -381,29 +449,51 @@ class Engine:
     def _new_state(self) -> _State:
         plans: dict[int, list[_Compiled]] = {mid: [] for mid in self.message_ids}
         for i, rule in enumerate(self.profile.rules):
-            msg = MESSAGES[rule.target.message]
             cls = PRIMITIVES.get(rule.kind) or primitive(rule.kind)  # type: ignore[attr-defined]
             if cls is None:  # a plugin's rule that reached a process without the plugin
                 raise InputError(self.profile.source, f"rules[{i}].kind", rule.kind, "no such primitive installed here")
-            for name in rule.fields_of(msg):
-                spec = msg.fields[name] if name is not None else None
-                seed = _rule_seed(self.profile.seed, self.seed, i if name is None else f"{i}.{name}")
+            keep = rule.out_of_range == "keep" and rule.within_limits
+            clamp = keep and rule.clamps_to_limits
+            common = {"index": i, "window": Window.of(rule), "stateful": cls.stateful, "sysid": rule.target.sysid,
+                      "directions": _DIRECTIONS[rule.target.direction], "ids": rule.target.sensor_ids(),
+                      "needs_position": rule.needs_position, "keep": keep, "clamp": clamp}  # fmt: skip
+            if rule.target.message is not None:
+                msg = MESSAGES[rule.target.message]
+                for name in rule.fields_of(msg):
+                    spec = msg.fields[name] if name is not None else None
+                    seed = _rule_seed(self.profile.seed, self.seed, i if name is None else f"{i}.{name}")
+                    ctx = Context(i, spec, random.Random(seed), self._anchors, self._noise)
+                    plans[msg.msgid].append(_Compiled(prim=cls(rule, ctx), field=name, spec=spec, **common))
+                continue
+            for message, carrier in _carriers(rule):
+                msg = MESSAGES[message]
+                spec = None if carrier is None else msg.fields[carrier.field]
+                name = None if carrier is None else carrier.field
+                seed = _rule_seed(self.profile.seed, self.seed, f"{i}.{message}" + ("" if name is None else f".{name}"))
                 ctx = Context(i, spec, random.Random(seed), self._anchors, self._noise)
-                plans[msg.msgid].append(
-                    _Compiled(
-                        index=i,
-                        prim=cls(rule, ctx),
-                        window=Window.of(rule),
-                        stateful=cls.stateful,
-                        directions=_DIRECTIONS[rule.target.direction],
-                        sysid=rule.target.sysid,
-                        ids=rule.target.sensor_ids(),
-                        field=name,
-                        spec=spec,
-                        needs_position=rule.needs_position,
-                    )
-                )
+                conv: dict[str, Any] = {}
+                if carrier is not None:
+                    conv["factor"] = carrier.factor
+                    if carrier.lat_field is not None:
+                        conv["lat_field"] = carrier.lat_field
+                        conv["lat_scale"] = msg.fields[carrier.lat_field].scale
+                plans[msg.msgid].append(_Compiled(prim=cls(rule, ctx), field=name, spec=spec, **common, **conv))
         return _State(plans={mid: tuple(rs) for mid, rs in plans.items()})
+
+
+def _messages_of(rule: RuleBase) -> list[str]:
+    if rule.target.message is not None:
+        return [rule.target.message]
+    return list(dict.fromkeys(m for m, _ in _carriers(rule)))
+
+
+def _carriers(rule: RuleBase) -> list[tuple[str, Carrier | None]]:
+    """(message, carrier) pairs a quantity rule acts on; frame-level rules: (message, None) once a message."""
+    q = rule.target.quantity
+    assert q is not None
+    if rule.frame_level:
+        return [(m, None) for m in dict.fromkeys(c.message for c in carriers_of(q, rule.target.field))]
+    return [(c.message, c) for c in carriers_of(q, rule.target.field or DEFAULT_COMPONENT[q])]
 
 
 def _noise_by_id(scenario: Scenario) -> dict[int, float]:

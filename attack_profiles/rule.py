@@ -12,6 +12,7 @@ from typing import Annotated, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from attack_profiles.quantities import COMPONENTS, DATUM_QUANTITIES, DEFAULT_COMPONENT, QuantityName
 from attack_profiles.units import MESSAGE_NAMES, MESSAGES, MessageSpec
 from secuav_common.loading import (
     _MISSING,  # the "no value to show" sentinel InputError understands
@@ -43,16 +44,22 @@ class IdRange(Strict):
 
 
 class Target(Strict):
-    """Which values a rule acts on.
+    """Which values a rule acts on: one ``message``, or one ``quantity`` wherever it travels.
 
+    ``quantity`` (rangefinder, altitude, position) rewrites every message that
+    carries it, the same way (see the mapping table in docs/profile.md); its
+    ``field`` is the component: ``distance`` (rangefinder, the default), ``up``
+    (altitude, the default), ``north`` or ``east`` (position, one must be named).
     ``sensor_id`` (a single id, a list, or an inclusive range) only applies to
-    messages that carry one (DISTANCE_SENSOR's ``id``); leaving it out targets
-    every sensor. ``field`` defaults to the message's main field where it has
-    one (DISTANCE_SENSOR: ``current_distance``); drop, delay and intermittent
-    act on whole frames and ignore it. ``sysid`` left out targets every vehicle.
+    messages that carry one (DISTANCE_SENSOR's ``id``) and to the rangefinder
+    quantity; leaving it out targets every sensor. ``field`` defaults to the
+    message's main field where it has one (DISTANCE_SENSOR: ``current_distance``);
+    drop, delay and intermittent act on whole frames and ignore it. ``sysid``
+    left out targets every vehicle.
     """
 
-    message: MessageName
+    message: MessageName | None = Field(None, description="one message; or give quantity")
+    quantity: QuantityName | None = Field(None, description="every message that carries it; or give message")
     sensor_id: SensorId | list[SensorId] | IdRange | None = None
     field: str | None = None
     direction: DirectionName = "downlink"
@@ -85,6 +92,11 @@ class RuleBase(Strict):
     end_s: Seconds | None = None
     repeat_period_s: Annotated[float, Field(gt=0.0, allow_inf_nan=False)] | None = None
     note: str = Field("", description="free text, e.g. why this rule exists")
+    out_of_range: Literal["keep", "attack"] = Field(
+        "keep",
+        description="keep: a reading the sensor flags as no reading (outside [min, max], invalid quality, no fix) "
+        "passes unchanged and an attacked reading stays inside the sensor's [min, max]; attack: both are attacked",
+    )
 
     # Drop, delay and intermittent act on whole frames: their target needs no field.
     frame_level: ClassVar[bool] = False
@@ -92,6 +104,10 @@ class RuleBase(Strict):
     # decodes LOCAL_POSITION_NED too), or the scenario's anchor positions.
     needs_position: ClassVar[bool] = False
     needs_anchors: ClassVar[bool] = False
+    # Garbage models a sensor gone mad: it ignores out_of_range and the sensor's limits.
+    within_limits: ClassVar[bool] = True
+    # What the rule writes is kept inside the sensor's [min, max] (set writes what the profile says).
+    clamps_to_limits: ClassVar[bool] = True
 
     def fields_of(self, msg: MessageSpec) -> list[str | None]:
         """The fields this rule rewrites (``[None]``: the frame as a whole)."""
@@ -105,8 +121,36 @@ class RuleBase(Strict):
         Primitives with cross-field constraints extend this (and call it first).
         """
         target = self.target
-        spec = MESSAGES[target.message]
         kind = getattr(self, "kind", "?")
+        if (target.message is None) == (target.quantity is None):
+            given = None if target.message is None else f"{target.message} and {target.quantity}"
+            raise InputError(source, f"{where}.target", given or _MISSING, "give exactly one of message and quantity")
+        if target.quantity is not None:
+            self._check_quantity(where, source, kind)
+        else:
+            self._check_message(where, source, kind)
+        self._check_window(where, source)
+
+    def _check_quantity(self, where: str, source: str, kind: str) -> None:
+        target = self.target
+        q = target.quantity
+        assert q is not None
+        comps = ", ".join(COMPONENTS[q])
+        if target.field is not None and target.field not in COMPONENTS[q]:
+            raise InputError(source, f"{where}.target.field", target.field, f"not a component of {q} ({comps})")
+        if not self.frame_level and target.field is None and DEFAULT_COMPONENT[q] is None:
+            raise InputError(source, f"{where}.target.field", _MISSING, f"{kind} on {q} needs one of {comps}")
+        if target.sensor_id is not None and q != "rangefinder":
+            raise InputError(source, f"{where}.target.sensor_id", target.sensor_id, f"{q} has no sensor id")
+        if q in DATUM_QUANTITIES and kind in ("set", "scale", "garbage"):
+            raise InputError(source, f"{where}.kind", kind, f"{q} travels in several datums (AMSL, home, local): "
+                             "only offsets, noise and frame rules are consistent across them")  # fmt: skip
+        self._check_ids(where, source)
+
+    def _check_message(self, where: str, source: str, kind: str) -> None:
+        target = self.target
+        assert target.message is not None
+        spec = MESSAGES[target.message]
         if target.field is not None and target.field not in spec.fields:
             known = ", ".join(spec.fields)
             raise InputError(
@@ -114,14 +158,19 @@ class RuleBase(Strict):
             )
         if not self.frame_level and target.field is None and spec.default_field is None:
             raise InputError(source, f"{where}.target.field", _MISSING, f"{kind} on {spec.name} needs a field")
-        sid = target.sensor_id
+        if target.sensor_id is not None and spec.id_field is None:
+            raise InputError(source, f"{where}.target.sensor_id", target.sensor_id, f"{spec.name} has no sensor id")
+        self._check_ids(where, source)
+
+    def _check_ids(self, where: str, source: str) -> None:
+        sid = self.target.sensor_id
         if sid is not None:
-            if spec.id_field is None:
-                raise InputError(source, f"{where}.target.sensor_id", sid, f"{spec.name} has no sensor id")
             if isinstance(sid, IdRange) and sid.last < sid.first:
                 raise InputError(source, f"{where}.target.sensor_id.last", sid.last, f"below first ({sid.first})")
             if isinstance(sid, list) and not sid:
                 raise InputError(source, f"{where}.target.sensor_id", sid, "empty id list; leave it out to target all")
+
+    def _check_window(self, where: str, source: str) -> None:
         if self.end_s is not None and self.end_s <= self.start_s:
             raise InputError(
                 source, f"{where}.end_s", self.end_s, f"window ends before it starts (start_s {self.start_s})"

@@ -44,6 +44,7 @@ _UNIT = {
     "ms": (0.001, "s"),
     "us": (1e-6, "s"),
     "%": (1.0, "%"),
+    "V": (1.0, "V"),
     "": (1.0, ""),
 }
 
@@ -206,6 +207,74 @@ MESSAGES: dict[str, MessageSpec] = {
                 ("pitchspeed", "float", "rad/s"),
                 ("yawspeed", "float", "rad/s"),
             ],
+        ),
+        _message(
+            "RANGEFINDER",  # ArduPilot (ardupilotmega): its primary downward rangefinder, see quantities.py
+            173,
+            [("distance", "float", "m"), ("voltage", "float", "V")],
+            default_field="distance",
+            time_field=None,
+        ),
+        _message(
+            "VFR_HUD",
+            74,
+            [("alt", "float", "m"), ("climb", "float", "m/s"), ("groundspeed", "float", "m/s")],
+            time_field=None,
+        ),
+        _message(
+            "ALTITUDE",
+            141,
+            [
+                ("altitude_monotonic", "float", "m"),
+                ("altitude_amsl", "float", "m"),
+                ("altitude_local", "float", "m"),
+                ("altitude_relative", "float", "m"),
+                ("altitude_terrain", "float", "m"),
+                ("bottom_clearance", "float", "m"),
+            ],
+            time_field="time_usec",
+        ),
+        _message(
+            "GPS2_RAW",
+            124,
+            [
+                ("lat", "int32_t", "degE7"),
+                ("lon", "int32_t", "degE7"),
+                ("alt", "int32_t", "mm"),
+                ("fix_type", "uint8_t", ""),
+                ("alt_ellipsoid", "int32_t", "mm"),
+            ],
+            time_field="time_usec",
+        ),
+        _message(
+            "TERRAIN_REPORT",  # ArduPilot sends it with terrain following on (the SITL default)
+            136,
+            [("lat", "int32_t", "degE7"), ("lon", "int32_t", "degE7"), ("current_height", "float", "m")],
+            time_field=None,
+        ),
+        _message(
+            "AHRS2",  # ArduPilot's secondary estimator (DCM)
+            178,
+            [("altitude", "float", "m"), ("lat", "int32_t", "degE7"), ("lng", "int32_t", "degE7")],
+            time_field=None,
+        ),
+        _message(
+            "AHRS3",
+            182,
+            [("altitude", "float", "m"), ("lat", "int32_t", "degE7"), ("lng", "int32_t", "degE7")],
+            time_field=None,
+        ),
+        _message(
+            "HIGHRES_IMU",  # pressure_alt: metres from the barometer (the XML gives it no unit)
+            105,
+            [("pressure_alt", "float", "")],
+            time_field="time_usec",
+        ),
+        _message(
+            "SIMSTATE",  # ArduPilot SITL's own truth: a real vehicle does not send it
+            164,
+            [("lat", "int32_t", "degE7"), ("lng", "int32_t", "degE7")],
+            time_field=None,
         ),
     )
 }

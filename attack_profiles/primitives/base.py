@@ -46,6 +46,10 @@ class Sample:
     # What the attacker on the link knows besides the value (the engine fills these for every rule):
     position_ned_m: Vec3 | None = None  # the vehicle's position as the attacker last read it, None before
     fields: Mapping[str, Any] = field(default_factory=dict)  # the message's fields as received (wire units)
+    # Fields of this frame that carry no reading (out of the sensor's range, invalid, no fix): rules with
+    # ``out_of_range: keep`` pass them by. ``free``: fields a rule with ``out_of_range: attack`` rewrote.
+    unread: frozenset[str] = frozenset()
+    free: set[str] = field(default_factory=set)
 
 
 @dataclass(frozen=True, slots=True)

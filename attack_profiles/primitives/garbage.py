@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
 from attack_profiles.primitives.base import Context, Primitive, Sample
 from attack_profiles.rule import RuleBase
@@ -18,6 +18,8 @@ class GarbageRule(RuleBase):
 
     kind: Literal["garbage"] = "garbage"
     scope: Literal["field", "frame"] = "field"
+
+    within_limits: ClassVar[bool] = False  # a sensor gone mad: readings anywhere in the wire range
 
     def fields_of(self, msg: MessageSpec) -> list[str | None]:
         return list(msg.fields) if self.scope == "frame" else super().fields_of(msg)

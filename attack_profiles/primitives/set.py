@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
 from attack_profiles.primitives.base import Context, Primitive, Sample
 from attack_profiles.rule import Finite, RuleBase
@@ -13,6 +13,8 @@ class SetRule(RuleBase):
 
     kind: Literal["set"] = "set"
     value: Finite
+
+    clamps_to_limits: ClassVar[bool] = False  # the profile's value, also outside [min, max] ("reads 0")
 
 
 class Set(Primitive):

@@ -18,6 +18,7 @@ until another profile is installed.
 
 from __future__ import annotations
 
+import logging
 import time
 from typing import Any, NamedTuple
 
@@ -34,6 +35,8 @@ from secuav_common.scenario import Scenario
 SlotState = AttackState  # what ``secuav/v<sysid>/attack/state`` carries (retained)
 
 __all__ = ["AttackSlot", "SlotState"]
+
+log = logging.getLogger(__name__)
 
 
 class _Built(NamedTuple):
@@ -75,7 +78,8 @@ class AttackSlot(Switch[AttackState]):
     @property
     def warnings(self) -> list[str]:
         """What keeps the active profile from acting, as ``"code: text"`` (empty while nothing does)."""
-        return [signed_no_key(sysid, msgid) for sysid, msgid in sorted(self._signed.items())]
+        signed = [signed_no_key(sysid, msgid) for sysid, msgid in sorted(self._signed.items())]
+        return signed + [f"attack.true_copy: {w}" for w in (() if self.engine is None else self.engine.warnings)]
 
     def signed_untouched(self, sysid: int, msgid: int) -> None:
         """A signed frame of ``sysid`` the profile targets passed unchanged: the proxy has no signing key."""
@@ -98,6 +102,7 @@ class AttackSlot(Switch[AttackState]):
             payload.engine.activate(time.monotonic(), rebuild=False)  # built off the loop: only the clock starts
             self.engine, self._hash, self._since = engine, payload.hash, time.time()
             self._signed = {}
+            self._warn(engine)
             return
         if isinstance(payload, Engine):
             engine = payload  # built and started by the caller (secuav-record shares one clock)
@@ -111,6 +116,13 @@ class AttackSlot(Switch[AttackState]):
         self._hash = None if engine is None else engine.profile.content_hash()
         self._since = time.time()
         self._signed = {}  # the new profile may target what is not signed; the next frames tell
+        self._warn(engine)
+
+    def _warn(self, engine: Engine | None) -> None:
+        """Say once per install what the profile leaves true on the wire (the state carries it too)."""
+        for warning in () if engine is None else engine.warnings:
+            log.warning("attack.true_copy", extra={"sysid": self.sysid, "profile": engine.profile.name,
+                                                   "warning": warning})  # fmt: skip
 
     def offer(self, profile: Profile | None, request_id: str | None = None, source: str = "<profile>") -> AttackState:
         """Install ``profile`` (``None`` clears); on ``InputError`` keep the old one and report it."""

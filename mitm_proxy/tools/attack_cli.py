@@ -152,6 +152,8 @@ async def _request(
             worst = max(worst, EXIT_REJECTED)
         else:
             print(verb.done(f"v{sysid}", state, args))
+            for warning in state.get("warnings") or ():  # applied, but something keeps it from acting fully
+                print(f"secuav-attack: v{sysid}: warning: {warning}", file=sys.stderr)
     return worst
 
 

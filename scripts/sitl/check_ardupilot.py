@@ -6,8 +6,9 @@ For 1 and then 3 vehicles it starts ``ardupilot.sh run N`` (vehicle i on tcp 576
 parameters of scripts/sitl/rangefinders.parm: three downward rangefinders), this tree's real
 ``secuav-proxy`` dialling every vehicle, and a pymavlink ground station on the proxy's ground
 port, plus a direct pymavlink link to vehicle 1's second port (tcp 5762) to compare against.
-The proxy runs an inline profile that biases each rangefinder's DISTANCE_SENSOR by its own
-offset (+5, +6, +7 m for ids 0, 1, 2) and records (``--record``). Printed, per run:
+The proxy runs an inline profile that biases each rangefinder by its own offset (+5, +6, +7 m
+for ids 0, 1, 2), targeted by quantity (``quantity: rangefinder``: every message that carries
+it), and records (``--record``). Printed, per run:
 
 - forwarding: every downlink frame no rule targets, as the proxy received it (its
   original.tlog, read back with pymavlink, not with the proxy's code), against what the ground
@@ -25,8 +26,8 @@ offset (+5, +6, +7 m for ids 0, 1, 2) and records (``--record``). Printed, per r
 
     .venv/bin/python scripts/sitl/check_ardupilot.py [--vehicles 1,3] [--keep DIR] [--tlog-out F]
 
-Exit status 0 when every figure that should hold held (the true twin is reported, not failed:
-it is today's known gap), 1 otherwise. See docs/ardupilot.md for its output.
+Exit status 0 when every figure that should hold held (a true twin left on the wire or a
+no-reading made valid fails it), 1 otherwise. See docs/ardupilot.md for its output.
 """
 
 from __future__ import annotations
@@ -59,7 +60,7 @@ BIN = Path(sys.executable).parent
 SITL_SH = HERE / "ardupilot.sh"
 OFFSETS_M = (5.0, 6.0, 7.0)  # bias on DISTANCE_SENSOR id 0, 1, 2
 RANGEFINDERS = len(OFFSETS_M)
-TARGETED = {"DISTANCE_SENSOR"}  # the messages the profile's rules target
+TARGETED = {"DISTANCE_SENSOR", "RANGEFINDER"}  # the messages the profile's rules (quantity: rangefinder) reach
 GUIDED, LAND = 4, 9  # ArduCopter custom modes
 TAKEOFF_M = 10.0
 
@@ -347,17 +348,24 @@ def compare(original: list[Any], received: list[Seen], sysid: int) -> dict[str, 
     twin_example: tuple[float, float] | None = None
     last_ds0: float | None = None
     no_reading = {"frames": 0, "made_valid": 0}
+    limits: dict[int, tuple[float, float]] = {}  # DISTANCE_SENSOR id -> (min, max) m, as the vehicle sent them
     for m in got:
         q = queue.get(key(m))
         if not q:
             unmatched += 1
             continue
         o = q.popleft()
-        if m.get_type() == "DISTANCE_SENSOR" and not o.min_distance <= o.current_distance <= o.max_distance:
-            no_reading["frames"] += 1
-            no_reading["made_valid"] += m.min_distance <= m.current_distance <= m.max_distance
+        if m.get_type() == "DISTANCE_SENSOR":
+            limits[o.id] = (o.min_distance / 100.0, o.max_distance / 100.0)
         for (idx, v_got), (_, v_orig) in zip(quantity_carriers(m), quantity_carriers(o), strict=True):
-            row = per.setdefault((m.get_type(), idx), {"frames": 0, "changed": 0, "delta_m": []})
+            # before the first DISTANCE_SENSOR of that id its limits are unknown: ArduPilot sends 0 for none
+            lo, hi = limits.get(idx, (1e-9, float("inf")))
+            row = per.setdefault((m.get_type(), idx), {"frames": 0, "changed": 0, "delta_m": [], "no_reading": 0})
+            if not lo <= v_orig <= hi:  # no reading (on the ground: below min): must stay one
+                row["no_reading"] += 1
+                no_reading["frames"] += 1
+                no_reading["made_valid"] += lo <= v_got <= hi
+                continue
             row["frames"] += 1
             if abs(v_got - v_orig) > 1e-6:
                 row["changed"] += 1
@@ -380,8 +388,8 @@ def compare(original: list[Any], received: list[Seen], sysid: int) -> dict[str, 
 
 def profile_file(directory: Path) -> Path:
     rules = [
-        {"target": {"message": "DISTANCE_SENSOR", "sensor_id": i, "field": "current_distance"},
-         "kind": "bias", "offset": off, "note": f"rangefinder {i}"}
+        {"target": {"quantity": "rangefinder", "sensor_id": i},
+         "kind": "bias", "offset": off, "note": f"rangefinder {i}: DISTANCE_SENSOR id {i}, and RANGEFINDER for id 0"}
         for i, off in enumerate(OFFSETS_M)
     ]
     p = directory / "bias-each-rangefinder.json"
@@ -521,17 +529,17 @@ def run(n: int, work: Path, cache: Path) -> tuple[bool, Path]:
                 verdict = "rewritten" if row["changed"] == row["frames"] else (
                     "TRUE VALUE LEFT ON THE WIRE" if row["changed"] == 0 else "partly rewritten")
                 twin |= row["changed"] < row["frames"]
-                if mtype == "DISTANCE_SENSOR":
-                    # rewritten as asked: every frame, and by the offset (out-of-range readings aside)
-                    ok &= row["changed"] > 0
+                ok &= row["changed"] == row["frames"] > 0  # every reading rewritten, in every carrier
                 print(f"  attack rangefinder {i} (+{off:g} m): {mtype:<16} {row['changed']:5d} of {row['frames']:5d} "
-                      f"frames changed, mean change {mean:+.2f} m: {verdict}")
+                      f"readings changed, mean change {mean:+.2f} m: {verdict} ({row['no_reading']} frames with "
+                      "no reading left as they were)")
         if c["twin_example"]:
             lie, truth = c["twin_example"]
             print(f"  the ground station saw DISTANCE_SENSOR id 0 = {lie:.2f} m beside RANGEFINDER = {truth:.2f} m")
         print(f"  every message carrying an attacked distance changed: {'yes' if not twin else 'NO'}")
         nr = c["no_reading"]
-        print(f"  DISTANCE_SENSOR frames with no reading (outside min..max, e.g. on the ground): {nr['frames']}; "
+        ok &= nr["made_valid"] == 0
+        print(f"  frames with no reading (outside min..max, e.g. on the ground): {nr['frames']}; "
               f"made to look valid by the bias: {nr['made_valid']}")
     lines = (work / "proxy.log").read_text(errors="replace").splitlines()
     for s in sysids:

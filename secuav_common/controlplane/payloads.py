@@ -67,7 +67,9 @@ class AttackState(_Payload):
     profile: str | None = None  # active profile name; None when no profile is active
     hash: str | None = None
     since: float | None = None  # wall-clock time (epoch s) the active profile was installed
-    warnings: list[str] = []  # what keeps the profile from acting (e.g. signed frames, no key): "code: text"
+    # What keeps the profile from acting fully, as "code: text": signed frames and no key
+    # (attack.signed_no_key), carriers of an attacked quantity it leaves true (attack.true_copy)
+    warnings: list[str] = []
     request_id: str | None = None  # of the last request, accepted or not
     ok: bool = True  # whether the last request was accepted
     error: str | None = None  # why it was rejected

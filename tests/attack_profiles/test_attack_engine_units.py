@@ -15,7 +15,7 @@ from attack_helpers import (
     send,
     started,
 )
-from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from attack_profiles import FORWARD, Direction, Engine
 from attack_profiles.units import MESSAGES
@@ -61,7 +61,9 @@ def test_local_position_is_metres_on_the_wire() -> None:
 
 
 def test_clamping_to_the_wire_range_is_reported() -> None:
-    engine = started(make_profile(rule("bias", offset=-5.0), rule("bias", sensor_id=1, offset=700.0)))
+    # out_of_range: attack lifts the sensor's own [min, max], so only the wire type bounds the value.
+    free = {"out_of_range": "attack"}
+    engine = started(make_profile(rule("bias", offset=-5.0, **free), rule("bias", sensor_id=1, offset=700.0, **free)))
     low = send(engine, 0.0, distance(0, 250))
     assert low.fields == {"current_distance": 0} and low.clamped == ("current_distance",)
     high = send(engine, 0.0, distance(1, 250))
@@ -72,7 +74,7 @@ def test_clamping_to_the_wire_range_is_reported() -> None:
 
 
 def test_clamped_fields_pack_into_a_real_frame() -> None:
-    engine = started(make_profile(rule("bias", offset=1000.0)))
+    engine = started(make_profile(rule("bias", offset=1000.0, out_of_range="attack")))
     fields = distance(0, 250)
     action = send(engine, 0.0, fields)
     fields.update(action.fields or {})

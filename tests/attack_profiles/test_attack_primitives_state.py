@@ -44,9 +44,9 @@ def test_replay_keeps_targets_apart() -> None:
     engine = started(make_profile(rule("replay", sensor_id=None, source_start_s=0.0, source_end_s=1.0, start_s=1.0)))
     attacked_cm(engine, 0.0, 0, 100)
     attacked_cm(engine, 0.0, 1, 200)
-    assert attacked_cm(engine, 1.0, 0, 5) == 100
-    assert attacked_cm(engine, 1.0, 1, 5) == 200
-    assert attacked_cm(engine, 1.0, 2, 5) == 5  # nothing recorded for sensor 2
+    assert attacked_cm(engine, 1.0, 0, 50) == 100  # 50 cm: a reading (the helper's sensor reads 10-4000 cm)
+    assert attacked_cm(engine, 1.0, 1, 50) == 200
+    assert attacked_cm(engine, 1.0, 2, 50) == 50  # nothing recorded for sensor 2
 
 
 def test_delay_live_holds_frames_back() -> None:

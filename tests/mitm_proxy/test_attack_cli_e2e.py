@@ -83,9 +83,12 @@ def test_apply_edit_clear_and_stop_against_the_real_daemon(stack: tuple[str, Pat
     assert first["online"] is True
     v1 = first["vehicles"]["v1"]  # type: ignore[index]
     assert v1["attack/state"]["profile"] == "wall-spoof" and v1["attack/state"]["request_id"] == "--profile"
+    # wall-spoof targets DISTANCE_SENSOR only: ArduPilot's RANGEFINDER would keep the truth, and the state says so
+    assert any("RANGEFINDER.distance" in w for w in v1["attack/state"]["warnings"])
 
     done = attack("apply", "distance-stuck", "--broker", broker)
     assert done.returncode == 0 and done.stdout.startswith("ok: v1 distance-stuck (hash "), done.stderr
+    assert "v1: warning: attack.true_copy: rules[0] rewrite rangefinder distance in DISTANCE_SENSOR" in done.stderr
 
     # Editing the file under the running daemon: the edit wins and is acknowledged on MQTT.
     profile.write_text(library.text("wall-spoof").replace("default: 0.2", "default: 0.7"), encoding="utf-8")

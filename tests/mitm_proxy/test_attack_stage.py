@@ -78,7 +78,7 @@ def test_untouched_frame_is_not_marked_changed() -> None:
 
 def test_clamped_values_are_noted() -> None:
     slot = AttackSlot(1)
-    slot.offer(prof(ds("bias", offset_m=1000.0)))
+    slot.offer(prof(ds("bias", offset_m=1000.0, out_of_range="attack")))  # past the sensor's max: wire range
     p = packet(pack(distance(cm=60000)))
     (out,) = AttackStage(slot).process(p, time.monotonic())
     assert out.fields is not None and out.fields["current_distance"] == 65535

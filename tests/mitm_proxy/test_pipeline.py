@@ -176,7 +176,8 @@ class Beacon:
     message_ids = frozenset({HEARTBEAT})
 
     def process(self, pkt: Packet, now_s: float) -> list[Packet]:
-        fields = {"time_boot_ms": 1, "min_distance": 1, "max_distance": 100, "current_distance": 42, "type": 0,
+        # 1-1000 cm: the attacked 1.42 m is still a reading (an attack stays inside the sensor's range)
+        fields = {"time_boot_ms": 1, "min_distance": 1, "max_distance": 1000, "current_distance": 42, "type": 0,
                   "id": 99, "orientation": 0, "covariance": 0}  # fmt: skip
         h = pkt.header
         extra = codec.build("DISTANCE_SENSOR", fields, sysid=h.sysid, compid=h.compid, seq=h.seq,
