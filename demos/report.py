@@ -29,7 +29,12 @@ PANELS: dict[str, list[tuple[str, str, float | None]]] = {
     "wall-hover": [("truth", "true distance to wall [m]", 2.5), ("seen", "distance the controller used [m]", 2.5)],
     "localise": [("error", "true distance from (2.5, 2.5) [m]", 0.0)],
     "formation": [("range", "true distance uav1-uav2 [m]", 3.0)],
+    "ardupilot-height-hold": [  # scripts/sitl/height_hold_matrix.py
+        ("truth", "true height above ground [m] (SITL)", 5.0),
+        ("seen", "height the controller used [m]", 5.0),
+    ],
 }
+SURFACE = {"wall-hover": "wall", "ardupilot-height-hold": "ground"}  # the true-distance panel's zero line
 
 
 def plot(out: Path, demo: str, results: list[dict[str, Any]]) -> Path:
@@ -44,8 +49,8 @@ def plot(out: Path, demo: str, results: list[dict[str, Any]]) -> Path:
                 ax.plot(t, v, label=r["case"].replace("_", ", "), linewidth=1.1)
         if ref is not None:
             ax.axhline(ref, color="k", linestyle="--", linewidth=0.8, label="target")
-        if demo == "wall-hover" and key == "truth":
-            ax.axhline(0.0, color="firebrick", linewidth=1.5, label="wall")
+        if demo in SURFACE and key == "truth":
+            ax.axhline(0.0, color="firebrick", linewidth=1.5, label=SURFACE[demo])
         ax.axvline(0.0, color="grey", linestyle=":", linewidth=0.8)
         ax.set_ylabel(label)
         ax.grid(True, alpha=0.3)

@@ -63,7 +63,7 @@ class Processes:
             proc = await asyncio.create_subprocess_exec(
                 *argv, stdout=sink, stderr=asyncio.subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"}
             )
-        log.info("demo.start", extra={"process": name, "pid": proc.pid, "argv": " ".join(argv)})
+        log.info("demo.start", extra={"service": name, "pid": proc.pid, "argv": " ".join(argv)})
         self.running[name] = proc
         return proc
 
@@ -84,7 +84,7 @@ class Processes:
             try:
                 await asyncio.wait_for(proc.wait(), STOP_TIMEOUT_S)
             except TimeoutError:
-                log.warning("demo.kill", extra={"process": name})
+                log.warning("demo.kill", extra={"service": name})
                 with contextlib.suppress(ProcessLookupError):
                     proc.kill()
                 await proc.wait()

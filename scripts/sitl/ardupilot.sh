@@ -5,13 +5,14 @@
 #   scripts/sitl/ardupilot.sh build SOURCE     SOURCE: a local ArduPilot tree (submodules checked out)
 #                                               or a git URL (cloned with its submodules into the cache)
 #   scripts/sitl/ardupilot.sh run [N]          N vehicles (default 1) of the newest cached build;
-#                                               vehicle i serves MAVLink on tcp 5760+10*i
+#                                               vehicle i serves MAVLink on tcp 5760+10*(i+SITL_INSTANCE)
 #   scripts/sitl/ardupilot.sh binary           print the path of the newest cached binary
 #
 # Environment: SECUAV_ARDUPILOT_CACHE (default ~/.cache/secuav/ardupilot), ARDUPILOT_BIN (run this
 # binary instead of the cached one), ARDUPILOT_OPT (build optimisation, default -O0: see docs/ardupilot.md),
 # ARDUPILOT_JOBS (default 2), SITL_SPEEDUP (default 1), SITL_HOME (lat,lon,alt,heading),
-# SITL_EXTRA_PARM (comma-separated extra parameter files, applied after the bench's).
+# SITL_EXTRA_PARM (comma-separated extra parameter files, applied after the bench's), SITL_INSTANCE
+# (default 0: the first instance number, so two runs on one machine do not share ports or run folders).
 # Nothing of ArduPilot is kept in this repository; see docs/ardupilot.md.
 set -euo pipefail
 
@@ -151,6 +152,8 @@ binary() {
 cmd_run() {
   local n=${1:-1}
   [[ $n =~ ^[1-9][0-9]*$ ]] || die "run: N must be a positive integer, got '$n'"
+  local first=${SITL_INSTANCE:-0}
+  [[ $first =~ ^[0-9]+$ ]] || die "SITL_INSTANCE must be a non-negative integer, got '$first'"
   local bin; bin=$(binary)
   # ArduPilot's own copter defaults, kept beside each cached build (or the newest one for ARDUPILOT_BIN)
   local base=$(dirname "$bin")/copter.parm
@@ -160,15 +163,16 @@ cmd_run() {
   local home=${SITL_HOME:--35.363261,149.165230,584,353}
   local pids=()
   trap 'kill "${pids[@]}" 2>/dev/null; wait' EXIT INT TERM
-  for ((i = 0; i < n; i++)); do
+  for ((k = 0; k < n; k++)); do
+    local i=$((first + k))
     local wd=$cache/run/$i
     mkdir -p "$wd"
     # each instance keeps its eeprom.bin and logs in its own folder; -w wipes stored parameters so
     # the parameter files decide every start.
     (cd "$wd" && exec "$bin" --model + --speedup "${SITL_SPEEDUP:-1}" -I"$i" -w \
-      --home "$home" --defaults "$defaults" --sysid $((i + 1))) > "$wd/sitl.log" 2>&1 &
+      --home "$home" --defaults "$defaults" --sysid $((k + 1))) > "$wd/sitl.log" 2>&1 &
     pids+=($!)
-    echo "vehicle $i: sysid $((i + 1)), MAVLink tcp://127.0.0.1:$((5760 + 10 * i)), log $wd/sitl.log"
+    echo "vehicle $k: sysid $((k + 1)), instance $i, MAVLink tcp://127.0.0.1:$((5760 + 10 * i)), log $wd/sitl.log"
   done
   wait -n "${pids[@]}" || true
   echo "a SITL instance stopped; see $cache/run/*/sitl.log" >&2

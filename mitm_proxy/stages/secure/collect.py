@@ -1,10 +1,22 @@
 """Collecting the group's readings between two estimator steps, and deciding when a step is due.
 
 A reading is the group sensor's DISTANCE_SENSOR value, NaN when the sensor
-reports "no target" (``signal_quality`` 0); a set is due when every sensor has
+reports "no target": ``signal_quality`` 0 with ``current_distance`` outside the
+frame's own ``min_distance``..``max_distance`` (flightsim and PX4 send max + 1,
+ArduPilot 0 on the ground). ``signal_quality`` 0 alone is MAVLink's "unknown",
+which ArduPilot sends on every reading of a sensor that does not grade itself
+(its SITL rangefinders do not); a reading out of range with a quality (an
+attack's, say) stays a reading for the estimator to judge. A set is due when every sensor has
 reported since the last step (a sensor silent for longer than ``max_age_s`` is
 not waited for), ``max_wait_s`` after the first one did (so a dropped sensor
-cannot stall the estimator), or at ``rate_hz`` when configured. A reading
+cannot stall the estimator), or at ``rate_hz`` when configured. When the
+group (re)starts, the first set after no step for ``max_age_s`` (the first of
+all, or after a stall), every sensor is waited for, up to ``max_wait_s``: a
+vehicle that sends its group in one burst (ArduPilot: ids 0, 1, 2 together, 10
+times a second) then has each set hold one burst, where stepping on the
+burst's first frame alone would pair every later burst's first reading with
+the others' of the burst before, 0.1 s older: in a 1 m/s climb a 0.1 m
+disagreement, which the estimators take for an attack on the first sensor. A reading
 older than ``max_age_s`` goes into the step as NaN.
 """
 
@@ -19,11 +31,19 @@ from mitm_proxy.stages.secure.config import SecureConfig
 from mitm_proxy.stages.secure.layout import Layout
 from mitm_proxy.stages.secure.worker import Job
 
-NO_TARGET_QUALITY = 0  # DISTANCE_SENSOR.signal_quality: 0 = unknown / no target
+NO_TARGET_QUALITY = 0  # DISTANCE_SENSOR.signal_quality: 0 = unknown (sent with "no target" too)
 HEIGHT_MAX_AGE_S = 2.0  # a known height older than this is not used (the model's hold height is)
 VELOCITY_MAX_AGE_S = 0.5  # an older velocity is not the motion input (the filter then predicts without it)
 
 Due = Literal["complete", "timed_out", "rate"]
+
+
+def no_target(fields: dict[str, Any]) -> bool:
+    """A DISTANCE_SENSOR frame that says "nothing in range": quality unknown and the distance outside its limits."""
+    if fields.get("signal_quality", 100) != NO_TARGET_QUALITY:
+        return False
+    cm = fields.get("current_distance", 0)
+    return not fields.get("min_distance", 0) <= cm <= fields.get("max_distance", 65535)
 
 
 class Readings:
@@ -46,7 +66,7 @@ class Readings:
         """A DISTANCE_SENSOR frame's fields; True when it was one of the group's readings."""
         sid = fields.get("id")
         distance_m = fields.get("current_distance", 0) / 100.0
-        valid = fields.get("signal_quality", 100) != NO_TARGET_QUALITY
+        valid = not no_target(fields)
         if sid == layout.height_sensor_id and valid:
             self.take_height(-distance_m, now_s)
         i = layout.index_of.get(sid) if isinstance(sid, int) else None
@@ -77,7 +97,12 @@ class Readings:
             return None
         if cfg.rate_hz is not None:
             return "rate" if now_s - self.last_submit_s >= 1.0 / cfg.rate_hz - 1e-6 else None  # no float loss
-        if np.all(self.fresh | (now_s - self.rx > cfg.max_age_s)):  # a silent sensor is not waited for
+        restarting = self.pending_since - self.last_submit_s > cfg.max_age_s  # the burst is still arriving
+        if restarting and now_s - self.pending_since < cfg.max_wait_s:
+            silent = np.zeros_like(self.fresh)
+        else:
+            silent = now_s - self.rx > cfg.max_age_s
+        if np.all(self.fresh | silent):  # a silent sensor is not waited for
             return "complete"
         return "timed_out" if now_s - self.pending_since >= cfg.max_wait_s else None
 
