@@ -431,3 +431,19 @@ def test_a_wall_group_reads_the_velocity_along_the_walls_normal(wall: Scenario) 
     assert vel[0] == pytest.approx(-maker.velocity(last)[0], abs=0.03) and abs(vel[0]) > 0.05  # the step before
     stage.close()
     assert LPN not in SecureStage(SecureConfig(estimator="secekf", executor="inline"), wall, 1).message_ids
+
+
+@pytest.mark.timeout(60)
+def test_a_no_target_frame_of_the_group_is_never_given_a_value(wall: Scenario) -> None:
+    """ArduPilot on the ground sends 0 cm (below min) with quality 0: substituting the estimate would turn
+    "nothing in range" into a believable reading, as a bias would (issue 27, item 4); it stays out of range."""
+    stage = SecureStage(SecureConfig(estimator="secekf", executor="inline"), wall, 1)
+    maker = StreamMaker(wall, seed=3)
+    outs = run(stage, maker, 3.0)
+    assert any(o.changed for o in outs if o.msgid == DS)  # the stage is substituting by now
+    for cm in (0, 4001):  # below min_distance, above max_distance
+        frame = maker.mav.distance_sensor_encode(3000, 10, 4000, cm, 0, 0, 0, 0, signal_quality=0)
+        pkt = packet_of(bytes(frame.pack(maker.mav)), 3.0)
+        stage.process(pkt, 3.0)
+        assert wire_fields(pkt)["current_distance"] == cm
+    stage.close()

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from mavframe.layout import DISTANCE_SENSOR, GLOBAL_POSITION_INT, LOCAL_POSITION_NED
-from mitm_proxy.stages.secure.collect import NO_TARGET_QUALITY
+from mitm_proxy.stages.secure.collect import NO_TARGET_QUALITY, no_target
 from mitm_proxy.stages.secure.geodesy import HomeTracker, position_ned
 from mitm_proxy.stages.secure.layout import Layout
 from mitm_proxy.stages.secure.peers import PeerBoard
@@ -69,7 +69,7 @@ class Substitution:
                 return fields.get("id") in layout.peer_of and self._peer_range(layout, res, fields, now_s, peer_gate_m)
             changed = False
             implied = res.implied_m[i]
-            if math.isfinite(implied):
+            if math.isfinite(implied) and not no_target(fields):  # "nothing in range" stays that, never a value
                 changed |= _set(fields, "current_distance", _cm(implied))
             if i in res.attacked_idx or degraded:
                 changed |= _set(fields, "signal_quality", FLAGGED_QUALITY)
