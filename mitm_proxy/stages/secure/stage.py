@@ -5,8 +5,8 @@ sees the readings *after* the attack stage, as the ground side would, and:
 
 1. collects the configured group's DISTANCE_SENSOR readings (the wall group,
    or the UWB anchor ranges) into a reading vector, NaN where a sensor is
-   silent, reports "no target" (``signal_quality`` 0) or is older than
-   ``max_age_s``;
+   silent, reports "no target" (``signal_quality`` 0 and a distance outside
+   its limits: ``collect.no_target``) or is older than ``max_age_s``;
 2. steps the estimator when every sensor has reported since the last step
    (or ``max_wait_s`` after the first one did, so a dropped sensor cannot stall
    it), or at ``rate_hz`` if configured; on the forwarding path while steps are
