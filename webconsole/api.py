@@ -10,12 +10,14 @@
 ``POST /api/vehicles/{sysid}/attack``      ``{"profile": name | object | YAML text | null, "params": {}}``
 ``POST /api/vehicles/{sysid}/attack/mode``  ``{"mode": "on" | "bypass"}``
 ``POST /api/vehicles/{sysid}/secure``      ``{"estimator": name | "off", "params": {}}``
+``POST /api/vehicles/{sysid}/switches/{kind}``  any declared vehicle switch: the body is its request
 ``GET /api/stream?vehicle=N``              server-sent events, 12.5 per second: the fleet and N's new samples
 =========================================  ===================================================
 
 A POST answers with the proxy's own acknowledgement (``ok``, ``error``), or 422
-when the request never left the console (a profile that does not validate: the
-body names the ``field``), or 504 when no proxy answered in time. What guards
+when the request never left the console (a profile that does not validate, a
+request that does not fit its switch's request model: the body names the
+``field``), or 504 when no proxy answered in time. What guards
 the app against other web pages and greedy clients is in ``webconsole.security``
 and docs/security.md: POSTs must be JSON from the console's own origin, bodies
 are capped before they are read (413), event streams are capped per client and
@@ -38,6 +40,7 @@ from collections.abc import AsyncIterator, Callable, Iterable
 from pathlib import Path
 from typing import Any
 
+from pydantic import ValidationError
 from sse_starlette.sse import EventSourceResponse
 from starlette.applications import Starlette
 from starlette.requests import Request
@@ -49,8 +52,10 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from attack_profiles import library
 from attack_profiles.control import profile_from_payload
 from attack_profiles.profile import parse_profile, parse_text
+from secuav_common.controlplane import switches
+from secuav_common.controlplane.payloads import MAX_PAYLOAD_BYTES, request_bytes
 from secuav_common.controlplane.topics import vehicle_topic
-from secuav_common.loading import InputError, parse_document
+from secuav_common.loading import InputError, first_error, parse_document
 from webconsole.fleet import AckTimeout, Fleet, Session
 from webconsole.security import LOOPBACK_NAMES, guarded
 from webconsole.world import world_json
@@ -103,6 +108,27 @@ def profile_request(body: Any) -> dict[str, Any] | None:
     checked = parse_profile(data, "profile", **params)
     payload = json.loads(checked.canonical_json())
     profile_from_payload(payload, "profile")  # exactly what the proxy will run
+    return payload
+
+
+def switch_request(spec: switches.SwitchSpec, body: Any) -> dict[str, Any] | None:
+    """The ``<kind>/set`` payload for ``POST /api/vehicles/{sysid}/switches/{kind}``: the body as it is (an
+    object, or null for a bare request such as clear), checked against the switch's request model when it
+    declares one (the check the proxy makes first); raises ``InputError``.
+
+    A ``request_id`` in the body is dropped: the console gives each request its own, and waits for that.
+    """
+    if body is not None and not isinstance(body, dict):
+        raise InputError("request", "", body, f"expected a JSON object (the {spec.kind} request) or null")
+    payload = None if body is None else {k: v for k, v in body.items() if k != "request_id"}
+    if spec.request_model is not None and payload is not None:
+        try:
+            spec.request_model.model_validate(payload)
+        except ValidationError as exc:
+            raise first_error(exc, "request") from None
+    size = len(request_bytes(payload, "x" * 40))  # the console's ids are "console-" and 32 hex digits
+    if size > MAX_PAYLOAD_BYTES:
+        raise InputError("request", "", f"{size} bytes", f"the proxy accepts requests up to {MAX_PAYLOAD_BYTES} bytes")
     return payload
 
 
@@ -247,7 +273,7 @@ def build_app(fleet: Fleet, session: Session, password: str | None = None, ack_t
         sysid = int(request.path_params["sysid"])
         return sysid if sysid in fleet.vehicles else None
 
-    async def send(request: Request, leaf: str, build: Callable[[Any], dict[str, Any]]) -> Response:
+    async def send(request: Request, leaf: str, build: Callable[[Any], dict[str, Any] | None]) -> Response:
         sysid = known(request)
         if sysid is None:
             return _error(404, f"no vehicle {request.path_params['sysid']} on the broker")
@@ -317,6 +343,14 @@ def build_app(fleet: Fleet, session: Session, password: str | None = None, ack_t
 
         return await send(request, "secure", build)
 
+    async def switch(request: Request) -> Response:
+        kind = request.path_params["kind"]
+        spec = switches.find("vehicle", kind)
+        if spec is None:
+            known_kinds = ", ".join(s.kind for s in switches.specs() if s.scope == "vehicle")
+            return _error(404, f"no vehicle switch {kind!r} (declared: {known_kinds})")
+        return await send(request, spec.kind, lambda body: switch_request(spec, body))
+
     async def stream(request: Request) -> Response:
         try:
             watched = int(request.query_params.get("vehicle", "0"))
@@ -335,6 +369,7 @@ def build_app(fleet: Fleet, session: Session, password: str | None = None, ack_t
         Route("/api/vehicles/{sysid:int}/attack", attack, methods=["POST"]),
         Route("/api/vehicles/{sysid:int}/attack/mode", mode, methods=["POST"]),
         Route("/api/vehicles/{sysid:int}/secure", secure, methods=["POST"]),
+        Route("/api/vehicles/{sysid:int}/switches/{kind:path}", switch, methods=["POST"]),
         Route("/api/library", profiles),
         Route("/api/estimators", estimators_list),
         Route("/api/estimators/params", estimator_params),

@@ -26,6 +26,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
+from secuav_common.controlplane import switches
 from secuav_common.controlplane.address import BrokerAddress
 from secuav_common.controlplane.payloads import PayloadError, as_dict, decode
 from secuav_common.controlplane.requests import Acks, AckTimeout
@@ -37,8 +38,8 @@ from webconsole.world import secure_reading, true_reading
 
 log = logging.getLogger("secuav-console")
 
-__all__ = ["AckTimeout", "Fleet", "Session", "VehicleView"]
-LEAVES = ("attack/state", "attack/mode/state", "secure/state", "stats", "estimate", "truth", "readings")
+__all__ = ["AckTimeout", "Fleet", "Session", "VehicleView", "leaves", "vehicle_switches"]
+STREAMS = ("stats", "estimate", "truth", "readings")  # the vehicle streams the console reads
 HISTORY = 8_000  # samples kept per vehicle: over two minutes at ~50 per second, what a page backfills
 STALE_S = 3.0  # no stats for this long: the vehicle's proxy is gone or stuck (shown offline)
 GONE_S = 30.0  # offline this long with no proxy claiming it: left off the fleet (its retained states linger)
@@ -77,6 +78,17 @@ class VehicleView:
         return out
 
 
+def vehicle_switches() -> list[str]:
+    """The kind of every declared vehicle switch (``attack``, ``attack/mode``, ``secure``, and any other
+    module in secuav_common/controlplane/switches/), in the registry's order."""
+    return [spec.kind for spec in switches.specs() if spec.scope == "vehicle"]
+
+
+def leaves() -> list[str]:
+    """What the console reads of each vehicle: every vehicle switch's ``<kind>/state``, then the streams."""
+    return [*(f"{kind}/state" for kind in vehicle_switches()), *STREAMS]
+
+
 def _finite(value: Any) -> float | None:
     return float(value) if isinstance(value, int | float) and math.isfinite(value) else None
 
@@ -111,7 +123,10 @@ class Fleet:
             return
         leaf = f"{parsed.leaf}/{parsed.verb}" if parsed.verb else parsed.leaf
         sysid = parsed.sysid
-        if sysid is None or not 1 <= sysid <= 255 or leaf not in LEAVES or not isinstance(body, dict):
+        if sysid is None or not 1 <= sysid <= 255 or not isinstance(body, dict):
+            return
+        is_switch = parsed.verb == "state" and switches.find("vehicle", parsed.leaf) is not None
+        if not (is_switch or (parsed.verb is None and leaf in STREAMS)):
             return
         view = self.vehicles.get(sysid)
         if view is None:
@@ -194,10 +209,13 @@ class Fleet:
         return found
 
     def summary(self) -> list[dict[str, Any]]:
-        """One row per vehicle: online, profile, mode, estimator, rates, counters, latency, and the warnings of
-        the attack and secure states (what keeps them from working, e.g. a signed stream and no key)."""
+        """One row per vehicle: online, profile, mode, estimator, rates, counters, latency, the warnings of
+        the attack and secure states (what keeps them from working, e.g. a signed stream and no key), and
+        ``switches``: the latest state of every declared vehicle switch by kind (None until one arrived),
+        so a switch added in its own module shows without this code naming it."""
         owners = self.owners()
         now = time.monotonic()
+        kinds = vehicle_switches()
         rows = []
         for sysid, view in sorted(self.vehicles.items()):
             age = None if view.stats_at is None else now - view.stats_at
@@ -227,6 +245,7 @@ class Fleet:
                 "latency_p50_ms": latency.get("p50"), "latency_p99_ms": latency.get("p99"),
                 "flagged": sorted((view.estimate or {}).get("attacked") or []) if secure.get("estimator") else [],
                 "warnings": _warnings(attack, secure),
+                "switches": {kind: view.states.get(f"{kind}/state") for kind in kinds},
             })  # fmt: skip
         return rows
 
@@ -267,7 +286,7 @@ class Session:
         await self.mqtt.run(self._serve)
 
     async def _serve(self, client: Client) -> None:
-        await client.subscribe([(vehicle_topic(ANY, leaf), 0) for leaf in LEAVES] + [(INSTANCES_ONLINE, 1)])
+        await client.subscribe([(vehicle_topic(ANY, leaf), 0) for leaf in leaves()] + [(INSTANCES_ONLINE, 1)])
         await client.publish(self.online_topic, self._record(True), qos=1, retain=True)
         self.mqtt.mark_connected()
         async for message in client.messages:
@@ -283,9 +302,9 @@ class Session:
         self.acks.feed(topic, body)
         self.fleet.on_message(topic, body)
 
-    async def request(self, topic: str, body: dict[str, Any], timeout_s: float = 5.0) -> dict[str, Any]:
-        """Publish ``body`` (with a fresh request id first) on ``topic``; the proxy's state for it, or
-        :class:`AckTimeout`."""
+    async def request(self, topic: str, body: dict[str, Any] | None, timeout_s: float = 5.0) -> dict[str, Any]:
+        """Publish ``body`` (with a fresh request id first; None: a bare request) on ``topic``; the proxy's
+        state for it, or :class:`AckTimeout`."""
         client = self.mqtt.current
         if client is None or not self.connected.is_set():
             raise AckTimeout(f"not connected to the broker at {self.address.url}")

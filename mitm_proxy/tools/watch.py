@@ -4,24 +4,64 @@ The MQTT listener of :mod:`mitm_proxy.tools.attack_cli` keeps the latest message
 topic on a :class:`~mitm_proxy.tools.board.Board`; this module only draws it,
 once per ``--interval``, until Ctrl-C. Frame rates come from the difference of
 two stats messages, so they are the proxy's own counts, not guesses.
+
+Every declared vehicle switch shows: ``attack``, ``mode`` and ``secure`` in
+their own words, and any other (a module in secuav_common/controlplane/switches/)
+in a column of its own after them, headed by its kind, with what its state holds
+(:func:`state_cell`).
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import json
 import sys
 import time
 from typing import TYPE_CHECKING, Any
 
+from secuav_common.controlplane import switches
 from secuav_common.controlplane.topics import parse, vehicle_topic
 
 if TYPE_CHECKING:
     from mitm_proxy.tools.board import Board
 
-COLUMNS = ("vehicle", "proxy", "attack", "mode", "secure", "down in/s", "out/s", "rewritten", "dropped", "bad",
-           "p50 ms", "p99 ms", "stats age")  # fmt: skip
+HEAD = ("vehicle", "proxy", "attack", "mode", "secure")  # then one column per other vehicle switch
+TAIL = ("down in/s", "out/s", "rewritten", "dropped", "bad", "p50 ms", "p99 ms", "stats age")
+COLUMNS = HEAD + TAIL  # with the built-in switches alone
+SHOWN = ("attack", "attack/mode", "secure")  # the switches the first columns spell out
 STALE_S = 3.0  # stats older than this: the proxy stopped publishing (the table says so)
+CELL_CHARS = 32  # a generic switch's cell is cut here
+BOOKKEEPING = frozenset({"sysid", "since", "request_id", "ok", "error", "warnings"})  # not what a state holds
+
+
+def other_switches() -> list[str]:
+    """Every declared vehicle switch the first columns do not already show."""
+    return [s.kind for s in switches.specs() if s.scope == "vehicle" and s.kind not in SHOWN]
+
+
+def state_cell(state: Any) -> str:
+    """A switch's state in a few characters: its one field's value, or ``name=value`` pairs (no ids, times or
+    verdicts); ``!`` after it when its last request was refused, ``(N warnings)`` when it has any."""
+    if not isinstance(state, dict):
+        return "-"
+    held = {k: v for k, v in state.items() if k not in BOOKKEEPING}
+    if len(held) == 1:
+        text = _plain(next(iter(held.values())))
+    else:
+        text = " ".join(f"{k}={_plain(v)}" for k, v in held.items()) or "-"
+    if len(text) > CELL_CHARS:
+        text = text[: CELL_CHARS - 3] + "..."
+    if state.get("ok") is False:
+        text += " !"
+    warnings = state.get("warnings")
+    if isinstance(warnings, list) and warnings:
+        text += f" ({len(warnings)} warning{'s' if len(warnings) > 1 else ''})"
+    return text
+
+
+def _plain(value: Any) -> str:
+    return "-" if value is None else value if isinstance(value, str) else json.dumps(value, separators=(",", ":"))
 
 
 class Rates:
@@ -48,7 +88,9 @@ def table(board: Board, rates: Rates, now_s: float) -> list[str]:
     for name, rec in board.instances().items():
         for v in rec.get("vehicles", []) if rec.get("online") else []:
             owners.setdefault(v, []).append(name)
-    rows = [COLUMNS]
+    others = other_switches()
+    header = (*HEAD, *others, *TAIL)
+    rows = [header]
     for sysid in _vehicles(board):
         attack = board.latest.get(vehicle_topic(sysid, "attack/state")) or {}
         mode = (board.latest.get(vehicle_topic(sysid, "attack/mode/state")) or {}).get("mode") or "-"
@@ -57,6 +99,7 @@ def table(board: Board, rates: Rates, now_s: float) -> list[str]:
         arrived = board.arrivals.get(vehicle_topic(sysid, "stats"))
         cells = [f"v{sysid}", ",".join(owners.get(sysid, ["?"])), attack.get("profile") or "none", mode,
                  "n/a" if secure.get("available") is False else (secure.get("estimator") or "off")]  # fmt: skip
+        cells += [state_cell(board.latest.get(vehicle_topic(sysid, f"{kind}/state"))) for kind in others]
         if isinstance(stats, dict) and arrived is not None:
             rates.update(sysid, stats, arrived)
             down, up, lat = stats.get("downlink") or {}, stats.get("uplink") or {}, stats.get("latency_ms") or {}
@@ -71,7 +114,7 @@ def table(board: Board, rates: Rates, now_s: float) -> list[str]:
         else:
             cells += ["-"] * 8
         rows.append(tuple(cells))
-    widths = [max(len(str(r[i])) for r in rows) for i in range(len(COLUMNS))]
+    widths = [max(len(str(r[i])) for r in rows) for i in range(len(header))]
     return ["  ".join(str(c).ljust(w) for c, w in zip(row, widths, strict=True)).rstrip() for row in rows]
 
 

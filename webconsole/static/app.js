@@ -6,6 +6,10 @@
 const PLOT_WINDOW_S = 60;   // seconds of readings on the plots
 const TRAIL_S = 15;         // seconds of trail on the top view
 const MAX_PLOTS = 4;        // sensor plots shown at once
+// The switches the panel has controls of its own for; every other declared vehicle switch (the row's
+// `switches`) is listed generically under "Other switches", with a field to send it a JSON request.
+const OWN_CONTROLS = new Set(["attack", "attack/mode", "secure"]);
+const BOOKKEEPING = new Set(["sysid", "since", "request_id", "ok", "error", "warnings"]);
 const $ = (id) => document.getElementById(id);
 
 const state = {
@@ -20,6 +24,7 @@ const state = {
   picked: new Set(),        // sensor ids plotted
   plots: new Map(),         // id -> uPlot
   formsFor: null,           // the vehicle whose state the forms were last filled from
+  switchItems: new Map(),   // kind -> its <li> under "Other switches" (kept, so a half-typed request survives)
   dirty: false,
 };
 
@@ -112,6 +117,7 @@ function renderFleet(rows) {
       (mine.mode === "bypass" ? ", attack stage bypassed" : "") +
       (mine.attack_ok ? "" : ` (last request rejected: ${mine.attack_error})`);
     renderWarnings(mine.warnings || []);
+    renderSwitches(mine.switches || {});
   }
   if (state.selected === null && rows.length > 0) select(rows[0].sysid);
 }
@@ -129,6 +135,82 @@ function renderWarnings(warnings) {
     li.append(code, cut > 0 ? w.slice(cut) : `: ${w}`);
     return li;
   }));
+}
+
+// Every declared vehicle switch the panel has no controls of its own for: its kind, what its state holds
+// (compact JSON, without ids, times and the verdict), the last refusal and its warnings; a JSON request
+// typed next to it goes to POST /api/vehicles/N/switches/KIND.
+function renderSwitches(all) {
+  const kinds = Object.keys(all).filter((k) => !OWN_CONTROLS.has(k)).sort();
+  $("switches-panel").hidden = kinds.length === 0;
+  for (const [kind, item] of state.switchItems) {
+    if (!kinds.includes(kind)) { item.remove(); state.switchItems.delete(kind); }
+  }
+  for (const kind of kinds) {
+    let item = state.switchItems.get(kind);
+    if (!item) {
+      item = switchItem(kind);
+      state.switchItems.set(kind, item);
+      $("switches").append(item);
+    }
+    const st = all[kind];
+    const held = {};
+    for (const [k, v] of Object.entries(st || {})) if (!BOOKKEEPING.has(k)) held[k] = v;
+    item.querySelector(".switch-state").textContent = st ? JSON.stringify(held) : "no state yet";
+    item.querySelector(".switch-error").textContent = st && st.ok === false ? `last request rejected: ${st.error}` : "";
+    const warnings = st && Array.isArray(st.warnings) ? st.warnings : [];
+    const list = item.querySelector(".warnings");
+    list.hidden = warnings.length === 0;
+    if (list.dataset.shown !== JSON.stringify(warnings)) {
+      list.dataset.shown = JSON.stringify(warnings);
+      list.replaceChildren(...warnings.map((w) => { const li = document.createElement("li"); li.textContent = w; return li; }));
+    }
+  }
+}
+
+function switchItem(kind) {
+  const item = document.createElement("li");
+  item.dataset.kind = kind;
+  const name = document.createElement("strong");
+  name.textContent = kind;
+  const held = document.createElement("code");
+  held.className = "switch-state";
+  const error = document.createElement("span");
+  error.className = "switch-error error";
+  const warnings = document.createElement("ul");
+  warnings.className = "warnings";
+  warnings.hidden = true;
+  const row = document.createElement("div");
+  row.className = "row";
+  const input = document.createElement("input");
+  input.className = "switch-request";
+  input.placeholder = '{"field": value} or null';
+  input.spellcheck = false;
+  const button = document.createElement("button");
+  button.textContent = "Set";
+  button.addEventListener("click", () => setSwitch(kind, input));
+  row.append(input, button);
+  item.append(name, " ", held, " ", error, warnings, row);
+  return item;
+}
+
+async function setSwitch(kind, input) {
+  if (state.selected === null) return;
+  let body;
+  try { body = JSON.parse(input.value.trim() || "null"); } catch (e) {
+    input.classList.add("invalid");
+    showAck(kind, { status: 422, data: { error: `not JSON: ${e.message}` } });
+    return;
+  }
+  input.classList.remove("invalid");
+  const result = await api(`/api/vehicles/${state.selected}/switches/${kind}`, body);
+  input.classList.toggle("invalid", result.status === 422);
+  showAck(kind, result);
+  if (result.status === 200 || result.status === 409) {   // the proxy's state: what the switch now holds
+    const held = {};
+    for (const [k, v] of Object.entries(result.data || {})) if (!BOOKKEEPING.has(k)) held[k] = v;
+    $("ack").textContent += `\n${kind}: ${JSON.stringify(held)}`;
+  }
 }
 
 // ---------------------------------------------------------------- live stream
@@ -202,6 +284,8 @@ async function select(sysid) {
   $("plots").replaceChildren();
   $("sensor-picker").replaceChildren();
   $("vehicle-panel").hidden = false;
+  state.switchItems = new Map();
+  $("switches").replaceChildren();
   const { data } = await api(`/api/vehicles/${sysid}`);
   state.world = data && data.world ? data.world : null;
   connect();
