@@ -5,7 +5,8 @@ This module declares a ``note`` switch (spec, models, proxy side), as a new
 (in-process, two links on loopback UDP) and the real console app (uvicorn, its MQTT session) on a real
 embedded broker, and checks that ``GET /api/vehicles`` carries the note's state in each row's ``switches``,
 that ``POST /api/vehicles/{sysid}/switches/note`` sets it through the proxy (and what is refused where),
-and that ``secuav-attack status --watch`` draws a ``note`` column.
+that ``secuav-attack status --watch`` draws a ``note`` column, and that the page (in chromium) lists the
+note in the vehicle's panel and sets it.
 """
 
 from __future__ import annotations
@@ -19,7 +20,6 @@ from typing import Any
 
 import pytest
 from pydantic import BaseModel, ConfigDict, Field
-from test_console_api import call, serve
 
 from mitm_proxy.app import Proxy
 from mitm_proxy.config import LinkConfig, ProxyConfig
@@ -29,6 +29,9 @@ from mitm_proxy.tools.watch import COLUMNS, Rates, table
 from secuav_common.broker import BrokerAddress, EmbeddedBroker
 from secuav_common.controlplane import switches
 from secuav_common.controlplane.switches import SwitchSpec
+from tests.webconsole.test_console_api import call, serve
+from tests.webconsole.test_console_browser import browser  # noqa: F401  (a fixture)
+from tests.webconsole.test_console_security import raw
 from webconsole.fleet import Fleet, Session
 
 pytestmark = pytest.mark.timeout(60)
@@ -182,6 +185,16 @@ async def test_the_rows_carry_every_declared_switch_and_the_console_sets_the_new
     status, ack = await asyncio.to_thread(call, bench.base, "/api/vehicles/1/switches/attack/mode", {"mode": "bypass"})
     assert status == 200 and ack["mode"] == "bypass"
 
+    # The console's guards hold for this route as for the others: JSON only, and never from another origin.
+    path, body_bytes = "/api/vehicles/1/switches/note", b'{"text":"from elsewhere"}'
+    for headers, want in [({"Content-Type": "text/plain"}, 415),
+                          ({"Content-Type": "application/json", "Origin": "https://evil.example"}, 403),
+                          ({"Content-Type": "application/json", "Sec-Fetch-Site": "cross-site"}, 403)]:  # fmt: skip
+        status, _, answer_bytes = await asyncio.to_thread(raw, bench.base, "POST", path, body_bytes, headers)
+        assert status == want, (headers, status, answer_bytes)
+    await asyncio.sleep(0.3)
+    assert bench.proxy.control.controls.vehicle(1, "note").text == "quiet now"  # type: ignore[union-attr]
+
     # Only declared vehicle switches, only known vehicles.
     for path, words in [("/api/vehicles/1/switches/routes", "no vehicle switch 'routes'"),
                         ("/api/vehicles/1/switches/nope", "no vehicle switch 'nope'"),
@@ -208,3 +221,51 @@ async def test_the_watch_view_draws_a_column_for_the_new_switch(bench: Bench) ->
 
     switches.unregister("note")  # without it, the table is the one the built-in switches give
     assert table(board, Rates(), time.monotonic())[0].split() == " ".join(COLUMNS).split()
+
+
+async def test_the_page_lists_the_new_switch_in_the_vehicle_panel_and_sets_it(
+    bench: Bench,
+    browser: object,  # noqa: F811
+) -> None:
+    from selenium.webdriver.common.by import By
+
+    driver = browser
+    await asyncio.to_thread(driver.get, bench.base + "/")  # type: ignore[attr-defined]
+
+    def panel() -> dict[str, Any]:  # read in one script: the panel is refreshed 12.5 times a second
+        return driver.execute_script(  # type: ignore[attr-defined,no-any-return]
+            "const li = document.querySelector('#switches li[data-kind=\"note\"]');"
+            "return {shown: !document.getElementById('switches-panel').hidden,"
+            " kinds: [...document.querySelectorAll('#switches > li')].map(l => l.dataset.kind),"
+            " state: li ? li.querySelector('.switch-state').textContent : null,"
+            " warnings: li ? [...li.querySelectorAll('.warnings li')].map(w => w.textContent) : []};"
+        )
+
+    async def shows(state: str) -> dict[str, Any]:
+        deadline = time.monotonic() + 10
+        while (now := await asyncio.to_thread(panel))["state"] != state:
+            assert time.monotonic() < deadline, now
+            await asyncio.sleep(0.1)
+        return now
+
+    first = await shows('{"text":null}')  # vehicle v1, selected as the first row
+    assert first["shown"] and first["kinds"] == ["note"] and first["warnings"] == []  # the built-ins have controls
+
+    def send(text: str) -> None:
+        field = driver.find_element(By.CSS_SELECTOR, "#switches li[data-kind='note'] input.switch-request")  # type: ignore[attr-defined]
+        field.clear()
+        field.send_keys(text)
+        driver.find_element(By.CSS_SELECTOR, "#switches li[data-kind='note'] button").click()  # type: ignore[attr-defined]
+
+    await asyncio.to_thread(send, '{"text": "HELLO WALL"}')
+    now = await shows('{"text":"HELLO WALL"}')
+    assert now["warnings"] == [SHOUTING]
+    ack = await asyncio.to_thread(lambda: driver.find_element(By.ID, "ack").text)  # type: ignore[attr-defined]
+    assert ack.startswith("note: ok") and 'note: {"text":"HELLO WALL"}' in ack, ack
+    assert bench.proxy.control is not None
+    assert bench.proxy.control.controls.vehicle(1, "note").text == "HELLO WALL"  # type: ignore[union-attr]
+    assert bench.proxy.control.controls.vehicle(2, "note").text is None  # type: ignore[union-attr]
+
+    logged = await asyncio.to_thread(driver.get_log, "browser")  # type: ignore[attr-defined]
+    errors = [e for e in logged if e["level"] in ("SEVERE", "WARNING")]
+    assert errors == [], errors
