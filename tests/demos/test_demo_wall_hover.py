@@ -23,7 +23,7 @@ def test_secure_stage_holds_the_wall_distance_that_the_attack_drags_away(
 ) -> None:
     out = tmp_path / "demo"
     cmd = [
-        sys.executable, "-m", "demos", "wall-hover", "--matrix", "--seconds", "18", "--settle", "3",
+        sys.executable, "-m", "demos", "wall-hover", "--matrix", "--seconds", "12", "--settle", "3",
         "--param", "rate_per_s=0.4", "--out", str(out), "--base-port", str(min(udp_port(), 65000)),  # BASE..BASE+21
     ]  # fmt: skip
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=380)
