@@ -294,18 +294,23 @@ def _any_in(sorted_positions: list[int], start: int, end: int) -> bool:
 
 
 _TEXT_BYTES: Final = bytes(range(0x20, 0x7F)) + b"\t\n\r"
-MIN_TEXT_LEN: Final = 3  # shorter printable runs are as likely noise as words
+MIN_TEXT_LEN: Final = 3  # shorter printable runs are as likely noise as words (unless the sender is printing)
 
 
-def _named(data: bytes, lo: int, hi: int, reason: str) -> str:
+def _named(data: bytes, lo: int, hi: int, reason: str, min_text: int = MIN_TEXT_LEN) -> str:
     """``reason`` for the skipped bytes ``data[lo:hi]``, or :data:`TEXT` when they are printable lines, not noise."""
-    if reason == GARBAGE and hi - lo >= MIN_TEXT_LEN and not data[lo:hi].translate(None, _TEXT_BYTES):
+    if reason == GARBAGE and hi - lo >= min_text and not data[lo:hi].translate(None, _TEXT_BYTES):
         return TEXT
     return reason
 
 
-def split(datagram: bytes) -> SplitResult:
-    """Find every valid MAVLink v1/v2 frame in ``datagram``, in order; see the module doc."""
+def split(datagram: bytes, printing: bool = False) -> SplitResult:
+    """Find every valid MAVLink v1/v2 frame in ``datagram``, in order; see the module doc.
+
+    ``printing``: the sender was seen printing text lately (the caller keeps that per link), so a printable
+    run of any length is text: a console writes progress marks one at a time between frames ("Init
+    Gyro***") and a stream's reads cut its lines anywhere ("0 " of "0 0 0 AP_Logger_File ...")."""
+    min_text = 1 if printing else MIN_TEXT_LEN
     data = bytes(datagram)
     n = len(data)
     out = SplitResult()
@@ -335,7 +340,7 @@ def split(datagram: bytes) -> SplitResult:
                     reason = TRUNCATED
                 elif _mcrf4xx(extra, _mcrf4xx(data[i + 1 : crc_at], 0xFFFF)) == data[crc_at] | data[crc_at + 1] << 8:
                     if skip_start >= 0:
-                        out.bad.append(_named(data, skip_start, i, skip_reason))
+                        out.bad.append(_named(data, skip_start, i, skip_reason, min_text))
                         skip_start = -1
                     header = Header(2, msgid, sysid, compid, seq, plen, incompat, incompat == IFLAG_SIGNED)
                     frames.append((header, data if (i == 0 and end == n) else data[i:end]))
@@ -356,7 +361,7 @@ def split(datagram: bytes) -> SplitResult:
                     reason = GARBAGE
             if reason is None:
                 if skip_start >= 0:
-                    out.bad.append(_named(data, skip_start, i, skip_reason))
+                    out.bad.append(_named(data, skip_start, i, skip_reason, min_text))
                     skip_start = -1
                 if header.msgid not in CRC_EXTRA:
                     out.unknown += 1
@@ -374,7 +379,7 @@ def split(datagram: bytes) -> SplitResult:
             magic = MagicCursor(data, n)
         i = magic.at_or_after(i)
     if skip_start >= 0:
-        out.bad.append(_named(data, skip_start, n, skip_reason))
+        out.bad.append(_named(data, skip_start, n, skip_reason, min_text))
     return out
 
 

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
 from mavframe import codec
-from mavframe.frames import split, tiles
+from mavframe.frames import TEXT, split, tiles
 from mavframe.packet import Direction, Header, Packet
 from mavframe.signing import Signer
 from mitm_proxy.core.stats import DirectionStats, LinkStats
@@ -54,6 +54,7 @@ _NOTHING: frozenset[int] = frozenset()
 STAGE_ERROR = "stage_error"
 ENCODE_ERROR = "encode_error"
 OVER_BUDGET = "over_budget"
+PRINTING_S = 10.0  # after printable lines from a sender, its short printable runs are text for this long
 # Splitting crafted bytes runs at 2-6 MB/s (mavframe.frames): 256 kB of garbage a second costs at most
 # about a tenth of a core before the cheap check takes over.
 HOSTILE_BYTES_PER_S = 256 * 1024
@@ -105,6 +106,7 @@ class _HostileBudget:
     window_s: float = -1.0  # when the window began
     spent: int = 0  # bytes of datagrams that held garbage since then
     over_until_s: float = -1.0  # until then, datagrams that are not whole frames are dropped unsplit
+    printing_until_s: float = -1.0  # until then the sender counts as printing text (frames.split's ``printing``)
 
 
 class Outgoing(NamedTuple):
@@ -213,7 +215,7 @@ class Pipeline:
             st.bytes_in += len(datagram)
             st.add_bad(OVER_BUDGET)
             return []
-        res = split(datagram)
+        res = split(datagram, now_s < budget.printing_until_s)
         frames = res.frames
         st.datagrams_in += 1
         st.frames_in += len(frames)
@@ -223,6 +225,8 @@ class Pipeline:
         if res.bad:
             for reason in res.bad:
                 st.add_bad(reason)
+            if TEXT in res.bad:  # the sender prints (an autopilot's console): its short runs are text too
+                budget.printing_until_s = now_s + PRINTING_S
             self._spend(budget, len(datagram), direction, now_s)
         active, wanted = self._wanted()
         signer = self.signer

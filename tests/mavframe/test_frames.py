@@ -288,3 +288,12 @@ def test_only_printable_runs_are_text(junk: bytes) -> None:
         assert printable
     if printable and len(junk) >= 3 and len(res.frames) == 1:
         assert res.bad == [TEXT]
+
+
+def test_a_printing_sender_has_its_short_printable_runs_named_text() -> None:
+    """ArduPilot's console writes "Init Gyro" then its progress stars one at a time between frames, and a TCP
+    read can cut a line to "0 ": while the caller knows the sender prints, such runs are text too."""
+    a = pack(heartbeat())
+    assert split(b"ok" + a).bad == [GARBAGE]
+    assert split(b"*" + a + b"0 " + a + b"\n", printing=True).bad == [TEXT, TEXT, TEXT]
+    assert split(b"\x00*" + a, printing=True).bad == [GARBAGE]  # a binary byte is never text

@@ -355,3 +355,18 @@ def test_observers_see_four_hooks_and_only_while_attached() -> None:
     pipe.detach(log)
     log.calls.clear()
     assert pipe.feed(untargeted, DOWN, now)[0].data is untargeted and log.calls == []
+
+
+def test_a_sender_that_prints_has_its_short_printable_runs_counted_as_text() -> None:
+    """SITL's boot (measured): "Init ArduCopter ..." lines, then "*" progress marks and line tails between
+    frames; the marks were garbage until the pipeline remembered that the sender prints."""
+    pipe, stats, _ = make()
+    down = stats.directions[Direction.DOWNLINK]
+    frame = pack(heartbeat())
+    pipe.feed(b"*" + frame, Direction.DOWNLINK, 0.0)
+    assert down.bad == {"garbage": 1}  # nobody has printed yet: a lone printable byte is noise
+    pipe.feed(b"Init ArduCopter V4.7.0-dev\n" + frame, Direction.DOWNLINK, 1.0)
+    pipe.feed(b"*" + frame + b"*\n", Direction.DOWNLINK, 2.0)
+    assert down.bad == {"garbage": 1, "text": 3}
+    pipe.feed(b"*" + frame, Direction.DOWNLINK, 20.0)  # long after the last line
+    assert down.bad == {"garbage": 2, "text": 3}
