@@ -288,7 +288,7 @@ def explain(
     p, d = model.p, model.d
     avail = ~np.isnan(z)
     for k in range(s + 1, p):
-        if int(avail.sum()) - k < model.min_sensors + 1 or model.honest_subsets(k).shape[0] > budget:
+        if int(avail.sum()) - k < model.min_sensors + 1 or model.subset_count(k) > budget:
             break
         level = agreeing(model, z, k, chi, start, known, prior, n_iter)  # honest_subsets is cached
         if not level.passing.any():

@@ -51,7 +51,7 @@ class L0Exact(Estimator):
 
     @classmethod
     def applies_to(cls, model: MeasurementModel) -> bool:
-        return model.honest_subsets(model.max_correctable).shape[0] <= 500
+        return model.subset_count(model.max_correctable) <= 500
 
     def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:
         model = self.model

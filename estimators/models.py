@@ -26,6 +26,7 @@ anchors), ``s`` out of each group.
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -53,6 +54,11 @@ def leave_out_masks(p: int, groups: Groups) -> np.ndarray:
             out[j, list(idx)] = False
     out.setflags(write=False)
     return out
+
+
+def subset_count(groups: Groups) -> int:
+    """How many rows :func:`leave_out_masks` would have, without building them (C(24, 10) rows take seconds)."""
+    return math.prod(math.comb(len(idx), k) if len(idx) > k else 2 ** len(idx) for idx, k in groups)
 
 
 def _as_sigma(sigma_m: float | np.ndarray | list[float], p: int) -> np.ndarray:
@@ -118,6 +124,12 @@ class MeasurementModel:
         if not 0 <= s < self.p:
             raise ValueError(f"tolerance s={s} outside 0..{self.p - 1}")
         return leave_out_masks(self.p, self.tolerance_groups(s))
+
+    def subset_count(self, s: int) -> int:
+        """``honest_subsets(s).shape[0]``, counted rather than built."""
+        if not 0 <= s < self.p:
+            raise ValueError(f"tolerance s={s} outside 0..{self.p - 1}")
+        return subset_count(self.tolerance_groups(s))
 
     def h(self, pos: np.ndarray, known: Known = None) -> np.ndarray:
         raise NotImplementedError

@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from est_helpers import ANCHORS8_NED_M, HOVER_XY_M, SECURE, SIGMA_M, run_stream
+from hypothesis import given
+from hypothesis import strategies as st
 
 import estimators
 from estimators.models import AnchorRanges2D, AnchorRanges3D, LinearModel, ScalarGroup, TwoVehicleRanges
@@ -197,3 +199,32 @@ def test_the_formation_gives_each_vehicle_its_own_tolerance() -> None:
     assert (left_out[:, :8].sum(axis=1) == 2).all() and (left_out[:, 8:16].sum(axis=1) == 2).all()
     assert pair.within_tolerance(np.array([1, 1, 0, 0, 0, 0, 0, 0, 1, 1, 0, 0, 0, 0, 0, 0, 1], dtype=bool), 2)
     assert not pair.within_tolerance(np.array([1, 1, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0], dtype=bool), 2)
+
+
+@given(
+    sizes=st.lists(st.integers(1, 6), min_size=1, max_size=3),
+    tolerances=st.lists(st.integers(0, 7), min_size=3, max_size=3),
+)
+def test_subsets_are_counted_exactly_without_building_them(sizes: list[int], tolerances: list[int]) -> None:
+    from estimators.models import leave_out_masks, subset_count
+
+    groups, start = [], 0
+    for size, k in zip(sizes, tolerances, strict=False):  # a group may be no larger than its tolerance
+        groups.append((tuple(range(start, start + size)), k))
+        start += size
+    assert subset_count(tuple(groups)) == leave_out_masks(start + 1, tuple(groups)).shape[0]
+
+
+def test_listing_estimators_on_a_large_ring_does_not_enumerate_its_subsets() -> None:
+    from estimators import registry
+    from estimators.models import leave_out_masks
+
+    rng = np.random.default_rng(1)
+    angle = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
+    ring = AnchorRanges3D.build(np.c_[10 * np.cos(angle), 10 * np.sin(angle), -rng.uniform(0.5, 4.0, 24)])
+    assert ring.max_correctable == 9
+    assert ring.subset_count(9) == 1_307_504  # C(24, 9): what l0 would have to fit each step
+    built = leave_out_masks.cache_info().misses
+    listed = registry.names(ring)
+    assert "l0" not in listed and "ekf" in listed
+    assert leave_out_masks.cache_info().misses == built  # counted, not built (that took 10 s)
