@@ -254,7 +254,7 @@ async def _status(board: Board, args: argparse.Namespace) -> int:
 def _print_warnings(key: str, state: dict[str, Any]) -> None:
     """A state's ``warnings`` (what keeps its stage from working, docs/interfaces.md), one line each."""
     for warning in state.get("warnings") or []:
-        print(f"{key}: WARNING {warning}")
+        print(f"{key}: warning: {warning}")  # as `apply` prints a profile's warnings
 
 
 def cmd_status(args: argparse.Namespace) -> int:

@@ -191,10 +191,10 @@ async def test_status_prints_the_warning_of_an_attack_that_cannot_act(
     bench.stages[1].signed_untouched(Header(2, 132, 1, 1, 0, 39, 1, True))  # what the pipeline does without a key
     await asyncio.sleep(0.5)  # the plane publishes changed states 5 times a second
     code, out, _ = await cli(capsys, "status", "--vehicle", "1", "--broker", bench.url)
-    warned = [line for line in out.splitlines() if line.startswith("v1: WARNING attack.signed_no_key")]
+    warned = [line for line in out.splitlines() if line.startswith("v1: warning: attack.signed_no_key")]
     assert code == 0 and len(warned) == 1, out
     # distance-stuck rewrites DISTANCE_SENSOR only: the state also says RANGEFINDER stays true (its own warning)
-    assert "v1: WARNING attack.true_copy: rules[0]" in out
+    assert "v1: warning: attack.true_copy: rules[0]" in out
     assert "attack.signed_no_key: system 1 signs its frames (DISTANCE_SENSOR among them)" in warned[0]
     assert "--signing-key" in warned[0]
     assert (await cli(capsys, "apply", "distance-stuck", "--vehicle", "1", "--broker", bench.url))[0] == 0
