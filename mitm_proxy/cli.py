@@ -163,6 +163,11 @@ def new_event_loop(choice: str) -> asyncio.AbstractEventLoop:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    noisy = ("aiomqtt", "asyncio", "amqtt", "transitions")
+    # Warnings only while the proxy is built: installing a --profile may warn (attack.true_copy), and a record
+    # logged before any handler exists reaches stderr as its bare message, without level or fields. The
+    # start-up settings' INFO lines stay out: proxy.ready says them once (and an error stays one line).
+    setup_logging(0, True, noisy=noisy, json_lines=args.log_json)
     try:
         cfg = config_from_args(args)
         if args.print_config:
@@ -177,7 +182,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         proxy = Proxy(cfg)  # reads the scenario, profile and key: their errors come before any socket
     except (InputError, ValueError) as exc:
         return _fail(str(exc))
-    noisy = ("aiomqtt", "asyncio", "amqtt", "transitions")
     setup_logging(args.verbose, args.quiet, noisy=noisy, json_lines=args.log_json)
     try:
         loop = new_event_loop(args.loop)
