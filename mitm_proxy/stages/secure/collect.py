@@ -16,8 +16,15 @@ vehicle that sends its group in one burst (ArduPilot: ids 0, 1, 2 together, 10
 times a second) then has each set hold one burst, where stepping on the
 burst's first frame alone would pair every later burst's first reading with
 the others' of the burst before, 0.1 s older: in a 1 m/s climb a 0.1 m
-disagreement, which the estimators take for an attack on the first sensor. A reading
-older than ``max_age_s`` goes into the step as NaN.
+disagreement, which the estimators take for an attack on the first sensor. The
+same holds inside a burst when the group's sensors run at different rates
+(flightsim's wall group: four at 20 Hz, the sonar at 10 Hz, sent in id order):
+the set is complete when the sonar, id 2, arrives, while ids 3 and 4 still hold
+the previous burst's readings, 50 ms older (0.05-0.1 m apart on the approach,
+flagged as attacks). So a complete set also waits, up to ``max_wait_s``, for a
+sensor whose next reading is due at the newest reading's time, by the vehicle's
+clock (``time_boot_ms``; each sensor's period is the spacing of its last two
+stamps). A reading older than ``max_age_s`` goes into the step as NaN.
 """
 
 from __future__ import annotations
@@ -34,6 +41,7 @@ from mitm_proxy.stages.secure.worker import Job
 NO_TARGET_QUALITY = 0  # DISTANCE_SENSOR.signal_quality: 0 = unknown (sent with "no target" too)
 HEIGHT_MAX_AGE_S = 2.0  # a known height older than this is not used (the model's hold height is)
 VELOCITY_MAX_AGE_S = 0.5  # an older velocity is not the motion input (the filter then predicts without it)
+DUE_SLACK = 0.3  # of a sensor's period: how far past the newest stamp its next reading may be and still be awaited
 
 Due = Literal["complete", "timed_out", "rate"]
 
@@ -54,6 +62,8 @@ class Readings:
         self.z = np.full(p, np.nan)
         self.rx = np.full(p, -math.inf)  # proxy time of each sensor's latest reading
         self.fresh = np.zeros(p, dtype=bool)  # reported since the last step
+        self.stamp_ms = np.full(p, np.nan)  # the vehicle's time_boot_ms of each sensor's latest reading
+        self.period_ms = np.full(p, np.nan)  # the spacing of its last two readings' stamps
         self.pending_since: float | None = None
         self.last_submit_s = -math.inf
         self.sim_t_s: float | None = None  # the vehicle's clock of the newest reading, to join with truth
@@ -78,6 +88,11 @@ class Readings:
         boot_ms = fields.get("time_boot_ms")
         if isinstance(boot_ms, int):
             self.sim_t_s = boot_ms / 1000.0 if self.sim_t_s is None else max(self.sim_t_s, boot_ms / 1000.0)
+            if boot_ms > self.stamp_ms[i]:
+                self.period_ms[i] = boot_ms - self.stamp_ms[i]
+            elif boot_ms < self.stamp_ms[i]:  # the vehicle rebooted: its periods start again
+                self.period_ms[:] = np.nan
+            self.stamp_ms[i] = boot_ms
         if self.pending_since is None:
             self.pending_since = now_s
         return True
@@ -102,9 +117,16 @@ class Readings:
             silent = np.zeros_like(self.fresh)
         else:
             silent = now_s - self.rx > cfg.max_age_s
-        if np.all(self.fresh | silent):  # a silent sensor is not waited for
+        if np.all(self.fresh | silent) and not self._next_in_burst(silent):  # a silent sensor is not waited for
             return "complete"
         return "timed_out" if now_s - self.pending_since >= cfg.max_wait_s else None
+
+    def _next_in_burst(self, silent: np.ndarray) -> bool:
+        """Whether a sensor's next reading is due at the newest reading's stamp: it is on its way in this burst."""
+        newest = np.nanmax(self.stamp_ms, initial=-np.inf)
+        with np.errstate(invalid="ignore"):
+            due = self.stamp_ms + self.period_ms * (1.0 - DUE_SLACK) <= newest
+        return bool(np.any(due & ~silent))
 
     def job(self, cfg: SecureConfig, layout: Layout, now_s: float) -> Job:
         """The set to step now (stale readings as NaN); the next set starts empty."""
