@@ -180,6 +180,7 @@ def true_copies(profile: Profile) -> list[str]:
             hit.add((t.message, t.field or MESSAGES[t.message].default_field or ""))
     out: list[str] = []
     groups: dict[tuple[str, str], tuple[list[int], list[str]]] = {}  # (quantity, component) -> rules, messages
+    ids: set[int] | None = set()  # the rangefinder ids the message rules pick (None: some rule picks every id)
     for i, rule in enumerate(profile.rules):
         t = rule.target
         if t.quantity is not None:
@@ -193,6 +194,9 @@ def true_copies(profile: Profile) -> list[str]:
             t.field or spec.default_field or ""]  # fmt: skip
         for name in names:
             mine = by_field.get((t.message, name))
+            if mine is not None and mine.sensor == "id" and ids is not None:
+                picked = t.sensor_ids()
+                ids = None if picked is None else ids | set(picked)
             if mine is not None:
                 rules, messages = groups.setdefault((mine.quantity, mine.component), ([], []))
                 if i not in rules:
@@ -200,13 +204,22 @@ def true_copies(profile: Profile) -> list[str]:
                 if t.message not in messages:
                     messages.append(t.message)
     for (q, comp), (rules, messages) in groups.items():
-        left = [f"{c.message}.{c.field}" for c in carriers_of(q, comp) if (c.message, c.field) not in hit]
+        left = [_spell(c, ids) for c in carriers_of(q, comp) if (c.message, c.field) not in hit]
         if left:
             verb = "still carries" if len(left) == 1 else "still carry"
             spelled = f"quantity: {q}" + (f", field: {comp}" if DEFAULT_COMPONENT[q] is None else "")
             out.append(f"rules[{', '.join(map(str, rules))}] rewrite {q} {comp} in {', '.join(messages)}; "
                        f"{', '.join(left)} {verb} the true value (target {spelled} rewrites them all)")  # fmt: skip
     return out
+
+
+def _spell(carrier: Carrier, ids: set[int] | None) -> str:
+    """A carrier left true; one that carries only the primary rangefinder says when, if the rules pick no id 0."""
+    name = f"{carrier.message}.{carrier.field}"
+    if carrier.sensor != "primary" or ids is None or 0 in ids:
+        return name
+    picked = ", ".join(map(str, sorted(ids)))
+    return f"{name} (if sensor {picked} is the vehicle's lowest-id downward rangefinder)"
 
 
 def mapping_table() -> str:

@@ -174,3 +174,13 @@ def test_barometric_height_moves_only_when_the_imu_says_it_is_fresh() -> None:
     imu = {"time_usec": 0, "pressure_alt": 488.0, "fields_updated": 0x800}
     assert send(engine, 0.0, imu, msgid=105).fields == {"pressure_alt": 490.0}
     assert send(engine, 0.0, {**imu, "fields_updated": 0x1FF}, msgid=105).untouched  # not updated: not a reading
+
+
+def test_a_rule_on_a_rangefinder_other_than_id_0_says_when_ardupilots_twin_still_carries_it() -> None:
+    picked = make_profile({"target": {"message": "DISTANCE_SENSOR", "sensor_id": 2}, "kind": "bias", "offset": 5})
+    (warning,) = true_copies(picked)
+    assert "RANGEFINDER.distance (if sensor 2 is the vehicle's lowest-id downward rangefinder)" in warning
+    (warning,) = true_copies(
+        make_profile({"target": {"message": "DISTANCE_SENSOR", "sensor_id": [0, 2]}, "kind": "bias", "offset": 5})
+    )
+    assert "RANGEFINDER.distance still carries the true value" in warning  # id 0 is the primary by default
