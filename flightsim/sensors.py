@@ -34,6 +34,7 @@ from flightsim.world import World
 from secuav_common import scenario as sc
 from secuav_common.geo import ned_to_geodetic
 from secuav_common.sensor_ids import (
+    MOUNT_BODY,
     ORIENTATION,
     ORIENTATION_CUSTOM,
     SENSOR_TYPE,
@@ -42,15 +43,6 @@ from secuav_common.sensor_ids import (
     peer_sensor_id,
 )
 
-# Unit vectors of the mount directions in the body frame (FRD).
-MOUNT_BODY: dict[str, Vec3] = {
-    "forward": (1.0, 0.0, 0.0),
-    "backward": (-1.0, 0.0, 0.0),
-    "right": (0.0, 1.0, 0.0),
-    "left": (0.0, -1.0, 0.0),
-    "up": (0.0, 0.0, -1.0),
-    "down": (0.0, 0.0, 1.0),
-}
 PEER_MAX_M = 100.0
 NAN = math.nan
 

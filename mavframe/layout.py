@@ -23,6 +23,7 @@ V2_MAGIC: Final = 0xFD
 
 # The messages the proxy's stages read by id (docs/interfaces.md#mavlink-mapping-mavlink-2-common-dialect).
 GPS_RAW_INT: Final = BY_NAME["GPS_RAW_INT"].id  # 24
+ATTITUDE: Final = BY_NAME["ATTITUDE"].id  # 30
 LOCAL_POSITION_NED: Final = BY_NAME["LOCAL_POSITION_NED"].id  # 32
 GLOBAL_POSITION_INT: Final = BY_NAME["GLOBAL_POSITION_INT"].id  # 33
 DISTANCE_SENSOR: Final = BY_NAME["DISTANCE_SENSOR"].id  # 132

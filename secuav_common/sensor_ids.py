@@ -47,6 +47,15 @@ def classify(sensor_id: int) -> tuple[SensorKind, int]:
 
 # MAV_SENSOR_ORIENTATION values for the mount directions a scenario names.
 ORIENTATION = {"forward": 0, "right": 2, "backward": 4, "left": 6, "up": 24, "down": 25}
+# The same mount directions as unit vectors in the body frame (forward, right, down): where each beam points.
+MOUNT_BODY: dict[str, tuple[float, float, float]] = {
+    "forward": (1.0, 0.0, 0.0),
+    "backward": (-1.0, 0.0, 0.0),
+    "right": (0.0, 1.0, 0.0),
+    "left": (0.0, -1.0, 0.0),
+    "up": (0.0, 0.0, -1.0),
+    "down": (0.0, 0.0, 1.0),
+}
 ORIENTATION_CUSTOM = 100
 # MAV_DISTANCE_SENSOR values.
 SENSOR_TYPE = {"laser": 0, "ultrasound": 1, "infrared": 2, "radar": 3}

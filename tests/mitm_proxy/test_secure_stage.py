@@ -25,7 +25,7 @@ from mitm_proxy.stages.secure.stage import FLAGGED_QUALITY, PeerBoard, SecureCon
 from secuav_common.geo import geodetic_to_ned
 from secuav_common.scenario import Scenario, load_scenario
 
-DS, LPN, GPI, HOME = 132, 32, 33, 242
+DS, LPN, GPI, HOME, ATTITUDE = 132, 32, 33, 242, 30
 
 
 @pytest.fixture(scope="module")
@@ -243,8 +243,10 @@ def test_anchors8_without_attack_costs_no_accuracy(anchors8: Scenario) -> None:
 @pytest.mark.timeout(30)
 def test_untargeted_frames_and_other_vehicles_pass_untouched(wall: Scenario, anchors8: Scenario) -> None:
     stage = SecureStage(SecureConfig(estimator="secekf", executor="inline"), wall, 1)
-    assert stage.message_ids == frozenset({DS}), "the wall group needs nothing but DISTANCE_SENSOR"
-    outs = run(stage, StreamMaker(wall, seed=6), 3.0)
+    # The wall group reads DISTANCE_SENSOR, and ATTITUDE to project its beams on the wall's normal (tilt.py).
+    assert stage.message_ids == frozenset({DS, ATTITUDE})
+    outs = run(stage, StreamMaker(wall, seed=6, attitude=lambda t: (0.0, 0.1, 0.0)), 3.0)
+    assert any(o.msgid == ATTITUDE for o in outs)
     assert stage.stats()["steps"] > 0
     for o in outs:
         if o.msgid != DS or o.fields["id"] not in range(5):

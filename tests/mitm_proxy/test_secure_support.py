@@ -3,7 +3,8 @@
 A vehicle holding still (plus a slow sway, so a frozen estimate would show)
 sends what flightsim sends: DISTANCE_SENSOR per sensor at its rate (wall group,
 UWB anchors, downward laser), LOCAL_POSITION_NED, GLOBAL_POSITION_INT and
-HOME_POSITION, packed by pymavlink. An optional real attack_profiles Engine
+HOME_POSITION, packed by pymavlink; with ``attitude`` also ATTITUDE, and each wall
+rangefinder then reads along its tilted beam (flightsim's own rotation code). An optional real attack_profiles Engine
 rewrites the frames on the way, exactly as the proxy's attack stage does
 (Action.fields merged, frames re-packed by pymavlink), so the secure stage sees
 attacked wire bytes. The last test checks the generator itself.
@@ -13,7 +14,7 @@ from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -21,11 +22,14 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from attack_profiles.engine import Engine
+from flightsim.control.rotation import quat_from_euler, rotate
 from mavframe import codec
 from mavframe.packet import Direction, Header, Packet
 from secuav_common.geo import ned_to_geodetic
 from secuav_common.scenario import KeepRangeTarget, Scenario, WallDistanceTarget
-from secuav_common.sensor_ids import ORIENTATION, SENSOR_TYPE
+from secuav_common.sensor_ids import MOUNT_BODY, ORIENTATION, SENSOR_TYPE
+
+Attitude = Callable[[float], tuple[float, float, float]]  # time s -> roll, pitch, yaw (rad)
 
 V2_HEADER = struct.Struct("<BBBBBBBHB")
 
@@ -69,6 +73,7 @@ class StreamMaker:
         seed: int = 0,
         sway_m: float = 0.05,
         peers: dict[int, StreamMaker] | None = None,
+        attitude: Attitude | None = None,
     ) -> None:
         self.sc = scenario
         self.veh = scenario.vehicle(sysid)
@@ -77,6 +82,7 @@ class StreamMaker:
         self.rng = np.random.default_rng(seed)
         self.sway_m = sway_m
         self.peers = peers or {}  # sysid -> the peer's maker, for inter-vehicle ranges
+        self.attitude = attitude
         self.mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=1)
         self.mav.robust_parsing = True
         if engine is not None:
@@ -107,6 +113,16 @@ class StreamMaker:
         assert isinstance(tgt, WallDistanceTarget)
         wall = self.sc.wall(tgt.wall)
         return float((pos - np.asarray(wall.point_ned_m)) @ np.asarray(wall.normal_ned))
+
+    def beam_range(self, pos: np.ndarray, t_s: float, orientation: str) -> float:
+        """What a wall rangefinder reads along its beam at the attitude of ``t_s`` (level without ``attitude``)."""
+        d = self.wall_distance(pos)
+        if self.attitude is None:
+            return d
+        tgt = self.veh.target
+        assert isinstance(tgt, WallDistanceTarget)
+        beam = rotate(quat_from_euler(*self.attitude(t_s)), MOUNT_BODY[orientation])
+        return d / float(np.dot(beam, -np.asarray(self.sc.wall(tgt.wall).normal_ned)))
 
     def _pack(self, msg: mavlink.MAVLink_message) -> bytes:
         return bytes(msg.pack(self.mav))
@@ -154,13 +170,15 @@ class StreamMaker:
                         {},
                     )
                 )
+            if self.attitude is not None:
+                msgs.append((self.mav.attitude_encode(ms, *self.attitude(t), 0.0, 0.0, 0.0), {}))
             for r in sensors.rangefinders:
                 if k % max(1, round(1 / (r.rate_hz * dt_s))):
                     continue
                 if r.orientation == "down":
                     true_m = -pos[2]
                 elif isinstance(self.veh.target, WallDistanceTarget):
-                    true_m = self.wall_distance(pos)
+                    true_m = self.beam_range(pos, t, r.orientation)
                 else:
                     continue
                 meas = true_m + r.noise_std_m * self.rng.standard_normal()

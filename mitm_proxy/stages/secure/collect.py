@@ -34,6 +34,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from mitm_proxy.stages.secure import tilt
 from mitm_proxy.stages.secure.config import SecureConfig
 from mitm_proxy.stages.secure.layout import Layout
 from mitm_proxy.stages.secure.worker import Job
@@ -41,6 +42,7 @@ from mitm_proxy.stages.secure.worker import Job
 NO_TARGET_QUALITY = 0  # DISTANCE_SENSOR.signal_quality: 0 = unknown (sent with "no target" too)
 HEIGHT_MAX_AGE_S = 2.0  # a known height older than this is not used (the model's hold height is)
 VELOCITY_MAX_AGE_S = 0.5  # an older velocity is not the motion input (the filter then predicts without it)
+ATTITUDE_MAX_AGE_S = 0.25  # an older attitude does not project the readings (they go in as measured)
 DUE_SLACK = 0.3  # of a sensor's period: how far past the newest stamp its next reading may be and still be awaited
 
 Due = Literal["complete", "timed_out", "rate"]
@@ -71,6 +73,8 @@ class Readings:
         self.height_rx = -math.inf
         self.velocity: np.ndarray | None = None  # the vehicle's own NED velocity: the filters' motion input
         self.velocity_rx = -math.inf
+        self.attitude: tuple[float, float, float] | None = None  # ATTITUDE's roll, pitch, yaw (wall group tilt)
+        self.attitude_rx = -math.inf
 
     def take_range(self, layout: Layout, fields: dict[str, Any], now_s: float) -> bool:
         """A DISTANCE_SENSOR frame's fields; True when it was one of the group's readings."""
@@ -106,6 +110,17 @@ class Readings:
         if all(isinstance(v, float) and math.isfinite(v) for v in vel):
             self.velocity, self.velocity_rx = np.array(vel, dtype=float), now_s
 
+    def take_attitude(self, fields: dict[str, Any], now_s: float) -> None:
+        angles = tilt.attitude(fields)
+        if angles is not None:
+            self.attitude, self.attitude_rx = angles, now_s
+
+    def tilt_factors(self, layout: Layout, now_s: float) -> np.ndarray | None:
+        """Each reading's projection on the wall's normal at the latest attitude; None without one (tilt.py)."""
+        if layout.tilt is None or self.attitude is None or now_s - self.attitude_rx > ATTITUDE_MAX_AGE_S:
+            return None
+        return layout.tilt.factors(*self.attitude)
+
     def due(self, cfg: SecureConfig, now_s: float) -> Due | None:
         """Why a step is due now, or None."""
         if self.pending_since is None:
@@ -131,6 +146,9 @@ class Readings:
     def job(self, cfg: SecureConfig, layout: Layout, now_s: float) -> Job:
         """The set to step now (stale readings as NaN); the next set starts empty."""
         z = np.where(now_s - self.rx <= cfg.max_age_s, self.z, np.nan)
+        factors = self.tilt_factors(layout, now_s)
+        if factors is not None:
+            z = z * factors  # along the wall's normal; a beam past 60 degrees off it is missing (NaN)
         known: float | None = None
         if layout.position_dims == 2:
             fresh_height = self.height_m is not None and now_s - self.height_rx <= HEIGHT_MAX_AGE_S
@@ -139,4 +157,4 @@ class Readings:
         self.pending_since = None
         self.last_submit_s = now_s
         velocity = self.velocity if now_s - self.velocity_rx <= VELOCITY_MAX_AGE_S else None
-        return Job(t_s=now_s, z=z, known=known, sim_t_s=self.sim_t_s, rx_s=now_s, velocity=velocity)
+        return Job(t_s=now_s, z=z, known=known, sim_t_s=self.sim_t_s, rx_s=now_s, velocity=velocity, tilt=factors)

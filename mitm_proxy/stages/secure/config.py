@@ -40,6 +40,10 @@ class SecureConfig(BaseModel):
         description="anchors: 3 = full NED, the downward laser one more reading the estimator weighs; "
         "2 = (north, east) with the laser's height taken as known",
     )
+    tilt: bool = Field(
+        True, description="wall group: project each reading on the wall's normal with the vehicle's ATTITUDE "
+        "(a pitched beam reads d / cos); off for gimballed sensors"
+    )
     rate_hz: Annotated[float, Field(gt=0.0, le=1000.0)] | None = Field(
         None, description="step at this rate on the latest readings; None = step when a set is complete"
     )

@@ -6,7 +6,9 @@ stage's per-frame work is dictionary lookups. The measurement model comes from
 the proxy's numbers comparable with the offline evaluation:
 
 - ``wall``: the vehicle's redundant rangefinder group (ReCaP's setting); the
-  estimate is one distance, and every sensor of the group is replaced by it.
+  estimate is one distance, along the wall's normal when the vehicle's ATTITUDE
+  projects each beam on it (``tilt.py``), and every sensor of the group is
+  replaced by the range it implies along that sensor's beam.
 - ``anchors``: UWB ranges to the scenario's anchors (seed test case 1); the
   estimate is a position, each anchor range is replaced by the 3-D distance
   from it to that anchor (``model.h``), and the position messages carry it.
@@ -30,8 +32,9 @@ import numpy as np
 import estimators
 from estimators.models import MeasurementModel
 from estimators.scenario_models import anchor_model, wall_group_model
-from mavframe.layout import DISTANCE_SENSOR, GLOBAL_POSITION_INT, HOME_POSITION, LOCAL_POSITION_NED
+from mavframe.layout import ATTITUDE, DISTANCE_SENSOR, GLOBAL_POSITION_INT, HOME_POSITION, LOCAL_POSITION_NED
 from mitm_proxy.stages.secure.config import SecureConfig
+from mitm_proxy.stages.secure.tilt import Geometry
 from secuav_common.loading import InputError
 from secuav_common.scenario import Home, Scenario, Vehicle, WallDistanceTarget
 from secuav_common.sensor_ids import ORIENTATION, SensorKind, classify, peer_sensor_id
@@ -55,6 +58,7 @@ class Layout:
     scenario: str = ""  # the scenario's name, for what the stage says when the stream does not fit
     orientation_of: dict[int, int] = dataclasses.field(default_factory=dict)  # wire id -> MAV_SENSOR_ORIENTATION
     anchor_ids: tuple[int, ...] = ()  # the UWB anchor ranges among sensor_ids (anchors group)
+    tilt: Geometry | None = None  # wall group: beams and wall normal, to project readings with ATTITUDE (tilt.py)
 
     @property
     def p(self) -> int:
@@ -106,6 +110,11 @@ def build_layout(config: SecureConfig, scenario: Scenario, sysid: int, source: s
     # How the scenario mounts the group's rangefinders (and the height laser): what their frames must say.
     mounts = {r.id: ORIENTATION[r.orientation] for r in vehicle.sensors.rangefinders}
     orientation_of = {sid: mounts[sid] for sid in (*ids, *(() if height_id is None else (height_id,))) if sid in mounts}
+    tilt = None
+    if group == "wall" and config.tilt and all(sid in mounts for sid in ids):
+        tilt = Geometry.of([mounts[sid] for sid in ids], getattr(model, "normal_ned", None))
+        if tilt is not None:
+            wanted.add(ATTITUDE)
     return Layout(
         sysid=sysid,
         group=group,
@@ -121,6 +130,7 @@ def build_layout(config: SecureConfig, scenario: Scenario, sysid: int, source: s
         scenario=scenario.name,
         orientation_of=orientation_of,
         anchor_ids=tuple(sid for sid in ids if classify(sid)[0] is SensorKind.ANCHOR) if group == "anchors" else (),
+        tilt=tilt,
     )
 
 

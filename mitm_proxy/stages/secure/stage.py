@@ -62,6 +62,7 @@ from mitm_proxy.stages.secure.collect import Readings
 from mitm_proxy.stages.secure.config import OFF, SecureConfig, config_from_payload
 from mitm_proxy.stages.secure.geodesy import HomeTracker, position_ned
 from mitm_proxy.stages.secure.layout import (
+    ATTITUDE,
     DISTANCE_SENSOR,
     HOME_POSITION,
     LOCAL_POSITION_NED,
@@ -180,6 +181,9 @@ class SecureStage:
         msgid = pkt.header.msgid
         if msgid == LOCAL_POSITION_NED:  # the vehicle's own velocity: the filters' motion input, if configured
             readings.take_velocity(fields, now_s)
+        elif msgid == ATTITUDE:  # the wall group's beams, projected on the wall's normal (tilt.py)
+            readings.take_attitude(fields, now_s)
+            return [pkt]
         if msgid == DISTANCE_SENSOR:
             self._check_layout(fields, now_s)
             if readings.take_range(layout, fields, now_s):
@@ -195,7 +199,8 @@ class SecureStage:
         stepper = self._stepper
         res = stepper.latest() if stepper is not None else None
         if res is not None and res.estimate.ok:
-            changed = self.substitution.apply(layout, res, msgid, fields, now_s, self.config.peer_gate_m)
+            tilt_now = readings.tilt_factors(layout, now_s) if msgid == DISTANCE_SENSOR else None
+            changed = self.substitution.apply(layout, res, msgid, fields, now_s, self.config.peer_gate_m, tilt_now)
             if changed:
                 pkt.changed = True
                 pkt.notes.append(f"{NOTE}:{self.config.estimator}")

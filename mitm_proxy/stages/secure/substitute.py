@@ -58,8 +58,11 @@ class Substitution:
         self.last_valid = None
 
     def apply(self, layout: Layout, res: StepResult, msgid: int, fields: dict[str, Any], now_s: float,
-              peer_gate_m: float) -> bool:  # fmt: skip
-        """Rewrite ``fields`` (decoded from a frame of ``msgid``); True when anything changed."""
+              peer_gate_m: float, tilt: np.ndarray | None = None) -> bool:  # fmt: skip
+        """Rewrite ``fields`` (decoded from a frame of ``msgid``); True when anything changed.
+
+        ``tilt``: the wall group's projection factors at the current attitude (else the step's): a reading
+        becomes the estimate divided by its sensor's factor, the range along its beam (tilt.py)."""
         degraded = not res.estimate.valid
         if not degraded:
             self.last_valid = res
@@ -69,6 +72,9 @@ class Substitution:
                 return fields.get("id") in layout.peer_of and self._peer_range(layout, res, fields, now_s, peer_gate_m)
             changed = False
             implied = res.implied_m[i]
+            factors = tilt if tilt is not None else res.job.tilt
+            if factors is not None:
+                implied = implied / factors[i]  # NaN past 60 degrees: the reading's value is left as it came
             if math.isfinite(implied) and not no_target(fields):  # "nothing in range" stays that, never a value
                 changed |= _set(fields, "current_distance", _cm(implied))
             if i in res.attacked_idx or degraded:

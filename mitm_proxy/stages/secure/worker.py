@@ -59,6 +59,7 @@ class Job:
     sim_t_s: float | None  # the vehicle's clock (time_boot_ms) of the newest reading, to join with truth
     rx_s: float  # proxy monotonic time the set was submitted
     velocity: np.ndarray | None = None  # the vehicle's own NED velocity (LOCAL_POSITION_NED), the motion input
+    tilt: np.ndarray | None = None  # per reading, the factor that projected it on the wall's normal (tilt.py)
 
 
 @dataclass(frozen=True, slots=True)
