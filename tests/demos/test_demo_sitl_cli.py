@@ -170,3 +170,14 @@ async def test_a_sitl_that_stops_at_once_fails_ready_naming_its_log(
     async with sitl.Sitl(binary, 9) as sim:
         with pytest.raises(RuntimeError, match=r"SITL instance 9 exited \(1\): see .*run/9/sitl.log"):
             await sim.ready(10.0)
+
+
+@pytest.mark.parametrize(("argv", "env"), [(["run", "0"], {}), (["run", "1"], {"SITL_INSTANCE": "-1"}),
+                                           (["run", "1"], {"SITL_SPEEDUP": "fast"})])  # fmt: skip
+def test_the_launcher_refuses_bad_counts_and_environment_with_exit_2(
+    argv: list[str], env: dict[str, str], monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    for key, value in env.items():
+        monkeypatch.setenv(key, value)
+    assert sitl.main(argv) == 2
+    assert capsys.readouterr().err.startswith("demos.sitl: ")
