@@ -1,4 +1,8 @@
-"""``secuav-demo wall-hover|localise|formation``: fly a closed-loop demo and write a report."""
+"""``secuav-demo wall-hover|localise|formation|height-hold``: fly a closed-loop demo and write a report.
+
+wall-hover, localise and formation fly ``secuav-sim`` (``--autopilot flightsim``); height-hold flies
+ArduCopter SITL (``--autopilot ardupilot``), whose binary is built outside the package (docs/ardupilot.md).
+"""
 
 from __future__ import annotations
 
@@ -13,19 +17,29 @@ from pathlib import Path
 from types import ModuleType
 
 from attack_profiles.resolve import parse_params
-from demos import formation, localise, wall_hover
+from demos import formation, height_hold, localise, sitl, wall_hover
 from demos.flight import Case, Options
 from demos.report import plot, write_report
 from demos.stack import Ports
 from secuav_common.extras import require
 from secuav_common.logs import add_common_flags
 
-DEMOS: dict[str, ModuleType] = {"wall-hover": wall_hover, "localise": localise, "formation": formation}
+DEMOS: dict[str, ModuleType] = {
+    "wall-hover": wall_hover, "localise": localise, "formation": formation, "height-hold": height_hold,
+}  # fmt: skip
+AUTOPILOTS = ("flightsim", "ardupilot")
+NO_SITL = 3  # exit code: the demo needs an ArduPilot SITL binary and none was found (docs/interfaces.md)
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="secuav-demo", description=__doc__.splitlines()[0])
-    p.add_argument("demo", choices=list(DEMOS))
+    p.add_argument("demo", choices=list(DEMOS),
+                   help="wall-hover, localise, formation fly secuav-sim; height-hold flies the wall-hover "
+                   "problem on ArduCopter SITL, as height over ground on three downward rangefinders "
+                   "(docs/ardupilot.md)")  # fmt: skip
+    p.add_argument("--autopilot", choices=AUTOPILOTS, default=None,
+                   help="the vehicle: flightsim (secuav-sim; wall-hover, localise, formation) or ardupilot "
+                   "(ArduCopter SITL; height-hold) (default: the demo's)")  # fmt: skip
     p.add_argument("--attack", default=None,
                    help="library profile name or profile file; 'none' for no attack (default: the demo's)")  # fmt: skip
     p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
@@ -35,12 +49,20 @@ def build_parser() -> argparse.ArgumentParser:
                    "(the default when neither --attack nor --secure is given)")  # fmt: skip
     p.add_argument("--seconds", type=float, default=40.0, help="hold time per flight (default 40)")
     p.add_argument("--settle", type=float, default=5.0, help="seconds of hold before the attack and the scoring start")
-    p.add_argument("--seed", type=int, default=None, help="simulator noise seed (default: the scenario's)")
+    p.add_argument("--seed", type=int, default=None, help="flightsim's noise seed (default: the scenario's)")
     p.add_argument("--out", type=Path, default=None, help="output directory (default out/<demo>)")
     p.add_argument("--base-port", type=int, default=None,
                    help="ports BASE+i (proxy), BASE+10+i (MAVSDK), BASE+20 (GCS), BASE+21 (MQTT) "
                    "instead of the port plan in docs/interfaces.md")  # fmt: skip
     p.add_argument("--no-progress", action="store_true", help="no progress bar per flight")
+    sim = p.add_argument_group("ArduPilot SITL (--autopilot ardupilot)")
+    sim.add_argument("--sitl-binary", type=Path, default=None,
+                     help="ArduCopter SITL binary (default: $ARDUPILOT_BIN, else latest/arducopter in "
+                     "$SECUAV_ARDUPILOT_CACHE, which defaults to ~/.cache/secuav/ardupilot)")  # fmt: skip
+    sim.add_argument("--instance", type=int, default=None,
+                     help=f"SITL instance I: MAVLink on tcp 5760+10*I, truth on 5762+10*I "
+                     f"(default {sitl.DEFAULT_INSTANCE})")  # fmt: skip
+    sim.add_argument("--speedup", type=float, default=None, help="SITL's speed-up over real time (default 1)")
     p.add_argument("-v", "--verbose", action="store_true")
     add_common_flags(p, log_flags=False)
     return p
@@ -55,7 +77,37 @@ def cases(demo: ModuleType, attack: str | None, secure: str | None, matrix: bool
     return [Case(None, "off"), Case(hit, "off"), Case(None, on), Case(hit, on)]
 
 
-async def _main(args: argparse.Namespace) -> int:
+def check_autopilot(args: argparse.Namespace) -> str | None:
+    """Fill in ``args.autopilot``; the one-line reason the flags do not fit the demo, or None."""
+    flies = DEMOS[args.demo].AUTOPILOTS
+    args.autopilot = args.autopilot or flies[0]
+    if args.autopilot not in flies:
+        why = " (ArduPilot's SITL simulates no wall: docs/ardupilot.md)" if args.demo == "wall-hover" else ""
+        return f"{args.demo} flies on {' or '.join(flies)}, not {args.autopilot}{why}"
+    sitl_flags = [f for f, v in (("--sitl-binary", args.sitl_binary), ("--instance", args.instance),
+                                 ("--speedup", args.speedup)) if v is not None]  # fmt: skip
+    if args.autopilot != "ardupilot" and sitl_flags:
+        return f"{', '.join(sitl_flags)}: only with --autopilot ardupilot"
+    if args.autopilot == "ardupilot" and args.seed is not None:
+        return "--seed: flightsim's noise seed; ArduPilot SITL draws its own"
+    if args.instance is not None and args.instance < 0:
+        return f"--instance: a non-negative integer, got {args.instance}"
+    if args.speedup is not None and args.speedup <= 0:
+        return f"--speedup: a positive number, got {args.speedup:g}"
+    return None
+
+
+def sitl_options(args: argparse.Namespace) -> sitl.SitlOptions | None:
+    """The SITL to fly for ``--autopilot ardupilot`` (``sitl.NoSitl`` when there is no binary), else None."""
+    if args.autopilot != "ardupilot":
+        return None
+    binary = sitl.find_binary(args.sitl_binary)
+    sitl.copter_defaults(binary)
+    instance = sitl.DEFAULT_INSTANCE if args.instance is None else args.instance
+    return sitl.SitlOptions(binary, instance, 1.0 if args.speedup is None else args.speedup)
+
+
+async def _main(args: argparse.Namespace, sim: sitl.SitlOptions | None) -> int:
     demo = DEMOS[args.demo]
     out = args.out or Path("out") / args.demo
     matrix = args.matrix or (args.attack is None and args.secure is None)
@@ -63,7 +115,15 @@ async def _main(args: argparse.Namespace) -> int:
     ports = Ports() if base is None else Ports.block(base)
     params = {**getattr(demo, "DEFAULT_PARAMS", {}), **parse_params(args.param)}
     opts = Options(out=out, seconds=args.seconds, settle_s=args.settle, seed=args.seed, ports=ports,
-                   attack_params=params, progress=not args.no_progress and sys.stderr.isatty())  # fmt: skip
+                   attack_params=params, progress=not args.no_progress and sys.stderr.isatty(), sitl=sim)  # fmt: skip
+    settings: dict[str, object] = {"autopilot": args.autopilot}
+    if sim is not None:
+        built = sitl.build_info(sim.binary)
+        settings.update(ardupilot=built, sitl_binary=str(sim.binary), sitl_instance=sim.instance,
+                        sitl_speedup=sim.speedup)  # fmt: skip
+        print(f"ArduPilot SITL {built.get('version', '?')} built from {built.get('commit', '?')}: {sim.binary}, "
+              f"instance {sim.instance} (tcp {sitl.tcp_port(sim.instance)}), speedup {sim.speedup:g}",
+              flush=True)  # fmt: skip
     selected = cases(demo, args.attack, args.secure, matrix)
     results = []
     for i, case in enumerate(selected, 1):
@@ -72,19 +132,28 @@ async def _main(args: argparse.Namespace) -> int:
         figures = await demo.run_case(case, opts)
         print(f"    {demo.summary(figures)}", flush=True)
         results.append(figures)
-    settings = {"matrix": matrix, "seconds": args.seconds, "settle_s": args.settle, "seed": args.seed,
-                "attack_params": params, "cases": [[c.attack, c.secure] for c in selected]}  # fmt: skip
+    settings.update(matrix=matrix, seconds=args.seconds, settle_s=args.settle, seed=args.seed, attack_params=params,
+                    cases=[[c.attack, c.secure] for c in selected])  # fmt: skip
     print(f"report: {write_report(out, args.demo, settings, results)}\nplot:   {plot(out, args.demo, results)}")
     return 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    bad = check_autopilot(args)
+    if bad is not None:
+        parser.error(bad)
     require("secuav-demo")
+    try:
+        sim = sitl_options(args)
+    except sitl.NoSitl as exc:
+        print(f"secuav-demo: {exc}", file=sys.stderr)
+        return NO_SITL
     level = logging.INFO if args.verbose else logging.WARNING
     logging.basicConfig(level=level, format="%(levelname)s %(name)s %(message)s")
     loop = asyncio.new_event_loop()
-    task = loop.create_task(_main(args))
+    task = loop.create_task(_main(args, sim))
     for sig in (signal.SIGINT, signal.SIGTERM):
         with contextlib.suppress(NotImplementedError):
             loop.add_signal_handler(sig, task.cancel)

@@ -15,13 +15,16 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from demos.mqtt_tap import Tap
 from demos.scoring import Window
 from demos.stack import Ports, Processes, tool
 from secuav_common.broker import EmbeddedBroker
 from secuav_common.controlplane.topics import CONSOLES_ONLINE, parse, vehicle_topic
+
+if TYPE_CHECKING:
+    from demos.sitl import SitlOptions
 
 
 @dataclass(frozen=True, slots=True)
@@ -50,6 +53,7 @@ class Options:
     ports: Ports = field(default_factory=Ports)
     attack_params: dict[str, Any] | None = None
     progress: bool = True  # a progress bar per flight on stderr
+    sitl: SitlOptions | None = None  # the demos that fly ArduPilot SITL (secuav-demo --autopilot ardupilot)
 
 
 @dataclass
@@ -145,7 +149,21 @@ def announce_consoles(tap: Tap) -> None:
                 tqdm.write(f"    watch live: {url} (secuav-console)")
 
 
-def _dump(path: Path, rows: list[tuple[float, dict[str, Any]]]) -> None:
+async def apply_attack(tap: Tap, case: Case, opts: Options, sysids: list[int]) -> dict[int, dict[str, Any]]:
+    """Push the case's attack to each vehicle's proxy over MQTT (what ``secuav-attack apply`` does); the acks."""
+    acks: dict[int, dict[str, Any]] = {}
+    if case.attack is None:
+        return acks
+    payload = attack_payload(case.attack, opts.attack_params)
+    for s in sysids:
+        ack = await tap.request(vehicle_topic(s, "attack", "set"), payload)
+        if not ack.get("ok"):
+            raise RuntimeError(f"the proxy rejected attack {case.attack!r} on vehicle {s}: {ack.get('error')}")
+        acks[s] = ack
+    return acks
+
+
+def dump_jsonl(path: Path, rows: list[tuple[float, dict[str, Any]]]) -> None:
     path.write_text("".join(json.dumps({"wall_s": t, **d}) + "\n" for t, d in rows), encoding="utf-8")
 
 
@@ -165,7 +183,6 @@ async def fly(
     logs = {c.sysid: out / f"controller{c.sysid}.jsonl" for c in controllers}
     for path in logs.values():
         path.unlink(missing_ok=True)
-    acks: dict[int, dict[str, Any]] = {}
     bar = FlightProgress(case.slug, opts.settle_s + opts.seconds, opts.progress)
     async with bar, EmbeddedBroker(port=p.mqtt), Tap("127.0.0.1", p.mqtt, topics) as tap, Processes(out) as procs:
         proxy = [tool("secuav-proxy"), "--scenario", scenario, "--secure", case.secure, "--broker", p.broker_url,
@@ -191,13 +208,7 @@ async def fly(
         await asyncio.sleep(opts.settle_s)
         bar.phase("holding, attack on" if case.attack is not None else "holding")
         t_scored = time.time()
-        if case.attack is not None:
-            payload = attack_payload(case.attack, opts.attack_params)
-            for s in attack_sysids:
-                ack = await tap.request(vehicle_topic(s, "attack", "set"), payload)
-                if not ack.get("ok"):
-                    raise RuntimeError(f"the proxy rejected attack {case.attack!r} on vehicle {s}: {ack.get('error')}")
-                acks[s] = ack
+        acks = await apply_attack(tap, case, opts, attack_sysids)
         landings = [
             await wait_for_event(logs[s], "landing", procs, f"controller{s}", opts.seconds + 60.0) for s in sysids
         ]
@@ -207,8 +218,8 @@ async def fly(
         truth = {s: [(x.wall_s, x.payload) for x in tap.on(vehicle_topic(s, "truth"))] for s in sysids}
         estimates = {s: [(x.wall_s, x.payload) for x in tap.on(vehicle_topic(s, "estimate"))] for s in sysids}
     for s in sysids:
-        _dump(out / f"truth{s}.jsonl", truth[s])
-        _dump(out / f"estimates{s}.jsonl", estimates[s])
+        dump_jsonl(out / f"truth{s}.jsonl", truth[s])
+        dump_jsonl(out / f"estimates{s}.jsonl", estimates[s])
     window = Window(start_s=t_scored, end_s=min(landings), hold_s=max(holds))
     steps = {s: [e for e in read_jsonl(logs[s]) if e.get("kind") == "step"] for s in sysids}
     return Record(window, truth, estimates, steps, acks)

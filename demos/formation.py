@@ -21,6 +21,7 @@ KEEP_M = 3.0
 DEFAULT_ATTACK = "anchors-ramp"
 DEFAULT_PARAMS: dict[str, Any] = {"links": [11, 14, 51]}
 DEFAULT_SECURE = "secekf"
+AUTOPILOTS = ("flightsim",)  # the vehicles it flies: secuav-sim's
 
 
 async def run_case(case: Case, opts: Options) -> dict[str, Any]:

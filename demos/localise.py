@@ -19,6 +19,7 @@ CONTROLLER = "demos.controllers.localise"
 TARGET = (2.5, 2.5)
 DEFAULT_ATTACK = "anchors-ramp"
 DEFAULT_SECURE = "secekf"
+AUTOPILOTS = ("flightsim",)  # the vehicles it flies: secuav-sim's
 
 
 async def run_case(case: Case, opts: Options) -> dict[str, Any]:

@@ -29,12 +29,12 @@ PANELS: dict[str, list[tuple[str, str, float | None]]] = {
     "wall-hover": [("truth", "true distance to wall [m]", 2.5), ("seen", "distance the controller used [m]", 2.5)],
     "localise": [("error", "true distance from (2.5, 2.5) [m]", 0.0)],
     "formation": [("range", "true distance uav1-uav2 [m]", 3.0)],
-    "ardupilot-height-hold": [  # scripts/sitl/height_hold_matrix.py
+    "height-hold": [  # on ArduCopter SITL: docs/ardupilot.md
         ("truth", "true height above ground [m] (SITL)", 5.0),
         ("seen", "height the controller used [m]", 5.0),
     ],
 }
-SURFACE = {"wall-hover": "wall", "ardupilot-height-hold": "ground"}  # the true-distance panel's zero line
+SURFACE = {"wall-hover": "wall", "height-hold": "ground"}  # the true-distance panel's zero line
 
 
 def plot(out: Path, demo: str, results: list[dict[str, Any]]) -> Path:

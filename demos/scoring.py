@@ -107,6 +107,15 @@ def held_distance_metrics(
     }
 
 
+def held_summary(figures: dict[str, Any], quantity: str = "distance", contact: str = "collided") -> str:
+    """The console line of a flight that holds one distance (:func:`held_distance_metrics`'s figures)."""
+    err = figures["distance_error_m"]
+    return (
+        f"{quantity} error rms {err['rms']:.2f} m, max {err['max']:.2f} m, "
+        f"min {quantity} {figures['min_distance_m']:.2f} m, {contact} {figures['collided']}"
+    )
+
+
 def _in(window: Window, t: float) -> bool:
     return window.start_s <= t <= window.end_s
 

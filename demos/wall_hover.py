@@ -13,13 +13,14 @@ from typing import Any
 
 from demos.catalog import SCENARIO_OF_DEMO
 from demos.flight import Case, Controller, Options, fly
-from demos.scoring import distance_metrics
+from demos.scoring import distance_metrics, held_summary
 from secuav_common.scenario import load_scenario
 
 SCENARIO = SCENARIO_OF_DEMO["wall-hover"]
 CONTROLLER = "demos.controllers.wall_hover"
 DEFAULT_ATTACK = "wall-spoof-two"
 DEFAULT_SECURE = "secekf"
+AUTOPILOTS = ("flightsim",)  # the vehicles it flies: secuav-sim's
 
 
 async def run_case(case: Case, opts: Options) -> dict[str, Any]:
@@ -31,8 +32,4 @@ async def run_case(case: Case, opts: Options) -> dict[str, Any]:
 
 
 def summary(figures: dict[str, Any]) -> str:
-    err = figures["distance_error_m"]
-    return (
-        f"distance error rms {err['rms']:.2f} m, max {err['max']:.2f} m, "
-        f"min distance {figures['min_distance_m']:.2f} m, collided {figures['collided']}"
-    )
+    return held_summary(figures)

@@ -2,7 +2,8 @@
 
 The wall-hover controller's rule turned to the vertical, for ArduCopter (SITL or real) behind
 ``secuav-proxy``. A plain pymavlink script, because MAVSDK's offboard mode does not drive
-ArduPilot; ArduPilot's GUIDED mode takes the same velocity targets instead:
+ArduPilot; ArduPilot's GUIDED mode takes the same velocity targets instead. ``secuav-demo height-hold``
+flies it (docs/ardupilot.md); by hand:
 
     scripts/sitl/ardupilot.sh run 1 &                                   # ArduCopter SITL, tcp 5760
     secuav-proxy --scenario ardupilot_height --vehicle tcp://127.0.0.1:5760 --ground udpout://127.0.0.1:14540 &
@@ -35,7 +36,7 @@ from pymavlink import mavutil
 
 from demos.controllers.ranging import Log, Ranges, clip
 
-RATE_HZ = 10.0  # ArduPilot streams each rangefinder at 10 Hz (scripts/sitl/rangefinders.parm)
+RATE_HZ = 10.0  # ArduPilot streams each rangefinder at 10 Hz (demos/ardupilot/rangefinders.parm)
 MAX_SPEED_M_S = 1.0
 ON_TARGET_M = 0.15  # the approach is over once the height is this close to the target...
 ON_TARGET_S = 1.0  # ...for this long

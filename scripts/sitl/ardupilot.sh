@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # ArduCopter SITL for the SecUAV bench: build it from a tree the user supplies, cache the binary
-# outside the repository, and run N vehicles with the bench's parameter file.
+# outside the repository, and run N vehicles with the bench's parameter file
+# (demos/ardupilot/rangefinders.parm, started by demos/sitl.py as secuav-demo height-hold does).
 #
 #   scripts/sitl/ardupilot.sh build SOURCE     SOURCE: a local ArduPilot tree (submodules checked out)
 #                                               or a git URL (cloned with its submodules into the cache)
@@ -149,33 +150,14 @@ binary() {
   echo "$bin"
 }
 
+# The launch lives in the package (demos/sitl.py, with the parameter file demos/ardupilot/rangefinders.parm),
+# so that secuav-demo height-hold runs SITL the same way from an installed package; this runs the
+# checkout's copy with the checkout's venv.
 cmd_run() {
-  local n=${1:-1}
-  [[ $n =~ ^[1-9][0-9]*$ ]] || die "run: N must be a positive integer, got '$n'"
-  local first=${SITL_INSTANCE:-0}
-  [[ $first =~ ^[0-9]+$ ]] || die "SITL_INSTANCE must be a non-negative integer, got '$first'"
-  local bin; bin=$(binary)
-  # ArduPilot's own copter defaults, kept beside each cached build (or the newest one for ARDUPILOT_BIN)
-  local base=$(dirname "$bin")/copter.parm
-  [[ -f $base ]] || base=$cache/latest/copter.parm
-  [[ -f $base ]] || die "no copter.parm beside $bin or in $cache/latest: run '$0 build SOURCE' first"
-  local defaults=$base,$here/rangefinders.parm${SITL_EXTRA_PARM:+,$SITL_EXTRA_PARM}
-  local home=${SITL_HOME:--35.363261,149.165230,584,353}
-  local pids=()
-  trap 'kill "${pids[@]}" 2>/dev/null; wait' EXIT INT TERM
-  for ((k = 0; k < n; k++)); do
-    local i=$((first + k))
-    local wd=$cache/run/$i
-    mkdir -p "$wd"
-    # each instance keeps its eeprom.bin and logs in its own folder; -w wipes stored parameters so
-    # the parameter files decide every start.
-    (cd "$wd" && exec "$bin" --model + --speedup "${SITL_SPEEDUP:-1}" -I"$i" -w \
-      --home "$home" --defaults "$defaults" --sysid $((k + 1))) > "$wd/sitl.log" 2>&1 &
-    pids+=($!)
-    echo "vehicle $k: sysid $((k + 1)), instance $i, MAVLink tcp://127.0.0.1:$((5760 + 10 * i)), log $wd/sitl.log"
-  done
-  wait -n "${pids[@]}" || true
-  echo "a SITL instance stopped; see $cache/run/*/sitl.log" >&2
+  local root; root=$(cd "$here/../.." && pwd)
+  local py=$root/.venv/bin/python
+  [[ -x $py ]] || py=python3
+  PYTHONPATH=$root${PYTHONPATH:+:$PYTHONPATH} exec "$py" -m demos.sitl run "$@"
 }
 
 case ${1:-} in

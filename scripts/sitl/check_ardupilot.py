@@ -3,7 +3,7 @@
 
 Not part of CI: it needs the SITL binary that ``scripts/sitl/ardupilot.sh build`` makes.
 For 1 and then 3 vehicles it starts ``ardupilot.sh run N`` (vehicle i on tcp 5760+10*i, the
-parameters of scripts/sitl/rangefinders.parm: three downward rangefinders), this tree's real
+parameters of demos/ardupilot/rangefinders.parm: three downward rangefinders), this tree's real
 ``secuav-proxy`` dialling every vehicle, and a pymavlink ground station on the proxy's ground
 port, plus a direct pymavlink link to vehicle 1's second port (tcp 5762) to compare against.
 The proxy runs an inline profile that biases each rangefinder by its own offset (+5, +6, +7 m

@@ -11,7 +11,9 @@ from secuav_common.scenario import load_scenario
 
 
 def test_the_catalog_names_each_demo_and_the_scenario_it_flies() -> None:
-    assert set(catalog.SCENARIO_OF_DEMO) == set(DEMOS)
+    # closed-loop cells fly secuav-sim; height-hold needs an ArduPilot SITL binary, so it is not a study's demo
+    assert set(catalog.SCENARIO_OF_DEMO) == {name for name, m in DEMOS.items() if "flightsim" in m.AUTOPILOTS}
+    assert "height-hold" in DEMOS and "height-hold" not in catalog.SCENARIO_OF_DEMO
     for module in (wall_hover, localise, formation):
         demo = next(name for name, m in DEMOS.items() if m is module)
         assert catalog.SCENARIO_OF_DEMO[demo] == module.SCENARIO

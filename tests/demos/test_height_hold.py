@@ -1,7 +1,7 @@
 """The ArduPilot height-hold controller's pure parts and the scoring of its flights; no SITL binary needed.
 
-The flight itself (scripts/sitl/height_hold_matrix.py) needs ArduCopter SITL and is not run in CI;
-its measured output is in docs/ardupilot.md.
+The flight itself (``secuav-demo height-hold``) needs ArduCopter SITL and is not run in CI (its flags and
+missing-binary error are tested in test_demo_sitl_cli.py); its measured output is in docs/ardupilot.md.
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ import math
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from demos import height_hold, wall_hover
 from demos.controllers.height_hold import MAX_SPEED_M_S, VELOCITY_ONLY, Hold, Link, pymavlink_url
 from demos.scoring import Window, height_metrics
 
@@ -116,3 +117,7 @@ def test_height_score_from_truth_touching_ground_only_inside_the_window() -> Non
     json.dumps(f)  # report.json takes it as it is
     touched = height_metrics([(12.0, 0.03)], 5.0, [], [], window)
     assert touched["collided"] is True
+    assert height_hold.summary(f) == (
+        "height error rms 1.29 m, max 2.00 m, min height 3.00 m, touched ground False, flagged by proxy {'2': 1.0}"
+    )
+    assert wall_hover.summary(f) == "distance error rms 1.29 m, max 2.00 m, min distance 3.00 m, collided False"
