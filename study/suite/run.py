@@ -225,7 +225,8 @@ def record_bands(out: Path, version: str = LATEST) -> Path:
         bands.setdefault(r.study, {})[r.method] = [round(lo, 3), round(hi, 3)]
     path = SUITES / version / f"expected-{meta['variant']}.yaml"
     head = (f"# Expected mean RMSE [m] of the built-in estimators, SecUAV suite {version} ({meta['variant']}).\n"
-            f"# Measured: `secuav-study suite run --{meta['variant']}` then `suite check --record-bands`, rows by\n"
+            f"# Measured: `secuav-study suite run{' --quick' if meta['variant'] == 'quick' else ''}` then "
+            f"`suite check --record-bands`, rows by\n"
             f"# {'; '.join(provenance[1:])}.\n"
             f"# Band = measured mean x [{BAND_LOW}, {BAND_HIGH}], widened by 5 mm: the rows are deterministic for\n"
             f"# one code version (seeded flights), so leaving a band means the estimator's or the bench's code\n"
