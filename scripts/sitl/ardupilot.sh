@@ -21,7 +21,8 @@ cache=${SECUAV_ARDUPILOT_CACHE:-$HOME/.cache/secuav/ardupilot}
 opt=${ARDUPILOT_OPT:--O0}
 jobs=${ARDUPILOT_JOBS:-2}
 
-die() { echo "ardupilot.sh: $*" >&2; exit 2; }
+# shellcheck source=scripts/sitl/lib.sh
+. "$here/lib.sh"
 
 # Python that runs ArduPilot's code generators (waf, mavgen, dronecan_dsdlc): a venv in the cache.
 build_python() {
@@ -106,15 +107,7 @@ cmd_build() {
   local source=${1:-}
   [[ -n $source ]] || die "build needs SOURCE: a local ArduPilot tree or a git URL"
   local tree
-  if [[ -d $source ]]; then
-    tree=$(cd "$source" && pwd)
-  else
-    tree=$cache/src/$(basename "$source" .git)
-    if [[ ! -d $tree/.git ]]; then
-      mkdir -p "$cache/src"
-      git clone --recurse-submodules "$source" "$tree"
-    fi
-  fi
+  tree=$(sitl_tree "$source")
   [[ -x $tree/waf && -f $tree/ArduCopter/Copter.cpp ]] || die "$tree: not an ArduPilot tree (no ./waf or ArduCopter/)"
   [[ -f $tree/modules/mavlink/message_definitions/v1.0/common.xml ]] \
     || die "$tree/modules/mavlink: submodule missing (git submodule update --init --recursive)"
@@ -151,9 +144,8 @@ binary() {
 
 cmd_run() {
   local n=${1:-1}
-  [[ $n =~ ^[1-9][0-9]*$ ]] || die "run: N must be a positive integer, got '$n'"
   local first=${SITL_INSTANCE:-0}
-  [[ $first =~ ^[0-9]+$ ]] || die "SITL_INSTANCE must be a non-negative integer, got '$first'"
+  sitl_counts "$n" "$first" SITL_INSTANCE
   local bin; bin=$(binary)
   # ArduPilot's own copter defaults, kept beside each cached build (or the newest one for ARDUPILOT_BIN)
   local base=$(dirname "$bin")/copter.parm
