@@ -34,6 +34,7 @@ GUIDED, LAND = 4, 9  # ArduCopter custom modes
 
 class ArduCopter(Autopilot):
     name = "ArduPilot"
+    firmware = "ArduCopter V"
     flight_name = "GUIDED"
     offsets_m = (5.0, 6.0, 7.0)  # bias on DISTANCE_SENSOR id 0, 1, 2
     home_item = True

@@ -55,6 +55,7 @@ def free_udp_block(n: int) -> int:
 
 class PX4(Autopilot):
     name = "PX4"
+    firmware = "PX4 v"
     flight_name = "Hold"
     offsets_m = (5.0,)  # bias on DISTANCE_SENSOR id 0, SIH's downward sensor
     home_item = False  # PX4's mission starts at item 0; home is not an item

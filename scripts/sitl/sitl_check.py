@@ -272,7 +272,8 @@ def armed(m: Any) -> bool:
 class Autopilot(ABC):
     """What differs between autopilots: starting them, where they speak, how they fly, what they send."""
 
-    name: str  # "ArduCopter", "PX4"
+    name: str  # "ArduPilot", "PX4"
+    firmware: str  # what goes before its version number: "ArduCopter V"
     flight_name: str  # the first flight step's name, as printed: "GUIDED"
     offsets_m: tuple[float, ...]  # the bias on each rangefinder, DISTANCE_SENSOR id 0, 1, ...
     home_item: bool  # the mission's item 0 is home, rewritten by the autopilot (ArduPilot)
@@ -552,7 +553,7 @@ def run(n: int, work: Path, ap: Autopilot) -> tuple[bool, Path]:
             if gcs.wait(is_("HEARTBEAT", s), 60) is None:
                 print(f"FAIL: no HEARTBEAT from sysid {s} through the proxy; see {proxy_log}")
                 return False, work
-        print(f"{ap.name}: {ap.name} {autopilot_version(gcs, 1)}; {ap.build_text()}")
+        print(f"{ap.name}: {ap.firmware}{autopilot_version(gcs, 1)}; {ap.build_text()}")
         direct = Link("direct", mavutil.mavlink_connection(ap.direct_url(), source_system=254,
                                                            dialect="ardupilotmega")).start()
         t_direct = time.time()
