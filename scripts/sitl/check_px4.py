@@ -9,7 +9,9 @@ tree's real ``secuav-proxy``, and a pymavlink ground station on the proxy's grou
 profile biases SIH's one downward rangefinder (DISTANCE_SENSOR id 0) by +5 m, by quantity. The
 flight: DO_SET_MODE to Hold (PX4 custom main mode AUTO, sub mode LOITER), arm,
 MAV_CMD_NAV_TAKEOFF to 10 m above the ground (PX4 takes the altitude AMSL), then DO_SET_MODE to
-AUTO.LAND; PX4 disarms itself on the ground. What is checked and printed: sitl_check.py.
+AUTO.LAND; PX4 disarms itself on the ground. Each mode is also looked for in the HEARTBEAT, since
+PX4's MAVLink module acknowledges DO_SET_MODE whether or not commander takes it. What is checked
+and printed: sitl_check.py.
 
     .venv/bin/python scripts/sitl/check_px4.py [--vehicles 1,3] [--instance 3] [--keep DIR]
 
@@ -28,7 +30,8 @@ from typing import Any
 
 from sitl_check import TAKEOFF_M, Autopilot, Link, arguments, command, free_udp_port, is_, main, mav, wait_for_text
 
-from flightsim.mavlink.modes import MAIN_AUTO, SUB_LAND, SUB_LOITER
+from flightsim.api import FlightMode
+from flightsim.mavlink.modes import custom_mode, main_sub
 
 HERE = Path(__file__).resolve().parent
 PX4_SH = HERE / "px4.sh"
@@ -93,24 +96,34 @@ class PX4(Autopilot):
                 f"tree {(latest / 'commit').read_text().strip()}")
 
     def take_off(self, gcs: Link, sysid: int, out: dict[str, Any]) -> bool:
-        out.setdefault("mode", set_mode(gcs, sysid, MAIN_AUTO, SUB_LOITER))
+        out.setdefault("mode", set_mode(gcs, sysid, FlightMode.HOLD))
         pos = gcs.wait(is_("GLOBAL_POSITION_INT", sysid), 5.0, max(0, gcs.mark() - 500))
         if pos is None:
             return False
         if command(gcs, sysid, mav.MAV_CMD_COMPONENT_ARM_DISARM, 1) != "MAV_RESULT_ACCEPTED":
             return False
         ground_amsl_m = (pos.alt - pos.relative_alt) / 1000.0
-        out["takeoff"] = command(gcs, sysid, mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, NAN, NAN, NAN,
-                                 ground_amsl_m + TAKEOFF_M)
-        return bool(out["takeoff"] == "MAV_RESULT_ACCEPTED")
+        i = gcs.mark()
+        ack = command(gcs, sysid, mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, NAN, NAN, NAN, ground_amsl_m + TAKEOFF_M)
+        out["takeoff"] = f"{ack}, {in_heartbeat(gcs, sysid, FlightMode.TAKEOFF, i)}"
+        return ack == "MAV_RESULT_ACCEPTED"
 
     def land(self, gcs: Link, sysid: int) -> str:
-        return set_mode(gcs, sysid, MAIN_AUTO, SUB_LAND)
+        return set_mode(gcs, sysid, FlightMode.LAND)
 
 
-def set_mode(gcs: Link, sysid: int, main_mode: int, sub_mode: int) -> str:
-    """MAV_CMD_DO_SET_MODE with PX4's custom main and sub mode (px4_custom_mode.h)."""
-    return command(gcs, sysid, mav.MAV_CMD_DO_SET_MODE, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main_mode, sub_mode)
+def in_heartbeat(gcs: Link, sysid: int, mode: FlightMode, since: int) -> str:
+    """Whether the vehicle's HEARTBEAT reports ``mode`` within 3 s of message ``since``."""
+    seen = gcs.wait(lambda m: is_("HEARTBEAT", sysid)(m) and m.custom_mode == custom_mode(mode), 3.0, since)
+    return f"{mode.name} {'in HEARTBEAT' if seen is not None else 'NOT IN HEARTBEAT'}"
+
+
+def set_mode(gcs: Link, sysid: int, mode: FlightMode) -> str:
+    """MAV_CMD_DO_SET_MODE with PX4's custom main and sub mode (px4_custom_mode.h), and whether the
+    HEARTBEAT shows it: PX4's MAVLink module acknowledges DO_SET_MODE before commander sees it."""
+    i = gcs.mark()
+    ack = command(gcs, sysid, mav.MAV_CMD_DO_SET_MODE, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, *main_sub(mode))
+    return f"{ack}, {in_heartbeat(gcs, sysid, mode, i)}"
 
 
 if __name__ == "__main__":
