@@ -170,9 +170,4 @@ cmd_run() {
   echo "a SITL instance stopped; see $cache/run/*/sitl.log" >&2
 }
 
-case ${1:-} in
-  build) shift; cmd_build "$@" ;;
-  run) shift; cmd_run "$@" ;;
-  binary) binary ;;
-  *) sed -n '2,16p' "$0" >&2; exit 2 ;;
-esac
+sitl_main 16 "$@"

@@ -25,3 +25,15 @@ sitl_counts() {
   [[ $n =~ ^[1-9][0-9]*$ ]] || die "run: N must be a positive integer, got '$n'"
   [[ $first =~ ^[0-9]+$ ]] || die "$first_name must be a non-negative integer, got '$first'"
 }
+
+# The command line of both scripts: build SOURCE, run [N], binary; anything else prints the usage,
+# the script's header comment down to line $1.
+sitl_main() {
+  local usage_end=$1; shift
+  case ${1:-} in
+    build) shift; cmd_build "$@" ;;
+    run) shift; cmd_run "$@" ;;
+    binary) binary ;;
+    *) sed -n "2,${usage_end}p" "$0" >&2; exit 2 ;;
+  esac
+}

@@ -117,9 +117,4 @@ cmd_run() {
   echo "a PX4 instance stopped; see $cache/run/*/px4.log" >&2
 }
 
-case ${1:-} in
-  build) shift; cmd_build "$@" ;;
-  run) shift; cmd_run "$@" ;;
-  binary) binary ;;
-  *) sed -n '2,20p' "$0" >&2; exit 2 ;;
-esac
+sitl_main 20 "$@"
