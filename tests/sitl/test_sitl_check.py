@@ -21,15 +21,15 @@ ROOT = Path(__file__).resolve().parents[2]
 SCRIPTS = ROOT / "scripts" / "sitl"
 
 
-def _load() -> Any:
-    # the script sets MAVLINK20 and MAVLINK_DIALECT for its own process; keep them out of the test run's
+def _load(name: str) -> Any:
+    # the scripts set MAVLINK20 and MAVLINK_DIALECT for their own process; keep them out of the test run's
     saved = dict(os.environ)
     sys.path.insert(0, str(SCRIPTS))
     try:
-        spec = importlib.util.spec_from_file_location("sitl_check", SCRIPTS / "sitl_check.py")
+        spec = importlib.util.spec_from_file_location(name, SCRIPTS / f"{name}.py")
         assert spec is not None and spec.loader is not None
         mod = importlib.util.module_from_spec(spec)
-        sys.modules["sitl_check"] = mod
+        sys.modules[name] = mod
         spec.loader.exec_module(mod)
         return mod
     finally:
@@ -38,7 +38,9 @@ def _load() -> Any:
         os.environ.update(saved)
 
 
-sitl_check = _load()
+sitl_check = _load("sitl_check")
+check_ardupilot = _load("check_ardupilot")
+check_px4 = _load("check_px4")
 
 
 class _Out:
@@ -149,3 +151,21 @@ def test_udp_drops_reads_the_socket_of_that_port() -> None:
     assert sitl_check.udp_drops(0xD7F0, table) == 17
     assert sitl_check.udp_drops(14594, table) == 0
     assert sitl_check.udp_drops(14550, table) is None
+
+
+def _parsed(msg: Any) -> Any:
+    return mav2.MAVLink(None).parse_buffer(_Out(mav2, 1, 1, 0).pack(msg))[0]
+
+
+def test_each_autopilot_names_the_messages_that_carry_its_rangefinders() -> None:
+    ardupilot = check_ardupilot.ArduCopter(Path("/nonexistent"))
+    px4 = check_px4.PX4(Path("/nonexistent"), 3)
+    ds = {i: _parsed(mav2.MAVLink_distance_sensor_message(1, 20, 4000, 1234, 0, i, 25, 0)) for i in range(4)}
+    rf = _parsed(mav2.MAVLink_rangefinder_message(12.5, 0.0))  # exact in float32
+    # ArduPilot: ids 0-2 of rangefinders.parm, and RANGEFINDER (#173) for the first downward one
+    assert [ardupilot.carriers(ds[i]) for i in range(4)] == [[(0, 12.34)], [(1, 12.34)], [(2, 12.34)], []]
+    assert ardupilot.carriers(rf) == [(0, 12.5)]
+    # PX4 SIH: its one downward sensor, id 0; PX4 does not send RANGEFINDER
+    assert [px4.carriers(ds[i]) for i in range(2)] == [[(0, 12.34)], []]
+    assert px4.carriers(rf) == []
+    assert len(ardupilot.offsets_m) == 3 and len(px4.offsets_m) == 1
