@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import logging
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -163,6 +164,14 @@ def new_event_loop(choice: str) -> asyncio.AbstractEventLoop:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    # before Proxy(cfg): installing the --profile logs what it leaves true on the wire
+    # (attack.true_copy), which without a handler yet came out as the bare event name. While it is
+    # built only warnings are let through, as before: a bad flag or a taken port stays one line.
+    noisy = ("aiomqtt", "asyncio", "amqtt", "transitions")
+    setup_logging(args.verbose, args.quiet, noisy=noisy, json_lines=args.log_json)
+    root = logging.getLogger()
+    level = root.level
+    root.setLevel(max(level, logging.WARNING))
     try:
         cfg = config_from_args(args)
         if args.print_config:
@@ -177,8 +186,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         proxy = Proxy(cfg)  # reads the scenario, profile and key: their errors come before any socket
     except (InputError, ValueError) as exc:
         return _fail(str(exc))
-    noisy = ("aiomqtt", "asyncio", "amqtt", "transitions")
-    setup_logging(args.verbose, args.quiet, noisy=noisy, json_lines=args.log_json)
+    finally:
+        root.setLevel(level)
     try:
         loop = new_event_loop(args.loop)
     except ImportError:

@@ -178,4 +178,6 @@ def test_real_proxy_on_loopback_rewrites_every_carrier_and_keeps_no_reading(
     assert report.shifted["RANGEFINDER.distance"] > 0 and report.shifted["DISTANCE_SENSOR.current_distance"] > 0
     assert report.kept["DISTANCE_SENSOR.current_distance"] > 0  # on the ground: 0 cm stayed 0 cm
     assert report.shifted["GLOBAL_POSITION_INT.lat"] > 0 and report.shifted["LOCAL_POSITION_NED.z"] > 0
-    assert "attack.true_copy" in log.read_text()  # what the table does not cover, said when applied
+    # what the table does not cover, said when applied: the event with its sysid and its text
+    said = [ln for ln in log.read_text().splitlines() if "attack.true_copy" in ln]
+    assert said and all("sysid=1" in ln and "may still carry the truth" in ln for ln in said), said
