@@ -646,6 +646,13 @@ def run(n: int, work: Path, ap: Autopilot) -> tuple[bool, Path]:
                   f"{len(bc)} frames, median distance to rangefinder 0's true reading {to_truth:.2f} m, to the "
                   f"attacked one {to_lie:.2f} m: "
                   f"{'REVEALS THE TRUE DISTANCE' if to_truth < to_lie else 'follows the attacked reading'}")
+            if to_truth < to_lie:
+                # not rewritten by design (docs/profile.md); then the proxy must say so when it applies the profile
+                said = [ln for ln in (work / "proxy.log").read_text(errors="replace").splitlines()
+                        if " attack.true_copy " in ln and f"sysid={s} " in ln and "ALTITUDE.bottom_clearance" in ln]
+                ok &= bool(said)
+                print("  the proxy said so when it applied the profile (attack.true_copy naming "
+                      f"ALTITUDE.bottom_clearance): {'yes' if said else 'NO  FAIL'}")
         nr = c["no_reading"]
         ok &= nr["made_valid"] == 0
         print(f"  frames with no reading (outside min..max, e.g. on the ground): {nr['frames']}; "
