@@ -21,7 +21,8 @@ every message that carries it), and records (``--record``). Printed, per run:
   first downward rangefinder), how many of those frames the proxy changed, and by how much.
   A message that carries the quantity and was left unchanged is reported as a true value
   left on the wire; ALTITUDE.bottom_clearance (PX4's fused height above ground, no rule's
-  carrier) is compared with the true and the attacked reading;
+  carrier) is compared with the true and the attacked reading, and where it reveals the truth
+  the proxy must have named it when it applied the profile (attack.true_copy);
 - then the secure stage (``--scenario wall_hover --secure secekf``) in front of a vehicle whose
   rangefinders are not the scenario's: whether the proxy says so.
 
