@@ -11,18 +11,13 @@ from pathlib import Path
 from attack_profiles.profile import parse_profile
 from attack_profiles.quantities import true_copies
 from mavframe import tlog
-from mavframe.packet import Direction
-from tests.attack_profiles.quantity_check import Checker
-from tests.mitm_proxy.test_attack_quantity_streams import OFFSETS, through_stage
+from tests.mitm_proxy.test_attack_quantity_streams import recorded_through_stage
 
 PX4_TLOG = Path(__file__).resolve().parents[1] / "data" / "px4-sih-takeoff-land.tlog"
 
 
 def test_recorded_px4_flight_keeps_no_true_copy() -> None:
-    entries = list(tlog.read(PX4_TLOG))
-    frames = [(e.raw, Direction.UPLINK if e.header.sysid == 255 else Direction.DOWNLINK) for e in entries]
-    out = through_stage(frames, OFFSETS)
-    report = Checker(OFFSETS).check([raw for raw, _ in frames], out)
+    report = recorded_through_stage(PX4_TLOG)
     s = report.shifted
     # Every carrier PX4 sends was rewritten: its one rangefinder, and each height and position.
     for name in ("DISTANCE_SENSOR.current_distance", "GLOBAL_POSITION_INT.alt", "GLOBAL_POSITION_INT.relative_alt",
@@ -33,7 +28,7 @@ def test_recorded_px4_flight_keeps_no_true_copy() -> None:
         assert s[name] > 0, name
     # parameters, mission, attitude, and the ids ardupilotmega lacks (#8, #380, #410, #411, #436, #441)
     assert report.exact > 10_000
-    ids = {e.header.msgid for e in entries}
+    ids = {e.header.msgid for e in tlog.read(PX4_TLOG)}
     assert {8, 380, 410, 411, 436, 441} <= ids
 
 
