@@ -138,7 +138,12 @@ CARRIERS: tuple[Carrier, ...] = tuple(
 NOT_COVERED: dict[str, tuple[tuple[str, str], ...]] = {
     "rangefinder": (
         ("OBSTACLE_DISTANCE.distances", "proximity sectors; which sector a rangefinder feeds is the autopilot's setup"),
-        ("ALTITUDE.bottom_clearance", "a fused clearance naming no sensor: it moves with the altitude quantity"),
+        ("ALTITUDE.bottom_clearance", "a fused clearance naming no sensor: it moves with the altitude quantity; "
+         "PX4's (EKF2's distance to the ground) stays within 5 cm of its one downward rangefinder in SIH"),
+        ("ALTITUDE.altitude_terrain", "PX4 puts the terrain's height there, altitude_local less the fused "
+         "clearance, so the two give the clearance back"),
+        ("OPTICAL_FLOW_RAD.distance", "PX4 fills it from the downward rangefinder when a flow sensor is fitted "
+         "(SIH has none); not decoded by the attack engine"),
         ("RANGEFINDER.voltage", "an analog sensor's raw voltage, from which its distance can be worked out"),
     ),
     "altitude": (

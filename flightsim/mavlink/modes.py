@@ -27,9 +27,14 @@ _AUTO_SUBS = {sub: mode for mode, (main, sub) in _TO_WIRE.items() if main == MAI
 _MAIN_NAMES = {MAIN_ALTCTL: "Altitude", MAIN_ACRO: "Acro", MAIN_STABILIZED: "Stabilized"}
 
 
+def main_sub(mode: FlightMode) -> tuple[int, int]:
+    """PX4's (main mode, sub mode) of ``mode``: MAV_CMD_DO_SET_MODE's param2 and param3."""
+    return _TO_WIRE[mode]
+
+
 def custom_mode(mode: FlightMode) -> int:
     """HEARTBEAT.custom_mode of ``mode`` (e.g. Hold -> 50593792)."""
-    main, sub = _TO_WIRE[mode]
+    main, sub = main_sub(mode)
     return (main << 16) | (sub << 24)
 
 

@@ -22,7 +22,8 @@ cache=${SECUAV_ARDUPILOT_CACHE:-$HOME/.cache/secuav/ardupilot}
 opt=${ARDUPILOT_OPT:--O0}
 jobs=${ARDUPILOT_JOBS:-2}
 
-die() { echo "ardupilot.sh: $*" >&2; exit 2; }
+# shellcheck source=scripts/sitl/lib.sh
+. "$here/lib.sh"
 
 # Python that runs ArduPilot's code generators (waf, mavgen, dronecan_dsdlc): a venv in the cache.
 build_python() {
@@ -107,15 +108,7 @@ cmd_build() {
   local source=${1:-}
   [[ -n $source ]] || die "build needs SOURCE: a local ArduPilot tree or a git URL"
   local tree
-  if [[ -d $source ]]; then
-    tree=$(cd "$source" && pwd)
-  else
-    tree=$cache/src/$(basename "$source" .git)
-    if [[ ! -d $tree/.git ]]; then
-      mkdir -p "$cache/src"
-      git clone --recurse-submodules "$source" "$tree"
-    fi
-  fi
+  tree=$(sitl_tree "$source")
   [[ -x $tree/waf && -f $tree/ArduCopter/Copter.cpp ]] || die "$tree: not an ArduPilot tree (no ./waf or ArduCopter/)"
   [[ -f $tree/modules/mavlink/message_definitions/v1.0/common.xml ]] \
     || die "$tree/modules/mavlink: submodule missing (git submodule update --init --recursive)"
@@ -160,9 +153,4 @@ cmd_run() {
   PYTHONPATH=$root${PYTHONPATH:+:$PYTHONPATH} exec "$py" -m demos.sitl run "$@"
 }
 
-case ${1:-} in
-  build) shift; cmd_build "$@" ;;
-  run) shift; cmd_run "$@" ;;
-  binary) binary ;;
-  *) sed -n '2,16p' "$0" >&2; exit 2 ;;
-esac
+sitl_main 16 "$@"

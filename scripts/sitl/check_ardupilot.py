@@ -6,622 +6,91 @@ For 1 and then 3 vehicles it starts ``ardupilot.sh run N`` (vehicle i on tcp 576
 parameters of demos/ardupilot/rangefinders.parm: three downward rangefinders), this tree's real
 ``secuav-proxy`` dialling every vehicle, and a pymavlink ground station on the proxy's ground
 port, plus a direct pymavlink link to vehicle 1's second port (tcp 5762) to compare against.
-The proxy runs an inline profile that biases each rangefinder by its own offset (+5, +6, +7 m
-for ids 0, 1, 2), targeted by quantity (``quantity: rangefinder``: every message that carries
-it), and records (``--record``). Printed, per run:
-
-- forwarding: every downlink frame no rule targets, as the proxy received it (its
-  original.tlog, read back with pymavlink, not with the proxy's code), against what the ground
-  station got: identical bytes, same order;
-- message types and rates through the proxy against the direct link, over the same seconds;
-- the full parameter list and a mission upload + read-back through the proxy;
-- a GUIDED take-off to 10 m and a landing;
-- the attack: for each rangefinder, every message on the ground station's wire that carries
-  its distance (DISTANCE_SENSOR of that id; RANGEFINDER #173, which ArduPilot fills from the
-  first downward rangefinder), how many of those frames the proxy changed, and by how much.
-  A message that carries the quantity and was left unchanged is reported as a true value
-  left on the wire: the acceptance check for the proxy fix that must rewrite it;
-- then the secure stage (``--scenario wall_hover --secure secekf``) in front of a SITL whose
-  rangefinders are not the scenario's: whether the proxy says so.
+The profile biases each rangefinder by its own offset (+5, +6, +7 m for ids 0, 1, 2), by
+quantity: DISTANCE_SENSOR of that id and RANGEFINDER (#173), which ArduPilot fills from the
+first downward rangefinder. The flight is GUIDED, an armed MAV_CMD_NAV_TAKEOFF to 10 m, and
+LAND. What is checked and printed: sitl_check.py.
 
     .venv/bin/python scripts/sitl/check_ardupilot.py [--vehicles 1,3] [--keep DIR] [--tlog-out F]
 
-Exit status 0 when every figure that should hold held (a true twin left on the wire or a
-no-reading made valid fails it), 1 otherwise. See docs/ardupilot.md for its output.
+Exit status 0 when every figure that should hold held, 1 otherwise, 2 without a binary. See
+docs/ardupilot.md for its output.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
-import shutil
-import signal
-import socket
 import subprocess
 import sys
-import tempfile
-import threading
-import time
-from collections import Counter, defaultdict, deque
-from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-os.environ.setdefault("MAVLINK20", "1")
-os.environ.setdefault("MAVLINK_DIALECT", "ardupilotmega")
-from pymavlink import mavutil
-from pymavlink.dialects.v20 import ardupilotmega as mav
+from sitl_check import TAKEOFF_M, Autopilot, Link, arguments, command, main, mav, wait_for_text
 
 HERE = Path(__file__).resolve().parent
-ROOT = HERE.parents[1]
-BIN = Path(sys.executable).parent
 SITL_SH = HERE / "ardupilot.sh"
-OFFSETS_M = (5.0, 6.0, 7.0)  # bias on DISTANCE_SENSOR id 0, 1, 2
-RANGEFINDERS = len(OFFSETS_M)
-TARGETED = {"DISTANCE_SENSOR", "RANGEFINDER"}  # the messages the profile's rules (quantity: rangefinder) reach
 GUIDED, LAND = 4, 9  # ArduCopter custom modes
-TAKEOFF_M = 10.0
 
 
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+class ArduCopter(Autopilot):
+    name = "ArduPilot"
+    firmware = "ArduCopter V"
+    flight_name = "GUIDED"
+    offsets_m = (5.0, 6.0, 7.0)  # bias on DISTANCE_SENSOR id 0, 1, 2
+    home_item = True
 
+    def __init__(self, cache: Path) -> None:
+        self.cache = cache
 
-@dataclass
-class Seen:
-    t_s: float
-    msg: Any
+    def launch(self, n: int, log: Path) -> subprocess.Popen[bytes]:
+        for i in range(n):  # stale logs would satisfy wait_ready
+            (self.cache / "run" / str(i) / "sitl.log").unlink(missing_ok=True)
+        return subprocess.Popen(["bash", str(SITL_SH), "run", str(n)], stdout=log.open("wb"),
+                                stderr=subprocess.STDOUT, start_new_session=True)
 
+    def wait_ready(self, n: int) -> str | None:
+        for i in range(n):
+            if not wait_for_text(self.cache / "run" / str(i) / "sitl.log", "Waiting for connection", 1, 60):
+                return f"SITL instance {i} did not open tcp {5760 + 10 * i}; see {self.cache}/run/{i}/sitl.log"
+        return None
 
-@dataclass
-class Link:
-    """A pymavlink connection with a reader thread that keeps every message it receives."""
+    def vehicle_urls(self, n: int) -> list[str]:
+        return [f"tcp://127.0.0.1:{5760 + 10 * i}" for i in range(n)]
 
-    name: str
-    conn: Any
-    msgs: list[Seen] = field(default_factory=list)
-    bad: int = 0
-    cond: threading.Condition = field(default_factory=threading.Condition)
-    stop: bool = False
+    def direct_url(self) -> str:
+        return "tcp:127.0.0.1:5762"
 
-    def start(self) -> Link:
-        threading.Thread(target=self._pump, name=self.name, daemon=True).start()
-        return self
+    def build_text(self) -> str:
+        latest = self.cache / "latest"
+        return f"binary {latest / 'arducopter'} built from {(latest / 'commit').read_text().strip()}"
 
-    def _pump(self) -> None:
-        while not self.stop:
-            try:
-                m = self.conn.recv_msg()
-            except (OSError, ConnectionError):
-                time.sleep(0.05)
-                continue
-            if m is None:
-                time.sleep(0.002)
-                continue
-            with self.cond:
-                if m.get_type() == "BAD_DATA":
-                    self.bad += 1
-                else:
-                    self.msgs.append(Seen(time.time(), m))
-                self.cond.notify_all()
+    def take_off(self, gcs: Link, sysid: int, out: dict[str, Any]) -> bool:
+        # GUIDED again each time: SITL reads its RC mode switch once RC input starts, which can put
+        # it back in STABILIZE after an early GUIDED
+        mode = set_mode(gcs, sysid, GUIDED)
+        out.setdefault("mode", mode)
+        if command(gcs, sysid, mav.MAV_CMD_COMPONENT_ARM_DISARM, 1) != "MAV_RESULT_ACCEPTED":
+            return False
+        out["takeoff"] = command(gcs, sysid, mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, TAKEOFF_M)
+        return bool(out["takeoff"] == "MAV_RESULT_ACCEPTED")
 
-    def wait(self, pred: Callable[[Any], bool], timeout_s: float, since: int = 0) -> Any | None:
-        """The first message from index ``since`` on for which ``pred`` holds, or None."""
-        seen = self.wait_seen(pred, timeout_s, since)
-        return None if seen is None else seen.msg
+    def land(self, gcs: Link, sysid: int) -> str:
+        return set_mode(gcs, sysid, LAND)
 
-    def wait_seen(self, pred: Callable[[Any], bool], timeout_s: float, since: int = 0) -> Seen | None:
-        """As :meth:`wait`, with the time the message arrived."""
-        end = time.monotonic() + timeout_s
-        i = since
-        with self.cond:
-            while True:
-                while i < len(self.msgs):
-                    if pred(self.msgs[i].msg):
-                        return self.msgs[i]
-                    i += 1
-                left = end - time.monotonic()
-                if left <= 0:
-                    return None
-                self.cond.wait(left)
-
-    def mark(self) -> int:
-        with self.cond:
-            return len(self.msgs)
-
-    def close(self) -> None:
-        self.stop = True
-        time.sleep(0.1)
-        self.conn.close()
-
-
-def is_(type_: str, sysid: int, **fields: Any) -> Callable[[Any], bool]:
-    def pred(m: Any) -> bool:
-        return (m.get_type() == type_ and m.get_srcSystem() == sysid
-                and all(getattr(m, k) == v for k, v in fields.items()))
-    return pred
-
-
-# --- the parts of the check -------------------------------------------------------------------
-
-
-def fetch_params(gcs: Link, sysid: int) -> tuple[int, int, float]:
-    """PARAM_REQUEST_LIST, then re-request missing indices as a GCS does; (got, count, seconds)."""
-    t0 = time.monotonic()
-    since = gcs.mark()
-    gcs.conn.mav.param_request_list_send(sysid, 1)
-    got: dict[int, str] = {}
-    count = -1
-    i = since
-    quiet_since = time.monotonic()
-    retries = 0
-    while time.monotonic() - t0 < 120:
-        m = gcs.wait(is_("PARAM_VALUE", sysid), 1.0, i)
-        if m is not None:
-            with gcs.cond:
-                i = next(k for k in range(i, len(gcs.msgs)) if gcs.msgs[k].msg is m) + 1
-            count = m.param_count
-            if m.param_index < 65535:
-                got[m.param_index] = m.param_id
-            quiet_since = time.monotonic()
-            if len(got) == count:
-                break
-            continue
-        if count > 0 and time.monotonic() - quiet_since > 2 and retries < 5:
-            retries += 1
-            for idx in sorted(set(range(count)) - set(got))[:100]:
-                gcs.conn.mav.param_request_read_send(sysid, 1, b"", idx)
-            quiet_since = time.monotonic()
-        elif retries >= 5:
-            break
-    return len(got), count, time.monotonic() - t0
-
-
-def mission_roundtrip(gcs: Link, sysid: int, home: tuple[float, float]) -> tuple[int, int, str]:
-    """Upload home + 3 waypoints, read them back; (items sent, items equal on read-back, ack)."""
-    lat, lon = home
-    items = [(0, mav.MAV_CMD_NAV_WAYPOINT, lat, lon, 0.0)]
-    for k in range(1, 4):
-        items.append((k, mav.MAV_CMD_NAV_WAYPOINT, lat + 0.0002 * k, lon + 0.0001 * k, 15.0 + k))
-    frame = mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
-    since = gcs.mark()
-    gcs.conn.mav.mission_count_send(sysid, 1, len(items), 0)
-    ack = "none"
-    sent: set[int] = set()
-    end = time.monotonic() + 20
-    i = since
-    while time.monotonic() < end:
-        m = gcs.wait(lambda m: m.get_srcSystem() == sysid and m.get_type() in
-                     ("MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK"), 2.0, i)
-        if m is None:
-            continue
-        with gcs.cond:
-            i = next(k for k in range(i, len(gcs.msgs)) if gcs.msgs[k].msg is m) + 1
-        if m.get_type() == "MISSION_ACK":
-            ack = mav.enums["MAV_MISSION_RESULT"][m.type].name
-            break
-        seq, cmd, la, lo, alt = items[m.seq]
-        gcs.conn.mav.mission_item_int_send(sysid, 1, seq, frame, cmd, 0, 1, 0, 0, 0, 0,
-                                           int(la * 1e7), int(lo * 1e7), alt, 0)
-        sent.add(m.seq)
-    # read back
-    i = gcs.mark()
-    gcs.conn.mav.mission_request_list_send(sysid, 1, 0)
-    c = gcs.wait(is_("MISSION_COUNT", sysid), 5.0, i)
-    equal = 0
-    if c is not None:
-        for seq in range(1, c.count):
-            i = gcs.mark()
-            gcs.conn.mav.mission_request_int_send(sysid, 1, seq, 0)
-            it = gcs.wait(is_("MISSION_ITEM_INT", sysid, seq=seq), 3.0, i)
-            if it is None or seq >= len(items):
-                continue
-            _, cmd, la, lo, alt = items[seq]
-            if (it.command == cmd and it.x == int(la * 1e7) and it.y == int(lo * 1e7)
-                    and abs(it.z - alt) < 1e-3):
-                equal += 1
-        gcs.conn.mav.mission_ack_send(sysid, 1, 0, 0)
-    return len(items) - 1, equal, ack
-
-
-def command(gcs: Link, sysid: int, cmd: int, *params: float) -> str:
-    p = list(params) + [0.0] * (7 - len(params))
-    i = gcs.mark()
-    gcs.conn.mav.command_long_send(sysid, 1, cmd, 0, *p)
-    a = gcs.wait(is_("COMMAND_ACK", sysid, command=cmd), 3.0, i)
-    return "no ack" if a is None else mav.enums["MAV_RESULT"][a.result].name
-
-
-def autopilot_version(gcs: Link, sysid: int) -> str:
-    """AUTOPILOT_VERSION, asked for through the proxy: 'V4.7.0-dev (git 2598e9d4)'."""
-    i = gcs.mark()
-    gcs.conn.mav.command_long_send(sysid, 1, mav.MAV_CMD_REQUEST_MESSAGE, 0, mav.MAVLINK_MSG_ID_AUTOPILOT_VERSION,
-                                   0, 0, 0, 0, 0, 0)
-    m = gcs.wait(is_("AUTOPILOT_VERSION", sysid), 5.0, i)
-    if m is None:
-        return "? (no AUTOPILOT_VERSION)"
-    v = m.flight_sw_version
-    kind = {0: "-dev", 64: "-alpha", 128: "-beta", 192: "-rc", 255: ""}.get(v & 0xFF, "")
-    git = bytes(m.flight_custom_version).split(b"\0")[0].decode(errors="replace")
-    return f"ArduCopter V{v >> 24}.{(v >> 16) & 0xFF}.{(v >> 8) & 0xFF}{kind} (git {git})"
+    def carriers(self, m: Any) -> list[tuple[int, float]]:
+        if m.get_type() == "RANGEFINDER":
+            return [(0, float(m.distance))]  # ArduPilot fills it from the first downward rangefinder
+        return super().carriers(m)
 
 
 def set_mode(gcs: Link, sysid: int, mode: int) -> str:
     return command(gcs, sysid, mav.MAV_CMD_DO_SET_MODE, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, mode)
 
 
-def armed(m: Any) -> bool:
-    return bool(m.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
-
-
-def fly(gcs: Link, sysids: list[int]) -> dict[int, dict[str, Any]]:
-    """GUIDED, arm and take off to 10 m (both retried until the EKF lets them), hover, LAND, disarm."""
-    out: dict[int, dict[str, Any]] = {s: {} for s in sysids}
-    t0 = time.time()
-    for s in sysids:
-        out[s]["guided"] = set_mode(gcs, s, GUIDED)
-    marks: dict[int, tuple[int, float]] = {}
-    waiting = set(sysids)
-    while waiting and time.time() - t0 < 150:
-        for s in sorted(waiting):
-            # again each time: SITL reads its RC mode switch once RC input starts, which can put it
-            # back in STABILIZE after an early GUIDED
-            set_mode(gcs, s, GUIDED)
-            if command(gcs, s, mav.MAV_CMD_COMPONENT_ARM_DISARM, 1) != "MAV_RESULT_ACCEPTED":
-                continue
-            out[s]["takeoff"] = command(gcs, s, mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, TAKEOFF_M)
-            if out[s]["takeoff"] == "MAV_RESULT_ACCEPTED":
-                out[s]["takeoff_after_s"] = round(time.time() - t0, 1)
-                marks[s] = (gcs.mark(), time.time())
-                waiting.discard(s)
-        time.sleep(2)
-    for s, (i, t_cmd) in marks.items():
-        seen = gcs.wait_seen(lambda m, s=s: is_("GLOBAL_POSITION_INT", s)(m)
-                             and m.relative_alt >= 1000 * (TAKEOFF_M - 0.5), 60.0, i)
-        if seen is not None:
-            out[s]["reached_m"] = round(seen.msg.relative_alt / 1000, 2)
-            out[s]["climb_s"] = round(seen.t_s - t_cmd, 1)
-    time.sleep(5)  # hover: the attack is measured through the whole flight
-    for s in marks:
-        out[s]["land"] = set_mode(gcs, s, LAND)
-        marks[s] = (gcs.mark(), time.time())
-    for s, (i, t_cmd) in marks.items():
-        seen = gcs.wait_seen(lambda m, s=s: is_("HEARTBEAT", s)(m) and m.type == mav.MAV_TYPE_QUADROTOR
-                             and not armed(m), 90.0, i)
-        out[s]["landed_disarmed_s"] = None if seen is None else round(seen.t_s - t_cmd, 1)
-    return out
-
-
-def rates(msgs: Iterable[Seen], sysid: int, t0: float, t1: float) -> dict[str, float]:
-    c = Counter(s.msg.get_type() for s in msgs if t0 <= s.t_s <= t1 and s.msg.get_srcSystem() == sysid)
-    return {k: v / (t1 - t0) for k, v in c.items()}
-
-
-def read_tlog(path: Path) -> list[Any]:
-    """Every message of a .tlog, read with pymavlink (an implementation other than the proxy's)."""
-    log = mavutil.mavlink_connection(str(path), dialect="ardupilotmega")
-    out = []
-    while True:
-        m = log.recv_msg()
-        if m is None:
-            break
-        if m.get_type() != "BAD_DATA":
-            out.append(m)
-    log.close()
-    return out
-
-
-def quantity_carriers(m: Any) -> list[tuple[int, float]]:
-    """(rangefinder index, metres) for every rangefinder distance a message carries."""
-    t = m.get_type()
-    if t == "DISTANCE_SENSOR" and m.id < RANGEFINDERS:
-        return [(m.id, m.current_distance / 100.0)]
-    if t == "RANGEFINDER":
-        return [(0, float(m.distance))]  # ArduPilot fills it from the first downward rangefinder
-    return []
-
-
-def key(m: Any) -> tuple[int, int, int, int]:
-    return (m.get_srcSystem(), m.get_srcComponent(), m.get_msgId(), m.get_seq())
-
-
-def compare(original: list[Any], received: list[Seen], sysid: int) -> dict[str, Any]:
-    """Match what the ground station got to what the proxy received (same header), frame by frame."""
-    orig = [m for m in original if m.get_srcSystem() == sysid]
-    got = [s.msg for s in received if s.msg.get_srcSystem() == sysid]
-    queue: dict[tuple[int, int, int, int], deque[Any]] = defaultdict(deque)
-    for m in orig:
-        queue[key(m)].append(m)
-    untargeted_orig = [bytes(m.get_msgbuf()) for m in orig if m.get_type() not in TARGETED]
-    untargeted_got = [bytes(m.get_msgbuf()) for m in got if m.get_type() not in TARGETED]
-    # the ground station listens before the proxy starts and after it stops: the same list is expected,
-    # less the frames the proxy read in the instant it was stopped
-    n = min(len(untargeted_orig), len(untargeted_got))
-    identical = sum(1 for a, b in zip(untargeted_orig[:n], untargeted_got[:n], strict=True) if a == b)
-    first_diff = next((k for k in range(n) if untargeted_orig[k] != untargeted_got[k]), None)
-    per: dict[tuple[str, int], dict[str, Any]] = {}
-    unmatched = 0
-    twin_example: tuple[float, float] | None = None
-    last_ds0: float | None = None
-    no_reading = {"frames": 0, "made_valid": 0}
-    limits: dict[int, tuple[float, float]] = {}  # DISTANCE_SENSOR id -> (min, max) m, as the vehicle sent them
-    for m in got:
-        q = queue.get(key(m))
-        if not q:
-            unmatched += 1
-            continue
-        o = q.popleft()
-        if m.get_type() == "DISTANCE_SENSOR":
-            limits[o.id] = (o.min_distance / 100.0, o.max_distance / 100.0)
-        for (idx, v_got), (_, v_orig) in zip(quantity_carriers(m), quantity_carriers(o), strict=True):
-            # before the first DISTANCE_SENSOR of that id its limits are unknown: ArduPilot sends 0 for none
-            lo, hi = limits.get(idx, (1e-9, float("inf")))
-            row = per.setdefault((m.get_type(), idx), {"frames": 0, "changed": 0, "delta_m": [], "no_reading": 0})
-            if not lo <= v_orig <= hi:  # no reading (on the ground: below min): must stay one
-                row["no_reading"] += 1
-                no_reading["frames"] += 1
-                no_reading["made_valid"] += lo <= v_got <= hi
-                continue
-            row["frames"] += 1
-            if abs(v_got - v_orig) > 1e-6:
-                row["changed"] += 1
-                row["delta_m"].append(v_got - v_orig)
-            if m.get_type() == "DISTANCE_SENSOR" and idx == 0:
-                last_ds0 = v_got
-            if m.get_type() == "RANGEFINDER" and last_ds0 is not None and (
-                    twin_example is None or v_got > twin_example[1]):
-                twin_example = (last_ds0, v_got)
-    return {
-        "downlink_frames": len(orig), "received": len(got), "unmatched": unmatched,
-        "untargeted_orig": len(untargeted_orig), "untargeted_got": len(untargeted_got),
-        "identical_in_order": identical, "first_diff": first_diff, "per": per, "twin_example": twin_example,
-        "no_reading": no_reading,
-    }
-
-
-# --- one run ----------------------------------------------------------------------------------
-
-
-def profile_file(directory: Path) -> Path:
-    rules = [
-        {"target": {"quantity": "rangefinder", "sensor_id": i},
-         "kind": "bias", "offset": off, "note": f"rangefinder {i}: DISTANCE_SENSOR id {i}, and RANGEFINDER for id 0"}
-        for i, off in enumerate(OFFSETS_M)
-    ]
-    p = directory / "bias-each-rangefinder.json"
-    p.write_text(json.dumps({"name": "bias-each-rangefinder",
-                             "description": "one bias per ArduPilot SITL rangefinder", "rules": rules}))
-    return p
-
-
-def wait_for_text(path: Path, text: str, n: int, timeout_s: float) -> bool:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if path.exists() and path.read_text(errors="replace").count(text) >= n:
-            return True
-        time.sleep(0.2)
-    return False
-
-
-def stop(p: subprocess.Popen[bytes] | None) -> None:
-    if p is None or p.poll() is not None:
-        return
-    with_group = p.pid
-    try:
-        os.killpg(with_group, signal.SIGTERM)
-    except ProcessLookupError:
-        return
-    try:
-        p.wait(10)
-    except subprocess.TimeoutExpired:
-        os.killpg(with_group, signal.SIGKILL)
-        p.wait()
-
-
-def run(n: int, work: Path, cache: Path) -> tuple[bool, Path]:
-    ok = True
-    work.mkdir(parents=True, exist_ok=True)
-    print(f"\n=== {n} vehicle{'s' if n > 1 else ''} ===")
-    gcs_port = free_udp_port()
-    sitl_log = work / "sitl-run.log"
-    sitl = proxy = None
-    gcs = direct = None
-    try:
-        for i in range(n):  # stale logs would satisfy the wait below
-            (cache / "run" / str(i) / "sitl.log").unlink(missing_ok=True)
-        sitl = subprocess.Popen(["bash", str(SITL_SH), "run", str(n)], stdout=sitl_log.open("wb"),
-                                stderr=subprocess.STDOUT, start_new_session=True)
-        for i in range(n):
-            if not wait_for_text(cache / "run" / str(i) / "sitl.log", "Waiting for connection", 1, 60):
-                print(f"FAIL: SITL instance {i} did not open tcp {5760 + 10 * i}; see {cache}/run/{i}/sitl.log")
-                return False, work
-        gcs = Link("gcs", mavutil.mavlink_connection(f"udpin:127.0.0.1:{gcs_port}", source_system=255,
-                                                     source_component=190, dialect="ardupilotmega")).start()
-        record = work / "record"
-        cmd = [str(BIN / "secuav-proxy"), "--vehicles", str(n), "--ground", f"udpout://127.0.0.1:{gcs_port}",
-               "--broker", "none", "--record", str(record), "--profile", str(profile_file(work)),
-               "--stats-interval", "5"]
-        for i in range(n):
-            cmd += ["--vehicle", f"tcp://127.0.0.1:{5760 + 10 * i}"]
-        proxy_log = work / "proxy.log"
-        proxy = subprocess.Popen(cmd, stdout=proxy_log.open("wb"), stderr=subprocess.STDOUT, start_new_session=True)
-        sysids = list(range(1, n + 1))
-        for s in sysids:
-            if gcs.wait(is_("HEARTBEAT", s), 60) is None:
-                print(f"FAIL: no HEARTBEAT from sysid {s} through the proxy; see {proxy_log}")
-                return False, work
-        print(f"ArduPilot: {autopilot_version(gcs, 1)}; binary {cache / 'latest' / 'arducopter'} built from "
-              f"{(cache / 'latest' / 'commit').read_text().strip()}")
-        direct = Link("direct", mavutil.mavlink_connection("tcp:127.0.0.1:5762", source_system=254,
-                                                           dialect="ardupilotmega")).start()
-        t_direct = time.time()
-
-        for s in sysids:
-            got, count, secs = fetch_params(gcs, s)
-            good = got == count and count > 0
-            ok &= good
-            print(f"parameters, sysid {s}, through the proxy: {got} of {count} in {secs:.1f} s"
-                  f"{'' if good else '  FAIL'}")
-        home = gcs.wait(is_("GLOBAL_POSITION_INT", 1), 10)
-        lat, lon = (home.lat / 1e7, home.lon / 1e7) if home else (-35.363261, 149.165230)
-        sent, equal, ack = mission_roundtrip(gcs, 1, (lat, lon))
-        good = equal == sent and ack == "MAV_MISSION_ACCEPTED"
-        ok &= good
-        print(f"mission, sysid 1, through the proxy: {sent} waypoints uploaded ({ack}), "
-              f"{equal} of {sent} read back equal{'' if good else '  FAIL'}")
-        flight = fly(gcs, sysids)
-        for s in sysids:
-            f = flight[s]
-            good = f.get("reached_m") is not None and f.get("landed_disarmed_s") is not None
-            ok &= good
-            print(f"GUIDED flight, sysid {s}: mode {f.get('guided')}, armed and take-off {f.get('takeoff')} "
-                  f"{f.get('takeoff_after_s')} s after GUIDED, reached {f.get('reached_m')} m "
-                  f"{f.get('climb_s')} s later, landed and disarmed {f.get('landed_disarmed_s')} s after LAND"
-                  f"{'' if good else '  FAIL'}")
-        t_end = time.time()
-        time.sleep(1)
-    finally:
-        if direct is not None:
-            direct.close()
-        stop(proxy)  # SIGTERM: the proxy closes its recording
-        time.sleep(1.0)
-        stop(sitl)
-        if gcs is not None:
-            gcs.close()
-
-    # rates: the same seconds on both links (the direct link joined after boot)
-    t0, t1 = t_direct + 2, t_end
-    r_proxy, r_direct = rates(gcs.msgs, 1, t0, t1), rates(direct.msgs, 1, t0, t1)
-    types = sorted(set(r_proxy) | set(r_direct))
-    only_proxy = sorted(set(r_proxy) - set(r_direct))
-    only_direct = sorted(set(r_direct) - set(r_proxy))
-    print(f"message types, sysid 1, {t1 - t0:.0f} s: {len(r_proxy)} through the proxy, {len(r_direct)} direct"
-          f" (only through the proxy: {only_proxy or 'none'}; only direct: {only_direct or 'none'})")
-    print("  type                       proxy Hz  direct Hz")
-    for t in types:
-        print(f"  {t:<26} {r_proxy.get(t, 0):8.2f}  {r_direct.get(t, 0):9.2f}")
-    print(f"ground station: {gcs.bad} frames pymavlink rejected (bad CRC or framing)")
-    ok &= gcs.bad == 0
-
-    for s in sysids:
-        rec = work / "record" / f"v{s}"
-        original = read_tlog(rec / "original.tlog")
-        c = compare(original, gcs.msgs, s)
-        cut_at_stop = c["untargeted_orig"] - c["untargeted_got"]
-        exact = c["identical_in_order"] == c["untargeted_got"] and 0 <= cut_at_stop <= 20
-        ok &= exact
-        print(f"forwarding, sysid {s}: {c['identical_in_order']} of {c['untargeted_got']} downlink frames no rule "
-              f"targets arrived byte for byte and in order ({c['untargeted_orig']} received by the proxy, "
-              f"{cut_at_stop} of them as it was stopped)"
-              f"{'' if exact else '  FAIL, first difference at ' + str(c['first_diff'])};"
-              f" {c['downlink_frames']} downlink frames in all, {c['unmatched']} received without an original")
-        twin = False
-        for i, off in enumerate(OFFSETS_M):
-            for (mtype, idx), row in sorted(c["per"].items()):
-                if idx != i:
-                    continue
-                d = row["delta_m"]
-                mean = sum(d) / len(d) if d else 0.0
-                verdict = "rewritten" if row["changed"] == row["frames"] else (
-                    "TRUE VALUE LEFT ON THE WIRE" if row["changed"] == 0 else "partly rewritten")
-                twin |= row["changed"] < row["frames"]
-                ok &= row["changed"] == row["frames"] > 0  # every reading rewritten, in every carrier
-                print(f"  attack rangefinder {i} (+{off:g} m): {mtype:<16} {row['changed']:5d} of {row['frames']:5d} "
-                      f"readings changed, mean change {mean:+.2f} m: {verdict} ({row['no_reading']} frames with "
-                      "no reading left as they were)")
-        if c["twin_example"]:
-            lie, truth = c["twin_example"]
-            print(f"  the ground station saw DISTANCE_SENSOR id 0 = {lie:.2f} m beside RANGEFINDER = {truth:.2f} m")
-        print(f"  every message carrying an attacked distance changed: {'yes' if not twin else 'NO'}")
-        nr = c["no_reading"]
-        ok &= nr["made_valid"] == 0
-        print(f"  frames with no reading (outside min..max, e.g. on the ground): {nr['frames']}; "
-              f"made to look valid by the bias: {nr['made_valid']}")
-    lines = (work / "proxy.log").read_text(errors="replace").splitlines()
-    for s in sysids:
-        stats = [ln for ln in lines if "proxy.stats" in ln and f"sysid={s} " in ln]
-        if not stats:
-            continue
-        print(f"proxy's last stats line, sysid {s}:", stats[-1].split(" ", 1)[-1][:300])
-        bad = stats[-1].split(" bad=")[1].split()[0] if " bad=" in stats[-1] else "0"
-        if bad != "0":
-            print(f"  bad={bad} on a healthy link: SITL's boot text on its serial port, counted as garbage")
-    return ok, work
-
-
-def secure_probe(work: Path, cache: Path, seconds: float = 30.0) -> None:
-    """The secure stage with a scenario whose sensor layout ArduPilot does not send: does it say so?
-
-    ``--scenario wall_hover`` expects forward rangefinders 0-4 and a downward 5; this SITL sends
-    downward ids 0, 1, 2. Reported, not failed: the stage cannot work here, and must say so
-    (``secure.layout_mismatch``, docs/interfaces.md) rather than look busy (issue 27).
-    """
-    work.mkdir(parents=True, exist_ok=True)
-    print(f"\n=== secure stage, --scenario wall_hover --secure secekf, 1 vehicle, {seconds:g} s ===")
-    (cache / "run" / "0" / "sitl.log").unlink(missing_ok=True)
-    sitl = subprocess.Popen(["bash", str(SITL_SH), "run", "1"], stdout=(work / "sitl-run.log").open("wb"),
-                            stderr=subprocess.STDOUT, start_new_session=True)
-    proxy = None
-    try:
-        if not wait_for_text(cache / "run" / "0" / "sitl.log", "Waiting for connection", 1, 60):
-            print("SITL did not start; skipped")
-            return
-        log = work / "proxy.log"
-        proxy = subprocess.Popen([str(BIN / "secuav-proxy"), "--scenario", "wall_hover", "--secure", "secekf",
-                                  "--vehicle", "tcp://127.0.0.1:5760", "--ground", f"udpout://127.0.0.1:{free_udp_port()}",
-                                  "--broker", "none", "--stats-interval", "5"],
-                                 stdout=log.open("wb"), stderr=subprocess.STDOUT, start_new_session=True)
-        time.sleep(seconds)
-    finally:
-        stop(proxy)
-        stop(sitl)
-    lines = (work / "proxy.log").read_text(errors="replace").splitlines()
-    stats = [ln for ln in lines if "proxy.stats" in ln]
-    warnings = [ln for ln in lines if " WARNING " in ln or " ERROR " in ln]
-    rewritten = stats[-1].split(" rewritten=")[1].split()[0] if stats else "?"
-    print(f"frames rewritten by the secure stage: {rewritten}; warnings or errors in the proxy's log: {len(warnings)}")
-    for ln in warnings[:5]:
-        print("  " + ln.split(" ", 1)[-1][:400])
-    said = [ln for ln in lines if " secure.layout_mismatch " in ln]
-    kept = [ln for ln in stats if "warnings=secure.layout_mismatch" in ln]
-    if said:
-        print(f"  the stage said so at once ({len(said)} secure.layout_mismatch event) and on {len(kept)} of "
-              f"{len(stats)} stats lines")
-    else:
-        print("  the stage received DISTANCE_SENSOR ids 0-2 (down) where the scenario expects 0-4 (forward) "
-              "and 5 (down), and said nothing: SILENTLY INERT")
-
-
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--vehicles", default="1,3", help="comma list of vehicle counts to run (default 1,3)")
-    ap.add_argument("--keep", type=Path, help="keep logs and recordings in this directory")
-    ap.add_argument("--tlog-out", type=Path, help="copy the 1-vehicle run's original.tlog here")
-    ap.add_argument("--no-secure-probe", action="store_true", help="skip the secure stage's layout probe")
-    args = ap.parse_args()
+if __name__ == "__main__":
+    args = arguments(__doc__.split("\n")[0]).parse_args()
     cache = Path(os.environ.get("SECUAV_ARDUPILOT_CACHE", Path.home() / ".cache/secuav/ardupilot"))
     if not (cache / "latest" / "arducopter").exists() and "ARDUPILOT_BIN" not in os.environ:
         print(f"no SITL binary under {cache}/latest: run scripts/sitl/ardupilot.sh build SOURCE first")
-        return 2
-    base = args.keep or Path(tempfile.mkdtemp(prefix="secuav-ardupilot-"))
-    all_ok = True
-    for n in (int(x) for x in args.vehicles.split(",")):
-        ok, work = run(n, base / f"n{n}", cache)
-        all_ok &= ok
-        if n == 1 and args.tlog_out:
-            shutil.copy(work / "record" / "v1" / "original.tlog", args.tlog_out)
-            print(f"copied {work}/record/v1/original.tlog to {args.tlog_out}")
-    if not args.no_secure_probe:
-        secure_probe(base / "secure", cache)
-    print(f"\nresult: {'every figure that should hold held' if all_ok else 'FAILED (see above)'}; logs in {base}")
-    if not args.keep:
-        shutil.rmtree(base, ignore_errors=True)
-    return 0 if all_ok else 1
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+        sys.exit(2)
+    sys.exit(main(ArduCopter(cache), args))

@@ -138,6 +138,14 @@ def test_a_quantity_target_is_told_what_is_not_covered() -> None:
     assert all(name in warning for name, _ in NOT_COVERED["altitude"])
 
 
+def test_a_rangefinder_target_is_told_of_what_reveals_px4s_downward_rangefinder() -> None:
+    # measured against PX4 SIH (docs/px4.md): ALTITUDE.bottom_clearance stays within cm of the true
+    # reading while DISTANCE_SENSOR says +5 m, and altitude_local - altitude_terrain gives it back
+    (warning,) = true_copies(make_profile(q("rangefinder", sensor_id=0, offset=5.0)))
+    for name in ("ALTITUDE.bottom_clearance", "ALTITUDE.altitude_terrain", "OPTICAL_FLOW_RAD.distance"):
+        assert name in warning
+
+
 def test_validate_prints_the_warnings(tmp_path: Path) -> None:
     path = tmp_path / "p.yaml"
     path.write_text("name: p\nrules:\n  - {target: {message: DISTANCE_SENSOR, sensor_id: 0}, kind: bias, offset: 5}\n")

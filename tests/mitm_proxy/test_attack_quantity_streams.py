@@ -31,7 +31,7 @@ from mitm_proxy.stages.attack import AttackStage
 from mitm_proxy.stages.attack_slot import AttackSlot
 from secuav_common.scenario import load_scenario
 from secuav_common.urls import Endpoint
-from tests.attack_profiles.quantity_check import Checker, Offsets
+from tests.attack_profiles.quantity_check import Checker, Offsets, Report
 
 ARDUPILOT_TLOG = Path(__file__).resolve().parents[1] / "data" / "ardupilot-copter-guided.tlog"
 OFFSETS = Offsets(range_m=5.0, range_ids=frozenset({0}), up_m=3.0, north_m=7.0, east_m=-4.0)
@@ -51,11 +51,14 @@ def through_stage(frames: list[tuple[bytes, Direction]], offsets: Offsets) -> li
     return out
 
 
+def recorded_through_stage(path: Path) -> Report:
+    """A recorded .tlog (the ground station's frames uplink, the rest downlink) through the stage, checked."""
+    frames = [(e.raw, Direction.UPLINK if e.header.sysid == 255 else Direction.DOWNLINK) for e in tlog.read(path)]
+    return Checker(OFFSETS).check([raw for raw, _ in frames], through_stage(frames, OFFSETS))
+
+
 def test_recorded_ardupilot_flight_keeps_no_true_copy() -> None:
-    entries = tlog.read(ARDUPILOT_TLOG)
-    frames = [(e.raw, Direction.UPLINK if e.header.sysid == 255 else Direction.DOWNLINK) for e in entries]
-    out = through_stage(frames, OFFSETS)
-    report = Checker(OFFSETS).check([raw for raw, _ in frames], out)
+    report = recorded_through_stage(ARDUPILOT_TLOG)
     s = report.shifted
     # Every carrier ArduPilot sends was rewritten, both rangefinder messages among them.
     for name in ("DISTANCE_SENSOR.current_distance", "RANGEFINDER.distance", "GLOBAL_POSITION_INT.alt",

@@ -1,0 +1,171 @@
+"""The pure parts of the SITL checks (scripts/sitl/sitl_check.py): reading a frame's header from its
+bytes, which the byte-exact forwarding figure and the rates table rest on, and the autopilot's
+version as ArduPilot and PX4 each encode it in AUTOPILOT_VERSION. The checks themselves need the
+SITL binaries and are not run here (docs/ardupilot.md, docs/px4.md)."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+from hypothesis import given
+from hypothesis import strategies as st
+from pymavlink.dialects.v10 import ardupilotmega as mav1
+from pymavlink.dialects.v20 import ardupilotmega as mav2
+from pymavlink.dialects.v20 import development
+
+ROOT = Path(__file__).resolve().parents[2]
+SCRIPTS = ROOT / "scripts" / "sitl"
+
+
+def _load(name: str) -> Any:
+    # the scripts set MAVLINK20 and MAVLINK_DIALECT for their own process; keep them out of the test run's
+    saved = dict(os.environ)
+    sys.path.insert(0, str(SCRIPTS))
+    try:
+        spec = importlib.util.spec_from_file_location(name, SCRIPTS / f"{name}.py")
+        assert spec is not None and spec.loader is not None
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules[name] = mod
+        spec.loader.exec_module(mod)
+        return mod
+    finally:
+        sys.path.remove(str(SCRIPTS))
+        os.environ.clear()
+        os.environ.update(saved)
+
+
+sitl_check = _load("sitl_check")
+check_ardupilot = _load("check_ardupilot")
+check_px4 = _load("check_px4")
+
+
+class _Out:
+    """A pymavlink encoder with a chosen header."""
+
+    def __init__(self, module: Any, sysid: int, compid: int, seq: int) -> None:
+        self.mav = module.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+        self.mav.seq = seq
+
+    def pack(self, msg: Any) -> bytes:
+        return bytes(msg.pack(self.mav))
+
+
+@given(st.integers(0, 255), st.integers(0, 255), st.integers(0, 255), st.integers(0, 65535))
+def test_frame_header_reads_mavlink2_frames_as_pymavlink_packs_them(sysid: int, compid: int, seq: int,
+                                                                    distance_cm: int) -> None:
+    frame = _Out(mav2, sysid, compid, seq).pack(
+        mav2.MAVLink_distance_sensor_message(1, 0, 4000, distance_cm, 0, 0, 25, 0))
+    assert sitl_check.frame_header(frame) == (sysid, compid, 132, seq)
+
+
+@given(st.integers(0, 255), st.integers(0, 255), st.integers(0, 255))
+def test_frame_header_reads_mavlink1_frames(sysid: int, compid: int, seq: int) -> None:
+    frame = _Out(mav1, sysid, compid, seq).pack(mav1.MAVLink_heartbeat_message(2, 12, 0, 0, 3, 3))
+    assert sitl_check.frame_header(frame) == (sysid, compid, 0, seq)
+
+
+@given(st.binary(max_size=12))
+def test_frame_header_is_none_for_what_is_not_a_frame_start(data: bytes) -> None:
+    if (len(data) >= 10 and data[0] == 0xFD) or (len(data) >= 6 and data[0] == 0xFE):
+        return
+    assert sitl_check.frame_header(data) is None
+
+
+def test_key_of_a_message_the_dialect_does_not_define_comes_from_its_frame() -> None:
+    # PX4 sends GNSS_INTEGRITY (#441, development.xml); ardupilotmega, the checks' dialect, lacks it,
+    # and pymavlink gives such a message a header of zeros, so both sides of the forwarding
+    # comparison silently dropped it before the key was read from the frame
+    frame = _Out(development, 1, 1, 77).pack(
+        development.MAVLink_gnss_integrity_message(4, 0, 0, 0, 0, 0, 65535, 65535, 255, 255, 255, 255))
+    parsed = mav2.MAVLink(None).parse_buffer(frame)
+    assert parsed is not None and len(parsed) == 1
+    m = parsed[0]
+    assert m.get_type() == "UNKNOWN_441"
+    assert sitl_check.key(m) == (1, 1, 441, 77)
+
+
+def test_key_of_a_known_message_agrees_with_pymavlink() -> None:
+    frame = _Out(mav2, 3, 1, 9).pack(mav2.MAVLink_rangefinder_message(12.5, 0.0))
+    m = mav2.MAVLink(None).parse_buffer(frame)[0]
+    assert sitl_check.key(m) == (m.get_srcSystem(), m.get_srcComponent(), m.get_msgId(), m.get_seq()) == (3, 1, 173, 9)
+
+
+def test_version_text_of_arducopter() -> None:
+    # ArduPilot: V4.7.0-dev, FIRMWARE_VERSION_TYPE_DEV, its git hash's first 8 characters as text
+    sw = (4 << 24) | (7 << 16) | (0 << 8) | 0
+    assert sitl_check.version_text(sw, b"2598e9d4") == "4.7.0-dev (git 2598e9d4)"
+
+
+def test_version_text_of_px4() -> None:
+    # PX4 v1.17.0-1-g5b73eed759: the hash's first 16 hex digits as a little-endian uint64
+    sw = (1 << 24) | (17 << 16) | (0 << 8) | 0
+    custom = (0x5B73EED7591F60D1).to_bytes(8, "little")
+    assert sitl_check.version_text(sw, custom) == "1.17.0-dev (git 5b73eed7)"
+
+
+def test_version_text_of_a_release_and_of_an_unknown_type() -> None:
+    assert sitl_check.version_text((1 << 24) | (14 << 16) | 255, bytes(8)) == "1.14.0 (git 00000000)"
+    assert sitl_check.version_text((1 << 24) | (14 << 16) | 7, bytes(8)) == "1.14.0 (type 7) (git 00000000)"
+
+
+def test_in_order_of_an_exact_copy_and_of_one_cut_at_the_end() -> None:
+    sent = [bytes([i]) for i in range(10)]
+    assert sitl_check.in_order(sent, sent) == sitl_check.InOrder(10, 0, 0, 0, None)
+    assert sitl_check.in_order(sent, sent[:7]) == sitl_check.InOrder(7, 0, 0, 3, None)
+
+
+def test_in_order_tells_a_lost_frame_from_an_altered_or_reordered_one() -> None:
+    sent = [bytes([i]) for i in range(10)]
+    # one lost in the middle: the rest still match (a position-by-position comparison called all of
+    # them different, which is how a dropped datagram at the ground station looked like a bad proxy)
+    assert sitl_check.in_order(sent, sent[:4] + sent[5:]) == sitl_check.InOrder(9, 0, 1, 0, None)
+    altered = [*sent[:3], b"x", *sent[4:]]
+    assert sitl_check.in_order(sent, altered) == sitl_check.InOrder(9, 1, 1, 0, 3)
+    swapped = [*sent[:3], sent[4], sent[3], *sent[5:]]
+    got = sitl_check.in_order(sent, swapped)
+    assert got.unmatched == 1 and got.first_unmatched == 4 and got.matched == 9
+
+
+@given(st.lists(st.binary(min_size=1, max_size=3), max_size=40), st.data())
+def test_in_order_of_any_subsequence_matches_all_of_it(sent: list[bytes], data: st.DataObject) -> None:
+    keep = data.draw(st.lists(st.booleans(), min_size=len(sent), max_size=len(sent)))
+    received = [f for f, k in zip(sent, keep, strict=True) if k]
+    got = sitl_check.in_order(sent, received)
+    assert got.matched == len(received) and got.unmatched == 0
+    assert got.missing + got.tail == len(sent) - len(received)
+
+
+def test_udp_drops_reads_the_socket_of_that_port() -> None:
+    table = (
+        "   sl  local_address rem_address   st tx_queue rx_queue tr tm->when retrnsmt   uid  timeout inode ref "
+        "pointer drops\n"
+        "  123: 0100007F:D7F0 00000000:0000 07 00000000:00000000 00:00000000 00000000     0        0 1 2 "
+        "0000000000000000 17\n"
+        "  124: 0100007F:3902 00000000:0000 07 00000000:00000000 00:00000000 00000000     0        0 3 2 "
+        "0000000000000000 0\n"
+    )
+    assert sitl_check.udp_drops(0xD7F0, table) == 17
+    assert sitl_check.udp_drops(14594, table) == 0
+    assert sitl_check.udp_drops(14550, table) is None
+
+
+def _parsed(msg: Any) -> Any:
+    return mav2.MAVLink(None).parse_buffer(_Out(mav2, 1, 1, 0).pack(msg))[0]
+
+
+def test_each_autopilot_names_the_messages_that_carry_its_rangefinders() -> None:
+    ardupilot = check_ardupilot.ArduCopter(Path("/nonexistent"))
+    px4 = check_px4.PX4(Path("/nonexistent"), 3)
+    ds = {i: _parsed(mav2.MAVLink_distance_sensor_message(1, 20, 4000, 1234, 0, i, 25, 0)) for i in range(4)}
+    rf = _parsed(mav2.MAVLink_rangefinder_message(12.5, 0.0))  # exact in float32
+    # ArduPilot: ids 0-2 of rangefinders.parm, and RANGEFINDER (#173) for the first downward one
+    assert [ardupilot.carriers(ds[i]) for i in range(4)] == [[(0, 12.34)], [(1, 12.34)], [(2, 12.34)], []]
+    assert ardupilot.carriers(rf) == [(0, 12.5)]
+    # PX4 SIH: its one downward sensor, id 0; PX4 does not send RANGEFINDER
+    assert [px4.carriers(ds[i]) for i in range(2)] == [[(0, 12.34)], []]
+    assert px4.carriers(rf) == []
+    assert len(ardupilot.offsets_m) == 3 and len(px4.offsets_m) == 1
