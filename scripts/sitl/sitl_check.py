@@ -72,6 +72,56 @@ def free_udp_port() -> int:
         return int(s.getsockname()[1])
 
 
+class Ground:
+    """The ground station's side of the proxy: ``udp`` (the proxy sends to it), ``tcpin`` (the proxy listens, the
+    ground station dials it, as MAVProxy's ``--master tcp:``) or ``serial`` (a pty pair made by ``socat``: the
+    proxy opens one end as a serial port, the ground station the other, as a telemetry radio would be)."""
+
+    def __init__(self, kind: str, work: Path) -> None:
+        self.kind, self.work = kind, work
+        self.port = free_udp_port() if kind == "udp" else free_tcp_port()
+        self.socat: subprocess.Popen[bytes] | None = None
+        if kind == "serial":
+            ends = (work / "ground-proxy", work / "ground-gcs")
+            for end in ends:
+                end.unlink(missing_ok=True)
+            self.socat = subprocess.Popen(["socat", *(f"pty,raw,echo=0,link={end}" for end in ends)],
+                                          stderr=(work / "socat.log").open("wb"), start_new_session=True)
+            deadline = time.monotonic() + 10
+            while not all(end.exists() for end in ends) and time.monotonic() < deadline:
+                time.sleep(0.1)
+
+    def proxy_url(self) -> str:
+        return {"udp": f"udpout://127.0.0.1:{self.port}", "tcpin": f"tcpin://127.0.0.1:{self.port}",
+                "serial": f"serial://{self.work / 'ground-proxy'}?baud=921600"}[self.kind]
+
+    def connect(self) -> Any:
+        """The ground station's pymavlink connection (for ``tcpin``, once the proxy listens)."""
+        kw: dict[str, Any] = {"source_system": 255, "source_component": 190, "dialect": "ardupilotmega"}
+        if self.kind == "udp":
+            conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{self.port}", **kw)
+            # three PX4s send 1,300 frames/s: room for the reader thread's pauses on a loaded machine
+            # (the kernel caps it at net.core.rmem_max; what still overflows is counted below)
+            conn.port.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
+            return conn
+        if self.kind == "tcpin":
+            return mavutil.mavlink_connection(f"tcp:127.0.0.1:{self.port}", retries=30, **kw)
+        return mavutil.mavlink_connection(str(self.work / "ground-gcs"), baud=921600, **kw)
+
+    def drops(self) -> int | None:
+        """Datagrams the kernel dropped at the ground station's UDP socket (None: not a UDP ground side)."""
+        return udp_drops(self.port, Path("/proc/net/udp").read_text()) if self.kind == "udp" else None
+
+    def close(self) -> None:
+        stop(self.socat)
+
+
+def free_tcp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
 @dataclass
 class Seen:
     t_s: float
@@ -520,11 +570,12 @@ def stop(p: subprocess.Popen[bytes] | None) -> None:
         p.wait()
 
 
-def run(n: int, work: Path, ap: Autopilot) -> tuple[bool, Path]:
+def run(n: int, work: Path, ap: Autopilot, ground_kind: str = "udp") -> tuple[bool, Path]:
     ok = True
     work.mkdir(parents=True, exist_ok=True)
-    print(f"\n=== {n} vehicle{'s' if n > 1 else ''} ===")
-    gcs_port = free_udp_port()
+    side = "" if ground_kind == "udp" else f", ground side {ground_kind}"
+    print(f"\n=== {n} vehicle{'s' if n > 1 else ''}{side} ===")
+    ground = Ground(ground_kind, work)
     sitl_log = work / "sitl-run.log"
     sitl = proxy = None
     gcs = direct = None
@@ -535,20 +586,18 @@ def run(n: int, work: Path, ap: Autopilot) -> tuple[bool, Path]:
         if failed:
             print(f"FAIL: {failed}")
             return False, work
-        gcs = Link("gcs", mavutil.mavlink_connection(f"udpin:127.0.0.1:{gcs_port}", source_system=255,
-                                                     source_component=190, dialect="ardupilotmega"))
-        # three PX4s send 1,300 frames/s: room for the reader thread's pauses on a loaded machine
-        # (the kernel caps it at net.core.rmem_max; what still overflows is counted below)
-        gcs.conn.port.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
-        gcs.start()
+        if ground.kind != "tcpin":
+            gcs = Link("gcs", ground.connect()).start()
         record = work / "record"
-        cmd = [str(BIN / "secuav-proxy"), "--vehicles", str(n), "--ground", f"udpout://127.0.0.1:{gcs_port}",
+        cmd = [str(BIN / "secuav-proxy"), "--vehicles", str(n), "--ground", ground.proxy_url(),
                "--broker", "none", "--record", str(record), "--profile", str(profile_file(work, ap)),
                "--stats-interval", "5"]
         for url in ap.vehicle_urls(n):
             cmd += ["--vehicle", url]
         proxy_log = work / "proxy.log"
         proxy = subprocess.Popen(cmd, stdout=proxy_log.open("wb"), stderr=subprocess.STDOUT, start_new_session=True)
+        if gcs is None:
+            gcs = Link("gcs", ground.connect()).start()  # tcpin: the proxy listens first
         sysids = list(range(1, n + 1))
         for s in sysids:
             if gcs.wait(is_("HEARTBEAT", s), 60) is None:
@@ -590,8 +639,9 @@ def run(n: int, work: Path, ap: Autopilot) -> tuple[bool, Path]:
         time.sleep(1.0)
         stop(sitl)
         if gcs is not None:
-            drops = udp_drops(gcs_port, Path("/proc/net/udp").read_text())
+            drops = ground.drops()
             gcs.close()
+        ground.close()
 
     # rates: the same seconds on both links (the direct link joined after boot)
     t0, t1 = t_direct + 2, t_end
@@ -660,11 +710,13 @@ def run(n: int, work: Path, ap: Autopilot) -> tuple[bool, Path]:
               f"made to look valid by the bias: {nr['made_valid']}")
     if lost or drops:
         # UDP may lose frames; the proxy must not: every frame lost on the way must be one the
-        # ground station's own socket dropped (the kernel counts those)
+        # ground station's own socket dropped (the kernel counts those). TCP and a serial pty lose none.
         accounted = drops is not None and lost <= drops
         ok &= accounted
-        print(f"ground station's UDP socket: {drops} datagrams dropped by the kernel (/proc/net/udp), "
-              f"{lost} frames lost on the way: {'all accounted for' if accounted else 'NOT ACCOUNTED FOR  FAIL'}")
+        what = (f"{drops} datagrams dropped by the kernel (/proc/net/udp)" if drops is not None
+                else f"a {ground.kind} link (nothing may be lost)")  # fmt: skip
+        print(f"ground station's side: {what}, {lost} frames lost on the way: "
+              f"{'all accounted for' if accounted else 'NOT ACCOUNTED FOR  FAIL'}")
     lines = (work / "proxy.log").read_text(errors="replace").splitlines()
     for s in sysids:
         stats = [ln for ln in lines if "proxy.stats" in ln and f"sysid={s} " in ln]
@@ -727,6 +779,9 @@ def arguments(description: str) -> argparse.ArgumentParser:
     parser.add_argument("--keep", type=Path, help="keep logs and recordings in this directory")
     parser.add_argument("--tlog-out", type=Path, help="copy the 1-vehicle run's original.tlog here")
     parser.add_argument("--no-secure-probe", action="store_true", help="skip the secure stage's layout probe")
+    parser.add_argument("--ground", choices=("udp", "tcpin", "serial"), default="udp",
+                        help="the ground station's side of the proxy: udp (default), tcpin (the proxy listens "
+                        "on TCP, the ground station dials it) or serial (a pty pair made by socat, as a radio)")
     return parser
 
 
@@ -735,7 +790,7 @@ def main(ap: Autopilot, args: argparse.Namespace) -> int:
     base = args.keep or Path(tempfile.mkdtemp(prefix=f"secuav-{ap.name.lower()}-"))
     all_ok = True
     for n in (int(x) for x in args.vehicles.split(",")):
-        ok, work = run(n, base / f"n{n}", ap)
+        ok, work = run(n, base / f"n{n}", ap, args.ground)
         all_ok &= ok
         if n == 1 and args.tlog_out:
             shutil.copy(work / "record" / "v1" / "original.tlog", args.tlog_out)
