@@ -36,6 +36,7 @@ import argparse
 import json
 import math
 import os
+import select
 import shutil
 import signal
 import socket
@@ -151,6 +152,8 @@ class Link:
                 time.sleep(0.05)
                 continue
             if m is None:
+                if self._closed_by_peer():
+                    return  # pymavlink would read the closed TCP socket (and say "EOF") 500 times a second
                 time.sleep(0.002)
                 continue
             with self.cond:
@@ -159,6 +162,17 @@ class Link:
                 else:
                     self.msgs.append(Seen(time.time(), m))
                 self.cond.notify_all()
+
+    def _closed_by_peer(self) -> bool:
+        """A TCP connection whose peer closed it (readable, and nothing to read); never for UDP or serial."""
+        sock = getattr(self.conn, "port", None)
+        if not isinstance(self.conn, mavutil.mavtcp) or not isinstance(sock, socket.socket):
+            return False
+        try:
+            ready, _, _ = select.select([sock], [], [], 0)
+            return bool(ready) and sock.recv(1, socket.MSG_PEEK) == b""
+        except (OSError, ValueError):
+            return True
 
     def wait(self, pred: Callable[[Any], bool], timeout_s: float, since: int = 0) -> Any | None:
         """The first message from index ``since`` on for which ``pred`` holds, or None."""
