@@ -1,9 +1,10 @@
-"""Shared fixtures: loopback ports that nobody else is using."""
+"""Shared fixtures: loopback ports that nobody else is using; every test leaves the logging set-up as it found it."""
 
 from __future__ import annotations
 
+import logging
 import socket
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import pytest
 
@@ -31,3 +32,22 @@ def udp_port() -> Callable[[], int]:
 @pytest.fixture
 def tcp_port() -> Callable[[], int]:
     return free_tcp_port
+
+
+@pytest.fixture(autouse=True)
+def _logging_as_found() -> Iterator[None]:
+    """A command's ``main()`` run in-process sets up logging for the whole process (secuav_common.logs): its
+    handler writes to the stderr of that moment, a test's capture, and replaces pytest's own. Undone after each
+    test (pytest's capture handlers come and go per phase and are left to it), so the next test logs where
+    pytest expects."""
+    root = logging.getLogger()
+    before, level = set(root.handlers), root.level
+    levels = {name: lg.level for name, lg in logging.root.manager.loggerDict.items() if isinstance(lg, logging.Logger)}
+    yield
+    for handler in root.handlers[:]:
+        if handler not in before and not type(handler).__module__.startswith("_pytest"):
+            root.removeHandler(handler)
+    root.setLevel(level)
+    for name, lg in logging.root.manager.loggerDict.items():
+        if isinstance(lg, logging.Logger) and name in levels:
+            lg.setLevel(levels[name])
