@@ -55,13 +55,13 @@ class L0Exact(Estimator):
 
     def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:
         model = self.model
-        self.masks = model.honest_subsets(self.s)
-        count = self.masks.shape[0]
+        count = model.subset_count(self.s)  # counted first: building C(24, 11) masks to refuse them took seconds
         if count > self.max_subsets:
             raise ValueError(
                 f"l0: {count} subsets of {model.p} sensors (tolerance {self.s}) exceed "
                 f"max_subsets={self.max_subsets}; it is the exact reference for small p"
             )
+        self.masks = model.honest_subsets(self.s)
         n_sub = self.masks.shape[0]
         self.cost_buf = np.zeros((self.window, n_sub))
         self.dof_buf = np.zeros((self.window, n_sub), dtype=int)
