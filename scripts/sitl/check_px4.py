@@ -28,7 +28,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from sitl_check import TAKEOFF_M, Autopilot, Link, arguments, command, free_udp_port, is_, main, mav, wait_for_text
+from sitl_check import TAKEOFF_M, Autopilot, Link, arguments, command, free_port, is_, main, mav, wait_for_text
 
 from flightsim.api import FlightMode
 from flightsim.mavlink.modes import custom_mode, main_sub
@@ -41,7 +41,7 @@ NAN = float("nan")
 def free_udp_block(n: int) -> int:
     """A port P such that P..P+n-1 are free on 127.0.0.1 (PX4 vehicle k sends to P+k)."""
     while True:
-        base = free_udp_port()
+        base = free_port()
         socks = []
         try:
             for k in range(n):

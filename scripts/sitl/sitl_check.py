@@ -67,8 +67,9 @@ TAKEOFF_M = 10.0
 VERSION_TYPES = {0: "-dev", 64: "-alpha", 128: "-beta", 192: "-rc", 255: ""}
 
 
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+def free_port(kind: int = socket.SOCK_DGRAM) -> int:
+    """A loopback port nobody holds now, UDP by default (``socket.SOCK_STREAM``: TCP)."""
+    with socket.socket(socket.AF_INET, kind) as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
 
@@ -80,7 +81,7 @@ class Ground:
 
     def __init__(self, kind: str, work: Path) -> None:
         self.kind, self.work = kind, work
-        self.port = free_udp_port() if kind == "udp" else free_tcp_port()
+        self.port = free_port(socket.SOCK_DGRAM if kind == "udp" else socket.SOCK_STREAM)
         self.socat: subprocess.Popen[bytes] | None = None
         if kind == "serial":
             ends = (work / "ground-proxy", work / "ground-gcs")
@@ -115,12 +116,6 @@ class Ground:
 
     def close(self) -> None:
         stop(self.socat)
-
-
-def free_tcp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 @dataclass
@@ -762,7 +757,7 @@ def secure_probe(work: Path, ap: Autopilot, seconds: float = 30.0) -> None:
             return
         log = work / "proxy.log"
         proxy = subprocess.Popen([str(BIN / "secuav-proxy"), "--scenario", "wall_hover", "--secure", "secekf",
-                                  "--vehicle", ap.vehicle_urls(1)[0], "--ground", f"udpout://127.0.0.1:{free_udp_port()}",
+                                  "--vehicle", ap.vehicle_urls(1)[0], "--ground", f"udpout://127.0.0.1:{free_port()}",
                                   "--broker", "none", "--stats-interval", "5"],
                                  stdout=log.open("wb"), stderr=subprocess.STDOUT, start_new_session=True)
         time.sleep(seconds)

@@ -73,8 +73,9 @@ class Readings:
         self.height_rx = -math.inf
         self.velocity: np.ndarray | None = None  # the vehicle's own NED velocity: the filters' motion input
         self.velocity_rx = -math.inf
-        self.attitude: tuple[float, float, float] | None = None  # ATTITUDE's roll, pitch, yaw (wall group tilt)
-        self.attitude_rx = -math.inf
+        self.geometry = layout.tilt  # the wall group's beams and normal, when ATTITUDE projects its readings
+        self.factors: np.ndarray | None = None  # each reading's projection at the latest ATTITUDE (tilt.py)
+        self.factors_rx = -math.inf
 
     def take_range(self, layout: Layout, fields: dict[str, Any], now_s: float) -> bool:
         """A DISTANCE_SENSOR frame's fields; True when it was one of the group's readings."""
@@ -111,15 +112,14 @@ class Readings:
             self.velocity, self.velocity_rx = np.array(vel, dtype=float), now_s
 
     def take_attitude(self, fields: dict[str, Any], now_s: float) -> None:
+        """ATTITUDE's angles, turned into the readings' projection factors once per frame (not per reading)."""
         angles = tilt.attitude(fields)
-        if angles is not None:
-            self.attitude, self.attitude_rx = angles, now_s
+        if angles is not None and self.geometry is not None:
+            self.factors, self.factors_rx = self.geometry.factors(*angles), now_s
 
-    def tilt_factors(self, layout: Layout, now_s: float) -> np.ndarray | None:
-        """Each reading's projection on the wall's normal at the latest attitude; None without one (tilt.py)."""
-        if layout.tilt is None or self.attitude is None or now_s - self.attitude_rx > ATTITUDE_MAX_AGE_S:
-            return None
-        return layout.tilt.factors(*self.attitude)
+    def tilt_factors(self, now_s: float) -> np.ndarray | None:
+        """Each reading's projection on the wall's normal at the latest attitude; None without a fresh one."""
+        return self.factors if now_s - self.factors_rx <= ATTITUDE_MAX_AGE_S else None
 
     def due(self, cfg: SecureConfig, now_s: float) -> Due | None:
         """Why a step is due now, or None."""
@@ -146,7 +146,7 @@ class Readings:
     def job(self, cfg: SecureConfig, layout: Layout, now_s: float) -> Job:
         """The set to step now (stale readings as NaN); the next set starts empty."""
         z = np.where(now_s - self.rx <= cfg.max_age_s, self.z, np.nan)
-        factors = self.tilt_factors(layout, now_s)
+        factors = self.tilt_factors(now_s)
         if factors is not None:
             z = z * factors  # along the wall's normal; a beam past 60 degrees off it is missing (NaN)
         known: float | None = None

@@ -199,7 +199,7 @@ class SecureStage:
         stepper = self._stepper
         res = stepper.latest() if stepper is not None else None
         if res is not None and res.estimate.ok:
-            tilt_now = readings.tilt_factors(layout, now_s) if msgid == DISTANCE_SENSOR else None
+            tilt_now = readings.tilt_factors(now_s) if msgid == DISTANCE_SENSOR else None
             changed = self.substitution.apply(layout, res, msgid, fields, now_s, self.config.peer_gate_m, tilt_now)
             if changed:
                 pkt.changed = True
