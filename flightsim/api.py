@@ -236,3 +236,37 @@ class SpeedSettable(Protocol):
     """
 
     def set_cruise_speed(self, speed_m_s: float | None) -> Outcome: ...
+
+
+@dataclass(frozen=True, slots=True)
+class ExternalRange:
+    """A DISTANCE_SENSOR that arrived over MAVLink from a companion (not one the vehicle measured itself)."""
+
+    src_sysid: int
+    src_compid: int
+    sensor_id: int
+    distance_m: float
+    orientation: int  # MAV_SENSOR_ORIENTATION
+
+
+@dataclass(frozen=True, slots=True)
+class ExternalPosition:
+    """A position in the local NED frame from VISION_POSITION_ESTIMATE or ODOMETRY."""
+
+    src_sysid: int
+    src_compid: int
+    pos_ned_m: Vec3
+    message: Literal["vision_position_estimate", "odometry"]
+
+
+@runtime_checkable
+class ExternalInput(Protocol):
+    """Optional for a VehicleModel: readings from a companion that its estimator fuses (scenario ``external``).
+
+    Each call answers whether the reading was taken; False when the vehicle expects no such reading from that
+    source (another system or component, an undeclared sensor id, a value out of range), as a real autopilot
+    ignores what it was not configured for.
+    """
+
+    def external_range(self, reading: ExternalRange) -> bool: ...
+    def external_position(self, fix: ExternalPosition) -> bool: ...

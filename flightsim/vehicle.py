@@ -22,6 +22,8 @@ from collections.abc import Mapping
 from dataclasses import replace
 
 from flightsim.api import (
+    ExternalPosition,
+    ExternalRange,
     FlightMode,
     GpsFix,
     Health,
@@ -37,11 +39,12 @@ from flightsim.battery import Battery
 from flightsim.commander import WARNING, Commander, Motors
 from flightsim.control import AttitudeController, Limits, PositionController, RateController, XQuadMixer
 from flightsim.control.position import AttitudeTarget, PositionGains
+from flightsim.external import ExternalFusion
 from flightsim.noise import stream
 from flightsim.params import Params
 from flightsim.physics import F450Physics
 from flightsim.sensors import GpsModel, PeerRangeModel, PositionError, RangefinderModel, StateEstimator, UwbModel
-from flightsim.world import NEAR_GROUND_M, World
+from flightsim.world import GROUND, NEAR_GROUND_M, World
 from secuav_common.scenario import Scenario
 from secuav_common.scenario import Vehicle as VehicleConfig
 
@@ -85,6 +88,13 @@ class Vehicle:
         )
         self.peer_ranging = (
             PeerRangeModel(sensors.inter_vehicle, stream(seed, sid, "peers")) if sensors.inter_vehicle else None
+        )
+
+        ext = config.external
+        self.external = (
+            ExternalFusion(ext, sid, {p.name: p for p in (*world.walls, GROUND)}, scenario.anchor_positions())
+            if ext is not None
+            else None
         )
 
         self._sensor_models: list[RangefinderModel | UwbModel | PeerRangeModel | GpsModel] = [
@@ -203,6 +213,13 @@ class Vehicle:
             self._apply_params()
         return result
 
+    # -- ExternalInput: a companion's readings over MAVLink (scenario ``external``) ---------------
+    def external_range(self, reading: ExternalRange) -> bool:
+        return self.external is not None and self.external.take_range(reading, self.t_s)
+
+    def external_position(self, fix: ExternalPosition) -> bool:
+        return self.external is not None and self.external.take_position(fix, self.t_s)
+
     def pop_readings(self) -> list[RangeReading]:
         out = list(self._readings)
         self._readings.clear()
@@ -264,6 +281,10 @@ class Vehicle:
     def _control_tick(self, dt: float) -> None:
         truth = self.physics.state if self._frozen is None else self.truth
         est = self.estimator.update(truth, dt)
+        if self.external is not None:
+            est = self.external.fuse(est, dt)
+            self.commander.status.extend(self.external.pop_status())
+            self._readings.extend(self.external.pop_reports())  # re-reported downlink, as PX4 streams them
         self._estimate = est
         motors, guidance = self.commander.update(self.t_s, dt, est, self.physics.on_ground)
         if self.crashed:

@@ -195,6 +195,77 @@ class Sensors(_Strict):
         return self
 
 
+# Source components a companion's feed may come from (MAV_COMPONENT): a peripheral, an onboard computer,
+# a visual-inertial odometry unit; secuav-feed uses the first.
+COMPANION_COMPIDS = (158, 191, 197)
+
+
+class ExternalRangefinder(Rangefinder):
+    """A rangefinder the autopilot reads over MAVLink (DISTANCE_SENSOR from a companion, as PX4's MAVLink
+    distance sensor or ArduPilot's ``RNGFNDx_TYPE 10``). Its reading fixes the vehicle's position along the
+    normal of ``surface``: ``ground`` (a downward beam: the height the vehicle holds) or a wall of
+    ``world.walls`` (a beam toward it: the wall distance)."""
+
+    surface: str = Field("ground", description="'ground' or the name of a wall in world.walls")
+
+    @model_validator(mode="after")
+    def _ground_is_below(self) -> ExternalRangefinder:
+        if self.surface == "ground" and self.orientation != "down":
+            raise ValueError(f"orientation {self.orientation!r}: a rangefinder measuring the ground must face down")
+        return self
+
+
+class ExternalVision(_Strict):
+    """External position in the local NED frame (motion capture, VIO), as VISION_POSITION_ESTIMATE or ODOMETRY."""
+
+    message: Literal["vision_position_estimate", "odometry"] = Field(
+        "vision_position_estimate", description="what secuav-feed sends; the vehicle takes either"
+    )
+    noise_std_m: NonNegFloat = 0.02
+    rate_hz: PositiveFloat = 30.0
+    dropout_prob: Probability = 0.0
+
+
+class ExternalInputs(_Strict):
+    """Readings the vehicle's own estimator takes over MAVLink from a companion (``secuav-feed``), so an
+    attack on the way to the vehicle moves the vehicle. A downward rangefinder replaces the height, one
+    toward a wall the position along the wall's normal; vision or UWB ranges (a least-squares fix) replace
+    the position. A source silent for ``timeout_s`` is dropped with a warning (STATUSTEXT) and the estimate
+    falls back to the vehicle's own (GPS); it is taken again when it comes back. Frames from other systems
+    or components, and sensor ids not declared here, are ignored."""
+
+    source_sysid: int | None = Field(
+        None, ge=1, le=255, description="the feed's MAVLink system id; default the vehicle's own (an onboard companion)"
+    )
+    source_compids: list[int] = Field(
+        list(COMPANION_COMPIDS), min_length=1, description="component ids the feed may send from"
+    )
+    rangefinders: list[ExternalRangefinder] = []
+    uwb: UwbRanging | None = Field(None, description="anchor ranges (DISTANCE_SENSOR id 10+k) for a position fix")
+    vision: ExternalVision | None = Field(None, description="true, or the vision source's settings")
+    timeout_s: PositiveFloat = Field(0.5, description="a source older than this is dropped")
+
+    @field_validator("vision", mode="before")
+    @classmethod
+    def _vision_flag(cls, v: object) -> object:
+        if v is True:
+            return {}
+        return None if v is False else v
+
+    @field_validator("source_compids")
+    @classmethod
+    def _compids(cls, v: list[int]) -> list[int]:
+        for i, c in enumerate(v):
+            if not 1 <= c <= 255:
+                raise ValueError(f"[{i}]: component id {c} outside 1..255")
+        return v
+
+    @model_validator(mode="after")
+    def _unique(self) -> ExternalInputs:
+        _require_unique([r.id for r in self.rangefinders], "rangefinders", "id")
+        return self
+
+
 class StartPose(_Strict):
     pos_ned_m: Vec3 = (0.0, 0.0, 0.0)
     yaw_deg: float = Field(0.0, ge=-360, le=360)
@@ -236,6 +307,9 @@ class Vehicle(_Strict):
     start: StartPose = Field(default_factory=StartPose)
     sensors: Sensors = Field(default_factory=Sensors)
     target: Target | None = None
+    external: ExternalInputs | None = Field(
+        None, description="readings the autopilot fuses from a companion over MAVLink (secuav-feed)"
+    )
 
 
 class Scenario(_Strict):
@@ -266,11 +340,14 @@ class Scenario(_Strict):
                 for j, peer in enumerate(iv.peers):
                     if peer not in sysids or peer == veh.sysid:
                         raise ValueError(f"{where}.inter_vehicle.peers[{j}]: {peer} is not another vehicle's sysid")
+            ext = veh.external
+            if ext is not None:
+                _check_external(ext, veh, f"vehicles[{i}].external", walls, anchor_ids)
             tgt = veh.target
             if isinstance(tgt, WallDistanceTarget):
                 if tgt.wall not in walls:
                     raise ValueError(f"vehicles[{i}].target.wall: no wall named {tgt.wall!r}")
-                ids = {r.id for r in veh.sensors.rangefinders}
+                ids = {r.id for r in veh.sensors.rangefinders} | {r.id for r in (ext.rangefinders if ext else [])}
                 for j, sid in enumerate(tgt.sensor_ids):
                     if sid not in ids:
                         raise ValueError(f"vehicles[{i}].target.sensor_ids[{j}]: no rangefinder with id {sid}")
@@ -313,6 +390,26 @@ def with_noise_scale(scenario: Scenario, scale: float) -> Scenario:
                 update[name] = radio.model_copy(update={"noise_std_m": radio.noise_std_m * scale})
         vehicles.append(v.model_copy(update={"sensors": s.model_copy(update=update)}))
     return scenario.model_copy(update={"vehicles": vehicles})
+
+
+def _check_external(ext: ExternalInputs, veh: Vehicle, where: str, walls: set[str], anchor_ids: set[int]) -> None:
+    """The external block against the world and the vehicle's own sensors: the vehicle re-reports what it
+    fuses as DISTANCE_SENSOR, so an id may not be both its own sensor's and the feed's."""
+    own = {r.id for r in veh.sensors.rangefinders}
+    for j, rf in enumerate(ext.rangefinders):
+        if rf.surface != "ground" and rf.surface not in walls:
+            raise ValueError(f"{where}.rangefinders[{j}].surface: no wall named {rf.surface!r} (nor 'ground')")
+        if rf.id in own:
+            raise ValueError(f"{where}.rangefinders[{j}].id: {rf.id} is already the vehicle's own rangefinder")
+    if ext.uwb is not None:
+        if veh.sensors.uwb is not None:
+            raise ValueError(f"{where}.uwb: the vehicle already ranges the anchors itself (sensors.uwb)")
+        if not anchor_ids:
+            raise ValueError(f"{where}.uwb: world.anchors is empty")
+        if ext.uwb.anchors != "all":
+            for j, k in enumerate(ext.uwb.anchors):
+                if k not in anchor_ids:
+                    raise ValueError(f"{where}.uwb.anchors[{j}]: no anchor with id {k} in world.anchors")
 
 
 def _require_unique(values: list[object], where: str, field: str) -> None:

@@ -47,6 +47,16 @@ def test_wall_hover_has_five_forward_sensors_of_four_kinds() -> None:
         ("name: x\nvehicles: [{sysid: 1}, {sysid: 1}]", "vehicles[1].sysid", "1"),
         ("name: x\nvehicles: [{sysid: 1, sensors: {rangefinders: [{id: 0, min_m: 5, max_m: 1}]}}]",
          "vehicles[0].sensors.rangefinders[0]", "1"),
+        ("name: x\nvehicles: [{sysid: 1, external: {rangefinders: [{id: 0, orientation: forward}]}}]",
+         "vehicles[0].external.rangefinders[0]", "'forward'"),
+        ("name: x\nvehicles: [{sysid: 1, external: {rangefinders: [{id: 0, orientation: forward, surface: w}]}}]",
+         "vehicles[0].external.rangefinders[0].surface", "'w'"),
+        ("name: x\nvehicles: [{sysid: 1, sensors: {rangefinders: [{id: 2}]},\n"
+         "  external: {rangefinders: [{id: 2, orientation: down}]}}]",
+         "vehicles[0].external.rangefinders[0].id", "2"),
+        ("name: x\nvehicles: [{sysid: 1, external: {uwb: {}}}]", "vehicles[0].external.uwb", "world.anchors"),
+        ("name: x\nvehicles: [{sysid: 1, external: {source_compids: [0]}}]",
+         "vehicles[0].external.source_compids", "0"),
     ],
 )
 def test_bad_scenario_names_file_field_and_value(text: str, field: str, value: str) -> None:
@@ -57,6 +67,15 @@ def test_bad_scenario_names_file_field_and_value(text: str, field: str, value: s
     assert field in message
     assert value in message
     assert "\n" not in message
+
+
+def test_the_external_block_is_optional_and_vision_may_be_a_flag() -> None:
+    for name in ("wall_hover", "anchors8", "formation"):
+        assert all(v.external is None for v in load_scenario(name).vehicles)
+    sc = parse_scenario("name: x\nvehicles: [{sysid: 1, external: {vision: true}}]")
+    ext = sc.vehicles[0].external
+    assert ext is not None and ext.vision is not None and ext.vision.message == "vision_position_estimate"
+    assert ext.source_sysid is None and 158 in ext.source_compids
 
 
 def test_missing_file_is_one_line(tmp_path) -> None:

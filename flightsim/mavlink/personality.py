@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from flightsim.api import FlightMode, Outcome, Result, VehicleModel
-from flightsim.mavlink import commands, ftp, modes, offboard
+from flightsim.api import ExternalInput, ExternalRange, FlightMode, Outcome, Result, VehicleModel
+from flightsim.mavlink import commands, external, ftp, modes, offboard
 from flightsim.mavlink.missions import MissionServer
 from flightsim.mavlink.parameters import ParamServer
 from flightsim.mavlink.streams import StreamTable
@@ -56,6 +56,8 @@ class LinkStats:
     commands_refused: int = 0
     offboard_setpoints: int = 0
     offboard_rejected: int = 0
+    external_taken: int = 0  # a companion's readings the vehicle's estimator took (scenario ``external``)
+    external_ignored: int = 0  # DISTANCE_SENSOR, vision, odometry it does not expect: source, id, frame
 
 
 class Px4Personality:
@@ -192,8 +194,21 @@ class Px4Personality:
             reply = ftp.answer(msg, self.encoder.mav)
             if reply is not None:
                 self.send(reply)
+        elif kind in external.MESSAGES:
+            self._external(msg)
         elif kind == "TIMESYNC" and msg.tc1 == 0:
             self.send(self.encoder.mav.timesync_encode(round(self.now_s * 1e9), msg.ts1))
+
+    def _external(self, msg: Message) -> None:
+        v = self.vehicle
+        reading = external.decode(msg)
+        taken = False
+        if reading is not None and isinstance(v, ExternalInput):
+            taken = v.external_range(reading) if isinstance(reading, ExternalRange) else v.external_position(reading)
+        if taken:
+            self.stats.external_taken += 1
+        else:
+            self.stats.external_ignored += 1
 
     def _command(self, msg: Message) -> None:
         cmd = commands.Command.from_message(msg)
