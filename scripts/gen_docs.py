@@ -43,6 +43,7 @@ def _parser_of(module: str, name: str = "build_parser") -> Callable[[], argparse
 
 COMMANDS: list[tuple[str, Callable[[], argparse.ArgumentParser]]] = [
     ("secuav-sim", _parser_of("flightsim.cli")),
+    ("secuav-feed", _parser_of("flightsim.companion.cli")),
     ("secuav-proxy", _parser_of("mitm_proxy.cli")),
     ("secuav-attack", _attack_parser),
     ("secuav-eval", _parser_of("evaluation.cli")),

@@ -227,12 +227,18 @@ class ExternalVision(_Strict):
 
 
 class ExternalInputs(_Strict):
-    """Readings the vehicle's own estimator takes over MAVLink from a companion (``secuav-feed``), so an
-    attack on the way to the vehicle moves the vehicle. A downward rangefinder replaces the height, one
-    toward a wall the position along the wall's normal; vision or UWB ranges (a least-squares fix) replace
-    the position. A source silent for ``timeout_s`` is dropped with a warning (STATUSTEXT) and the estimate
-    falls back to the vehicle's own (GPS); it is taken again when it comes back. Frames from other systems
-    or components, and sensor ids not declared here, are ignored."""
+    """Readings the vehicle's own estimator takes over MAVLink from a companion computer, so an attack on
+    their way to the vehicle (an uplink rule) moves the vehicle itself. ``secuav-feed`` reads the same block
+    to know what to send (docs/cli.md#secuav-feed); the bundled ``companion_feed`` scenario is an example. A
+    downward rangefinder (DISTANCE_SENSOR, ids 0-9) replaces the height, as PX4's ``EKF2_HGT_REF`` range or
+    ArduPilot's ``EK3_SRC1_POSZ 2``; one toward a wall, the position along the wall's normal; vision
+    (VISION_POSITION_ESTIMATE or ODOMETRY in a local NED frame, as ``EKF2_EV_CTRL`` or ``EK3_SRC1_POSXY 6``)
+    or UWB anchor ranges (DISTANCE_SENSOR id 10+k, a least-squares fix) replace the position. What the
+    vehicle takes it re-reports as its own DISTANCE_SENSOR, as PX4 streams a MAVLink rangefinder. A source
+    silent for ``timeout_s`` is dropped with a warning (STATUSTEXT) and its part of the estimate falls back
+    to the vehicle's own (GPS); it is taken again, with an info text, when it comes back. Frames from other
+    systems or components, undeclared ids, and a rangefinder facing another way than declared are ignored
+    (counted as ``external_ignored``)."""
 
     source_sysid: int | None = Field(
         None, ge=1, le=255, description="the feed's MAVLink system id; default the vehicle's own (an onboard companion)"

@@ -7,7 +7,7 @@ ground station, so an uplink rule of the attack profile rewrites them on their w
 a true state arrives: the truth source's rate bounds the feed's (``secuav-sim --truth-hz``).
 
 Bad input is one line on stderr and exit 2; a socket that cannot open, exit 1; Ctrl-C or SIGTERM stop it
-cleanly (exit 0), as does the end of a recording.
+cleanly (exit 130), the end of a recording with exit 0.
 """
 
 from __future__ import annotations
@@ -30,6 +30,17 @@ from secuav_common.scenario import DEFAULT_SCENARIO, Scenario, load_scenario
 from secuav_common.urls import Endpoint, parse_endpoint
 
 PROG = "secuav-feed"
+EXAMPLES = """\
+flightsim holding its height on a fed rangefinder, the feed through the proxy:
+  secuav-sim companion_feed --broker mqtt://127.0.0.1:1883
+  secuav-proxy --ground udpout://127.0.0.1:14540 --ground udpout://127.0.0.1:14550 \\
+               --ground udpin://127.0.0.1:14600 --profile vehicle-bias.yaml
+  secuav-feed companion_feed --to udpout://127.0.0.1:14600 --truth mqtt://127.0.0.1:1883
+ArduCopter SITL (RNGFND1_TYPE 10) from its own truth on a second serial port:
+  secuav-feed ardupilot_height --sensors rangefinders --to udpout://127.0.0.1:14600 \\
+              --truth tcp://127.0.0.1:5762
+exit: 0 done (a recording ended), 1 a socket would not open, 2 bad input, 130 stopped (Ctrl-C, SIGTERM)
+"""
 SENSOR_NAMES = SENSORS
 
 
@@ -38,6 +49,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog=PROG,
         description="Feed an autopilot a companion's sensor readings over MAVLink, through the proxy, "
         "from a true state and flightsim's noise models.",
+        epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("scenario", nargs="?", default=str(DEFAULT_SCENARIO),
                    help="scenario file or bundled name (its vehicle's external block says what to feed); "
@@ -159,10 +172,16 @@ async def serve(config: FeedConfig, stop: asyncio.Event | None = None) -> int:
     from flightsim.mavlink.wire import Encoder
 
     stop = stop or asyncio.Event()
+    signalled: list[int] = []
     loop = asyncio.get_running_loop()
+
+    def on_signal(sig: int) -> None:
+        signalled.append(sig)
+        stop.set()
+
     for sig in (signal.SIGINT, signal.SIGTERM):
         with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
-            loop.add_signal_handler(sig, stop.set)
+            loop.add_signal_handler(sig, on_signal, sig)
     encoder = Encoder(config.source_sysid, config.compid)
     builder = FeedBuilder(config.scenario, config.sysid, config.sensors, encoder.mav, config.seed, config.rate_hz)
     home = config.scenario.world.home
@@ -214,7 +233,7 @@ async def serve(config: FeedConfig, stop: asyncio.Event | None = None) -> int:
     if not config.quiet:
         sent = " ".join(f"{k}={v}" for k, v in sorted(builder.counts.sent.items()))
         print(f"{PROG}: stopped after {builder.counts.states} states, {sent or 'nothing sent'}", file=out, flush=True)
-    return 0
+    return 130 if signalled else 0
 
 
 if __name__ == "__main__":

@@ -4,10 +4,11 @@
 sensor on its own clock, with flightsim's noise models (the ones the simulator's own sensors use, seeded
 the same way, so a seed gives the same feed):
 
-- ``rangefinders``: DISTANCE_SENSOR per rangefinder of the scenario's ``external`` block, ray-cast
+- ``rangefinders``: DISTANCE_SENSOR per rangefinder of the scenario's ``external`` block (else of the
+  vehicle's ``sensors``, for an autopilot such as ArduPilot SITL told they come over MAVLink), ray-cast
   against its walls and the ground (:class:`flightsim.sensors.RangefinderModel`);
-- ``uwb``: DISTANCE_SENSOR id 10+k per anchor of ``external.uwb`` (:class:`flightsim.sensors.UwbModel`,
-  its ``noise:`` block included);
+- ``uwb``: DISTANCE_SENSOR id 10+k per anchor of ``external.uwb`` (else ``sensors.uwb``)
+  (:class:`flightsim.sensors.UwbModel`, its ``noise:`` block included);
 - ``vision``: VISION_POSITION_ESTIMATE, ``odometry``: ODOMETRY (local NED), the true position plus
   N(0, ``external.vision.noise_std_m``) per axis;
 - ``gps_input``: GPS_INPUT (ArduPilot ``GPS_TYPE 14``), ``hil_gps``: HIL_GPS (PX4), from
@@ -87,9 +88,11 @@ class FeedBuilder:
         world = World(scenario.world)
         self.rangefinders: list[RangefinderModel] = []
         if "rangefinders" in self.sensors:
-            if not ext.rangefinders:
-                raise ValueError(f"vehicle {sysid}: the scenario declares no external.rangefinders to feed")
-            for r in ext.rangefinders:
+            # A SITL's MAVLink rangefinders are the scenario's own (ardupilot_height) when it has no external block.
+            mounted = ext.rangefinders or vehicle.sensors.rangefinders
+            if not mounted:
+                raise ValueError(f"vehicle {sysid}: no rangefinders to feed (external or sensors)")
+            for r in mounted:
                 cfg = r if rate_hz is None else r.model_copy(update={"rate_hz": rate_hz})
                 self.rangefinders.append(RangefinderModel(cfg, world, rng(f"rangefinder{r.id}")))
         self.uwb: UwbModel | None = None
