@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import math
 from pathlib import Path
 
@@ -150,3 +151,78 @@ def test_bad_input_is_one_line_and_exit_2(argv: list[str], says: str, capsys: py
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert says in err and "\n" not in err and err.startswith("secuav-feed: ")
+
+
+def sim_state_tlog(path: Path, heights: list[float], period_s: float = 0.05) -> None:
+    """A recording of SITL truth: SIM_STATE of system 1 climbing through ``heights``."""
+    mav = apm.MAVLink(None, srcSystem=1, srcComponent=1)
+    blob = b""
+    for k, h in enumerate(heights):
+        lat, lon, alt = ned_to_geodetic(HOME, 0.0, 0.0, -h)
+        msg = mav.sim_state_encode(1, 0, 0, 0, *[0] * 9, lat, lon, alt, 0, 0, 0, 0, 0,
+                                   round(lat * 1e7), round(lon * 1e7))  # fmt: skip
+        blob += stamp(1000.0 + period_s * k) + msg.pack(mav)
+    path.write_bytes(blob)
+
+
+def test_the_command_feeds_a_recording_to_a_udp_peer_and_ends_with_it(
+    tmp_path: Path, udp_port, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import socket
+
+    log = tmp_path / "sitl.tlog"
+    sim_state_tlog(log, [3.0 + 0.01 * k for k in range(40)])  # 2 s at 20 Hz
+    port = udp_port()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", port))
+        sock.settimeout(0.5)
+        argv = ["companion_feed", "--to", f"udpout://127.0.0.1:{port}", "--truth", str(log), "--speed", "0",
+                "--sensors", "rangefinders", "--compid", "197"]  # fmt: skip
+        assert main(argv) == 0
+        frames = []
+        with contextlib.suppress(TimeoutError):
+            while True:
+                frames.append(sock.recv(2048))
+    msgs = Decoder().decode(b"".join(frames))
+    down = [m for m in msgs if m.get_type() == "DISTANCE_SENSOR" and m.id == 0]
+    assert len(down) == 40  # one per truth sample: the recording's 20 Hz is the laser's rate
+    assert {(m.get_srcSystem(), m.get_srcComponent()) for m in msgs} == {(1, 197)}
+    assert all(abs(m.current_distance - (300 + k)) <= 10 for k, m in enumerate(down))  # noise std 2 cm
+    out = capsys.readouterr().out
+    assert "stopped after 40 states, DISTANCE_SENSOR=80" in out
+
+
+async def test_a_sitl_truth_source_asks_for_its_truth_and_reads_it(udp_port) -> None:
+    """The source over real UDP against a pymavlink peer: SET_MESSAGE_INTERVAL goes out, SIM_STATE comes back."""
+    from flightsim.companion.truth import MavlinkTruth
+    from secuav_common.urls import Endpoint
+
+    port = udp_port()
+    loop = asyncio.get_running_loop()
+    asked: list[int] = []
+    parser = apm.MAVLink(None)
+    mav = apm.MAVLink(None, srcSystem=1, srcComponent=1)
+    lat, lon, alt = ned_to_geodetic(HOME, 1.0, 2.0, -3.0)
+    sim_state = mav.sim_state_encode(1, 0, 0, 0, *[0] * 9, lat, lon, alt, 0, 0, 0, 0, 0,
+                                     round(lat * 1e7), round(lon * 1e7))  # fmt: skip
+
+    class Sitl(asyncio.DatagramProtocol):
+        def connection_made(self, transport) -> None:
+            self.t = transport
+
+        def datagram_received(self, data: bytes, addr) -> None:
+            for m in parser.parse_buffer(data) or []:
+                if m.get_type() == "COMMAND_LONG" and m.command == apm.MAV_CMD_SET_MESSAGE_INTERVAL:
+                    asked.append(int(m.param1))
+                    self.t.sendto(sim_state.pack(mav), addr)
+
+    transport, _ = await loop.create_datagram_endpoint(Sitl, local_addr=("127.0.0.1", port))
+    try:
+        source = MavlinkTruth(Endpoint("udpout", "127.0.0.1", port), HOME, 1)
+        states = source.states()
+        first = await asyncio.wait_for(anext(states), 5.0)
+        await states.aclose()
+    finally:
+        transport.close()
+    assert set(asked) == {apm.MAVLINK_MSG_ID_SIM_STATE, apm.MAVLINK_MSG_ID_HIL_STATE_QUATERNION}
+    assert first.pos_ned_m == pytest.approx((1.0, 2.0, -3.0), abs=0.02)

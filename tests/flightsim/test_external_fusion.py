@@ -166,3 +166,38 @@ def test_the_personality_hands_a_companions_frames_to_the_estimator_and_ignores_
                                          0, 0, 0, 0, 0, 0, [math.nan] * 21, [math.nan] * 21)  # fmt: skip
     p.receive(companion.pack(body), 0.0)  # a body-frame position is not a map position: not read
     assert p.stats.external_ignored == 3
+
+
+def test_in_closed_loop_a_shifted_vision_feed_moves_the_vehicle_and_its_loss_brings_it_back() -> None:
+    """Headless: the feed's own builder, frames through the personality, 50 Hz like the runner; truth scores."""
+    from dataclasses import replace
+
+    from flightsim.companion.feed import FeedBuilder
+
+    sc = parse_scenario("name: t\nvehicles: [{sysid: 1, external: {vision: {rate_hz: 25}}}]")
+    sim = Simulation(sc)
+    v = sim.vehicles[1]
+    p = Px4Personality(v, lambda _: None)
+    sim.take_off(3.0)
+    enc = Encoder(1, 197)
+    feed = FeedBuilder(sc, 1, ["vision"], enc.mav)
+
+    def fly(seconds: float, shift_north_m: float | None) -> float:
+        for _ in range(round(seconds / 0.02)):
+            sim.run_for(0.02)
+            if shift_north_m is not None:
+                t = v.truth
+                lie = replace(t, pos_ned_m=(t.pos_ned_m[0] + shift_north_m, *t.pos_ned_m[1:]))
+                p.receive(b"".join(enc.pack(m) for m in feed.messages(lie)), 0.0)
+        return v.truth.pos_ned_m[0]
+
+    start = v.truth.pos_ned_m[0]
+    assert abs(fly(4.0, 0.0) - start) < 0.2  # the truthful feed holds where GPS held
+    texts = [t for _, t in v.pop_status_texts()]
+    assert "External vision in use" in texts
+    shifted = fly(6.0, 1.5)
+    assert abs(shifted - (start - 1.5)) < 0.3  # it believes the feed: 1.5 m north of truth is "here"
+    back = fly(6.0, None)  # the feed stops: GPS again, and the vehicle flies back to its hold point
+    assert abs(back - start) < 0.3
+    assert "External vision lost for 0.5 s: using own estimate" in [t for _, t in v.pop_status_texts()]
+    assert p.stats.external_taken > 200 and p.stats.external_ignored == 0
