@@ -27,7 +27,7 @@ def decode(msg: Message) -> ExternalRange | ExternalPosition | None:
     if kind == "DISTANCE_SENSOR":
         # current_distance in cm; PX4's drivers send max_distance + 1 cm (or more) for "no target".
         cm = msg.current_distance
-        distance = math.nan if cm >= msg.max_distance > 0 else cm / 100.0
+        distance = math.nan if cm > msg.max_distance > 0 else cm / 100.0
         return ExternalRange(*src, msg.id, distance, msg.orientation)
     if kind == "VISION_POSITION_ESTIMATE":
         return ExternalPosition(*src, (msg.x, msg.y, msg.z), "vision_position_estimate")
