@@ -26,16 +26,24 @@ from flightsim.companion.feed import SENSORS
 from secuav_common.broker import parse_broker_url
 from secuav_common.loading import InputError
 from secuav_common.logs import add_common_flags, cli_error, setup_logging
-from secuav_common.scenario import DEFAULT_SCENARIO, Scenario, load_scenario
+from secuav_common.scenario import Scenario, load_scenario
 from secuav_common.urls import Endpoint, parse_endpoint
 
 PROG = "secuav-feed"
 EXAMPLES = """\
-flightsim holding its height on a fed rangefinder, the feed through the proxy:
-  secuav-sim companion_feed --broker mqtt://127.0.0.1:1883
+flightsim holding its height on a fed rangefinder, the feed through the proxy (it starts the broker):
   secuav-proxy --ground udpout://127.0.0.1:14540 --ground udpout://127.0.0.1:14550 \\
-               --ground udpin://127.0.0.1:14600 --profile vehicle-bias.yaml
+               --ground udpin://127.0.0.1:14600 --profile vehicle-bias.yaml --attack bypass
+  secuav-sim companion_feed --broker mqtt://127.0.0.1:1883
   secuav-feed companion_feed --to udpout://127.0.0.1:14600 --truth mqtt://127.0.0.1:1883
+  (take off to 5 m from QGroundControl/MAVProxy on 14550 or MAVSDK on 14540), then
+  secuav-attack mode on          # the vehicle descends 2 m; its own altitude still says 5 m
+with vehicle-bias.yaml:
+  name: vehicle-bias
+  rules:
+    - target: {message: DISTANCE_SENSOR, sensor_id: 0, field: current_distance, direction: uplink}
+      kind: bias
+      offset_m: 2
 ArduCopter SITL (RNGFND1_TYPE 10) from its own truth on a second serial port:
   secuav-feed ardupilot_height --sensors rangefinders --to udpout://127.0.0.1:14600 \\
               --truth tcp://127.0.0.1:5762
@@ -47,14 +55,14 @@ SENSOR_NAMES = SENSORS
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog=PROG,
-        description="Feed an autopilot a companion's sensor readings over MAVLink, through the proxy, "
+        description="Feed an autopilot a companion's sensor readings over MAVLink, through the proxy,\n"
         "from a true state and flightsim's noise models.",
         epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("scenario", nargs="?", default=str(DEFAULT_SCENARIO),
+    p.add_argument("scenario", nargs="?", default="companion_feed",
                    help="scenario file or bundled name (its vehicle's external block says what to feed); "
-                   "default wall_hover")  # fmt: skip
+                   "default companion_feed")  # fmt: skip
     p.add_argument("--to", required=True, metavar="URL",
                    help="where the autopilot is reached: a proxy ground endpoint, udpout://HOST:PORT "
                    "(the proxy listens there: --ground udpin://...) or udpin://HOST:PORT "
