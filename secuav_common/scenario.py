@@ -317,6 +317,17 @@ class Vehicle(_Strict):
         None, description="readings the autopilot fuses from a companion over MAVLink (secuav-feed)"
     )
 
+    @property
+    def all_rangefinders(self) -> list[Rangefinder]:
+        """Every rangefinder whose DISTANCE_SENSOR this vehicle's link carries: its own, then a companion's
+        (``external``; they travel to the vehicle and it re-reports them). Ids never collide (validated)."""
+        return [*self.sensors.rangefinders, *(self.external.rangefinders if self.external else [])]
+
+    @property
+    def uwb_ranging(self) -> UwbRanging | None:
+        """The anchor ranging on this vehicle's link: its own (``sensors.uwb``) or a companion's (``external.uwb``)."""
+        return self.sensors.uwb or (self.external.uwb if self.external else None)
+
 
 class Scenario(_Strict):
     name: str

@@ -78,6 +78,17 @@ def test_the_external_block_is_optional_and_vision_may_be_a_flag() -> None:
     assert ext.source_sysid is None and 158 in ext.source_compids
 
 
+def test_a_vehicle_lists_every_rangefinder_its_link_carries() -> None:
+    fed = load_scenario("companion_feed").vehicles[0]
+    assert [r.id for r in fed.all_rangefinders] == [0, 1] and fed.sensors.rangefinders == []
+    own = load_scenario("wall_hover").vehicles[0]
+    assert fed.uwb_ranging is None and own.all_rangefinders == own.sensors.rangefinders
+    sc = parse_scenario("name: x\nworld: {anchors: [{id: 0, pos_ned_m: [0, 0, 0]}]}\n"
+                        "vehicles: [{sysid: 1, external: {uwb: {rate_hz: 5}}}]")  # fmt: skip
+    uwb = sc.vehicles[0].uwb_ranging
+    assert uwb is not None and uwb.rate_hz == 5
+
+
 def test_missing_file_is_one_line(tmp_path) -> None:
     with pytest.raises(InputError, match=r"nope\.yaml"):
         load_scenario(tmp_path / "nope.yaml")

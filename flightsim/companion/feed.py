@@ -97,7 +97,7 @@ class FeedBuilder:
                 self.rangefinders.append(RangefinderModel(cfg, world, rng(f"rangefinder{r.id}")))
         self.uwb: UwbModel | None = None
         if "uwb" in self.sensors:
-            uwb = ext.uwb or vehicle.sensors.uwb
+            uwb = vehicle.uwb_ranging
             if uwb is None:
                 raise ValueError(f"vehicle {sysid}: the scenario declares no external.uwb (nor sensors.uwb) to feed")
             if rate_hz is not None:
