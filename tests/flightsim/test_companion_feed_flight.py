@@ -11,6 +11,8 @@ Bounds, from the simulator's truth (never from what the vehicle says):
 - (a) the median true height over 2 s is within 0.5 m of the 5 m commanded: the hold itself errs by
   about 0.05 m (flightsim/README.md), so the bound has a 10x margin and still fails if the fused
   height were off by as little as the GPS height (a few decimetres from 5 m would be a bug here);
+- the wall laser (id 1), fed but not attacked, keeps the true wall distance where takeoff left it (6 m
+  from the wall, within 0.5 m) and within 0.3 m of it through the attack: the hold errs by centimetres;
 - (b) 6 s after the rule goes on the median true height has dropped by the bias, 2.0 +- 0.5 m: the
   estimate follows a reading within about a second (flightsim/external.py) and the vehicle descends at
   up to 1 m/s, so 6 s leaves twice the time it needs; without the feed in the loop it would not move at
@@ -78,12 +80,15 @@ async def bench(tmp_path: Path, udp_port: Callable[[], int], tcp_port: Callable[
                 await asyncio.wait_for(asyncio.gather(sim_task, feed_task), 10.0)
 
 
-async def true_heights(runner: SimRunner, seconds: float) -> list[float]:
-    out = []
+async def true_positions(runner: SimRunner, seconds: float) -> tuple[float, float]:
+    """Median true (distance to the wall 6 m north, height) over ``seconds`` of wall clock."""
+    walls, heights = [], []
     for _ in range(round(seconds / 0.1)):
-        out.append(-runner.sim.vehicles[1].truth.pos_ned_m[2])
+        n, _e, d = runner.sim.vehicles[1].truth.pos_ned_m
+        walls.append(6.0 - n)
+        heights.append(-d)
         await asyncio.sleep(0.1)
-    return out
+    return statistics.median(walls), statistics.median(heights)
 
 
 async def test_a_fed_rangefinder_holds_the_height_and_an_uplink_bias_moves_the_vehicle(
@@ -104,11 +109,11 @@ async def test_a_fed_rangefinder_holds_the_height_and_an_uplink_bias_moves_the_v
             await asyncio.to_thread(take_off)
             in_use = vehicle.external.sources_in_use() if vehicle.external else []
             await asyncio.sleep(2.0)
-            held = statistics.median(await true_heights(runner, 2.0))
+            wall_held, held = await true_positions(runner, 2.0)
             taken_before = personality.stats.external_taken
             proxy.stages[1].active = True  # what `secuav-attack mode on` does
             await asyncio.sleep(6.0)
-            attacked = statistics.median(await true_heights(runner, 2.0))
+            wall_attacked, attacked = await true_positions(runner, 2.0)
             believed = -vehicle.estimate.pos_ned_m[2]
         finally:
             gcs.close()
@@ -117,5 +122,6 @@ async def test_a_fed_rangefinder_holds_the_height_and_an_uplink_bias_moves_the_v
     assert personality.stats.external_taken > taken_before > 50
     assert abs((held - attacked) - BIAS_M) < 0.5, (held, attacked)
     assert abs(believed - HOLD_M) < 0.5, believed  # the autopilot still thinks it holds 5 m: it was lied to
+    assert abs(wall_held - 6.0) < 0.5 and abs(wall_attacked - wall_held) < 0.3, (wall_held, wall_attacked)
     assert not vehicle.crashed
     assert proxy.stats_snapshot()[1]["uplink"]["rewritten"] > 0
