@@ -9,14 +9,13 @@ bypassed (case a: no attack) and is switched on mid-flight (case b), as the cont
 
 Bounds, from the simulator's truth (never from what the vehicle says):
 - (a) the median true height over 2 s is within 0.5 m of the 5 m commanded: the hold itself errs by
-  about 0.05 m (flightsim/README.md), so the bound has a 10x margin and still fails if the fused
-  height were off by as little as the GPS height (a few decimetres from 5 m would be a bug here);
+  about 0.05 m (flightsim/README.md), a 10x margin, and a quarter of the bias it must then tell apart;
 - the wall laser (id 1), fed but not attacked, keeps the true wall distance where takeoff left it (6 m
   from the wall, within 0.5 m) and within 0.3 m of it through the attack: the hold errs by centimetres;
 - (b) 6 s after the rule goes on the median true height has dropped by the bias, 2.0 +- 0.5 m: the
   estimate follows a reading within about a second (flightsim/external.py) and the vehicle descends at
-  up to 1 m/s, so 6 s leaves twice the time it needs; without the feed in the loop it would not move at
-  all, and with the wrong sign it would climb, both far outside the band.
+  up to 1.5 m/s (MPC_Z_VEL_MAX_DN): it settled within 4 s here, so 6 s leaves room; without the feed in
+  the loop it would not move at all, and with the wrong sign it would climb, both far outside the band.
 """
 
 from __future__ import annotations
