@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import logging
 import signal
 import sys
 import time
@@ -30,6 +31,8 @@ from secuav_common.scenario import Scenario, load_scenario
 from secuav_common.urls import Endpoint, parse_endpoint
 
 PROG = "secuav-feed"
+RESTART_S = 1.0  # truth this far behind the last state is a restarted simulator, not a late sample
+log = logging.getLogger(PROG)
 EXAMPLES = """\
 flightsim holding its height on a fed rangefinder, the feed through the proxy (it starts the broker):
   secuav-proxy --ground udpout://127.0.0.1:14540 --ground udpout://127.0.0.1:14550 \\
@@ -211,8 +214,16 @@ async def serve(config: FeedConfig, stop: asyncio.Event | None = None) -> int:
 
     async def pump() -> None:
         nonlocal last_t, next_status
+        nonlocal builder
         async for s in source.states():
-            if last_t is not None and s.t_s + 1e-9 < last_t:
+            if last_t is not None and s.t_s + RESTART_S < last_t:
+                # The simulator started again (its clock went back): new sensor clocks, same counts.
+                counts = builder.counts
+                builder = FeedBuilder(config.scenario, config.sysid, config.sensors, encoder.mav, config.seed,
+                                      config.rate_hz)  # fmt: skip
+                builder.counts = counts
+                log.info("feed.truth_restarted", extra={"from_t_s": round(last_t, 2), "to_t_s": round(s.t_s, 2)})
+            elif last_t is not None and s.t_s + 1e-9 < last_t:
                 continue  # out of order (a reconnect's stale sample): the sensors' clocks only go forward
             last_t = s.t_s
             for msg in builder.messages(s):

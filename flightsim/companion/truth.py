@@ -17,7 +17,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import math
 import time
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -231,7 +230,3 @@ class TlogTruth:
                 await asyncio.sleep(0)
             yield s
         self.skipped += reader.skipped
-
-
-def is_finite(s: State) -> bool:
-    return all(math.isfinite(c) for c in (*s.pos_ned_m, *s.quat))

@@ -153,11 +153,13 @@ def test_bad_input_is_one_line_and_exit_2(argv: list[str], says: str, capsys: py
     assert says in err and "\n" not in err and err.startswith("secuav-feed: ")
 
 
-def sim_state_tlog(path: Path, heights: list[float], period_s: float = 0.05) -> None:
-    """A recording of SITL truth: SIM_STATE of system 1 climbing through ``heights``."""
+def sim_state_tlog(path: Path, heights: list[float], period_s: float = 0.05, restart_at: int | None = None) -> None:
+    """A recording of SITL truth: SIM_STATE of system 1 climbing through ``heights``; its clock starts again
+    at entry ``restart_at`` (a simulator restarted while recording)."""
     mav = apm.MAVLink(None, srcSystem=1, srcComponent=1)
     blob = b""
-    for k, h in enumerate(heights):
+    for i, h in enumerate(heights):
+        k = i if restart_at is None or i < restart_at else i - restart_at
         lat, lon, alt = ned_to_geodetic(HOME, 0.0, 0.0, -h)
         msg = mav.sim_state_encode(1, 0, 0, 0, *[0] * 9, lat, lon, alt, 0, 0, 0, 0, 0,
                                    round(lat * 1e7), round(lon * 1e7))  # fmt: skip
@@ -190,6 +192,26 @@ def test_the_command_feeds_a_recording_to_a_udp_peer_and_ends_with_it(
     assert all(abs(m.current_distance - (300 + k)) <= 10 for k, m in enumerate(down))  # noise std 2 cm
     out = capsys.readouterr().out
     assert "stopped after 40 states, DISTANCE_SENSOR=80" in out
+
+
+def test_a_restarted_simulator_is_fed_again_from_its_new_clock(tmp_path: Path, udp_port) -> None:
+    import socket
+
+    log = tmp_path / "restart.tlog"
+    sim_state_tlog(log, [3.0] * 40 + [4.0] * 40, restart_at=40)
+    port = udp_port()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", port))
+        sock.settimeout(0.5)
+        argv = ["companion_feed", "--to", f"udpout://127.0.0.1:{port}", "--truth", str(log), "--speed", "0",
+                "--sensors", "rangefinders", "-q"]  # fmt: skip
+        assert main(argv) == 0
+        frames = []
+        with contextlib.suppress(TimeoutError):
+            while True:
+                frames.append(sock.recv(2048))
+    down = [m for m in Decoder().decode(b"".join(frames)) if m.get_type() == "DISTANCE_SENSOR" and m.id == 0]
+    assert len(down) == 80 and abs(down[-1].current_distance - 400) <= 10  # the second run fed, not skipped
 
 
 async def test_a_sitl_truth_source_asks_for_its_truth_and_reads_it(udp_port) -> None:
