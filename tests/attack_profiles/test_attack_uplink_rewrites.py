@@ -215,3 +215,23 @@ def test_where_acts_exactly_on_the_matching_commands(wanted: int, sent: int, par
     written = (action.fields or {}).get("param7", params[6])
     f32 = struct.Struct("<f")
     assert f32.unpack(f32.pack(written)) == f32.unpack(f32.pack(alt))  # the number the frame carries (-0.0 == 0.0)
+
+
+_where_keys = st.sampled_from(["command", "param1", "param_id", "frame", "confirmation", "x", "", "distances[2]"])
+_where_values = st.one_of(st.integers(-(2**70), 2**70), st.floats(), st.text(max_size=20), st.booleans(),
+                          st.sampled_from(["NAV_TAKEOFF", "MAV_CMD_NAV_LAND", "MAV_FRAME_GLOBAL"]))  # fmt: skip
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.sampled_from(["COMMAND_LONG", "COMMAND_INT", "PARAM_SET"]),
+       st.dictionaries(_where_keys | st.text(max_size=8), _where_values | st.lists(_where_values, max_size=3),
+                       max_size=3))  # fmt: skip
+def test_any_where_is_accepted_or_refused_in_one_line_naming_it(message: str, where: dict[str, Any]) -> None:
+    field = {"COMMAND_LONG": "param7", "COMMAND_INT": "z", "PARAM_SET": "param_value"}[message]
+    doc = {"name": "t", "rules": [{"target": up(message, field, where), "kind": "bias", "offset": 1}]}
+    try:
+        profile = parse_profile(doc, "p.yaml")
+    except InputError as err:
+        assert "\n" not in str(err) and str(err.field).startswith("rules[0].target.where"), str(err)
+        return
+    started(profile)  # what was accepted also builds
