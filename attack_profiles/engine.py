@@ -575,9 +575,9 @@ def _noise_by_id(scenario: Scenario) -> dict[int, float]:
     out: dict[int, float] = {}
     anchors = {ANCHOR_BASE + a.id for a in scenario.world.anchors}
     for v in scenario.vehicles:
-        for r in v.sensors.rangefinders:
+        for r in v.all_rangefinders:
             out[r.id] = max(out.get(r.id, 0.0), r.noise_std_m)
-        uwb, iv = v.sensors.uwb, v.sensors.inter_vehicle
+        uwb, iv = v.uwb_ranging, v.sensors.inter_vehicle
         for sid in (_sensor_ids(v, anchors) & set(range(ANCHOR_BASE, PEER_BASE))) if uwb is not None else ():
             out[sid] = max(out.get(sid, 0.0), uwb.noise_std_m)
         for n in iv.peers if iv is not None else ():
@@ -586,9 +586,9 @@ def _noise_by_id(scenario: Scenario) -> dict[int, float]:
 
 
 def _sensor_ids(vehicle: Vehicle, anchors: set[int]) -> set[int]:
-    """DISTANCE_SENSOR ids a scenario vehicle sends."""
-    ids = {r.id for r in vehicle.sensors.rangefinders}
-    uwb = vehicle.sensors.uwb
+    """DISTANCE_SENSOR ids a scenario vehicle's link carries (a companion's fed sensors included)."""
+    ids = {r.id for r in vehicle.all_rangefinders}
+    uwb = vehicle.uwb_ranging
     if uwb is not None:
         ids |= anchors if uwb.anchors == "all" else {ANCHOR_BASE + k for k in uwb.anchors}
     iv = vehicle.sensors.inter_vehicle

@@ -114,6 +114,16 @@ def test_scenario_checks_name_rule_and_id() -> None:
         Engine(spoof, scenario=wall)
 
 
+def test_scenario_check_knows_a_companions_fed_sensors() -> None:
+    """companion_feed's rangefinders 0 and 1 are fed to the vehicle by secuav-feed (``external``), not its own."""
+    fed = load_scenario("companion_feed")
+    assert not fed.vehicles[0].sensors.rangefinders
+    engine = Engine(make_profile(rule("noise", sensor_id=[0, 1], std=0.1)), scenario=fed)
+    assert engine.scenario is fed
+    with pytest.raises(InputError, match=r"rules\[0\]\.target\.sensor_id: .*\(ids: \[0, 1\]\).*\(got 2\)"):
+        Engine(make_profile(rule("bias", sensor_id=[2], offset=1.0)), scenario=fed)
+
+
 def test_nothing_half_applied_a_late_error_rejects_the_whole_profile() -> None:
     good_rules = [GOOD] * 5
     with pytest.raises(InputError, match=r"rules\[5\]"):
