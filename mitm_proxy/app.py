@@ -30,6 +30,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
+from attack_profiles.directions import describe
 from attack_profiles.resolve import resolve_profile
 from mavframe.signing import Signer
 from mitm_proxy.config import ProxyConfig
@@ -94,7 +95,7 @@ class Proxy:
             raise InputError("secure", "estimator", config.secure, "the secure stage needs --scenario")
         self.vehicles: dict[int, VehicleParts] = {}
         for sysid in sysids:
-            slot = AttackSlot(sysid, self.scenario, config.seed)
+            slot = AttackSlot(sysid, self.scenario, config.seed, forbid_uplink=config.no_uplink_attacks)
             if initial is not None:
                 state = slot.offer(initial, request_id="--profile")
                 if not state.ok:
@@ -114,9 +115,11 @@ class Proxy:
         self._readings_task: asyncio.Task[None] | None = None
 
     def _secure_config(self) -> SecureConfig:
-        """``--secure`` / ``secure:``, checked against the scenario by ``make_slots``."""
+        """``--secure`` / ``secure:`` (and ``--secure-direction``), checked against the scenario by ``make_slots``."""
         cfg = config_from_payload(self.config.secure, "secure")
-        return cfg if cfg.enabled else OFF
+        if self.config.secure_direction is not None:
+            cfg = cfg.model_copy(update={"direction": self.config.secure_direction})
+        return cfg if cfg.enabled else OFF.model_copy(update={"direction": cfg.direction})
 
     @property
     def slots(self) -> dict[int, AttackSlot]:
@@ -149,8 +152,10 @@ class Proxy:
             "links": " ".join(f"v{ln.sysid}:{ln.vehicle.endpoint}->{','.join(str(g.endpoint) for g in ln.grounds)}"
                               for ln in self.links),
             "attack": self.config.attack, "profile": self.slots[self.links[0].sysid].state.profile or "none",
-            "secure": next((s.stage.config.estimator for s in self.secure.values() if s.stage.config.estimator), "off")
-            if self.secure else "unavailable (no --scenario)",
+            "changes": describe(self.slots[self.links[0].sysid].directions),
+            "uplink_attacks": "forbidden" if self.config.no_uplink_attacks else "allowed",
+            "secure": next((f"{s.stage.config.estimator} ({s.stage.config.direction})" for s in self.secure.values()
+                            if s.stage.config.estimator), "off") if self.secure else "unavailable (no --scenario)",
             "broker": redact(self.config.broker), "instance": self.instance, "record": self.config.record or "off",
             "signing": "on" if self.signer else "off",
         })  # fmt: skip
