@@ -30,7 +30,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
-from attack_profiles.directions import describe
+from attack_profiles.directions import check_no_uplink, describe
 from attack_profiles.resolve import resolve_profile
 from mavframe.signing import Signer
 from mitm_proxy.config import ProxyConfig
@@ -85,6 +85,8 @@ class Proxy:
         self.scenario: Scenario | None = load_scenario(config.scenario) if config.scenario else None
         self.signer: Signer | None = Signer.from_file(config.signing_key) if config.signing_key else None
         initial = resolve_profile(config.profile) if config.profile else None  # a file or a library name
+        if initial is not None and config.no_uplink_attacks:  # one line, before any slot logs a refusal
+            check_no_uplink(initial, initial.source)
         sysids = [link.sysid for link in config.links]
         secure: dict[int, SecureSlot] = {}
         if self.scenario is not None:  # the estimators' models come from the scenario
@@ -98,8 +100,8 @@ class Proxy:
             slot = AttackSlot(sysid, self.scenario, config.seed, forbid_uplink=config.no_uplink_attacks)
             if initial is not None:
                 state = slot.offer(initial, request_id="--profile")
-                if not state.ok:
-                    raise InputError(str(config.profile), "", None, state.error or "rejected")
+                if not state.ok:  # the error names the file already
+                    raise ValueError(state.error or f"{config.profile}: rejected")
             stage = AttackStage(slot)
             mode = ModeSwitch(sysid, stage)
             mode.set(config.attack == "on", source="--attack")

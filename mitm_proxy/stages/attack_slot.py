@@ -175,7 +175,7 @@ class AttackSlot(Switch[AttackState]):
         """Every door (MQTT, the file reload, ``--profile``, an engine) passes here: with ``forbid_uplink`` a rule
         toward the vehicle is refused (``InputError`` naming it) before anything is installed."""
         if profile is not None and self.forbid_uplink:
-            check_no_uplink(profile, source)
+            check_no_uplink(profile, source if profile.source == "<profile>" else profile.source)  # the file
 
     def _warn(self, engine: Engine | None) -> None:
         """Watch for the carriers the profile leaves true; say at once those the vehicle was already seen
