@@ -58,6 +58,8 @@ if TYPE_CHECKING:  # imported when used: numpy/scipy (secure) and MQTT (control)
     from mitm_proxy.stages.secure.stage import SecureSlot
 
 log = logging.getLogger("secuav-proxy")
+# Where the secure stage reads and substitutes, as proxy.ready says it.
+WORDS_ON = {"downlink": "toward the ground", "uplink": "toward the vehicle", "both": "both directions"}
 VEHICLE_TAKEOVER_S = 1.0  # a new vehicle source port is followed after this much silence from the old one
 STOP_BUDGET_S = 0.8  # what the control plane may take to say goodbye
 READINGS_PERIOD_S = 0.1  # secuav/v<N>/readings while a console watches
@@ -156,8 +158,9 @@ class Proxy:
             "attack": self.config.attack, "profile": self.slots[self.links[0].sysid].state.profile or "none",
             "changes": describe(self.slots[self.links[0].sysid].directions),
             "uplink_attacks": "forbidden" if self.config.no_uplink_attacks else "allowed",
-            "secure": next((f"{s.stage.config.estimator} ({s.stage.config.direction})" for s in self.secure.values()
-                            if s.stage.config.estimator), "off") if self.secure else "unavailable (no --scenario)",
+            "secure": next((s.stage.config.estimator for s in self.secure.values() if s.stage.config.estimator), "off")
+            if self.secure else "unavailable (no --scenario)",
+            "secure_on": next((WORDS_ON[s.stage.config.direction] for s in self.secure.values()), "-"),
             "broker": redact(self.config.broker), "instance": self.instance, "record": self.config.record or "off",
             "signing": "on" if self.signer else "off",
         })  # fmt: skip
@@ -186,6 +189,9 @@ class Proxy:
                 recorder = Recorder(Path(self.config.record) / f"v{sysid}", i)
                 self.recorders.append(recorder)
             parts = self.vehicles[sysid]
+            if recorder is not None:  # profiles.json: the profile in force now, then each change
+                _note_profile(recorder, parts.slot)
+                parts.slot.on_install.append(lambda slot, rec=recorder: _note_profile(rec, slot))
             stages: list[Stage] = [parts.stage]  # tap -> attack -> secure -> forward
             if parts.secure is not None:
                 stages.append(parts.secure.stage)
@@ -313,6 +319,12 @@ class Proxy:
             for sysid, snap in self.stats_snapshot().items():
                 line = stats_line(sysid, snap)  # a link whose stages cannot work says so at warning level
                 log.log(logging.WARNING if "warnings" in line else logging.INFO, "proxy.stats", extra=line)
+
+
+def _note_profile(recorder: Recorder, slot: AttackSlot) -> None:
+    """The recording's profiles.json learns the profile in force and which way it changes frames."""
+    engine = slot.engine
+    recorder.profile(None if engine is None else engine.profile.name, slot.state.hash, slot.directions)
 
 
 def stats_line(sysid: int, snap: dict[str, Any]) -> dict[str, Any]:

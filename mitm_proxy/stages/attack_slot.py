@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 from attack_profiles.control import profile_from_payload
@@ -77,6 +78,7 @@ class AttackSlot(Switch[AttackState]):
         self._sent: set[str] = set()  # message names the vehicle was seen sending (the true-copy carriers)
         self._watch: TrueCopyWatch | None = None
         self._ids: frozenset[int] = frozenset()  # the engine's message ids and the watched carriers'
+        self.on_install: list[Callable[[AttackSlot], None]] = []  # told after each install or clear (the recorder)
         self._hash: str | None = None  # of the engine's profile, kept with it (states are built 5 times a second)
         self._since: float | None = None
         self._signed: dict[int, int] = {}  # sysid -> the first message id left alone for want of a key
@@ -180,6 +182,11 @@ class AttackSlot(Switch[AttackState]):
     def _warn(self, engine: Engine | None) -> None:
         """Watch for the carriers the profile leaves true; say at once those the vehicle was already seen
         sending, and note once that rules toward the vehicle will be reported by it."""
+        self._watch_carriers(engine)
+        for tell in self.on_install:
+            tell(self)
+
+    def _watch_carriers(self, engine: Engine | None) -> None:
         if engine is None:
             self._watch, self._ids = None, frozenset()
             return
