@@ -42,7 +42,7 @@ about when it is validated (``secuav-attack validate``, on stderr, as a conditio
 "if the vehicle sends it") and, in the proxy, once the vehicle is seen sending such a
 carrier (the proxy's log, event ``attack.true_copy``, and ``warnings`` in
 ``secuav/v<N>/attack/state``). Rules toward the vehicle leave no true twin: the
-autopilot reports the lie it was fed (:mod:`attack_profiles.true_copy`).
+autopilot reports the lie it was fed (see Directions, below).
 """
 
 from __future__ import annotations

@@ -89,7 +89,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--instance", metavar="NAME",
                    help="this proxy's name on the broker, unique per broker (default <host>-<pid>)")  # fmt: skip
     p.add_argument(
-        "--record", metavar="DIR", type=Path, help="write DIR/v<sysid>/original.tlog, forwarded.tlog and index.json"
+        "--record", metavar="DIR", type=Path,
+        help="write DIR/v<sysid>/original.tlog, forwarded.tlog, index.json and profiles.json"
     )
     p.add_argument("--signing-key", metavar="F", type=Path, help="MAVLink 2 signing key: verify, re-sign changes")
     p.add_argument("--seed", type=int, help="seed of the attack engine's random primitives (default 0)")

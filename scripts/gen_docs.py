@@ -163,7 +163,7 @@ def _doc_text(doc: str | None) -> str:
 
 
 def outputs() -> dict[str, str]:
-    from attack_profiles import engine, quantities
+    from attack_profiles import directions, engine, quantities
     from attack_profiles.profile import Profile, profile_schema_text
     from mitm_proxy.config import ProxyConfig
     from mitm_proxy.net import rules as routes
@@ -178,6 +178,7 @@ def outputs() -> dict[str, str]:
         "(schema/scenario.schema.json).\n\n" + field_table(Scenario, "Scenario"),
         "profile.md": HEADER + "# Attack profiles\n\nSchema: [schema/profile.schema.json](schema/profile.schema.json) "
         "(also `secuav-attack schema`).\n\n## The library\n\n" + library_doc()
+        + "\n## Directions\n\n" + _doc_text(directions.__doc__.split("\n", 1)[1])
         + "\n## Targets by quantity\n\n" + _doc_text(quantities.__doc__) + "\n" + quantities.mapping_table()
         + "\n## No reading stays no reading\n\n" + _doc_text(engine.__doc__.split("No reading: ", 1)[1])
         + "\n## Fields\n\n" + field_table(Profile, "Profile"),
