@@ -100,6 +100,7 @@ class Proxy:
         self.vehicles: dict[int, VehicleParts] = {}
         for sysid in sysids:
             slot = AttackSlot(sysid, self.scenario, config.seed, forbid_uplink=config.no_uplink_attacks)
+            slot.announce = False  # the start profile's notes are said once the proxy runs (see __aenter__)
             if initial is not None:
                 state = slot.offer(initial, request_id="--profile")
                 if not state.ok:  # the error names the file already
@@ -164,6 +165,9 @@ class Proxy:
             "broker": redact(self.config.broker), "instance": self.instance, "record": self.config.record or "off",
             "signing": "on" if self.signer else "off",
         })  # fmt: skip
+        for slot in self.slots.values():  # the start profile's notes, now that the log says them
+            slot.announce = True
+            slot.say_notes()
         return self
 
     async def __aexit__(

@@ -79,6 +79,8 @@ class AttackSlot(Switch[AttackState]):
         self._watch: TrueCopyWatch | None = None
         self._ids: frozenset[int] = frozenset()  # the engine's message ids and the watched carriers'
         self.on_install: list[Callable[[AttackSlot], None]] = []  # told after each install or clear (the recorder)
+        # False while the proxy is built (its log says warnings only then): it calls say_notes() once it runs
+        self.announce = True
         self._hash: str | None = None  # of the engine's profile, kept with it (states are built 5 times a second)
         self._since: float | None = None
         self._signed: dict[int, int] = {}  # sysid -> the first message id left alone for want of a key
@@ -192,11 +194,18 @@ class AttackSlot(Switch[AttackState]):
             return
         watch = self._watch = TrueCopyWatch(findings(engine.profile), self._sent)
         self._ids = engine.message_ids | watch.message_ids
-        name = engine.profile.name
         for warning in watch.warnings:
-            log.warning("attack.true_copy", extra={"sysid": self.sysid, "profile": name, "warning": warning})
-        for note in vehicle_reports(engine.profile):
-            log.info("attack.vehicle_reports", extra={"sysid": self.sysid, "profile": name, "note": note})
+            log.warning("attack.true_copy", extra={"sysid": self.sysid, "profile": engine.profile.name,
+                                                   "warning": warning})  # fmt: skip
+        if self.announce:
+            self.say_notes()
+
+    def say_notes(self) -> None:
+        """Say once per install that the autopilot will report what rules toward the vehicle feed it."""
+        engine = self.engine
+        for note in () if engine is None else vehicle_reports(engine.profile):
+            log.info("attack.vehicle_reports", extra={"sysid": self.sysid, "profile": engine.profile.name,
+                                                      "note": note})  # fmt: skip
 
     def offer(self, profile: Profile | None, request_id: str | None = None, source: str = "<profile>") -> AttackState:
         """Install ``profile`` (``None`` clears); on ``InputError`` keep the old one and report it."""

@@ -216,4 +216,6 @@ def test_the_real_proxy_substitutes_toward_the_vehicle(tmp_path: Path, udp_port:
     assert all(q == FLAGGED_QUALITY for sid, _, q in late if sid == 1)
     assert heard_down and set(heard_down) <= set(sent_down)  # the downlink: byte for byte
     text = log.read_text()
+    said = [ln for ln in text.splitlines() if " attack.vehicle_reports " in ln]  # once, after proxy.ready
+    assert len(said) == 1 and "reports the lie itself" in said[0], text
     assert "secure=secekf secure_on=\"toward the vehicle\"" in text and "changes=\"toward the vehicle\"" in text, text
