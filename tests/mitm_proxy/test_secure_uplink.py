@@ -56,10 +56,10 @@ class Run:
     down_out: list[bytes] = field(default_factory=list)
 
 
-def fly(height: Scenario, secure: SecureConfig | None, seconds: float = 12.0) -> Run:
-    """A companion (sysid 1, compid 197) sends ids 0-2 at 10 Hz toward the vehicle, each its own datagram;
-    the vehicle sends ATTITUDE, LOCAL_POSITION_NED and its own echo of the three (ArduPilot re-reports a
-    MAVLink rangefinder) toward the ground."""
+def fly(height: Scenario, secure: SecureConfig | None, seconds: float = 12.0, fed: tuple[int, ...] = (0, 1, 2)) -> Run:
+    """A companion (sysid 1, compid 197) sends the ``fed`` ids at 10 Hz toward the vehicle, each its own datagram;
+    the vehicle sends ATTITUDE, LOCAL_POSITION_NED, its own echo of the fed ones (ArduPilot re-reports a
+    MAVLink rangefinder) and its own reading of the others toward the ground."""
     slot = AttackSlot(1, height)
     assert slot.offer(parse_profile(FEED, "feed.yaml")).ok
     stages: list = [AttackStage(slot)]
@@ -85,15 +85,16 @@ def fly(height: Scenario, secure: SecureConfig | None, seconds: float = 12.0) ->
     start_s = time.monotonic()  # the profile's activation clock started at install
     for k in range(int(seconds * 10)):
         t_s, ms = start_s + k * 0.1, 1000 + k * 100
-        for sid in range(3):
+        for sid in fed:
             cm = round((TRUE_M + rng.gauss(0.0, NOISE_M)) * 100)
             send(companion, mavlink.MAVLink_distance_sensor_message(ms, 20, 4000, cm, 0, sid, 25, 0),
                  Direction.UPLINK, t_s + 0.001 * sid)  # fmt: skip
         send(vehicle, mavlink.MAVLink_attitude_message(ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0), Direction.DOWNLINK, t_s)
         send(vehicle, mavlink.MAVLink_local_position_ned_message(ms, 0.0, 0.0, -TRUE_M, 0.0, 0.0, 0.0),
              Direction.DOWNLINK, t_s + 0.002)  # fmt: skip
-        for sid in range(3):  # what the autopilot reports of what it got (here: a fixed 5.00 m)
-            send(vehicle, mavlink.MAVLink_distance_sensor_message(ms, 20, 4000, 500, 0, sid, 25, 0),
+        for sid in range(3):  # the echo of what the autopilot got (a fixed 5.00 m), or its own sensor's reading
+            cm = 500 if sid in fed else round((TRUE_M + rng.gauss(0.0, NOISE_M)) * 100)
+            send(vehicle, mavlink.MAVLink_distance_sensor_message(ms, 20, 4000, cm, 0, sid, 25, 0),
                  Direction.DOWNLINK, t_s + 0.003)  # fmt: skip
     return run
 
@@ -139,6 +140,20 @@ def test_on_the_downlink_as_before_the_fed_lie_passes_to_the_autopilot(height: S
     honest_in = [raw for k, raw in enumerate(run.up_in) if k % 3 != 1]
     honest_out = [raw for k, raw in enumerate(run.up_out) if k % 3 != 1]
     assert honest_out == honest_in
+
+
+def test_on_both_a_group_split_between_directions_is_read_and_rewritten_both_ways(height: Scenario) -> None:
+    """Two rangefinders a companion feeds (id 1 biased on its way), one the vehicle has itself (id 2): one group,
+    and the secure distance goes both to the autopilot and to the ground."""
+    run = fly(height, SecureConfig(estimator="secekf", executor="inline", direction="both"), fed=(0, 1))
+    mav = mavlink.MAVLink(None)
+    up = [mav.parse_char(bytearray(raw)) for raw in run.up_out[40:]]
+    down = [m for raw in run.down_out[100:] if (m := mav.parse_char(bytearray(raw))).get_type() == "DISTANCE_SENSOR"]
+    assert {m.id for m in up} == {0, 1} and {m.id for m in down} == {0, 1, 2}
+    for m in up + down:  # the autopilot and the ground get the secure distance, within the noise
+        assert abs(m.current_distance / 100.0 - TRUE_M) < 4 * NOISE_M + 0.01, (m.id, m.current_distance)
+    assert all(m.signal_quality == FLAGGED_QUALITY for m in up if m.id == 1)
+    assert run.up_out != run.up_in and run.down_out != run.down_in  # both ways rewritten
 
 
 def test_the_direction_is_checked_like_every_other_field() -> None:

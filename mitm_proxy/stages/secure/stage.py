@@ -44,9 +44,11 @@ the stage reads and rewrites what the vehicle sends (downlink), shielding the
 ground. With ``uplink`` it reads the group's readings from the frames travelling
 to the vehicle (a companion's MAVLink rangefinders, UWB ranges fed to the
 autopilot) and substitutes the secure estimate in those frames, so the
-autopilot's own estimator receives it; ``both`` does both (for a group whose
-sensors travel different ways; a sensor the autopilot echoes under the same id
-would then be read twice, so prefer ``uplink`` for fed sensors). The vehicle's
+autopilot's own estimator receives it; ``both`` does both, for a group whose
+sensors travel different ways (some fed to the autopilot, some its own): a
+DISTANCE_SENSOR id once seen travelling to the vehicle is read from the uplink
+only, its downlink frames being the autopilot's echo of what it was given
+(rewritten, so the ground sees the secure value too, never read). The vehicle's
 own state (ATTITUDE for the beams' tilt, LOCAL_POSITION_NED's velocity and
 height, HOME_POSITION) is read from the downlink whatever the direction, and
 downlink frames are never changed unless the direction includes it. On the
@@ -142,6 +144,7 @@ class SecureStage:
         self.signed_warning: str | None = None
         self.counters = Counters()
         self._directions: frozenset[Direction] = _DIRECTIONS["downlink"]
+        self._fed: set[int] = set()  # DISTANCE_SENSOR ids seen travelling to the vehicle (direction both)
         self.substitution = Substitution(sysid, self.peers, HomeTracker(scenario.world.home), self.counters)
         self.reconfigure(config, source)
 
@@ -168,7 +171,7 @@ class SecureStage:
         self.check, self.signed_warning = LayoutCheck(layout), None
         self.substitution.reset()
         self.config, self.layout, self._stepper = config, layout, stepper
-        self._directions = _DIRECTIONS[config.direction]
+        self._directions, self._fed = _DIRECTIONS[config.direction], set()
         self._ids = layout.message_ids
         if old is not None:
             old.close()
@@ -213,9 +216,13 @@ class SecureStage:
             readings.take_attitude(fields, now_s)
             return [pkt]
         if msgid == DISTANCE_SENSOR:
-            self._check_layout(fields, now_s)
-            if readings.take_range(layout, fields, now_s):
-                self.counters.readings += 1
+            sid = fields.get("id")
+            if not downlink:
+                self._fed.add(sid)  # type: ignore[arg-type]  # a uint8: at most 256 ids
+            if not (downlink and sid in self._fed):  # on both, the autopilot's echo of a fed id is not a reading
+                self._check_layout(fields, now_s)
+                if readings.take_range(layout, fields, now_s):
+                    self.counters.readings += 1
         elif msgid == LOCAL_POSITION_NED and layout.height_sensor_id is None:
             z = fields.get("z")
             if isinstance(z, float) and math.isfinite(z):
