@@ -78,6 +78,7 @@ class AttackSlot(Switch[AttackState]):
         self._sent: set[str] = set()  # message names the vehicle was seen sending (the true-copy carriers)
         self._watch: TrueCopyWatch | None = None
         self._ids: frozenset[int] = frozenset()  # the engine's message ids and the watched carriers'
+        self._directions: tuple[str, ...] = ()  # of the engine's profile, kept with it as the hash is
         self.on_install: list[Callable[[AttackSlot], None]] = []  # told after each install or clear (the recorder)
         # False while the proxy is built (its log says warnings only then): it calls say_notes() once it runs
         self.announce = True
@@ -103,7 +104,7 @@ class AttackSlot(Switch[AttackState]):
     @property
     def directions(self) -> list[str]:
         """``downlink`` (toward the ground), ``uplink`` (toward the vehicle): what the active profile changes."""
-        return directions_of(None if self.engine is None else self.engine.profile)
+        return list(self._directions)
 
     def current(self) -> dict[str, Any]:
         profile = None if self.engine is None else self.engine.profile
@@ -189,6 +190,7 @@ class AttackSlot(Switch[AttackState]):
             tell(self)
 
     def _watch_carriers(self, engine: Engine | None) -> None:
+        self._directions = tuple(directions_of(None if engine is None else engine.profile))
         if engine is None:
             self._watch, self._ids = None, frozenset()
             return
