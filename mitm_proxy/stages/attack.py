@@ -49,8 +49,17 @@ class AttackStage:
         return self.slot.message_ids
 
     def signed_untouched(self, header: Header) -> None:
-        """The pipeline left a signed frame the profile targets alone (no key): the slot's state says so."""
-        self.slot.signed_untouched(header.sysid, header.msgid)
+        """The pipeline left a signed frame the profile targets alone (no key): the slot's state says so.
+
+        A watched carrier (a true copy the profile does not target) counts as seen: signed or not, it is on the
+        wire carrying the truth, and it is watched for no longer."""
+        slot = self.slot
+        if header.msgid in slot.watching:  # (the pipeline does not say the direction: carriers are the vehicle's)
+            slot.saw(header.msgid)
+            engine = slot.engine
+            if engine is None or header.msgid not in engine.message_ids:
+                return
+        slot.signed_untouched(header.sysid, header.msgid)
 
     def process(self, pkt: Packet, now_s: float) -> list[Packet]:
         engine = self.slot.engine
