@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING
 
 from attack_profiles.directions import DOWNLINK, UPLINK, rule_directions
 from attack_profiles.quantities import CARRIERS, COMPONENTS, DEFAULT_COMPONENT, NOT_COVERED, Carrier, carriers_of
+from attack_profiles.units import MESSAGES
 from secuav_common.sensor_ids import ANCHOR_BASE
 
 if TYPE_CHECKING:
@@ -97,8 +98,6 @@ def _toward_ground(profile: Profile) -> list[tuple[int, RuleBase]]:
 
 def _fields_hit(rule: RuleBase) -> set[tuple[str, str]]:
     """(message, field) pairs the rule rewrites or drops."""
-    from attack_profiles.units import MESSAGES
-
     t = rule.target
     if t.quantity is not None:
         comp = None if rule.frame_level else t.field or DEFAULT_COMPONENT[t.quantity]
@@ -111,8 +110,6 @@ def _fields_hit(rule: RuleBase) -> set[tuple[str, str]]:
 def findings(profile: Profile) -> list[Finding]:
     """One finding per quantity rule with uncovered carriers, and per (quantity, component) that message rules
     rewrite in some carriers and leave true in others; rules toward the vehicle only are left out."""
-    from attack_profiles.units import MESSAGES
-
     rules = _toward_ground(profile)
     by_field = {(c.message, c.field): c for c in CARRIERS}
     hit: set[tuple[str, str]] = set()
@@ -179,8 +176,6 @@ _REPORTS = {
 
 def vehicle_reports(profile: Profile) -> list[str]:
     """One note per rule toward the vehicle: the autopilot acts on the lie and reports it itself."""
-    from attack_profiles.units import MESSAGES
-
     by_field = {(c.message, c.field): c for c in CARRIERS}
     out: list[str] = []
     for i, rule in enumerate(profile.rules):
