@@ -22,10 +22,12 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 from attack_profiles import library
+from attack_profiles.directions import describe, directions_of
 from attack_profiles.engine import Engine
 from attack_profiles.profile import Profile, profile_schema_text
 from attack_profiles.quantities import true_copies
 from attack_profiles.resolve import parse_params, resolve_profile
+from attack_profiles.true_copy import vehicle_reports
 from secuav_common.controlplane import switches
 from secuav_common.loading import InputError
 from secuav_common.logs import add_common_flags
@@ -58,9 +60,12 @@ def cmd_validate(args: argparse.Namespace) -> int:
         where = f", fits scenario {scenario.name!r}"
     elif not _needs_scenario(profile):
         Engine(profile)  # builds every rule, as the proxy will
-    print(f"ok: {profile.name} ({len(profile.rules)} rules, hash {profile.content_hash()[:12]}{where})")
-    for warning in true_copies(profile):  # valid, but a true copy of the attacked value stays on the wire
+    print(f"ok: {profile.name} ({len(profile.rules)} rules, hash {profile.content_hash()[:12]}{where}; "
+          f"changes frames {describe(directions_of(profile))})")
+    for warning in true_copies(profile):  # valid, but a true copy of the attacked value may stay on the wire
         print(f"warning: {warning}", file=sys.stderr)
+    for note in vehicle_reports(profile):  # toward the vehicle: the autopilot reports the lie itself
+        print(f"note: {note}", file=sys.stderr)
     return 0
 
 

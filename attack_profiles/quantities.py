@@ -38,9 +38,11 @@ A +5 m lie on ArduPilot's downward rangefinder 0, in DISTANCE_SENSOR and RANGEFI
 What still reveals a quantity and is not rewritten is listed below the table. A
 profile that leaves any carrier of an attacked quantity true on the wire (a
 message target with twins, or a quantity with uncovered carriers) is warned
-about when it is validated (``secuav-attack validate``, on stderr) and when it is
-applied (the proxy's log, event ``attack.true_copy``, and ``warnings`` in
-``secuav/v<N>/attack/state``).
+about when it is validated (``secuav-attack validate``, on stderr, as a condition:
+"if the vehicle sends it") and, in the proxy, once the vehicle is seen sending such a
+carrier (the proxy's log, event ``attack.true_copy``, and ``warnings`` in
+``secuav/v<N>/attack/state``). Rules toward the vehicle leave no true twin: the
+autopilot reports the lie it was fed (see Directions, below).
 """
 
 from __future__ import annotations
@@ -164,67 +166,12 @@ def carriers_of(quantity: str, component: str | None = None) -> tuple[Carrier, .
     return tuple(c for c in CARRIERS if c.quantity == quantity and component in (None, c.component))
 
 
-def _carriers_by_field() -> dict[tuple[str, str], Carrier]:
-    return {(c.message, c.field): c for c in CARRIERS}
-
-
 def true_copies(profile: Profile) -> list[str]:
-    """One warning per rule whose attacked quantity still travels true in a message the profile leaves alone."""
-    from attack_profiles.units import MESSAGES
+    """One warning per rule whose attacked quantity may still travel true toward the ground in a message the
+    profile leaves alone, worded for an unknown vehicle (:mod:`attack_profiles.true_copy` says how)."""
+    from attack_profiles.true_copy import true_copies as worded
 
-    by_field = _carriers_by_field()
-    hit: set[tuple[str, str]] = set()  # (message, field) pairs some rule rewrites or drops
-    for rule in profile.rules:
-        t = rule.target
-        if t.quantity is not None:
-            hit |= {(c.message, c.field) for c in carriers_of(t.quantity, None if rule.frame_level else t.field
-                                                               or DEFAULT_COMPONENT[t.quantity])}  # fmt: skip
-        elif rule.frame_level or getattr(rule, "scope", None) == "frame":
-            hit |= {(t.message, f) for f in MESSAGES[t.message].fields}
-        else:
-            hit.add((t.message, t.field or MESSAGES[t.message].default_field or ""))
-    out: list[str] = []
-    groups: dict[tuple[str, str], tuple[list[int], list[str]]] = {}  # (quantity, component) -> rules, messages
-    ids: set[int] | None = set()  # the rangefinder ids the message rules pick (None: some rule picks every id)
-    for i, rule in enumerate(profile.rules):
-        t = rule.target
-        if t.quantity is not None:
-            comps = COMPONENTS[t.quantity] if rule.frame_level else (t.field or DEFAULT_COMPONENT[t.quantity],)
-            left = [name for name, _ in NOT_COVERED[t.quantity]]
-            out.append(f"rules[{i}] ({t.quantity} {'/'.join(c for c in comps if c)}): not rewritten, may still "
-                       f"carry the truth: {'; '.join(left)}")  # fmt: skip
-            continue
-        spec = MESSAGES[t.message]
-        names = list(spec.fields) if rule.frame_level or getattr(rule, "scope", None) == "frame" else [
-            t.field or spec.default_field or ""]  # fmt: skip
-        for name in names:
-            mine = by_field.get((t.message, name))
-            if mine is not None and mine.sensor == "id" and ids is not None:
-                picked = t.sensor_ids()
-                ids = None if picked is None else ids | set(picked)
-            if mine is not None:
-                rules, messages = groups.setdefault((mine.quantity, mine.component), ([], []))
-                if i not in rules:
-                    rules.append(i)
-                if t.message not in messages:
-                    messages.append(t.message)
-    for (q, comp), (rules, messages) in groups.items():
-        left = [_spell(c, ids) for c in carriers_of(q, comp) if (c.message, c.field) not in hit]
-        if left:
-            verb = "still carries" if len(left) == 1 else "still carry"
-            spelled = f"quantity: {q}" + (f", field: {comp}" if DEFAULT_COMPONENT[q] is None else "")
-            out.append(f"rules[{', '.join(map(str, rules))}] rewrite {q} {comp} in {', '.join(messages)}; "
-                       f"{', '.join(left)} {verb} the true value (target {spelled} rewrites them all)")  # fmt: skip
-    return out
-
-
-def _spell(carrier: Carrier, ids: set[int] | None) -> str:
-    """A carrier left true; one that carries only the primary rangefinder says when, if the rules pick no id 0."""
-    name = f"{carrier.message}.{carrier.field}"
-    if carrier.sensor != "primary" or ids is None or 0 in ids:
-        return name
-    picked = ", ".join(map(str, sorted(ids)))
-    return f"{name} (if sensor {picked} is the vehicle's lowest-id downward rangefinder)"
+    return worded(profile)
 
 
 def mapping_table() -> str:

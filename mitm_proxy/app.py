@@ -30,6 +30,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
+from attack_profiles.directions import check_no_uplink, describe
 from attack_profiles.resolve import resolve_profile
 from mavframe.signing import Signer
 from mitm_proxy.config import ProxyConfig
@@ -57,6 +58,8 @@ if TYPE_CHECKING:  # imported when used: numpy/scipy (secure) and MQTT (control)
     from mitm_proxy.stages.secure.stage import SecureSlot
 
 log = logging.getLogger("secuav-proxy")
+# Where the secure stage reads and substitutes, as proxy.ready says it.
+WORDS_ON = {"downlink": "toward the ground", "uplink": "toward the vehicle", "both": "both directions"}
 VEHICLE_TAKEOVER_S = 1.0  # a new vehicle source port is followed after this much silence from the old one
 STOP_BUDGET_S = 0.8  # what the control plane may take to say goodbye
 READINGS_PERIOD_S = 0.1  # secuav/v<N>/readings while a console watches
@@ -84,6 +87,8 @@ class Proxy:
         self.scenario: Scenario | None = load_scenario(config.scenario) if config.scenario else None
         self.signer: Signer | None = Signer.from_file(config.signing_key) if config.signing_key else None
         initial = resolve_profile(config.profile) if config.profile else None  # a file or a library name
+        if initial is not None and config.no_uplink_attacks:  # one line, before any slot logs a refusal
+            check_no_uplink(initial, initial.source)
         sysids = [link.sysid for link in config.links]
         secure: dict[int, SecureSlot] = {}
         if self.scenario is not None:  # the estimators' models come from the scenario
@@ -94,11 +99,12 @@ class Proxy:
             raise InputError("secure", "estimator", config.secure, "the secure stage needs --scenario")
         self.vehicles: dict[int, VehicleParts] = {}
         for sysid in sysids:
-            slot = AttackSlot(sysid, self.scenario, config.seed)
+            slot = AttackSlot(sysid, self.scenario, config.seed, forbid_uplink=config.no_uplink_attacks)
+            slot.announce = False  # the start profile's notes are said once the proxy runs (see __aenter__)
             if initial is not None:
                 state = slot.offer(initial, request_id="--profile")
-                if not state.ok:
-                    raise InputError(str(config.profile), "", None, state.error or "rejected")
+                if not state.ok:  # the error names the file already
+                    raise ValueError(state.error or f"{config.profile}: rejected")
             stage = AttackStage(slot)
             mode = ModeSwitch(sysid, stage)
             mode.set(config.attack == "on", source="--attack")
@@ -114,9 +120,11 @@ class Proxy:
         self._readings_task: asyncio.Task[None] | None = None
 
     def _secure_config(self) -> SecureConfig:
-        """``--secure`` / ``secure:``, checked against the scenario by ``make_slots``."""
+        """``--secure`` / ``secure:`` (and ``--secure-direction``), checked against the scenario by ``make_slots``."""
         cfg = config_from_payload(self.config.secure, "secure")
-        return cfg if cfg.enabled else OFF
+        if self.config.secure_direction is not None:
+            cfg = cfg.model_copy(update={"direction": self.config.secure_direction})
+        return cfg if cfg.enabled else OFF.model_copy(update={"direction": cfg.direction})
 
     @property
     def slots(self) -> dict[int, AttackSlot]:
@@ -149,11 +157,17 @@ class Proxy:
             "links": " ".join(f"v{ln.sysid}:{ln.vehicle.endpoint}->{','.join(str(g.endpoint) for g in ln.grounds)}"
                               for ln in self.links),
             "attack": self.config.attack, "profile": self.slots[self.links[0].sysid].state.profile or "none",
+            "changes": describe(self.slots[self.links[0].sysid].directions),
+            "uplink_attacks": "forbidden" if self.config.no_uplink_attacks else "allowed",
             "secure": next((s.stage.config.estimator for s in self.secure.values() if s.stage.config.estimator), "off")
             if self.secure else "unavailable (no --scenario)",
+            "secure_on": next((WORDS_ON[s.stage.config.direction] for s in self.secure.values()), "-"),
             "broker": redact(self.config.broker), "instance": self.instance, "record": self.config.record or "off",
             "signing": "on" if self.signer else "off",
         })  # fmt: skip
+        for slot in self.slots.values():  # the start profile's notes, now that the log says them
+            slot.announce = True
+            slot.say_notes()
         return self
 
     async def __aexit__(
@@ -179,6 +193,9 @@ class Proxy:
                 recorder = Recorder(Path(self.config.record) / f"v{sysid}", i)
                 self.recorders.append(recorder)
             parts = self.vehicles[sysid]
+            if recorder is not None:  # profiles.json: the profile in force now, then each change
+                _note_profile(recorder, parts.slot)
+                parts.slot.on_install.append(lambda slot, rec=recorder: _note_profile(rec, slot))
             stages: list[Stage] = [parts.stage]  # tap -> attack -> secure -> forward
             if parts.secure is not None:
                 stages.append(parts.secure.stage)
@@ -306,6 +323,12 @@ class Proxy:
             for sysid, snap in self.stats_snapshot().items():
                 line = stats_line(sysid, snap)  # a link whose stages cannot work says so at warning level
                 log.log(logging.WARNING if "warnings" in line else logging.INFO, "proxy.stats", extra=line)
+
+
+def _note_profile(recorder: Recorder, slot: AttackSlot) -> None:
+    """The recording's profiles.json learns the profile in force and which way it changes frames."""
+    engine = slot.engine
+    recorder.profile(None if engine is None else engine.profile.name, slot.state.hash, slot.directions)
 
 
 def stats_line(sysid: int, snap: dict[str, Any]) -> dict[str, Any]:

@@ -67,6 +67,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--attack", choices=("on", "bypass"), help="attack stage active or bypassed (default on)")
     p.add_argument("--secure", metavar="NAME", help="secure estimator, or off (default off); "
                    "`secuav-plugins --estimator NAME` lists its parameters")  # fmt: skip
+    p.add_argument("--secure-direction", choices=("downlink", "uplink", "both"),
+                   help="where the secure stage reads its sensor group and substitutes the estimate: downlink "
+                   "(toward the ground, default), uplink (the frames the autopilot receives) or both")  # fmt: skip
+    p.add_argument("--no-uplink-attacks", action="store_true", default=None,
+                   help="refuse any attack profile with a rule toward the vehicle (direction uplink or both), "
+                   "whichever way it arrives; the previous profile stays")  # fmt: skip
     p.add_argument(
         "--broker",
         metavar="URL",
@@ -83,7 +89,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--instance", metavar="NAME",
                    help="this proxy's name on the broker, unique per broker (default <host>-<pid>)")  # fmt: skip
     p.add_argument(
-        "--record", metavar="DIR", type=Path, help="write DIR/v<sysid>/original.tlog, forwarded.tlog and index.json"
+        "--record", metavar="DIR", type=Path,
+        help="write DIR/v<sysid>/original.tlog, forwarded.tlog, index.json and profiles.json"
     )
     p.add_argument("--signing-key", metavar="F", type=Path, help="MAVLink 2 signing key: verify, re-sign changes")
     p.add_argument("--seed", type=int, help="seed of the attack engine's random primitives (default 0)")
@@ -105,8 +112,9 @@ def build_parser() -> argparse.ArgumentParser:
     return p  # fmt: skip
 
 
-FLAG_KEYS = ("scenario", "vehicles", "profile", "attack", "secure", "broker", "broker_username", "broker_password",
-             "broker_tls_ca", "instance", "record", "signing_key", "seed", "stats_interval_s")  # fmt: skip
+FLAG_KEYS = ("scenario", "vehicles", "profile", "attack", "secure", "secure_direction", "no_uplink_attacks",
+             "broker", "broker_username", "broker_password", "broker_tls_ca", "instance", "record", "signing_key",
+             "seed", "stats_interval_s")  # fmt: skip
 
 
 def config_from_args(args: argparse.Namespace) -> ProxyConfig:

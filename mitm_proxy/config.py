@@ -125,6 +125,13 @@ class ProxyConfig(_Strict):
     record: Path | None = None
     signing_key: Path | None = None
     secure: str | dict[str, Any] = SECURE_OFF  # an estimator name, off, or SecureConfig fields (needs scenario)
+    secure_direction: Literal["downlink", "uplink", "both"] | None = Field(
+        None, description="where the secure stage reads its sensor group and substitutes: downlink (toward the "
+        "ground, the default), uplink (toward the vehicle) or both; overrides secure's own direction",
+    )
+    no_uplink_attacks: bool = Field(
+        False, description="refuse any attack profile with a rule toward the vehicle (direction uplink or both)"
+    )
     broker: str = "embedded"  # embedded | none | mqtt://[user:pass@]host[:port] | mqtts://...
     broker_username: str | None = None
     broker_password: str | None = None

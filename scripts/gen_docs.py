@@ -192,7 +192,7 @@ def _error_examples() -> str:
 
 
 def outputs() -> dict[str, str]:
-    from attack_profiles import dialect, engine, quantities, where
+    from attack_profiles import dialect, directions, engine, quantities, where
     from attack_profiles.profile import Profile, profile_schema_text
     from mitm_proxy.config import ProxyConfig
     from mitm_proxy.net import rules as routes
@@ -207,6 +207,7 @@ def outputs() -> dict[str, str]:
         "(schema/scenario.schema.json).\n\n" + field_table(Scenario, "Scenario"),
         "profile.md": HEADER + "# Attack profiles\n\nSchema: [schema/profile.schema.json](schema/profile.schema.json) "
         "(also `secuav-attack schema`).\n\n## The library\n\n" + library_doc()
+        + "\n## Directions\n\n" + _doc_text(directions.__doc__.split("\n", 1)[1])
         + "\n## Targets by quantity\n\n" + _doc_text(quantities.__doc__) + "\n" + quantities.mapping_table()
         + "\n## Any message, any field\n\n" + _doc_text(dialect.__doc__) + "\n" + _error_examples()
         + "\nUnits converted to a physical unit (any other stays in wire units):\n\n" + dialect.units_table()

@@ -209,7 +209,8 @@ class Fleet:
         return found
 
     def summary(self) -> list[dict[str, Any]]:
-        """One row per vehicle: online, profile, mode, estimator, rates, counters, latency, the warnings of
+        """One row per vehicle: online, profile and the directions it changes, mode, estimator and the direction it
+        sits on, rates, counters, latency, the warnings of
         the attack and secure states (what keeps them from working, e.g. a signed stream and no key), and
         ``switches``: the latest state of every declared vehicle switch by kind (None until one arrived),
         so a switch added in its own module shows without this code naming it."""
@@ -233,6 +234,8 @@ class Fleet:
                 "instances": owners.get(sysid, []),
                 "online": bool(owners.get(sysid)) and fresh,
                 "profile": attack.get("profile"), "hash": attack.get("hash"), "since": attack.get("since"),
+                "directions": _strings(attack.get("directions")),  # downlink: toward the ground; uplink: the vehicle
+                "secure_direction": secure.get("direction") if isinstance(secure.get("direction"), str) else None,
                 "attack_ok": attack.get("ok", True), "attack_error": attack.get("error"),
                 "mode": mode,
                 "secure": secure.get("estimator"), "secure_available": secure.get("available", True) is not False,
@@ -248,6 +251,11 @@ class Fleet:
                 "switches": {kind: view.states.get(f"{kind}/state") for kind in kinds},
             })  # fmt: skip
         return rows
+
+
+def _strings(value: Any) -> list[str]:
+    """A list of strings from a state (an older proxy sends none: empty)."""
+    return [v for v in value if isinstance(v, str)] if isinstance(value, list) else []
 
 
 def _warnings(*states: dict[str, Any]) -> list[str]:

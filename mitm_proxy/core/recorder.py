@@ -11,7 +11,13 @@ injected, delayed or dropped: ``{"index": n, "original": k, "msgid": m,
 "dropped": bool, "delay_s": d, "notes": [...]}``. ``index`` counts frames in
 forwarded.tlog from 0 (``null`` for a dropped frame), ``original`` counts frames
 in original.tlog (``null`` for an injected one), and ``notes`` name the rules
-that acted (``attack:<profile>:rules[<i>]``). It is written as frames go
+that acted (``attack:<profile>:rules[<i>]``). ``DIR/profiles.json`` is a JSON array,
+one object per attack profile installed or cleared on the link while recording
+(the one in force at the start first): ``{"t": epoch s, "original": k,
+"profile": name|null, "hash": h|null, "directions": ["downlink", "uplink"]}``, where
+``original`` is the number of frames original.tlog held then (the profile acts from
+that frame on) and ``directions`` says which way it changes frames (downlink:
+toward the ground, uplink: toward the vehicle). Both are written as frames go
 (memory stays flat on long runs) and closed by :meth:`Recorder.close`; all
 files are flushed at least every second.
 
@@ -41,7 +47,7 @@ __all__ = ["Recorder"]
 
 log = logging.getLogger(__name__)
 QUEUE_CHUNKS = 20_000  # about a few seconds of a busy link; beyond that the recording, not the link, loses
-_ORIGINAL, _FORWARDED, _INDEX = 0, 1, 2
+_ORIGINAL, _FORWARDED, _INDEX, _PROFILES = 0, 1, 2, 3
 _FLUSH, _STOP = -1, -2
 
 
@@ -54,6 +60,7 @@ class Recorder:
         self._clock = wall_clock
         self._queue: queue.Queue[tuple[int, bytes]] = queue.Queue(QUEUE_CHUNKS)
         self._n_index = 0
+        self._n_profiles = 0
         self.original_count = 0
         self.forwarded_count = 0
         self._first = 0  # original.tlog index of the first frame of the datagram in flight
@@ -65,7 +72,7 @@ class Recorder:
         self._writer: threading.Thread | None = None
         try:  # a directory that cannot be made or written: no recording, one error, the link still forwards
             self.directory.mkdir(parents=True, exist_ok=True)
-            for name in ("original.tlog", "forwarded.tlog", "index.json"):
+            for name in ("original.tlog", "forwarded.tlog", "index.json", "profiles.json"):
                 self._files.append(open(self.directory / name, "wb"))  # noqa: SIM115 - the writer thread closes them
         except OSError as exc:
             for f in self._files:
@@ -73,6 +80,7 @@ class Recorder:
             self._fail(f"{exc.strerror or exc} ({exc.filename or self.directory})")
             return
         self._put(_INDEX, b"[")
+        self._put(_PROFILES, b"[")
         self._writer = threading.Thread(target=self._write_loop, name=f"recorder-{link}", daemon=True)
         self._writer.start()
 
@@ -162,15 +170,23 @@ class Recorder:
         self._put(_INDEX, (("\n" if self._n_index == 0 else ",\n") + json.dumps(entry)).encode())
         self._n_index += 1
 
+    def profile(self, name: str | None, content_hash: str | None, directions: Sequence[str]) -> None:
+        """The attack profile now in force (None: cleared), from the next frame on: a line in profiles.json."""
+        entry = {"t": round(self._clock(), 6), "original": self.original_count, "profile": name,
+                 "hash": content_hash, "directions": list(directions)}  # fmt: skip
+        self._put(_PROFILES, (("\n" if self._n_profiles == 0 else ",\n") + json.dumps(entry)).encode())
+        self._n_profiles += 1
+
     def flush(self) -> None:
         """Ask the writer to flush every file (it happens on its thread, after what is queued)."""
         self._put(_FLUSH, b"")
 
     def close(self, timeout_s: float = 10.0) -> None:
-        """Finish index.json, write what is queued and close the files; safe to call twice."""
+        """Finish index.json and profiles.json, write what is queued and close the files; safe to call twice."""
         if self.closed:
             return
         self._put(_INDEX, b"\n]\n")
+        self._put(_PROFILES, b"\n]\n")
         self.closed = True
         if self._writer is None:  # it never started (the directory was unusable)
             return

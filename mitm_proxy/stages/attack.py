@@ -10,14 +10,17 @@ engine's :class:`~attack_profiles.action.Action` maps onto the packet:
 - ``delay_s`` -> ``release_s = now + delay_s``.
 
 Every acting rule is noted on the packet as ``attack:<profile>:rules[<i>]`` for the
-recording index. ``active = False`` is the seed's bypass; with no profile in
+recording index. The slot's ``message_ids`` also hold, until each is seen once, the
+messages that may carry a true copy of what the profile attacks
+(:mod:`mitm_proxy.stages.true_copy_watch`): such a frame is told to the slot and
+passes as it came, undecoded. ``active = False`` is the seed's bypass; with no profile in
 the slot the stage is inactive too, so the pipeline skips it for free.
 """
 
 from __future__ import annotations
 
 from mavframe import codec
-from mavframe.packet import Header, Packet
+from mavframe.packet import Direction, Header, Packet
 from mitm_proxy.stages.attack_slot import AttackSlot
 
 __all__ = ["AttackStage"]
@@ -46,14 +49,27 @@ class AttackStage:
         return self.slot.message_ids
 
     def signed_untouched(self, header: Header) -> None:
-        """The pipeline left a signed frame the profile targets alone (no key): the slot's state says so."""
-        self.slot.signed_untouched(header.sysid, header.msgid)
+        """The pipeline left a signed frame the profile targets alone (no key): the slot's state says so.
+
+        A watched carrier (a true copy the profile does not target) counts as seen: signed or not, it is on the
+        wire carrying the truth, and it is watched for no longer."""
+        slot = self.slot
+        if header.msgid in slot.watching:  # (the pipeline does not say the direction: carriers are the vehicle's)
+            slot.saw(header.msgid)
+            engine = slot.engine
+            if engine is None or header.msgid not in engine.message_ids:
+                return
+        slot.signed_untouched(header.sysid, header.msgid)
 
     def process(self, pkt: Packet, now_s: float) -> list[Packet]:
         engine = self.slot.engine
         if engine is None:  # cleared between the pipeline's check and now
             return [pkt]
         h = pkt.header
+        if h.msgid in self.slot.watching and pkt.direction is Direction.DOWNLINK:
+            self.slot.saw(h.msgid)
+            if h.msgid not in engine.message_ids:
+                return [pkt]
         fields = codec.decode(pkt)
         action = engine.process(now_s, h.msgid, fields, pkt.direction, h.sysid, h.compid)
         if action.untouched:

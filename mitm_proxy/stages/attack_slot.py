@@ -14,19 +14,35 @@ When the vehicle signs its frames and the proxy has no key, the pipeline leaves
 the frames the profile targets alone (docs/interfaces.md); the slot then says so
 in its state's ``warnings`` (``attack.signed_no_key``, one per sending system)
 until another profile is installed.
+
+The state names the directions the profile changes (``directions``: ``downlink``,
+toward the ground; ``uplink``, toward the vehicle), and the ``attack.applied`` log
+line says them in words. A slot made with ``forbid_uplink`` (``secuav-proxy
+--no-uplink-attacks``) refuses every profile with a rule toward the vehicle, one
+line naming the rule, whichever door it came through; the previous profile stays.
+
+What the profile leaves true on the wire (:mod:`attack_profiles.true_copy`) is
+warned about once the vehicle is seen sending such a carrier
+(:class:`~mitm_proxy.stages.true_copy_watch.TrueCopyWatch`: ``attack.true_copy``
+in the log and the state); a rule toward the vehicle is noted once at install
+(``attack.vehicle_reports``): the autopilot will report the lie it was fed.
 """
 
 from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 from attack_profiles.control import profile_from_payload
+from attack_profiles.directions import check_no_uplink, describe, directions_of
 from attack_profiles.engine import Engine
 from attack_profiles.profile import Profile
+from attack_profiles.true_copy import findings, vehicle_reports
 from mavframe import codec
 from mitm_proxy.control.switch import Switch, SwitchHost
+from mitm_proxy.stages.true_copy_watch import TrueCopyWatch
 from secuav_common.controlplane.payloads import AttackState
 from secuav_common.controlplane.switches.attack import SPEC
 from secuav_common.controlplane.topics import vehicle_topic
@@ -51,12 +67,21 @@ class AttackSlot(Switch[AttackState]):
 
     spec = SPEC
 
-    def __init__(self, sysid: int, scenario: Scenario | None = None, seed: int = 0) -> None:
+    def __init__(self, sysid: int, scenario: Scenario | None = None, seed: int = 0, *,
+                 forbid_uplink: bool = False) -> None:  # fmt: skip
         super().__init__()
         self.sysid = sysid
         self.scenario = scenario
         self.seed = seed
+        self.forbid_uplink = forbid_uplink
         self.engine: Engine | None = None
+        self._sent: set[str] = set()  # message names the vehicle was seen sending (the true-copy carriers)
+        self._watch: TrueCopyWatch | None = None
+        self._ids: frozenset[int] = frozenset()  # the engine's message ids and the watched carriers'
+        self._directions: tuple[str, ...] = ()  # of the engine's profile, kept with it as the hash is
+        self.on_install: list[Callable[[AttackSlot], None]] = []  # told after each install or clear (the recorder)
+        # False while the proxy is built (its log says warnings only then): it calls say_notes() once it runs
+        self.announce = True
         self._hash: str | None = None  # of the engine's profile, kept with it (states are built 5 times a second)
         self._since: float | None = None
         self._signed: dict[int, int] = {}  # sysid -> the first message id left alone for want of a key
@@ -68,18 +93,47 @@ class AttackSlot(Switch[AttackState]):
 
     @property
     def message_ids(self) -> frozenset[int]:
-        return self.engine.message_ids if self.engine is not None else frozenset()
+        """What the attack stage wants: the profile's messages, and the true-copy carriers not yet seen."""
+        return self._ids
+
+    @property
+    def watching(self) -> frozenset[int]:
+        """Carrier message ids still to be seen from the vehicle (see :class:`TrueCopyWatch`)."""
+        return frozenset() if self._watch is None else self._watch.message_ids
+
+    @property
+    def directions(self) -> list[str]:
+        """``downlink`` (toward the ground), ``uplink`` (toward the vehicle): what the active profile changes."""
+        return list(self._directions)
 
     def current(self) -> dict[str, Any]:
         profile = None if self.engine is None else self.engine.profile
         return {"sysid": self.sysid, "profile": None if profile is None else profile.name,
-                "hash": self._hash, "since": self._since, "warnings": self.warnings}  # fmt: skip
+                "hash": self._hash, "since": self._since, "directions": self.directions,
+                "warnings": self.warnings}  # fmt: skip
+
+    def _log_fields(self) -> dict[str, Any]:
+        """``attack.applied``/``rejected`` say what is in force and which way it changes frames."""
+        if self.engine is None:
+            return {"sysid": self.sysid, "profile": "none"}
+        return {"sysid": self.sysid, "profile": self.engine.profile.name, "directions": ",".join(self.directions),
+                "changes": describe(self.directions)}  # fmt: skip
 
     @property
     def warnings(self) -> list[str]:
         """What keeps the active profile from acting, as ``"code: text"`` (empty while nothing does)."""
         signed = [signed_no_key(sysid, msgid) for sysid, msgid in sorted(self._signed.items())]
-        return signed + [f"attack.true_copy: {w}" for w in (() if self.engine is None else self.engine.warnings)]
+        return signed + [f"attack.true_copy: {w}" for w in (() if self._watch is None else self._watch.warnings)]
+
+    def saw(self, msgid: int) -> None:
+        """The vehicle sent a frame of ``msgid`` toward the ground that the watch waited for."""
+        watch, engine = self._watch, self.engine
+        if watch is None or engine is None:
+            return
+        for warning in watch.see(msgid):
+            log.warning("attack.true_copy", extra={"sysid": self.sysid, "profile": engine.profile.name,
+                                                   "warning": warning})  # fmt: skip
+        self._ids = engine.message_ids | watch.message_ids
 
     def signed_untouched(self, sysid: int, msgid: int) -> None:
         """A signed frame of ``sysid`` the profile targets passed unchanged: the proxy has no signing key."""
@@ -92,6 +146,7 @@ class AttackSlot(Switch[AttackState]):
         if isinstance(payload, Engine) or payload is None:
             return payload
         profile = payload if isinstance(payload, Profile) else profile_from_payload(payload, source)
+        self._allowed(profile, source)  # refused off the loop, before the engine is built
         return None if profile is None else _Built(Engine(profile, self.seed, self.scenario), profile.content_hash())
 
     def apply(self, payload: Any, source: str) -> None:
@@ -99,6 +154,7 @@ class AttackSlot(Switch[AttackState]):
         or what :meth:`prepare` made of a request."""
         if isinstance(payload, _Built):
             engine: Engine | None = payload.engine
+            self._allowed(payload.engine.profile, source)
             payload.engine.activate(time.monotonic(), rebuild=False)  # built off the loop: only the clock starts
             self.engine, self._hash, self._since = engine, payload.hash, time.time()
             self._signed = {}
@@ -106,9 +162,11 @@ class AttackSlot(Switch[AttackState]):
             return
         if isinstance(payload, Engine):
             engine = payload  # built and started by the caller (secuav-record shares one clock)
+            self._allowed(engine.profile, source)
         else:
             profile = payload if isinstance(payload, Profile) or payload is None else profile_from_payload(
                 payload, source)  # fmt: skip
+            self._allowed(profile, source)
             engine = None if profile is None else Engine(profile, self.seed, self.scenario)
             if engine is not None:
                 engine.activate(time.monotonic())
@@ -118,11 +176,38 @@ class AttackSlot(Switch[AttackState]):
         self._signed = {}  # the new profile may target what is not signed; the next frames tell
         self._warn(engine)
 
+    def _allowed(self, profile: Profile | None, source: str) -> None:
+        """Every door (MQTT, the file reload, ``--profile``, an engine) passes here: with ``forbid_uplink`` a rule
+        toward the vehicle is refused (``InputError`` naming it) before anything is installed."""
+        if profile is not None and self.forbid_uplink:
+            check_no_uplink(profile, source if profile.source == "<profile>" else profile.source)  # the file
+
     def _warn(self, engine: Engine | None) -> None:
-        """Say once per install what the profile leaves true on the wire (the state carries it too)."""
-        for warning in () if engine is None else engine.warnings:
+        """Watch for the carriers the profile leaves true; say at once those the vehicle was already seen
+        sending, and note once that rules toward the vehicle will be reported by it."""
+        self._watch_carriers(engine)
+        for tell in self.on_install:
+            tell(self)
+
+    def _watch_carriers(self, engine: Engine | None) -> None:
+        self._directions = tuple(directions_of(None if engine is None else engine.profile))
+        if engine is None:
+            self._watch, self._ids = None, frozenset()
+            return
+        watch = self._watch = TrueCopyWatch(findings(engine.profile), self._sent)
+        self._ids = engine.message_ids | watch.message_ids
+        for warning in watch.warnings:
             log.warning("attack.true_copy", extra={"sysid": self.sysid, "profile": engine.profile.name,
                                                    "warning": warning})  # fmt: skip
+        if self.announce:
+            self.say_notes()
+
+    def say_notes(self) -> None:
+        """Say once per install that the autopilot will report what rules toward the vehicle feed it."""
+        engine = self.engine
+        for note in () if engine is None else vehicle_reports(engine.profile):
+            log.info("attack.vehicle_reports", extra={"sysid": self.sysid, "profile": engine.profile.name,
+                                                      "note": note})  # fmt: skip
 
     def offer(self, profile: Profile | None, request_id: str | None = None, source: str = "<profile>") -> AttackState:
         """Install ``profile`` (``None`` clears); on ``InputError`` keep the old one and report it."""

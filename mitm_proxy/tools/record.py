@@ -22,7 +22,12 @@ not a parked vehicle. (Those two commands are not written to the log.)
 
 Stops on SIGINT/SIGTERM, after ``--duration`` seconds, or ``--idle-stop``
 seconds after the last datagram (the simulator finished). Prints one summary
-line (frames in, written, rewritten, dropped, delayed).
+line (frames in, written, rewritten, dropped, delayed, and the ``directions`` the
+profile changes: ``downlink`` toward the ground, ``uplink`` toward the vehicle).
+The recorder hears only what the vehicle sends: a rule toward the vehicle changes
+nothing here, and the recorder says so at start. What the proxy would warn about
+(``attack.true_copy``, once the vehicle sends a message that keeps the attacked
+value true) is logged as the proxy logs it, on stderr.
 """
 
 from __future__ import annotations
@@ -44,6 +49,7 @@ from typing import IO
 from pymavlink.dialects.v20 import common as mavlink
 
 from attack_profiles import Engine
+from attack_profiles.directions import UPLINK, directions_of, rule_directions
 from attack_profiles.profile import Profile
 from attack_profiles.resolve import parse_params, resolve_profile
 from mavframe import codec, tlog
@@ -54,7 +60,7 @@ from mitm_proxy.core.stats import LinkStats
 from mitm_proxy.stages.attack import AttackStage
 from mitm_proxy.stages.attack_slot import AttackSlot
 from secuav_common.loading import InputError
-from secuav_common.logs import add_common_flags
+from secuav_common.logs import add_common_flags, setup_logging
 from secuav_common.scenario import load_scenario, resolve_scenario_path
 from secuav_common.urls import Endpoint, parse_endpoint
 
@@ -273,6 +279,12 @@ def main(argv: list[str] | None = None) -> int:
             except ValueError as err:
                 raise InputError("--listen", "", url, str(err)) from None
         engine = _engine(args)
+        directions = [] if engine is None else directions_of(engine.profile)
+        if engine is not None and UPLINK in directions:
+            rules = [f"rules[{i}]" for i, r in enumerate(engine.profile.rules) if UPLINK in rule_directions(r)]
+            print(f"record: {', '.join(rules)} of {engine.profile.name} change frames toward the vehicle; the "
+                  "recorder hears only what the vehicle sends, so they change nothing here", file=sys.stderr)
+        setup_logging(0, True, noisy=())  # the attack stage's warnings as the proxy writes them, not bare names
         counts = asyncio.run(record(listen, args.out, engine, args.duration, args.idle_stop, takeoff=args.takeoff))
     except InputError as err:
         print(f"record: {err}", file=sys.stderr)
@@ -281,7 +293,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"record: {err}", file=sys.stderr)
         return 1
     if not args.quiet:
-        print(json.dumps({"out": str(args.out), **counts.__dict__}))
+        print(json.dumps({"out": str(args.out), **counts.__dict__, "directions": directions}))
     return 0
 
 

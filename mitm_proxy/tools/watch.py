@@ -60,6 +60,17 @@ def state_cell(state: Any) -> str:
     return text
 
 
+def _profile_cell(attack: dict[str, Any]) -> str:
+    """The profile's name; marked when it changes frames toward the vehicle (the default is toward the ground)."""
+    name = attack.get("profile")
+    if not name:
+        return "none"
+    directions = attack.get("directions")
+    if not isinstance(directions, list) or "uplink" not in directions:
+        return str(name)
+    return f"{name} ({'both ways' if 'downlink' in directions else 'to vehicle'})"
+
+
 def _plain(value: Any) -> str:
     return "-" if value is None else value if isinstance(value, str) else json.dumps(value, separators=(",", ":"))
 
@@ -97,7 +108,7 @@ def table(board: Board, rates: Rates, now_s: float) -> list[str]:
         secure = board.latest.get(vehicle_topic(sysid, "secure/state")) or {}
         stats = board.latest.get(vehicle_topic(sysid, "stats"))
         arrived = board.arrivals.get(vehicle_topic(sysid, "stats"))
-        cells = [f"v{sysid}", ",".join(owners.get(sysid, ["?"])), attack.get("profile") or "none", mode,
+        cells = [f"v{sysid}", ",".join(owners.get(sysid, ["?"])), _profile_cell(attack), mode,
                  "n/a" if secure.get("available") is False else (secure.get("estimator") or "off")]  # fmt: skip
         cells += [state_cell(board.latest.get(vehicle_topic(sysid, f"{kind}/state"))) for kind in others]
         if isinstance(stats, dict) and arrived is not None:

@@ -67,6 +67,8 @@ class AttackState(_Payload):
     profile: str | None = None  # active profile name; None when no profile is active
     hash: str | None = None
     since: float | None = None  # wall-clock time (epoch s) the active profile was installed
+    # Which way its rules change frames: "downlink" (toward the ground), "uplink" (toward the vehicle)
+    directions: list[str] = []
     # What keeps the profile from acting fully, as "code: text": signed frames and no key
     # (attack.signed_no_key), carriers of an attacked quantity it leaves true (attack.true_copy)
     warnings: list[str] = []
@@ -94,6 +96,7 @@ class SecureState(_Payload):
     estimator: str | None = None
     params: dict[str, Any] = {}
     group: str | None = None
+    direction: str | None = None  # where the stage reads its group and substitutes: downlink, uplink or both
     request_id: str | None = None
     error: str | None = None
     since: float | None = None

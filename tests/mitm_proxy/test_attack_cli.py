@@ -14,13 +14,15 @@ import pytest
 
 from attack_profiles import library
 from attack_profiles.profile import load_profile
-from mavframe.packet import Header
+from mavframe.frames import split
+from mavframe.packet import Direction, Header, Packet
 from mitm_proxy.control.plane import ControlPlane
 from mitm_proxy.control.switches import vehicle_controls
 from mitm_proxy.stages.attack import AttackStage
 from mitm_proxy.stages.attack_slot import AttackSlot
 from mitm_proxy.tools import attack_cli
 from secuav_common.broker import EmbeddedBroker
+from tests.mavframe.frames_support import mavlink, pack
 
 pytestmark = pytest.mark.timeout(60)
 REPO = Path(__file__).resolve().parents[2]
@@ -68,7 +70,7 @@ async def test_apply_a_library_profile_to_one_vehicle(bench: Bench, capsys: pyte
     code, out, err = await cli(capsys, "apply", "wall-spoof", "--vehicle", "1", "--broker", bench.url)
     expected = library.load("wall-spoof")
     assert code == 0, err
-    assert out == f"ok: v1 wall-spoof (hash {expected.content_hash()[:12]})\n"
+    assert out == f"ok: v1 wall-spoof (hash {expected.content_hash()[:12]}), changing frames toward the ground\n"
     assert bench.slots[1].state.hash == expected.content_hash() and bench.slots[1].engine is not None
     assert bench.slots[2].engine is None
 
@@ -81,7 +83,8 @@ async def test_apply_a_file_with_parameters_to_every_vehicle(
     code, out, err = await cli(capsys, "apply", str(path), "--param", "rate_per_s=0.5", "--broker", bench.url)
     expected = load_profile(path, rate_per_s=0.5)
     assert code == 0, err
-    assert sorted(out.splitlines()) == [f"ok: v{n} wall-spoof (hash {expected.content_hash()[:12]})" for n in (1, 2)]
+    want = f"wall-spoof (hash {expected.content_hash()[:12]}), changing frames toward the ground"
+    assert sorted(out.splitlines()) == [f"ok: v{n} {want}" for n in (1, 2)]
     assert all(slot.state.hash == expected.content_hash() for slot in bench.slots.values())
 
 
@@ -193,8 +196,13 @@ async def test_status_prints_the_warning_of_an_attack_that_cannot_act(
     code, out, _ = await cli(capsys, "status", "--vehicle", "1", "--broker", bench.url)
     warned = [line for line in out.splitlines() if line.startswith("v1: warning: attack.signed_no_key")]
     assert code == 0 and len(warned) == 1, out
-    # distance-stuck rewrites DISTANCE_SENSOR only: the state also says RANGEFINDER stays true (its own warning)
-    assert "v1: warning: attack.true_copy: rules[0]" in out
+    # distance-stuck rewrites DISTANCE_SENSOR only; RANGEFINDER, which would stay true, is not sent yet: no warning
+    assert "attack.true_copy" not in out and "changing frames toward the ground" in out, out
+    ((header, raw),) = split(pack(mavlink.MAVLink_rangefinder_message(4.2, 1.1))).frames  # ArduPilot's twin arrives
+    bench.stages[1].process(Packet(raw, header, Direction.DOWNLINK, 0, 0.0), 0.0)
+    await asyncio.sleep(0.5)
+    code, out, _ = await cli(capsys, "status", "--vehicle", "1", "--broker", bench.url)
+    assert "v1: warning: attack.true_copy: rules[0]" in out and "RANGEFINDER.distance still carries" in out, out
     assert "attack.signed_no_key: system 1 signs its frames (DISTANCE_SENSOR among them)" in warned[0]
     assert "--signing-key" in warned[0]
     assert (await cli(capsys, "apply", "distance-stuck", "--vehicle", "1", "--broker", bench.url))[0] == 0

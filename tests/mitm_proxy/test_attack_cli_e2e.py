@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -20,6 +21,7 @@ from test_control_support import Mosquitto, needs_mosquitto
 
 from attack_profiles import library
 from attack_profiles.profile import load_profile
+from tests.mavframe.frames_support import mavlink, pack
 
 pytestmark = [
     pytest.mark.timeout(120),
@@ -52,8 +54,8 @@ def wait_until(check: Callable[[], bool], timeout_s: float = 15.0) -> None:
 @pytest.fixture
 def stack(
     tmp_path: Path, tcp_port: Callable[[], int], udp_port: Callable[[], int]
-) -> Iterator[tuple[str, Path, subprocess.Popen[bytes]]]:
-    port = tcp_port()
+) -> Iterator[tuple[str, Path, subprocess.Popen[bytes], int]]:
+    port, vehicle = tcp_port(), udp_port()
     profile = tmp_path / "attack.yaml"
     profile.write_text(library.text("wall-spoof"), encoding="utf-8")
     broker = f"mqtt://127.0.0.1:{port}"
@@ -61,12 +63,12 @@ def stack(
         log = (tmp_path / "proxy.log").open("wb")
         proxy = subprocess.Popen(
             [sys.executable, "-m", "mitm_proxy", "--broker", broker, "--profile", str(profile),
-             "--vehicle", f"udpin://127.0.0.1:{udp_port()}", "--ground", f"udpout://127.0.0.1:{udp_port()}"],
+             "--vehicle", f"udpin://127.0.0.1:{vehicle}", "--ground", f"udpout://127.0.0.1:{udp_port()}"],
             cwd=REPO, stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"},
         )  # fmt: skip
         try:
             wait_until(lambda: attack("status", "--timeout", "1", "--broker", broker).returncode == 0)
-            yield broker, profile, proxy
+            yield broker, profile, proxy, vehicle
         finally:
             if proxy.poll() is None:
                 proxy.send_signal(signal.SIGTERM)
@@ -77,14 +79,22 @@ def stack(
             log.close()
 
 
-def test_apply_edit_clear_and_stop_against_the_real_daemon(stack: tuple[str, Path, subprocess.Popen[bytes]]) -> None:
-    broker, profile, proxy = stack
+def test_apply_edit_clear_and_stop_against_the_real_daemon(
+    stack: tuple[str, Path, subprocess.Popen[bytes], int],
+) -> None:
+    broker, profile, proxy, vehicle = stack
     first = status(broker)
     assert first["online"] is True
     v1 = first["vehicles"]["v1"]  # type: ignore[index]
     assert v1["attack/state"]["profile"] == "wall-spoof" and v1["attack/state"]["request_id"] == "--profile"
-    # wall-spoof targets DISTANCE_SENSOR only: ArduPilot's RANGEFINDER would keep the truth, and the state says so
-    assert any("RANGEFINDER.distance" in w for w in v1["attack/state"]["warnings"])
+    assert v1["attack/state"]["directions"] == ["downlink"]
+    # wall-spoof targets DISTANCE_SENSOR only: ArduPilot's RANGEFINDER would keep the truth, but no vehicle sent
+    # one yet, so nothing is said; once the vehicle sends one, the state says so
+    assert v1["attack/state"]["warnings"] == []
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.sendto(pack(mavlink.MAVLink_rangefinder_message(4.2, 1.1)), ("127.0.0.1", vehicle))
+    wait_until(lambda: any("RANGEFINDER.distance" in w for w in
+                           status(broker)["vehicles"]["v1"]["attack/state"]["warnings"]))  # type: ignore[index]
 
     done = attack("apply", "distance-stuck", "--broker", broker)
     assert done.returncode == 0 and done.stdout.startswith("ok: v1 distance-stuck (hash "), done.stderr

@@ -52,7 +52,8 @@ def test_inactive_without_a_profile_and_when_bypassed() -> None:
     stage = AttackStage(slot)
     assert stage.name == "attack" and not stage.active and stage.message_ids == frozenset()
     slot.offer(prof(ds("bias", offset_m=1.0)))
-    assert stage.active and stage.message_ids == frozenset({DISTANCE_SENSOR})
+    # the profile's message, and ArduPilot's RANGEFINDER (173) until the vehicle is seen sending one or not
+    assert stage.active and stage.message_ids == frozenset({DISTANCE_SENSOR, 173}) and slot.watching == {173}
     stage.active = False
     assert not stage.active and not stage.enabled
     assert AttackStage(slot, active=False).active is False

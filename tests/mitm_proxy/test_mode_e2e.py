@@ -140,7 +140,11 @@ async def test_secuav_attack_secure_switches_the_estimator(tmp_path: Path, udp_p
                         break
             at = ("--broker", broker, "--timeout", "20")
             code, out = await attack_cli("secure", "secekf", "--param", "alpha=0.001", *at)
-            assert code == 0 and "ok: v1 secure secekf" in out, out
+            assert code == 0 and "ok: v1 secure secekf on the frames toward the ground" in out, out
+            code, out = await attack_cli("secure", "secekf", "--direction", "uplink", *at)  # on what the vehicle gets
+            assert code == 0 and "ok: v1 secure secekf on the frames toward the vehicle" in out, out
+            code, out = await attack_cli("status", *at)
+            assert code == 0 and "v1: secure secekf on the frames toward the vehicle" in out, out
             code, out = await attack_cli("secure", "nosuch", "--broker", broker, "--timeout", "20")
             assert code == 1 and "nosuch" in out, out
             code, out = await attack_cli("secure", "off", "--broker", broker, "--timeout", "20")

@@ -19,7 +19,7 @@ from mitm_proxy.core.pipeline import Pipeline
 from mitm_proxy.core.stats import LinkStats
 from mitm_proxy.stages.attack import AttackStage
 from mitm_proxy.stages.attack_slot import AttackSlot
-from tests.mavframe.frames_support import TEST_KEY, distance, heartbeat, mav, pack, signed_mav
+from tests.mavframe.frames_support import TEST_KEY, distance, heartbeat, mav, mavlink, pack, signed_mav
 from tests.mavframe.test_signing import read_strict
 
 DOWN = Direction.DOWNLINK
@@ -135,3 +135,22 @@ def test_with_a_key_injected_frames_are_signed_unless_they_cannot_be() -> None:
 def _signing(warnings: list[str]) -> list[str]:
     """The signing warnings among a state's (a DISTANCE_SENSOR profile also says RANGEFINDER stays true)."""
     return [w for w in warnings if w.startswith("attack.signed_no_key")]
+
+
+def test_a_signed_true_copy_is_seen_and_not_taken_for_a_targeted_frame() -> None:
+    """A signed RANGEFINDER beside a DISTANCE_SENSOR profile (no key): the twin is warned about, once, and the
+    signed-frame warning names what the profile targets, not the twin it only watched for."""
+    pipe, stats = attacked_pipeline(None)
+    slot = pipe.stages[0].slot  # type: ignore[attr-defined]
+    m = signed_mav()
+    twin = pack(mavlink.MAVLink_rangefinder_message(5.0, 1.0), m)
+    for _ in range(5):
+        (out,) = pipe.feed(twin, DOWN, time.monotonic())
+        assert out.data == twin
+    assert stats[DOWN].signed_untouched == 1  # the first only: then it is no longer watched
+    assert _signing(slot.state.warnings) == []
+    (copy,) = [w for w in slot.state.warnings if w.startswith("attack.true_copy: ")]
+    assert "RANGEFINDER.distance still carries the true value" in copy
+    pipe.feed(pack(distance(cm=500), m), DOWN, time.monotonic())
+    (signed,) = _signing(slot.state.warnings)
+    assert "(DISTANCE_SENSOR among them)" in signed

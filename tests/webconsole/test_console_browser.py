@@ -151,6 +151,8 @@ async def test_the_page_shows_steers_and_refuses_as_a_user_sees_it(
             driver.find_element(By.ID, "apply-library").click()  # type: ignore[attr-defined]
             ack = driver.find_element(By.ID, "ack")  # type: ignore[attr-defined]
             await _until(lambda: "attack distance-wrong: ok" in ack.text, 10, "the proxy's acknowledgement")
+            title = driver.find_element(By.ID, "vehicle-title")  # type: ignore[attr-defined]
+            await _until(lambda: "changing frames toward the ground" in title.text, 10, "the profile's direction")
             await asyncio.sleep(0.3)
             attacked = await asyncio.to_thread(_sensor0_cm, gcs, 1.0)
             assert attacked and all(700 < v < 800 for v in attacked), attacked  # 5 m * 1.5 on the ground
@@ -185,6 +187,9 @@ async def test_the_page_shows_steers_and_refuses_as_a_user_sees_it(
             assert sets == [], sets
             still = await asyncio.to_thread(_sensor0_cm, gcs, 0.5)
             assert still and all(700 < v < 800 for v in still)  # the applied profile stays
+            # flightsim never sends RANGEFINDER: no true-copy warning on the page (issue 36)
+            box = driver.find_element(By.ID, "vehicle-warnings")  # type: ignore[attr-defined]
+            assert "true_copy" not in (box.get_attribute("textContent") or "") and not box.is_displayed()
 
             # The page draws: a plot per sensor seen, the top view, no errors in the browser's console.
             await _until(lambda: len(driver.find_elements(By.CSS_SELECTOR, "#plots .plot")) >= 1, 10, "plots")  # type: ignore[attr-defined]

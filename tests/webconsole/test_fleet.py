@@ -74,3 +74,15 @@ def test_the_states_warnings_reach_the_vehicle_row_and_clear_with_them() -> None
     assert fleet.summary()[0]["warnings"] == [signed]
     fleet.on_message("secuav/v1/attack/state", {"sysid": 1, "profile": "bias"})  # an older proxy: no field
     assert fleet.summary()[0]["warnings"] == []
+
+
+def test_the_row_says_which_way_the_profile_and_the_secure_stage_act() -> None:
+    fleet = Fleet()
+    fleet.on_message("secuav/proxy/lab/online", {"instance": "lab", "online": True, "vehicles": [1]})
+    fleet.on_message("secuav/v1/stats", {"downlink": {"frames_in": 5}})
+    fleet.on_message("secuav/v1/attack/state", {"sysid": 1, "profile": "bias"})  # an older proxy: no field
+    assert fleet.summary()[0]["directions"] == [] and fleet.summary()[0]["secure_direction"] is None
+    fleet.on_message("secuav/v1/attack/state", {"sysid": 1, "profile": "feed", "directions": ["uplink"]})
+    fleet.on_message("secuav/v1/secure/state", {"sysid": 1, "estimator": "secekf", "direction": "uplink"})
+    row = fleet.summary()[0]
+    assert row["directions"] == ["uplink"] and row["secure_direction"] == "uplink"

@@ -110,16 +110,26 @@ function renderFleet(rows) {
   if (mine) {
     $("mode-now").textContent = mine.mode || "-";
     $("mode-now").className = "badge " + (mine.mode === "bypass" ? "bypass" : "on");
-    $("secure-now").textContent = mine.secure_available ? (mine.secure || "off") : "not available";
+    $("secure-now").textContent = mine.secure_available ? (mine.secure || "off") +
+      (mine.secure && mine.secure_direction ? ` ${SECURE_ON[mine.secure_direction] || ""}` : "") : "not available";
     const since = mine.since ? new Date(mine.since * 1000).toLocaleTimeString() : "";
     $("vehicle-title").textContent = `Vehicle v${mine.sysid}: ` + (mine.profile
-      ? `${mine.profile} (hash ${String(mine.hash).slice(0, 12)}, since ${since})` : "no attack") +
+      ? `${mine.profile} (hash ${String(mine.hash).slice(0, 12)}, since ${since}), changing frames ` +
+        toward(mine.directions || []) : "no attack") +
       (mine.mode === "bypass" ? ", attack stage bypassed" : "") +
       (mine.attack_ok ? "" : ` (last request rejected: ${mine.attack_error})`);
     renderWarnings(mine.warnings || []);
     renderSwitches(mine.switches || {});
   }
   if (state.selected === null && rows.length > 0) select(rows[0].sysid);
+}
+
+// Which way the active profile changes frames (attack/state "directions"), in words.
+const TOWARD = { downlink: "toward the ground", uplink: "toward the vehicle" };
+const SECURE_ON = { downlink: "(toward the ground)", uplink: "(toward the vehicle)", both: "(both directions)" };
+function toward(directions) {
+  const words = ["downlink", "uplink"].filter((d) => directions.includes(d)).map((d) => TOWARD[d]);
+  return words.length ? words.join(" and ") : "nothing";
 }
 
 // What keeps the attack or the secure stage from working (a signed stream and no key, a scenario whose

@@ -35,6 +35,12 @@ class SecureConfig(BaseModel):
     noise_std_m: Annotated[float, Field(gt=0.0)] | None = Field(
         None, description="override the scenario's range noise std for the model"
     )
+    direction: Literal["downlink", "uplink", "both"] = Field(
+        "downlink",
+        description="where the group's readings are read and the estimate substituted: downlink (what the vehicle "
+        "sends, toward the ground), uplink (what the autopilot receives: a companion's rangefinders, UWB ranges) "
+        "or both; the vehicle's ATTITUDE, velocity and home are read from the downlink whichever it is",
+    )
     dims: Literal[2, 3] = Field(
         3,
         description="anchors: 3 = full NED, the downward laser one more reading the estimator weighs; "

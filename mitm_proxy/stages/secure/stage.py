@@ -39,8 +39,25 @@ and the stats) until matching readings arrive; when the vehicle signs its frames
 and the proxy has no key, the pipeline hands the stage nothing and it says
 ``secure.signed_no_key`` the same way.
 
+Direction (``direction`` in the configuration, ``--secure-direction``): by default
+the stage reads and rewrites what the vehicle sends (downlink), shielding the
+ground. With ``uplink`` it reads the group's readings from the frames travelling
+to the vehicle (a companion's MAVLink rangefinders, UWB ranges fed to the
+autopilot) and substitutes the secure estimate in those frames, so the
+autopilot's own estimator receives it; ``both`` does both, for a group whose
+sensors travel different ways (some fed to the autopilot, some its own): a
+DISTANCE_SENSOR id once seen travelling to the vehicle is read from the uplink
+only, its downlink frames being the autopilot's echo of what it was given
+(rewritten, so the ground sees the secure value too, never read). The vehicle's
+own state (ATTITUDE for the beams' tilt, LOCAL_POSITION_NED's velocity and
+height, HOME_POSITION) is read from the downlink whatever the direction, and
+downlink frames are never changed unless the direction includes it. On the
+uplink a frame counts whatever its sysid (a companion may use its own): the
+link's uplink goes to this vehicle.
+
 Until the first estimate exists, frames pass unchanged. Frames of other
-vehicles, of the uplink, and of sensors outside the group pass untouched.
+vehicles, of a direction the stage does not sit on, and of sensors outside the
+group pass untouched.
 :class:`SecureSlot` is the one door for changing the configuration at runtime
 (``secure/set``); a rejected request keeps the running estimator.
 """
@@ -86,6 +103,11 @@ log = logging.getLogger(__name__)
 
 Publish = Callable[[int, dict[str, Any]], None]
 NOTE = "secure"
+_DIRECTIONS = {
+    "downlink": frozenset((Direction.DOWNLINK,)),
+    "uplink": frozenset((Direction.UPLINK,)),
+    "both": frozenset((Direction.DOWNLINK, Direction.UPLINK)),
+}
 
 
 class SecureStage:
@@ -121,6 +143,8 @@ class SecureStage:
         self.check: LayoutCheck | None = None
         self.signed_warning: str | None = None
         self.counters = Counters()
+        self._directions: frozenset[Direction] = _DIRECTIONS["downlink"]
+        self._fed: set[int] = set()  # DISTANCE_SENSOR ids seen travelling to the vehicle (direction both)
         self.substitution = Substitution(sysid, self.peers, HomeTracker(scenario.world.home), self.counters)
         self.reconfigure(config, source)
 
@@ -147,6 +171,7 @@ class SecureStage:
         self.check, self.signed_warning = LayoutCheck(layout), None
         self.substitution.reset()
         self.config, self.layout, self._stepper = config, layout, stepper
+        self._directions, self._fed = _DIRECTIONS[config.direction], set()
         self._ids = layout.message_ids
         if old is not None:
             old.close()
@@ -168,9 +193,16 @@ class SecureStage:
 
     def process(self, pkt: Packet, now_s: float) -> list[Packet]:
         layout, readings = self.layout, self.readings
-        if layout is None or readings is None or pkt.direction is not Direction.DOWNLINK:
+        if layout is None or readings is None:
             return [pkt]
-        if pkt.header.sysid != self.sysid:
+        downlink = pkt.direction is Direction.DOWNLINK
+        mine = pkt.direction in self._directions  # the group is read and rewritten here
+        if not (mine or downlink) or (downlink and pkt.header.sysid != self.sysid):
+            return [pkt]
+        msgid = pkt.header.msgid
+        echo = downlink and not mine and msgid == DISTANCE_SENSOR  # the autopilot's echo of what it was fed
+        told = not downlink and msgid != DISTANCE_SENSOR  # its state is what it says, not what it is told
+        if echo or told:
             return [pkt]
         self.counters.frames_seen += 1
         try:
@@ -178,16 +210,19 @@ class SecureStage:
         except codec.DecodeError:
             self.counters.decode_errors += 1
             return [pkt]
-        msgid = pkt.header.msgid
         if msgid == LOCAL_POSITION_NED:  # the vehicle's own velocity: the filters' motion input, if configured
             readings.take_velocity(fields, now_s)
         elif msgid == ATTITUDE:  # the wall group's beams, projected on the wall's normal (tilt.py)
             readings.take_attitude(fields, now_s)
             return [pkt]
         if msgid == DISTANCE_SENSOR:
-            self._check_layout(fields, now_s)
-            if readings.take_range(layout, fields, now_s):
-                self.counters.readings += 1
+            sid = fields.get("id")
+            if not downlink:
+                self._fed.add(sid)  # type: ignore[arg-type]  # a uint8: at most 256 ids
+            if not (downlink and sid in self._fed):  # on both, the autopilot's echo of a fed id is not a reading
+                self._check_layout(fields, now_s)
+                if readings.take_range(layout, fields, now_s):
+                    self.counters.readings += 1
         elif msgid == LOCAL_POSITION_NED and layout.height_sensor_id is None:
             z = fields.get("z")
             if isinstance(z, float) and math.isfinite(z):
@@ -196,6 +231,14 @@ class SecureStage:
             self.substitution.home.take(fields)
             return [pkt]
         self.poll(now_s)
+        if not mine:  # read for the vehicle's state only: the frame leaves as it came
+            return [pkt]
+        return self._substitute(pkt, fields, msgid, now_s)
+
+    def _substitute(self, pkt: Packet, fields: dict[str, Any], msgid: int, now_s: float) -> list[Packet]:
+        """Rewrite a frame of the stage's direction from the latest finished estimate."""
+        layout, readings = self.layout, self.readings
+        assert layout is not None and readings is not None
         stepper = self._stepper
         res = stepper.latest() if stepper is not None else None
         if res is not None and res.estimate.ok:
@@ -309,7 +352,7 @@ class SecureSlot(Switch[SecureState]):
         cfg = self.stage.config
         group = None if self.stage.layout is None else self.stage.layout.group
         return {"sysid": self.sysid, "estimator": cfg.estimator, "params": dict(cfg.params), "group": group,
-                "since": self._since, "warnings": self.stage.warnings}  # fmt: skip
+                "direction": cfg.direction, "since": self._since, "warnings": self.stage.warnings}  # fmt: skip
 
     def apply(self, payload: Any, source: str) -> None:
         """A :class:`SecureConfig`, or the JSON of ``secure/set``: ``null``/``"off"``, a name, or

@@ -34,15 +34,30 @@ def _apply_request(args: argparse.Namespace) -> dict[str, Any]:
     return body
 
 
+# The wire names of AttackState.directions in words (attack_profiles.directions, which this module must not import).
+_WORDS = {"downlink": "toward the ground", "uplink": "toward the vehicle"}
+
+
+def _toward(directions: Any) -> str:
+    """``toward the ground``, ``toward the vehicle``, both joined, ``nothing``; ``?`` from an older proxy."""
+    if not isinstance(directions, list):
+        return "(directions unknown)"
+    words = [_WORDS[d] for d in _WORDS if d in directions]
+    return " and ".join(words) if words else "nothing"
+
+
 def _done(key: str, state: State, args: argparse.Namespace) -> str:
     if state.get("profile") is None:
         return f"ok: {key} cleared"
-    return f"ok: {key} {state['profile']} (hash {str(state.get('hash'))[:12]})"
+    return (f"ok: {key} {state['profile']} (hash {str(state.get('hash'))[:12]}), "
+            f"changing frames {_toward(state.get('directions'))}")  # fmt: skip
 
 
 def _status(key: str, states: dict[str, State | None]) -> list[str]:
     attack = states.get("attack/state") or {}
     active = f"{attack.get('profile')} (hash {str(attack.get('hash'))[:12]})" if attack.get("profile") else "none"
+    if attack.get("profile"):
+        active += f" changing frames {_toward(attack.get('directions'))}"
     last = "ok" if attack.get("ok") else f"rejected: {attack.get('error')}"
     bypass = " (bypassed)" if (states.get("attack/mode/state") or {}).get("mode") == "bypass" else ""
     return [f"{key}: attack {active}{bypass} since {since_text(attack.get('since'))}; last request {last}"]
