@@ -163,7 +163,7 @@ def _doc_text(doc: str | None) -> str:
 
 
 def outputs() -> dict[str, str]:
-    from attack_profiles import engine, quantities
+    from attack_profiles import engine, frame_ops_doc, quantities
     from attack_profiles.profile import Profile, profile_schema_text
     from mitm_proxy.config import ProxyConfig
     from mitm_proxy.net import rules as routes
@@ -180,6 +180,7 @@ def outputs() -> dict[str, str]:
         "(also `secuav-attack schema`).\n\n## The library\n\n" + library_doc()
         + "\n## Targets by quantity\n\n" + _doc_text(quantities.__doc__) + "\n" + quantities.mapping_table()
         + "\n## No reading stays no reading\n\n" + _doc_text(engine.__doc__.split("No reading: ", 1)[1])
+        + "\n## Frame operations: injection, duplicates, replay, missions, signing\n\n" + _doc_text(frame_ops_doc.GUIDE)
         + "\n## Fields\n\n" + field_table(Profile, "Profile"),
         "study.md": HEADER + "# Study files\n\nSchema: [schema/study.schema.json](schema/study.schema.json) "
         "(also `secuav-study schema`).\n\n" + field_table(Study, "Study"),
