@@ -51,6 +51,7 @@ Offline arrays (``Engine.apply_array``) carry no limits: NaN is their "no readin
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import math
 import random
@@ -68,7 +69,15 @@ from attack_profiles.primitives.base import Vec3
 from attack_profiles.profile import Profile
 from attack_profiles.quantities import DEFAULT_COMPONENT, Carrier, carriers_of, true_copies
 from attack_profiles.rule import IdRange, RuleBase
-from attack_profiles.units import EPOCH_USEC_THRESHOLD, LOCAL_POSITION_NED_ID, MESSAGES, FieldSpec, MessageSpec
+from attack_profiles.units import (
+    EPOCH_USEC_THRESHOLD,
+    LOCAL_POSITION_NED_ID,
+    MESSAGES,
+    FieldSpec,
+    MessageSpec,
+    lookup,
+)
+from attack_profiles.where import Match, matches, resolve_where
 from mavframe.packet import Direction
 from secuav_common.loading import InputError
 from secuav_common.scenario import Scenario, Vehicle
@@ -122,6 +131,7 @@ class _Compiled:
     factor: float = 1.0  # quantity targets: quantity value = field value (physical) * factor
     lat_field: str | None = None  # ... times cos(this latitude), for a longitude
     lat_scale: float = 0.0  # degrees per wire unit of lat_field
+    where: Match | None = None  # the target's where: frames that do not match are not this rule's
 
 
 @dataclass(slots=True)
@@ -154,6 +164,8 @@ def _run_chain(rules: Sequence[_Compiled], s: Sample, working: dict[str, float])
     t = s.t_s
     k = 1.0
     for r in rules:
+        if r.where is not None and not matches(r.where, s.fields):
+            continue
         tau = r.window.tau(t)
         if tau is None and not r.stateful:
             continue
@@ -220,6 +232,9 @@ class Engine:
         }
         # Frame operations (inject, duplicate, frame_replay, mission_shift): live links only, run by the proxy.
         self.frame_ops: FrameOps | None = FrameOps.of(profile, seed)
+        # Fields outside a typed message's table, and array elements, that rules rewrite or match on.
+        self._elements: dict[int, tuple[tuple[str, str, int], ...]] = {}
+        self._extend_specs()
         self._tracks_position = any(r.needs_position for r in profile.rules)
         # RANGEFINDER follows ArduPilot's primary downward rangefinder: learnt from DISTANCE_SENSOR.
         self._tracks_rangefinders = readings.RANGEFINDER_ID in self._msg_by_id
@@ -233,6 +248,29 @@ class Engine:
             ids |= self.frame_ops.message_ids
         self.message_ids: frozenset[int] = frozenset(ids)
         self._live = self._new_state()
+
+    def _extend_specs(self) -> None:
+        """Add to each targeted message the fields outside its typed table that rules rewrite, and note the
+        array elements rules rewrite or match on (a profile of typed fields changes nothing here)."""
+        extra: dict[int, dict[str, FieldSpec]] = {}
+        elements: dict[int, dict[str, tuple[str, str, int]]] = {}
+        for rule in self.profile.rules:
+            if rule.target.message is None or is_frame_rule(rule):
+                continue
+            msg = MESSAGES[rule.target.message]
+            names = [n for n in rule.fields_of(msg) if n is not None] + list(rule.target.where or ())
+            for name in names:
+                spec = msg.field(name)
+                if spec is None:  # a text field in where
+                    continue
+                if name not in msg.fields:
+                    extra.setdefault(msg.msgid, {})[name] = spec
+                if spec.array is not None:
+                    elements.setdefault(msg.msgid, {})[name] = (name, spec.array, spec.index)
+        for msgid, fields in extra.items():
+            msg = self._msg_by_id[msgid]
+            self._msg_by_id[msgid] = dataclasses.replace(msg, fields={**msg.fields, **fields})
+        self._elements = {msgid: tuple(found.values()) for msgid, found in elements.items()}
 
     # -- checks ---------------------------------------------------------------------------------------
 
@@ -313,6 +351,11 @@ class Engine:
         msg = self._msg_by_id.get(msgid)
         if msg is None:  # watched only for the position
             return FORWARD
+        original = fields
+        if self._elements:
+            elements = self._elements.get(msgid)
+            if elements is not None:  # array elements become fields of their own ("distances[3]")
+                fields = _with_elements(fields, elements)
         t = self._clock(st, now_s, msg, fields, sysid)  # first: it also tracks the vehicle's clock
         if t is None:
             return FORWARD
@@ -350,6 +393,8 @@ class Engine:
                 clamped.append(name)
             if wire != fields.get(name):
                 changed[name] = wire
+        if changed and fields is not original:
+            changed = _whole_arrays(changed, msg, original)
         return Action(fields=changed or None, delay_s=s.delay_s, rules=acted, clamped=tuple(clamped))
 
     def _chain(self, st: _State, msgid: int, sysid: int, sid: int, direction: Direction) -> tuple[_Compiled, ...]:
@@ -414,10 +459,11 @@ class Engine:
             raise ValueError(f"need t_s[T], z[T, p], p sensor ids; got {t_arr.shape}, {z_arr.shape}, {len(sensor_ids)}")
         if t_arr.size and np.any(np.diff(t_arr) < 0):
             raise ValueError("t_s must not decrease")
-        msg = MESSAGES.get(message)
-        if msg is None or field not in msg.fields:
+        msg = lookup(message)
+        found = None if msg is None else msg.field(field)
+        if msg is None or found is None:
             raise ValueError(f"{message}.{field} is not an attackable field")
-        spec = msg.fields[field]
+        spec = found
         st = self._new_state()
         st.sample.unread = frozenset()
         columns = [
@@ -471,8 +517,11 @@ class Engine:
                       "needs_position": rule.needs_position, "keep": keep, "clamp": clamp}  # fmt: skip
             if rule.target.message is not None:
                 msg = MESSAGES[rule.target.message]
+                if rule.target.where is not None:
+                    common["where"] = resolve_where(msg, rule.target.where, f"rules[{i}].target.where",
+                                                    self.profile.source)  # fmt: skip
                 for name in rule.fields_of(msg):
-                    spec = msg.fields[name] if name is not None else None
+                    spec = msg.field(name) if name is not None else None
                     seed = _rule_seed(self.profile.seed, self.seed, i if name is None else f"{i}.{name}")
                     ctx = Context(i, spec, random.Random(seed), self._anchors, self._noise)
                     plans[msg.msgid].append(_Compiled(prim=cls(rule, ctx), field=name, spec=spec, **common))
@@ -491,6 +540,31 @@ class Engine:
                         conv["lat_scale"] = msg.fields[carrier.lat_field].scale
                 plans[msg.msgid].append(_Compiled(prim=cls(rule, ctx), field=name, spec=spec, **common, **conv))
         return _State(plans={mid: tuple(rs) for mid, rs in plans.items()})
+
+
+def _with_elements(fields: Mapping[str, Any], elements: tuple[tuple[str, str, int], ...]) -> dict[str, Any]:
+    """``fields`` plus the array elements rules read, under their own names."""
+    view = dict(fields)
+    for name, array, index in elements:
+        values = fields.get(array)
+        if values is not None and index < len(values):
+            view[name] = values[index]
+    return view
+
+
+def _whole_arrays(changed: dict[str, Any], msg: MessageSpec, original: Mapping[str, Any]) -> dict[str, Any]:
+    """Changed array elements folded back into their arrays (what the codec packs)."""
+    out: dict[str, Any] = {}
+    for name, wire in changed.items():
+        spec = msg.fields[name]
+        if spec.array is None:
+            out[name] = wire
+            continue
+        values = out.get(spec.array)
+        if values is None:
+            values = out[spec.array] = list(original[spec.array])
+        values[spec.index] = wire
+    return out
 
 
 def _messages_of(rule: RuleBase) -> list[str]:

@@ -162,4 +162,3 @@ class FrameOps:
                 for k, n in v.counts.items():
                     out[k] = out.get(k, 0) + n
         return out
-

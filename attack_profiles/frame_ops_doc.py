@@ -12,6 +12,8 @@ message of MAVLink common + ardupilotmega (`target.message` is the message's nam
 | `frame_replay` | records the targeted frames between `record_start_s` and `record_end_s`, and sends them again from `start_s`, spaced as they came (`loop` repeats; `replace` drops the live ones while it plays) | `replay` puts old *values* into the frames that pass; this sends old *frames* as extra ones |
 | `mission_shift` | moves the waypoints of a mission upload `north_m`/`east_m`; `hide` (default) makes the read-back show what was sent | a `bias` on one field could not tell an upload from a download |
 
+`target.where` narrows `duplicate` and `frame_replay` to frames whose fields hold given values, as
+for value rules (`{message: COMMAND_LONG, where: {command: MAV_CMD_NAV_TAKEOFF}}`).
 Direction: `uplink` travels to the vehicle (a command, a mission), `downlink` to the ground (a spoofed
 HEARTBEAT); an `inject` goes one way. `target.sysid` names the vehicle of the link (its downlink
 frames, and the uplink frames to it), not the sender. They run on the activation clock (a profile

@@ -10,16 +10,33 @@ from __future__ import annotations
 
 from typing import Annotated, ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
 from attack_profiles.quantities import COMPONENTS, DATUM_QUANTITIES, DEFAULT_COMPONENT, QuantityName
-from attack_profiles.units import MESSAGE_NAMES, MESSAGES, MessageSpec
+from attack_profiles.units import MESSAGES, MessageSpec
+from attack_profiles.where import check_field, check_where
 from secuav_common.loading import (
     _MISSING,  # the "no value to show" sentinel InputError understands
     InputError,
 )
 
-MessageName = Literal[MESSAGE_NAMES]  # type: ignore[valid-type]
+
+def _known_message(name: str) -> str:
+    """A message of the common or ardupilotmega dialect (the typed ones are known without importing it)."""
+    if name in MESSAGES:
+        return name
+    from attack_profiles import dialect
+
+    if dialect.message(name) is None:
+        near = dialect.closest(name, dialect.message_names())
+        raise ValueError("no such MAVLink message in the common or ardupilotmega dialect" + (f"; {near}" if near
+                                                                                             else ""))  # fmt: skip
+    return name
+
+
+# A string checked against the dialect, not an enum of its 300 names: the schema stays readable.
+MessageName = Annotated[str, AfterValidator(_known_message)]
+WhereValue = int | Annotated[float, Field(allow_inf_nan=False)] | str
 DirectionName = Literal["downlink", "uplink", "both"]
 SensorId = Annotated[int, Field(ge=0, le=255)]
 Seconds = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
@@ -56,14 +73,30 @@ class Target(Strict):
     message's main field where it has one (DISTANCE_SENSOR: ``current_distance``);
     drop, delay and intermittent act on whole frames and ignore it. ``sysid``
     left out targets every vehicle.
+
+    ``message`` is any message of the common or ardupilotmega dialect, ``field``
+    any of its numeric fields, an array element as ``name[i]`` (units and scaling
+    from the dialect: :mod:`attack_profiles.dialect`). ``where`` restricts the
+    rule to frames whose other fields have given values, e.g. ``{command:
+    MAV_CMD_NAV_TAKEOFF}`` or ``{param_id: RTL_ALT}``.
     """
 
-    message: MessageName | None = Field(None, description="one message; or give quantity")
+    message: MessageName | None = Field(
+        None,
+        description="one message of the common or ardupilotmega dialect (e.g. DISTANCE_SENSOR, COMMAND_LONG); "
+        "or give quantity",
+    )
     quantity: QuantityName | None = Field(None, description="every message that carries it; or give message")
     sensor_id: SensorId | list[SensorId] | IdRange | None = None
     field: str | None = None
     direction: DirectionName = "downlink"
     sysid: Annotated[int, Field(ge=0, le=255)] | None = None
+    where: dict[str, WhereValue | list[WhereValue]] | None = Field(
+        None,
+        description="act only on frames whose other fields have these values (a list: any of them): numbers in the "
+        "field's physical unit, enum entry names (MAV_CMD_NAV_TAKEOFF or NAV_TAKEOFF), text for char fields "
+        "(param_id)",
+    )
 
     def sensor_ids(self) -> frozenset[int] | None:
         """The targeted ids, or ``None`` for every sensor."""
@@ -142,6 +175,8 @@ class RuleBase(Strict):
             raise InputError(source, f"{where}.target.field", _MISSING, f"{kind} on {q} needs one of {comps}")
         if target.sensor_id is not None and q != "rangefinder":
             raise InputError(source, f"{where}.target.sensor_id", target.sensor_id, f"{q} has no sensor id")
+        if target.where is not None:
+            raise InputError(source, f"{where}.target.where", target.where, "where needs a message target")
         if q in DATUM_QUANTITIES and kind in ("set", "scale", "garbage"):
             raise InputError(source, f"{where}.kind", kind, f"{q} travels in several datums (AMSL, home, local): "
                              "only offsets, noise and frame rules are consistent across them")  # fmt: skip
@@ -151,11 +186,10 @@ class RuleBase(Strict):
         target = self.target
         assert target.message is not None
         spec = MESSAGES[target.message]
-        if target.field is not None and target.field not in spec.fields:
-            known = ", ".join(spec.fields)
-            raise InputError(
-                source, f"{where}.target.field", target.field, f"not an attackable field of {spec.name} ({known})"
-            )
+        if target.field is not None:
+            check_field(spec, target.field, f"{where}.target.field", source)
+        if target.where is not None:
+            check_where(spec, target.where, f"{where}.target.where", source)
         if not self.frame_level and target.field is None and spec.default_field is None:
             raise InputError(source, f"{where}.target.field", _MISSING, f"{kind} on {spec.name} needs a field")
         if target.sensor_id is not None and spec.id_field is None:

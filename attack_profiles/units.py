@@ -6,14 +6,19 @@ message says, for each attackable field, how many physical units one wire unit
 is and which range the wire type can carry, so the engine can convert both ways
 and clamp instead of letting pymavlink's ``struct.pack`` fail on overflow.
 
-The tables are written out rather than derived from pymavlink at import time:
-importing a dialect costs more than the whole engine, and a test checks these
-entries against pymavlink's own field types and units.
+The fifteen typed messages below are written out rather than derived from
+pymavlink at import time: importing a dialect costs more than the whole engine,
+and a test checks these entries against pymavlink's own field types and units.
+Every other message of the common and ardupilotmega dialects, and every field
+of a typed message not in its table, is derived from the dialect on first use
+(:mod:`attack_profiles.dialect`): ``MESSAGES[name]`` finds any of them, while
+iterating ``MESSAGES`` lists only the typed fifteen.
 """
 
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass
 
 # Representable ranges of the MAVLink wire types.
@@ -25,8 +30,12 @@ _INT_RANGE = {
     "uint32_t": (0, 2**32 - 1),
     "int32_t": (-(2**31), 2**31 - 1),
     "uint64_t": (0, 2**64 - 1),
+    "int64_t": (-(2**63), 2**63 - 1),
 }
 _FLOAT32_MAX = 3.4028234663852886e38
+# The largest double that float32 packing still rounds to _FLOAT32_MAX (half an ulp above it): a value
+# up to this one is the float32 maximum, brought back from a scaled unit with a last-bit error, not an overflow.
+_FLOAT32_ROUNDS_TO_MAX = 3.4028235677973362e38
 
 # Physical units per wire unit; the physical unit is what profiles are written in.
 _UNIT = {
@@ -47,6 +56,39 @@ _UNIT = {
     "V": (1.0, "V"),
     "": (1.0, ""),
 }
+# Further units of the dialect with an unambiguous physical unit (used for derived fields only; a unit
+# in neither table stays as the XML writes it, scale 1). "deg/2" and "m/s*5" are what the XML writes for
+# HIGH_LATENCY2's packed fields: the wire carries degrees / 2 and m/s * 5.
+DERIVED_UNITS: dict[str, tuple[float, str]] = {
+    **_UNIT,
+    "dm": (0.1, "m"),
+    "dam": (10.0, "m"),
+    "dm/s": (0.1, "m/s"),
+    "m/s*5": (0.2, "m/s"),
+    "deg": (1.0, "deg"),
+    "deg/s": (1.0, "deg/s"),
+    "deg/2": (2.0, "deg"),
+    "ddeg/s": (0.1, "deg/s"),
+    "mrad/s": (0.18 / math.pi, "deg/s"),
+    "s": (1.0, "s"),
+    "ds": (0.1, "s"),
+    "cs": (0.01, "s"),
+    "ns": (1e-9, "s"),
+    "degC": (1.0, "degC"),
+    "cdegC": (0.01, "degC"),
+    "mV": (0.001, "V"),
+    "cV": (0.01, "V"),
+    "A": (1.0, "A"),
+    "cA": (0.01, "A"),
+    "mA": (0.001, "A"),
+    "d%": (0.1, "%"),
+    "c%": (0.01, "%"),
+    "Pa": (1.0, "Pa"),
+    "hPa": (100.0, "Pa"),
+    "kPa": (1000.0, "Pa"),
+    "mbar": (100.0, "Pa"),
+    "m/s/s": (1.0, "m/s/s"),
+}
 
 
 @dataclass(frozen=True, slots=True)
@@ -58,37 +100,46 @@ class FieldSpec:
     wire_unit: str  # as the MAVLink XML writes it, e.g. "cm"
     scale: float  # physical value = wire value * scale
     unit: str  # physical unit, e.g. "m"
-    lo: float  # smallest representable wire value
+    lo: float  # smallest representable wire value (an int for integer types, so 64-bit ends stay exact)
     hi: float  # largest representable wire value
     integer: bool
+    array: str | None = None  # an array element ("distances[3]"): the array's name ...
+    index: int = -1  # ... and the element's index
+    enum: str | None = None  # the MAVLink enum the XML names for this field (e.g. "MAV_CMD")
 
     def to_physical(self, wire: float) -> float:
         return wire * self.scale
 
     def to_wire(self, physical: float) -> tuple[float | int, bool]:
         """Physical value -> (wire value, clamped?). NaN becomes the range's low end, flagged as clamped."""
-        raw = physical / self.scale
+        raw = physical / self.scale if self.scale != 1 else physical  # 1: integers stay exact past 2**53
         if raw != raw:  # NaN: no wire type but float can carry it
             if not self.integer:
                 return raw, False
             return int(self.lo), True
         if raw < self.lo:
-            return (int(self.lo) if self.integer else self.lo), True
+            return (int(self.lo), True) if self.integer else (self.lo, raw < -_FLOAT32_ROUNDS_TO_MAX)
         if raw > self.hi:
-            return (int(self.hi) if self.integer else self.hi), True
+            return (int(self.hi), True) if self.integer else (self.hi, raw > _FLOAT32_ROUNDS_TO_MAX)
         if self.integer:
             return round(raw), False
         return raw, False
 
 
+def wire_range(wire_type: str) -> tuple[float, float, bool]:
+    """(lo, hi, integer) of a MAVLink wire type; ``KeyError`` for ``char``."""
+    if wire_type == "float":
+        return -_FLOAT32_MAX, _FLOAT32_MAX, False
+    if wire_type == "double":
+        return -sys.float_info.max, sys.float_info.max, False
+    lo, hi = _INT_RANGE[wire_type]
+    return lo, hi, True
+
+
 def _spec(name: str, wire_type: str, wire_unit: str = "") -> FieldSpec:
     scale, unit = _UNIT[wire_unit]
-    if wire_type == "float":
-        lo, hi, integer = -_FLOAT32_MAX, _FLOAT32_MAX, False
-    else:
-        lo, hi = _INT_RANGE[wire_type]
-        integer = True
-    return FieldSpec(name, wire_type, wire_unit, scale, unit, float(lo), float(hi), integer)
+    lo, hi, integer = wire_range(wire_type)
+    return FieldSpec(name, wire_type, wire_unit, scale, unit, lo, hi, integer)
 
 
 @dataclass(frozen=True, slots=True)
@@ -101,6 +152,16 @@ class MessageSpec:
     default_field: str | None  # used when a rule's target names no field
     id_field: str | None  # field that carries the sensor id, if any
     time_field: str | None  # vehicle clock: "time_boot_ms" or "time_usec"
+    derived: bool = False  # built from the dialect (every field), not one of the typed fifteen
+
+    def field(self, name: str) -> FieldSpec | None:
+        """The spec of field ``name``: the typed table's, else the dialect's (array elements as ``name[i]``)."""
+        spec = self.fields.get(name)
+        if spec is None and not self.derived:
+            from attack_profiles import dialect  # the dialect is imported only when a profile needs it
+
+            spec = dialect.fields(self.name).get(name)
+        return spec
 
 
 def _message(
@@ -115,8 +176,22 @@ def _message(
     return MessageSpec(name, msgid, table, default_field, id_field, time_field)
 
 
-MESSAGES: dict[str, MessageSpec] = {
-    m.name: m
+class _Messages(dict[str, MessageSpec]):
+    """The typed messages; ``[name]`` also finds any other message of the dialect (built on first use,
+    not listed, so iterating gives the typed fifteen). ``.get`` and ``in`` see the typed ones only:
+    use :func:`lookup` for any message."""
+
+    def __missing__(self, name: str) -> MessageSpec:
+        from attack_profiles import dialect
+
+        spec = dialect.message(name)
+        if spec is None:
+            raise KeyError(name)
+        return spec
+
+
+MESSAGES: dict[str, MessageSpec] = _Messages(
+    (m.name, m)
     for m in (
         _message(
             "DISTANCE_SENSOR",
@@ -277,7 +352,7 @@ MESSAGES: dict[str, MessageSpec] = {
             time_field=None,
         ),
     )
-}
+)
 
 MESSAGE_NAMES: tuple[str, ...] = tuple(MESSAGES)
 MESSAGE_BY_ID: dict[int, MessageSpec] = {m.msgid: m for m in MESSAGES.values()}
@@ -288,6 +363,17 @@ LOCAL_POSITION_NED_ID = MESSAGES["LOCAL_POSITION_NED"].msgid
 EPOCH_USEC_THRESHOLD = 10**15
 
 
+def lookup(message: str) -> MessageSpec | None:
+    """The spec of any message of the dialect (typed or derived), or ``None``."""
+    try:
+        return MESSAGES[message]
+    except KeyError:
+        return None
+
+
 def field_spec(message: str, field: str) -> FieldSpec:
     """The spec of ``message.field``; ``KeyError`` if it is not attackable."""
-    return MESSAGES[message].fields[field]
+    spec = MESSAGES[message].field(field)
+    if spec is None:
+        raise KeyError(field)
+    return spec

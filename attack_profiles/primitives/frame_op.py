@@ -8,23 +8,25 @@ ardupilotmega), run on the activation clock, and act on live links only: the off
 :class:`mavframe.packet.Packet` objects; the proxy renumbers and signs what they add.
 
 A frame operation's ``target.sysid`` is the vehicle of the link (downlink frames from it, uplink
-frames to it), not the sender of the frame: one proxy link carries one vehicle.
+frames to it), not the sender of the frame: one proxy link carries one vehicle. ``target.where``
+narrows ``duplicate`` and ``frame_replay`` to frames whose fields hold given values
+(``{command: MAV_CMD_NAV_TAKEOFF}``), as for value rules.
 """
 
 from __future__ import annotations
 
 import difflib
+import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from types import ModuleType
 from typing import Any, ClassVar
-
-from pydantic import Field
-from pymavlink.dialects.v20 import ardupilotmega as dialect
 
 from attack_profiles.primitives.base import Primitive, Sample
 from attack_profiles.rule import RuleBase, Target
-from mavframe import codec
+from attack_profiles.units import MESSAGES
+from attack_profiles.where import Match, check_where, matches, resolve_where
 from mavframe.packet import Direction, Packet
 from secuav_common.loading import _MISSING, InputError
 
@@ -40,13 +42,24 @@ _INT_RANGES = {"int8_t": (-(2**7), 2**7 - 1), "uint8_t": (0, 2**8 - 1), "int16_t
                "uint16_t": (0, 2**16 - 1), "int32_t": (-(2**31), 2**31 - 1), "uint32_t": (0, 2**32 - 1),
                "int64_t": (-(2**63), 2**63 - 1), "uint64_t": (0, 2**64 - 1),
                "uint8_t_mavlink_version": (0, 255)}  # fmt: skip
-_ENUM_VALUES: dict[str, int] = {e.name: v for entries in dialect.enums.values() for v, e in entries.items()}
 
 
-class FrameTarget(Target):
-    """A frame operation's target: ``message`` is any message name of the dialect (``COMMAND_LONG``)."""
+# pymavlink's dialect (and mavframe.codec, built on it) take a while to import: only when a frame
+# operation is used, so importing attack_profiles stays light.
+def codec_module() -> ModuleType:
+    from mavframe import codec
 
-    message: str | None = Field(None, description="any message of MAVLink common + ardupilotmega")  # type: ignore[assignment]
+    return codec
+
+
+@functools.cache
+def _enum_values() -> dict[str, int]:
+    dialect = codec_module().dialect
+    return {e.name: v for entries in dialect.enums.values() for v, e in entries.items()}
+
+
+def message_id(name: str) -> int:
+    return int(codec_module().BY_NAME[name].id)
 
 
 def closest(word: str, options: list[str] | tuple[str, ...]) -> str:
@@ -54,8 +67,9 @@ def closest(word: str, options: list[str] | tuple[str, ...]) -> str:
     return f" (closest: {', '.join(near)})" if near else ""
 
 
-def message_class(name: str, where: str, source: str) -> type[dialect.MAVLink_message]:
+def message_class(name: str, where: str, source: str) -> Any:
     """The dialect's class of message ``name``; ``InputError`` at ``where`` naming the closest names."""
+    codec = codec_module()
     cls = codec.BY_NAME.get(name)
     if cls is None:
         raise InputError(source, where, name, "not a MAVLink message of common/ardupilotmega"
@@ -63,9 +77,7 @@ def message_class(name: str, where: str, source: str) -> type[dialect.MAVLink_me
     return cls
 
 
-def resolve_fields(
-    cls: type[dialect.MAVLink_message], given: Mapping[str, Any], where: str, source: str
-) -> dict[str, Any]:
+def resolve_fields(cls: Any, given: Mapping[str, Any], where: str, source: str) -> dict[str, Any]:
     """Profile values of ``cls``'s fields in wire form: enum names become numbers (a list of names of a
     bitmask ORs them), integers are range-checked, char arrays are text; ``InputError`` names the field."""
     out: dict[str, Any] = {}
@@ -89,7 +101,7 @@ def resolve_fields(
     return out
 
 
-def _scalar(cls: type[dialect.MAVLink_message], name: str, ftype: str, value: Any, at: str, source: str) -> Any:
+def _scalar(cls: Any, name: str, ftype: str, value: Any, at: str, source: str) -> Any:
     enum = cls.fieldenums_by_name.get(name)
     if isinstance(value, list) and value and all(isinstance(v, str) for v in value):  # bitmask: OR the names
         total = 0
@@ -115,13 +127,15 @@ def _scalar(cls: type[dialect.MAVLink_message], name: str, ftype: str, value: An
 def _enum_value(enum: str | None, name: str, at: str, source: str) -> int:
     """``name`` in the field's enum, or (a field with none, e.g. a COMMAND_LONG param) any enum of the dialect."""
     if enum is not None:
-        entries = {e.name: v for v, e in dialect.enums[enum].items() if not e.name.endswith("_ENUM_END")}
+        enums = codec_module().dialect.enums[enum]
+        entries = {e.name: v for v, e in enums.items() if not e.name.endswith("_ENUM_END")}
         if name not in entries:
             raise InputError(source, at, name, f"not a {enum} name" + closest(name, list(entries)))
         return entries[name]
-    if name not in _ENUM_VALUES:
-        raise InputError(source, at, name, "not an enum name of the dialect" + closest(name, list(_ENUM_VALUES)))
-    return _ENUM_VALUES[name]
+    values = _enum_values()
+    if name not in values:
+        raise InputError(source, at, name, "not an enum name of the dialect" + closest(name, list(values)))
+    return values[name]
 
 
 @dataclass(slots=True)
@@ -137,13 +151,12 @@ class LinkView:
 
 
 class FrameOpRule(RuleBase):
-    """Base of frame-operation rules: a :class:`FrameTarget` and no field or sensor id."""
+    """Base of frame-operation rules: a message target, without field or sensor id."""
 
-    target: FrameTarget
+    target: Target
 
     frame_level: ClassVar[bool] = True
-    # The directions it adds or rewrites frames in: on a signed one the proxy needs the key.
-    forges: ClassVar[bool] = True
+    selects: ClassVar[bool] = True  # acts on received frames, so target.where may narrow them
 
     def check(self, where: str, source: str) -> None:
         t = self.target
@@ -156,6 +169,10 @@ class FrameOpRule(RuleBase):
         if t.message is None:
             raise InputError(source, f"{where}.target.message", _MISSING, "name the message")
         message_class(t.message, f"{where}.target.message", source)
+        if t.where is not None:
+            if not self.selects:
+                raise InputError(source, f"{where}.target.where", t.where, f"{self.kind} does not select frames")  # type: ignore[attr-defined]
+            check_where(MESSAGES[t.message], t.where, f"{where}.target.where", source)
         self._check_window(where, source)
         if self.repeat_period_s is not None:
             raise InputError(source, f"{where}.repeat_period_s", self.repeat_period_s,
@@ -179,8 +196,12 @@ class FrameOp(Primitive):
         self.end_s = math.inf if rule.end_s is None else rule.end_s
         self.directions = rule.directions
         msg = rule.target.message
-        self.msgid = -1 if msg is None else int(codec.BY_NAME[msg].id)
+        self.msgid = -1 if msg is None else message_id(msg)
         self.note = f"rules[{self.index}]"
+        where = rule.target.where
+        self.match: Match | None = None
+        if where is not None and msg is not None:
+            self.match = resolve_where(MESSAGES[msg], where, f"rules[{self.index}].target.where", "<rule>")
 
     @property
     def message_ids(self) -> frozenset[int]:
@@ -189,8 +210,11 @@ class FrameOp(Primitive):
     def applies(self, pkt: Packet, view: LinkView) -> bool:
         """This frame is the target's: message, direction, and the link's vehicle."""
         sysid = self.rule.target.sysid
-        return (pkt.header.msgid == self.msgid and pkt.direction in self.directions
-                and (sysid is None or sysid == view.vehicle))  # fmt: skip
+        if pkt.header.msgid != self.msgid or pkt.direction not in self.directions:
+            return False
+        if sysid is not None and sysid != view.vehicle:
+            return False
+        return self.match is None or (pkt.fields is not None and matches(self.match, pkt.fields))
 
     def on_frame(self, pkts: list[Packet], t_s: float, view: LinkView) -> list[Packet]:
         """The packets one received frame became so far (it first); returns them, changed or added to."""

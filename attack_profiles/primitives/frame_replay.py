@@ -10,9 +10,8 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from attack_profiles.primitives.frame_op import FrameOp, FrameOpRule, LinkView
+from attack_profiles.primitives.frame_op import FrameOp, FrameOpRule, LinkView, codec_module
 from attack_profiles.rule import Seconds
-from mavframe import codec
 from mavframe.packet import Packet
 from secuav_common.loading import InputError
 
@@ -64,7 +63,7 @@ class FrameReplay(FrameOp):
                 rec = self.recorded.setdefault(view.vehicle, [])
                 if len(rec) < MAX_FRAMES:
                     first = self._first.setdefault(view.vehicle, t_s)
-                    frame = Packet(codec.unsigned(p.raw), p.header, p.direction, p.link, p.rx_s, injected=True,
+                    frame = Packet(codec_module().unsigned(p.raw), p.header, p.direction, p.link, p.rx_s, injected=True,
                                    notes=[self.note], origin="replay")  # fmt: skip
                     rec.append((t_s - first, frame))
                     if len(rec) == 1:

@@ -14,7 +14,8 @@ class GarbageRule(RuleBase):
     """Replace the field with a value drawn uniformly from everything its wire type can carry
     (0..65535 cm for ``current_distance``; any float32 for float fields). ``scope: frame`` does
     this to every attackable field of the message (the sensor id and timestamps stay, so the
-    frame still parses and says whose it is); the target then names no field."""
+    frame still parses and says whose it is; a message outside the typed table: every numeric
+    field but its time); the target then names no field."""
 
     kind: Literal["garbage"] = "garbage"
     scope: Literal["field", "frame"] = "field"
@@ -22,7 +23,9 @@ class GarbageRule(RuleBase):
     within_limits: ClassVar[bool] = False  # a sensor gone mad: readings anywhere in the wire range
 
     def fields_of(self, msg: MessageSpec) -> list[str | None]:
-        return list(msg.fields) if self.scope == "frame" else super().fields_of(msg)
+        if self.scope != "frame":
+            return super().fields_of(msg)
+        return [name for name in msg.fields if name != msg.time_field]  # a dialect message's clock stays
 
     def check(self, where: str, source: str) -> None:
         super().check(where, source)

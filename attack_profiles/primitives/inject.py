@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 from pydantic import Field, JsonValue
 
@@ -13,10 +13,10 @@ from attack_profiles.primitives.frame_op import (
     FrameOp,
     FrameOpRule,
     LinkView,
+    codec_module,
     message_class,
     resolve_fields,
 )
-from mavframe import codec
 from mavframe.packet import Direction, Packet
 from secuav_common.loading import InputError
 
@@ -35,6 +35,7 @@ class InjectRule(FrameOpRule):
     the proxy last saw on the link, else 255/190, or (downlink) the vehicle's autopilot."""
 
     kind: Literal["inject"] = "inject"
+    selects: ClassVar[bool] = False
     fields: dict[str, JsonValue] = Field(default_factory=dict, description="the message's fields (wire units, enums)")
     rate_hz: Annotated[float, Field(gt=0.0, le=200.0, allow_inf_nan=False)] | None = None
     count: Annotated[int, Field(ge=1, le=10_000_000)] | None = None
@@ -50,6 +51,7 @@ class InjectRule(FrameOpRule):
         assert self.target.message is not None
         cls = message_class(self.target.message, f"{where}.target.message", source)
         values = resolve_fields(cls, self.fields, f"{where}.fields", source)
+        codec = codec_module()
         try:  # every value packs: out-of-range floats, wrong arrays, ... are found now, not on the link
             codec.build(cls.msgname, _complete(cls, values, (1, 1)), sysid=1, compid=1, seq=0,
                         direction=Direction.UPLINK, link=0, now_s=0.0)  # fmt: skip
@@ -111,7 +113,7 @@ class Inject(FrameOp):
         if at is None or at > t_s:
             return []
         sender, target = self._ids(view)
-        pkt = codec.build(self.cls.msgname, _complete(self.cls, self.values, target), sysid=sender[0],
+        pkt = codec_module().build(self.cls.msgname, _complete(self.cls, self.values, target), sysid=sender[0],
                           compid=sender[1], seq=0, direction=self.direction, link=view.link, now_s=now_s)  # fmt: skip
         pkt.origin = "inject"
         pkt.notes.append(self.note)

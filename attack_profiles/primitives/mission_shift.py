@@ -14,19 +14,18 @@ position this rule wrote (an item another upload changed since passes as it is).
 from __future__ import annotations
 
 import math
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 from pydantic import Field
 
-from attack_profiles.primitives.frame_op import FrameOp, FrameOpRule, FrameTarget, LinkView
-from attack_profiles.rule import Finite
-from mavframe import codec
+from attack_profiles.primitives.frame_op import FrameOp, FrameOpRule, LinkView
+from attack_profiles.rule import Finite, Target
 from mavframe.packet import Direction, Packet
 from secuav_common.geo import EARTH_RADIUS_M
 from secuav_common.loading import InputError
 
-MISSION_ITEM_INT = int(codec.BY_NAME["MISSION_ITEM_INT"].id)
-MISSION_ITEM = int(codec.BY_NAME["MISSION_ITEM"].id)
+MISSION_ITEM_INT = 73  # MAVLINK_MSG_ID_MISSION_ITEM_INT (a test checks these against the dialect)
+MISSION_ITEM = 39
 # MAV_CMD_NAV_* whose x/y are a position: WAYPOINT, LOITER_UNLIM, LOITER_TURNS, LOITER_TIME, LAND, TAKEOFF,
 # LOITER_TO_ALT, SPLINE_WAYPOINT, VTOL_TAKEOFF, VTOL_LAND, PAYLOAD_PLACE.
 NAV_WITH_POSITION = frozenset({16, 17, 18, 19, 21, 22, 31, 82, 84, 85, 94})
@@ -41,7 +40,8 @@ class MissionShiftRule(FrameOpRule):
     ``hide`` (default) gives the ground station back what it sent when it reads the mission."""
 
     kind: Literal["mission_shift"] = "mission_shift"
-    target: FrameTarget = Field(default_factory=lambda: FrameTarget(message="MISSION_ITEM_INT", direction="uplink"))
+    selects: ClassVar[bool] = False
+    target: Target = Field(default_factory=lambda: Target(message="MISSION_ITEM_INT", direction="uplink"))
     north_m: Finite = 0.0
     east_m: Finite = 0.0
     hide: bool = True
