@@ -115,6 +115,9 @@ class FrameOps:
                 view.ground = (h.sysid, h.compid)
             elif h.sysid == vehicle and pkt.fields.get("autopilot") != MAV_AUTOPILOT_INVALID:
                 view.autopilot = (h.sysid, h.compid)
+            if view.waiting:
+                view.waiting = False
+                view.rescheduled = True
         t = self._t(now_s)
         pkts = [pkt]
         for op in self.ops:

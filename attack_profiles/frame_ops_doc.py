@@ -32,13 +32,16 @@ such as a COMMAND_LONG `param1`, takes any enum name of the dialect). A field le
 `target_system`/`target_component` default to the link's vehicle and its autopilot (uplink) or the
 ground station last heard (downlink). The sender (`from_sysid`/`from_compid`) defaults to the ground
 station whose HEARTBEAT the proxy last saw on that link, else 255/190 (uplink), or the vehicle's
-autopilot (downlink). An unknown message or field, a wrong enum name or a value outside the field's
+autopilot (downlink). A frame with these default ids waits, at most 1.5 s past its time, until that
+sender has been heard since the profile was applied, so that it can take the sender's next sequence
+number; give `from_sysid` to send exactly on time. An unknown message or field, a wrong enum name or a value outside the field's
 type is refused with the closest valid names.
 
 Sequence numbers: a frame the proxy adds takes the next sequence number of the sender it
-impersonates, and that sender's later frames leave renumbered (header and CRC made anew), so a
-receiver sees no gap and no repeat; a frame a rule drops from such a sender gives its number back.
-Every other sender's frames pass byte for byte. The link stats count what was added per direction:
+impersonates, and that sender's later frames leave renumbered (header and CRC made anew; signed
+ones re-signed with the key), so a receiver sees no gap and no repeat; in a direction the proxy adds
+frames to, a frame a rule drops gives its number back as well. Every other sender's frames pass byte
+for byte (and in a direction nothing is added to, a dropped frame shows as a gap, as a lost one would). The link stats count what was added per direction:
 `injected` (all added frames), of them `duplicated` and `replayed` (docs/interfaces.md; `secuav-attack
 status` prints them when there are some).
 

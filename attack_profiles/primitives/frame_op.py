@@ -147,6 +147,7 @@ class LinkView:
     ground: tuple[int, int] | None = None  # (sysid, compid) of the last uplink HEARTBEAT, the ground station
     autopilot: tuple[int, int] | None = None  # (sysid, compid) of the vehicle's autopilot HEARTBEAT
     rescheduled: bool = False  # set by an operation whose next due time changed on a frame
+    waiting: bool = False  # an injection waits for its sender's HEARTBEAT: hearing it reschedules
     counts: dict[str, int] = field(default_factory=dict)  # per rule kind: frames made
 
 

@@ -21,6 +21,9 @@ from mavframe.packet import Direction, Packet
 from secuav_common.loading import InputError
 
 SysId = Annotated[int, Field(ge=1, le=255)]
+# With default ids, a frame waits (at most this long after start_s) until the sender it impersonates has been
+# heard since the profile began: its next sequence number is known only then.
+HEAR_WAIT_S = 1.5
 CompId = Annotated[int, Field(ge=0, le=255)]
 
 
@@ -32,7 +35,9 @@ class InjectRule(FrameOpRule):
     names ORs a bitmask); fields left out are 0, and ``target_system`` / ``target_component`` the
     link's vehicle and its autopilot (uplink) or the ground station last heard (downlink). The frame
     comes from ``from_sysid``/``from_compid``: by default (uplink) the ground station whose HEARTBEAT
-    the proxy last saw on the link, else 255/190, or (downlink) the vehicle's autopilot."""
+    the proxy last saw on the link, else 255/190, or (downlink) the vehicle's autopilot; a frame with
+    default ids waits, up to 1.5 s after its time, until that sender was heard, so that it takes the
+    sender's next sequence number."""
 
     kind: Literal["inject"] = "inject"
     selects: ClassVar[bool] = False
@@ -69,7 +74,7 @@ def _complete(cls: Any, values: dict[str, Any], target: tuple[int, int]) -> dict
         elif lengths[name]:
             out[name] = [0] * lengths[name]
         else:
-            out[name] = 3 if ftype == "uint8_t_mavlink_version" else 0
+            out[name] = 3 if name == "mavlink_version" else 0  # HEARTBEAT: the protocol version, always 3
     if "target_system" in out:
         out["target_system"], out["target_component"] = target
     out.update(values)
@@ -102,10 +107,19 @@ class Inject(FrameOp):
             sender, target = vehicle, view.ground or (0, 0)
         return (r.from_sysid or sender[0], sender[1] if r.from_compid is None else r.from_compid), target
 
+    def _heard(self, view: LinkView) -> bool:
+        r: InjectRule = self.rule  # type: ignore[assignment]
+        if r.from_sysid is not None:
+            return True  # a sender of the profile's choosing: nothing to wait for
+        return (view.ground if self.direction is Direction.UPLINK else view.autopilot) is not None
+
     def next_due(self, view: LinkView) -> float | None:
         if self.limit is not None and self._sent.get(view.vehicle, 0) >= self.limit:
             return None
         t = self._next.get(view.vehicle, self.start_s)
+        if not self._heard(view) and view.vehicle not in self._sent:
+            view.waiting = True  # the first HEARTBEAT of the sender re-arms the clock
+            t += HEAR_WAIT_S
         return t if t < self.end_s else None
 
     def due(self, t_s: float, view: LinkView, now_s: float) -> list[Packet]:

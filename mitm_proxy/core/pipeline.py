@@ -293,7 +293,7 @@ class Pipeline:
                     st.add_bad(reason)
                     continue
             if header.msgid not in wanted or (header.signed and signer is None):
-                data = raw if seqr is None else self._renumber(header, raw, raw, seqr)
+                data = raw if seqr is None else self._renumber(header, raw, raw, seqr, st)
                 now_parts.append(data)
                 for o in observers:
                     o.frame_out(direction, pos, header, raw, data, None, 0.0)
@@ -384,7 +384,7 @@ class Pipeline:
         """Sequence number (and signature) of one packet leaving: see :mod:`mitm_proxy.core.sequence`."""
         seqr = self._seqs.get(p.direction)
         if not p.injected:
-            return data if seqr is None else self._renumber(p.header, data, p.raw, seqr)
+            return data if seqr is None else self._renumber(p.header, data, p.raw, seqr, st)
         if seqr is None:
             seqr = self._seqs[p.direction] = Sequencer()
         h = p.header
@@ -400,7 +400,7 @@ class Pipeline:
                 st.resigned += 1
         return data
 
-    def _renumber(self, h: Header, data: bytes, original: bytes, seqr: Sequencer) -> bytes:
+    def _renumber(self, h: Header, data: bytes, original: bytes, seqr: Sequencer, st: DirectionStats) -> bytes:
         """A real frame with the number its source's stream needs; signed ones only with the key."""
         seq = seqr.real(h)
         if seq == h.seq:
@@ -409,6 +409,7 @@ class Pipeline:
             return codec.restamp(data, seq)
         if self.signer is None:
             return data  # cannot re-sign: it leaves as it came (forging there was refused or withheld)
+        st.resigned += 1
         return self.signer.resign(codec.restamp(data[:-SIGNATURE_LEN], seq), original)
 
     # -- frames on a clock ------------------------------------------------------------------------

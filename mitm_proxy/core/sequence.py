@@ -5,8 +5,10 @@ repeated number as a duplicate: a frame forged with a made-up number gives the a
 every ground station's link-quality figure. So a frame the proxy adds (an injection, a duplicate,
 a replayed frame) takes the next number of the source it impersonates, and from then on every
 real frame of that source leaves with its own number plus the count of frames added so far
-(mod 256), with a fresh CRC. A real frame of such a source that a stage drops takes one back, so
-the receiver sees neither the addition nor the removal. Frames of other sources are not touched.
+(mod 256), with a fresh CRC. In such a direction a real frame a stage drops gives its number back
+too, so the receiver sees neither the addition nor the removal. Frames of sources the proxy neither
+added to nor dropped from are not touched (in a direction nobody forges in, a drop shows as a gap,
+as a lost frame would).
 
 Watching costs one dict write per frame, so it is on only for a direction the proxy forges in
 (:attr:`Sequencer.watching`); the pipeline keeps no sequencer at all for a direction nobody forges
@@ -62,11 +64,11 @@ class Sequencer:
         return out
 
     def dropped(self, h: Header) -> None:
-        """A stage dropped a real frame: if its source is renumbered, close the gap it would leave."""
+        """A stage dropped a real frame: its source's later frames move down one, so no gap shows."""
         key = (h.sysid, h.compid)
-        off = self.offset.get(key)
-        if off is not None and key not in self.align:
-            self.offset[key] = (off - 1) & 0xFF
+        if key in self.align or (key not in self.offset and len(self.offset) >= MAX_SOURCES):
+            return
+        self.offset[key] = (self.offset.get(key, 0) - 1) & 0xFF
 
     def forged(self, sysid: int, compid: int, own: int) -> int:
         """The number of a frame the proxy adds as (sysid, compid); ``own`` is kept when none can be given."""
