@@ -38,19 +38,28 @@ class AttackStage:
 
     def __init__(self, slot: AttackSlot, *, active: bool = True) -> None:
         self.slot = slot
-        self.enabled = active
+        self._enabled = active
         self.on_schedule: Callable[[], None] | None = None
         slot.listeners.append(self._rescheduled)
 
     @property
     def active(self) -> bool:
         """False when bypassed or when no profile is installed."""
-        return self.enabled and self.slot.engine is not None
+        return self._enabled and self.slot.engine is not None  # per datagram: no property call inside
 
     @active.setter
     def active(self, value: bool) -> None:
-        changed = value != self.enabled
         self.enabled = value
+
+    @property
+    def enabled(self) -> bool:
+        """False while bypassed (the ``attack/mode`` switch writes it); a change re-arms the link's clock."""
+        return self._enabled
+
+    @enabled.setter
+    def enabled(self, value: bool) -> None:
+        changed = value != self._enabled
+        self._enabled = value
         if changed:
             self._rescheduled()
 

@@ -143,3 +143,16 @@ async def test_the_link_sends_spoofed_heartbeats_on_its_timer_and_keeps_none_whe
     assert sum(x.type != mavlink.MAV_TYPE_FIXED_WING for x in msgs) == 4
     seqs = [x.get_seq() for x in msgs]
     assert seqs[0] == 1 and all((b - a) & 0xFF == 1 for a, b in itertools.pairwise(seqs)), seqs
+
+
+def test_the_stage_tells_its_clock_when_the_profile_or_the_bypass_changes() -> None:
+    slot = AttackSlot(1)
+    stage = AttackStage(slot)
+    calls: list[int] = []
+    stage.on_schedule = lambda: calls.append(1)
+    assert slot.offer(library.load("inject-rtl")).ok  # installed
+    stage.enabled = False  # what secuav/v1/attack/mode/set bypass writes
+    stage.enabled = False  # no change: nothing to say
+    stage.active = True
+    assert slot.offer(None).ok  # cleared
+    assert len(calls) == 4 and stage.next_due_s() is None
