@@ -17,7 +17,7 @@ class DuplicateRule(FrameOpRule):
     (a receiver that drops repeated sequence numbers would drop a byte-identical copy)."""
 
     kind: Literal["duplicate"] = "duplicate"
-    copies: Annotated[int, Field(ge=1, le=10)] = 1
+    copies: Annotated[int, Field(ge=1, le=10)] = Field(1, description="extra copies of each frame")
 
 
 class Duplicate(FrameOp):

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
+from pydantic import Field
+
 from attack_profiles.primitives.frame_op import FrameOp, FrameOpRule, LinkView, codec_module
 from attack_profiles.rule import Seconds
 from mavframe.packet import Packet
@@ -27,10 +29,10 @@ class FrameReplayRule(FrameOpRule):
     ``end_s``, or the end of a single playback)."""
 
     kind: Literal["frame_replay"] = "frame_replay"
-    record_start_s: Seconds
-    record_end_s: Seconds
-    loop: bool = False
-    replace: bool = False
+    record_start_s: Seconds = Field(description="recording begins (profile clock)")
+    record_end_s: Seconds = Field(description="recording ends; at or before start_s")
+    loop: bool = Field(False, description="play the recording over and over until end_s")
+    replace: bool = Field(False, description="drop the live frames of the target while it plays")
 
     def check(self, where: str, source: str) -> None:
         super().check(where, source)

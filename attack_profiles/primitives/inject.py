@@ -42,10 +42,12 @@ class InjectRule(FrameOpRule):
     kind: Literal["inject"] = "inject"
     selects: ClassVar[bool] = False
     fields: dict[str, JsonValue] = Field(default_factory=dict, description="the message's fields (wire units, enums)")
-    rate_hz: Annotated[float, Field(gt=0.0, le=200.0, allow_inf_nan=False)] | None = None
-    count: Annotated[int, Field(ge=1, le=10_000_000)] | None = None
-    from_sysid: SysId | None = None
-    from_compid: CompId | None = None
+    rate_hz: Annotated[float, Field(gt=0.0, le=200.0, allow_inf_nan=False)] | None = Field(
+        None, description="frames a second from start_s; none: one frame"
+    )
+    count: Annotated[int, Field(ge=1, le=10_000_000)] | None = Field(None, description="with rate_hz: stop after n")
+    from_sysid: SysId | None = Field(None, description="sender sysid; default: the ground station heard, the vehicle")
+    from_compid: CompId | None = Field(None, description="sender compid; default as from_sysid (else 190 up, 1 down)")
 
     def check(self, where: str, source: str) -> None:
         super().check(where, source)

@@ -42,9 +42,9 @@ class MissionShiftRule(FrameOpRule):
     kind: Literal["mission_shift"] = "mission_shift"
     selects: ClassVar[bool] = False
     target: Target = Field(default_factory=lambda: Target(message="MISSION_ITEM_INT", direction="uplink"))
-    north_m: Finite = 0.0
-    east_m: Finite = 0.0
-    hide: bool = True
+    north_m: Finite = Field(0.0, description="metres the positions move north")
+    east_m: Finite = Field(0.0, description="metres the positions move east")
+    hide: bool = Field(True, description="give the read-back the coordinates the ground sent")
 
     def check(self, where: str, source: str) -> None:
         super().check(where, source)
