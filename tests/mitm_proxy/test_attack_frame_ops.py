@@ -156,3 +156,30 @@ def test_the_stage_tells_its_clock_when_the_profile_or_the_bypass_changes() -> N
     stage.active = True
     assert slot.offer(None).ok  # cleared
     assert len(calls) == 4 and stage.next_due_s() is None
+
+
+async def test_a_recorded_stream_is_replayed_by_the_link_with_contiguous_numbers(udp_port: Callable[[], int]) -> None:
+    from tests.mitm_proxy.test_link import Peer
+
+    vehicle, gcs = Peer(), Peer()
+    veh = udp_port()
+    cfg = ProxyConfig(links=[LinkConfig(sysid=1, vehicle=f"udpin://127.0.0.1:{veh}",
+                                        ground=[f"udpout://127.0.0.1:{gcs.port}"])], broker="none")  # fmt: skip
+    replay = prof({"kind": "frame_replay", "target": {"message": "STATUSTEXT", "direction": "downlink"},
+                   "record_start_s": 0, "record_end_s": 1.0, "start_s": 1.0})  # fmt: skip
+    m = mav(1, 1)
+    try:
+        async with Proxy(cfg) as proxy:
+            assert proxy.slots[1].offer(replay).ok
+            assert proxy.links[0]._tick is None  # nothing recorded, nothing to play: no timer
+            for k in range(5):
+                vehicle.send(pack(mavlink.MAVLink_statustext_message(6, f"line {k}".encode()), m), veh)
+            got, _ = await gcs.frames(3.0)  # the five as they came, then (from 1 s) the five again
+            snap = proxy.stats_snapshot()[1]["downlink"]
+    finally:
+        vehicle.close()
+        gcs.close()
+    msgs = parse_all(b"".join(got))
+    assert [x.text for x in msgs] == [f"line {k}" for k in range(5)] * 2
+    assert [x.get_seq() for x in msgs] == list(range(10))  # the replayed frames follow on, no repeat
+    assert snap["replayed"] == snap["injected"] == 5
