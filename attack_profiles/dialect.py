@@ -1,26 +1,56 @@
 """Any message, any field: specs derived from the MAVLink dialect, on first use.
 
-pymavlink's generated ardupilotmega dialect (which includes common) carries,
-per message class, what the XML says of each field: its wire type
-(``fieldtypes``), unit (``fieldunits_by_name``), enum (``fieldenums_by_name``)
-and array length (``array_lengths``). A message's :class:`FieldSpec` table is
-built from these the first time a profile names it and kept, so importing
-:mod:`attack_profiles` does not import the dialect, and a profile of the typed
-messages (:mod:`attack_profiles.units`) never does.
+``target.message`` may name any message of pymavlink's ardupilotmega
+dialect, which includes common (COMMAND_LONG, COMMAND_INT,
+PARAM_SET, SET_POSITION_TARGET_LOCAL_NED, SET_POSITION_TARGET_GLOBAL_INT,
+MISSION_ITEM_INT, VISION_POSITION_ESTIMATE, GPS_INPUT, HIL_GPS, ...), and
+``target.field`` any numeric field of it. In the schema ``message`` is a
+string checked against the dialect, not an enum of some 300 names. What pymavlink
+generated from the XML gives each field its wire type, unit, enum and array
+length; the table of a message is built the first time a profile names it, so
+importing attack_profiles does not import the dialect, and a profile of
+the fifteen typed messages (the mapping table above lists most of them) never
+does. Where a typed message has a field in its own table, that entry wins; its
+other fields come from the dialect like everyone else's.
 
-What a derived field looks like to a profile:
-
-- a unit in :data:`~attack_profiles.units.DERIVED_UNITS` converts to its
+- Units: a field whose XML unit is in the table below is written in the
   physical unit (``degE7`` -> deg, ``cm`` -> m, ``rad`` -> deg, ``ms`` -> s,
-  ``cdegC`` -> degC, ...); any other unit, and a field the XML gives no unit,
-  is written in wire units (COMMAND_LONG's ``param1``..``param7`` are floats in
-  whatever the command defines; COMMAND_INT's ``x``/``y`` are integers, 1e7
-  degrees in a global frame);
+  ...): the value a rule writes is converted to the wire, rounded for integer
+  fields. Any other unit, and a field the XML gives no unit, is written in wire
+  units: COMMAND_LONG's ``param1`` .. ``param7`` are floats in whatever the
+  command defines (NAV_TAKEOFF's ``param7``: metres); COMMAND_INT's and
+  MISSION_ITEM_INT's ``x`` / ``y`` are integers, degrees x 1e7 in a global
+  frame, metres x 1e4 in a local one.
 - 64-bit integers are never scaled (``time_usec`` stays microseconds), so every
-  integer field round-trips exactly;
-- an array element is ``name[i]`` (``distances[3]``, ``q[0]``);
-- char arrays (``param_id``) are not values a rule rewrites; a target's
-  ``where`` may match them as text.
+  integer field round-trips exactly: wire -> physical -> wire gives the wire value.
+- Arrays by index: ``field: "distances[3]"`` (OBSTACLE_DISTANCE), ``q[0]``;
+  the element is rewritten in place, the rest of the array is left as it came.
+- Text (char arrays such as PARAM_SET's ``param_id``) is not a value a rule
+  rewrites; ``where`` matches it.
+- ``set`` on a derived field refuses a value the wire type cannot carry when
+  the profile is read; the typed fields keep clamping at the wire, reported in
+  ``Action.clamped``.
+- ``sensor_id`` stays DISTANCE_SENSOR's (and the rangefinder quantity's); on
+  other messages ``where`` picks frames by any field.
+
+Takeoff altitude and a parameter, toward the vehicle::
+
+    rules:
+      - target: {message: COMMAND_LONG, field: param7, direction: uplink,
+                 where: {command: MAV_CMD_NAV_TAKEOFF}}
+        kind: set
+        value: 12
+      - target: {message: PARAM_SET, field: param_value, direction: uplink,
+                 where: {param_id: RTL_ALT}}
+        kind: set
+        value: 300
+      - target: {message: OBSTACLE_DISTANCE, field: "distances[3]"}
+        kind: bias
+        offset: 150
+
+A wrong name, or a value the field cannot carry, is one line naming the
+file, the place, the closest valid names and the value (below: what this
+version prints).
 """
 
 from __future__ import annotations
@@ -132,6 +162,15 @@ def enum_value(enum: str, name: str) -> int | None:
     values = enum_values(enum)
     found = values.get(name)
     return values.get(f"{enum}_{name}") if found is None else found
+
+
+def units_table() -> str:
+    """The unit conversions of derived fields as Markdown, for docs/profile.md."""
+    rows = ["| wire unit (XML) | profile unit | one wire unit is |", "|---|---|---|"]
+    for wire_unit, (scale, unit) in DERIVED_UNITS.items():
+        if wire_unit:
+            rows.append(f"| `{wire_unit}` | {unit} | {scale:.6g} {unit} |")
+    return "\n".join(rows) + "\n"
 
 
 def closest(word: str, names: list[str] | tuple[str, ...], n: int = 3) -> str:

@@ -148,6 +148,10 @@ class RuleBase(Strict):
             return [None]
         return [self.target.field or msg.default_field]
 
+    def names_a_field(self) -> bool:
+        """Whether a message target must name a field when the message has no main one."""
+        return not self.frame_level
+
     def check(self, where: str, source: str) -> None:
         """What the schema cannot express; raises ``InputError`` at ``where`` (``rules[2]``).
 
@@ -190,7 +194,7 @@ class RuleBase(Strict):
             check_field(spec, target.field, f"{where}.target.field", source)
         if target.where is not None:
             check_where(spec, target.where, f"{where}.target.where", source)
-        if not self.frame_level and target.field is None and spec.default_field is None:
+        if self.names_a_field() and target.field is None and spec.default_field is None:
             raise InputError(source, f"{where}.target.field", _MISSING, f"{kind} on {spec.name} needs a field")
         if target.sensor_id is not None and spec.id_field is None:
             raise InputError(source, f"{where}.target.sensor_id", target.sensor_id, f"{spec.name} has no sensor id")

@@ -8,6 +8,19 @@ field's enum (``command: MAV_CMD_NAV_TAKEOFF``, or ``NAV_TAKEOFF`` without the
 enum's prefix), or text for a char field (``param_id: RTL_ALT``). The engine
 compares the frame's wire values with the wire values resolved here once, so a
 float is compared as the float32 the frame carries.
+
+A frame that does not match is not the rule's at all: stateful rules (freeze,
+replay) do not see it either, and frame rules (drop, delay) leave it alone.
+The test runs only on frames of the targeted message, after the message id
+check every frame already passes; other traffic never reaches it. Offline
+arrays (``Engine.apply_array``) carry only the attacked field, so a rule
+whose ``where`` names another field does not act on them.
+
+Drop the RTL and mode-change commands the ground sends, and no other::
+
+    - target: {message: COMMAND_LONG, direction: uplink,
+               where: {command: [MAV_CMD_NAV_RETURN_TO_LAUNCH, MAV_CMD_DO_SET_MODE]}}
+      kind: drop
 """
 
 from __future__ import annotations

@@ -162,8 +162,36 @@ def _doc_text(doc: str | None) -> str:
     return "\n".join(out).replace("```sh\n\n", "```sh\n") + "\n"
 
 
+# Bad targets whose errors docs/profile.md shows, as the current code words them.
+BAD_TARGETS: list[dict[str, Any]] = [
+    {"target": {"message": "COMAND_LONG", "field": "param7"}, "kind": "bias", "offset": 1},
+    {"target": {"message": "COMMAND_LONG", "field": "parm7"}, "kind": "bias", "offset": 1},
+    {"target": {"message": "OBSTACLE_DISTANCE", "field": "distances"}, "kind": "bias", "offset": 1},
+    {"target": {"message": "COMMAND_LONG", "field": "param7", "where": {"command": "MAV_CMD_NAV_TAKEOF"}},
+     "kind": "set", "value": 12},
+    {"target": {"message": "PARAM_SET", "field": "param_value", "where": {"parm_id": "RTL_ALT"}}, "kind": "set",
+     "value": 300},
+    {"target": {"message": "COMMAND_LONG", "field": "command"}, "kind": "set", "value": 70000},
+]
+
+
+def _error_examples() -> str:
+    from attack_profiles.profile import parse_profile
+    from secuav_common.loading import InputError
+
+    lines = []
+    for bad in BAD_TARGETS:
+        try:
+            parse_profile({"name": "bad", "rules": [bad]}, "attack.yaml")
+        except InputError as err:
+            lines.append(str(err))
+        else:
+            raise AssertionError(f"docs example is not refused: {bad}")
+    return "```text\n" + "\n".join(lines) + "\n```\n"
+
+
 def outputs() -> dict[str, str]:
-    from attack_profiles import engine, frame_ops_doc, quantities
+    from attack_profiles import dialect, engine, frame_ops_doc, quantities, where
     from attack_profiles.profile import Profile, profile_schema_text
     from mitm_proxy.config import ProxyConfig
     from mitm_proxy.net import rules as routes
@@ -179,6 +207,9 @@ def outputs() -> dict[str, str]:
         "profile.md": HEADER + "# Attack profiles\n\nSchema: [schema/profile.schema.json](schema/profile.schema.json) "
         "(also `secuav-attack schema`).\n\n## The library\n\n" + library_doc()
         + "\n## Targets by quantity\n\n" + _doc_text(quantities.__doc__) + "\n" + quantities.mapping_table()
+        + "\n## Any message, any field\n\n" + _doc_text(dialect.__doc__) + "\n" + _error_examples()
+        + "\nUnits converted to a physical unit (any other stays in wire units):\n\n" + dialect.units_table()
+        + "\n### where\n\n" + _doc_text(where.__doc__)
         + "\n## No reading stays no reading\n\n" + _doc_text(engine.__doc__.split("No reading: ", 1)[1])
         + "\n## Frame operations: injection, duplicates, replay, missions, signing\n\n" + _doc_text(frame_ops_doc.GUIDE)
         + "\n## Fields\n\n" + field_table(Profile, "Profile"),

@@ -27,6 +27,9 @@ class GarbageRule(RuleBase):
             return super().fields_of(msg)
         return [name for name in msg.fields if name != msg.time_field]  # a dialect message's clock stays
 
+    def names_a_field(self) -> bool:
+        return self.scope != "frame"  # every field: LOCAL_POSITION_NED or COMMAND_LONG as a whole
+
     def check(self, where: str, source: str) -> None:
         super().check(where, source)
         if self.scope == "frame" and self.target.field is not None:

@@ -157,3 +157,22 @@ def test_a_set_outside_a_derived_fields_wire_range_is_refused_when_read() -> Non
     with pytest.raises(InputError, match=r"rules\[0\]\.value: GPS_INPUT\.lat \(int32_t\) carries -214\.748 to "):
         parse_profile({"name": "t", "rules": [gps]}, "p.yaml")
     parse_profile({"name": "t", "rules": [{**gps, "value": 47.5}]}, "p.yaml")
+
+
+def test_garbage_over_a_whole_dialect_message_keeps_its_clock_and_packs() -> None:
+    from mavframe import codec
+    from mavframe.packet import Packet
+
+    profile = make_profile({"target": {"message": "OBSTACLE_DISTANCE"}, "kind": "garbage", "scope": "frame"})
+    cls = codec.BY_NAME["OBSTACLE_DISTANCE"]
+    fields = {n: 0 for n in cls.fieldnames} | {"time_usec": 123456, "distances": [100] * 72}
+    pkt = codec.build("OBSTACLE_DISTANCE", fields, sysid=1, compid=1, seq=0, direction=Direction.DOWNLINK, link=0,
+                      now_s=0.0)  # fmt: skip
+    decoded = codec.decode(Packet(pkt.raw, pkt.header, Direction.DOWNLINK, 0, 0.0))
+    action = send(started(profile), 0.0, decoded, msgid=OBSTACLE_DISTANCE)
+    assert action.fields is not None and "time_usec" not in action.fields
+    assert len(action.fields["distances"]) == 72 and action.fields["distances"] != [100] * 72
+    decoded.update(action.fields)
+    again = Packet(pkt.raw, pkt.header, Direction.DOWNLINK, 0, 0.0, fields=decoded, changed=True)
+    (msg,) = mavlink.MAVLink(None).parse_buffer(codec.encode(again)) or []
+    assert msg.time_usec == 123456 and list(msg.distances) == action.fields["distances"]

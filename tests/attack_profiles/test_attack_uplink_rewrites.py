@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import struct
 from typing import Any
 
 import pytest
 from attack_helpers import make_profile, started
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from attack_profiles import Action, Direction, Engine, library, parse_profile
@@ -190,3 +193,45 @@ def test_library_vehicle_rangefinder_bias_toward_the_vehicle_only() -> None:
     one = started(library.load("vehicle-rangefinder-bias", sensor_id=1, offset_m=2.0))
     assert run(one, _range(1, 300)).fields == {"current_distance": 500}
     assert run(one, _range(0, 300)).untouched
+
+
+_COMMANDS = sorted(mavlink.enums["MAV_CMD"])[:-1]  # every MAV_CMD but the ENUM_END marker
+_params = st.floats(width=32, allow_nan=False, allow_infinity=False)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.sampled_from(_COMMANDS), st.sampled_from(_COMMANDS), st.lists(_params, min_size=7, max_size=7),
+       st.floats(-1e4, 1e4))  # fmt: skip
+def test_where_acts_exactly_on_the_matching_commands(wanted: int, sent: int, params: list[float], alt: float) -> None:
+    name = mavlink.enums["MAV_CMD"][wanted].name
+    engine = started(make_profile({"target": up("COMMAND_LONG", "param7", {"command": name}), "kind": "set",
+                                   "value": alt}))  # fmt: skip
+    frame = command_long(sent, **{f"param{k + 1}": p for k, p in enumerate(params)})
+    action = run(engine, frame)
+    if sent != wanted:
+        assert action.untouched
+        return
+    assert set(action.fields or {}) <= {"param7"}
+    written = (action.fields or {}).get("param7", params[6])
+    f32 = struct.Struct("<f")
+    assert f32.unpack(f32.pack(written)) == f32.unpack(f32.pack(alt))  # the number the frame carries (-0.0 == 0.0)
+
+
+_where_keys = st.sampled_from(["command", "param1", "param_id", "frame", "confirmation", "x", "", "distances[2]"])
+_where_values = st.one_of(st.integers(-(2**70), 2**70), st.floats(), st.text(max_size=20), st.booleans(),
+                          st.sampled_from(["NAV_TAKEOFF", "MAV_CMD_NAV_LAND", "MAV_FRAME_GLOBAL"]))  # fmt: skip
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.sampled_from(["COMMAND_LONG", "COMMAND_INT", "PARAM_SET"]),
+       st.dictionaries(_where_keys | st.text(max_size=8), _where_values | st.lists(_where_values, max_size=3),
+                       max_size=3))  # fmt: skip
+def test_any_where_is_accepted_or_refused_in_one_line_naming_it(message: str, where: dict[str, Any]) -> None:
+    field = {"COMMAND_LONG": "param7", "COMMAND_INT": "z", "PARAM_SET": "param_value"}[message]
+    doc = {"name": "t", "rules": [{"target": up(message, field, where), "kind": "bias", "offset": 1}]}
+    try:
+        profile = parse_profile(doc, "p.yaml")
+    except InputError as err:
+        assert "\n" not in str(err) and str(err.field).startswith("rules[0].target.where"), str(err)
+        return
+    started(profile)  # what was accepted also builds
