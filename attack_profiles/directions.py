@@ -80,7 +80,11 @@ NO_UPLINK_FLAG = "--no-uplink-attacks"
 
 
 def rule_directions(rule: RuleBase) -> tuple[str, ...]:
-    """The directions one rule acts on, in :data:`ORDER`."""
+    """The directions one rule acts on, in :data:`ORDER`. A frame operation may act on more than its
+    target says (``mission_shift`` with ``hide`` rewrites the read-back toward the ground too): it names them."""
+    own = getattr(rule, "directions", None)
+    if own is not None:
+        return tuple(d for d in ORDER if d in {str(x) for x in own})
     return _OF_TARGET[rule.target.direction]
 
 

@@ -63,6 +63,7 @@ import numpy as np
 
 from attack_profiles import readings
 from attack_profiles.action import FORWARD, Action
+from attack_profiles.frame_ops import FrameOps, is_frame_rule, value_warnings
 from attack_profiles.primitives import PRIMITIVES, Context, Primitive, Sample, primitive
 from attack_profiles.primitives.base import Vec3
 from attack_profiles.profile import Profile
@@ -224,8 +225,13 @@ class Engine:
             if rule.needs_anchors and scenario is None:
                 raise InputError(profile.source, f"rules[{i}].kind", rule.kind, "needs a scenario for anchor positions")
         self._msg_by_id: dict[int, MessageSpec] = {
-            MESSAGES[name].msgid: MESSAGES[name] for r in profile.rules for name in _messages_of(r)
+            MESSAGES[name].msgid: MESSAGES[name]
+            for r in profile.rules
+            if not is_frame_rule(r)
+            for name in _messages_of(r)
         }
+        # Frame operations (inject, duplicate, frame_replay, mission_shift): live links only, run by the proxy.
+        self.frame_ops: FrameOps | None = FrameOps.of(profile, seed)
         # Fields outside a typed message's table, and array elements, that rules rewrite or match on.
         self._elements: dict[int, tuple[tuple[str, str, int], ...]] = {}
         self._extend_specs()
@@ -237,7 +243,9 @@ class Engine:
             ids.add(LOCAL_POSITION_NED_ID)
         if self._tracks_rangefinders:
             ids.add(readings.DISTANCE_SENSOR_ID)
-        self.warnings: tuple[str, ...] = tuple(true_copies(profile))
+        self.warnings: tuple[str, ...] = tuple(value_warnings(profile, true_copies))
+        if self.frame_ops is not None:
+            ids |= self.frame_ops.message_ids
         self.message_ids: frozenset[int] = frozenset(ids)
         self._live = self._new_state()
 
@@ -247,7 +255,7 @@ class Engine:
         extra: dict[int, dict[str, FieldSpec]] = {}
         elements: dict[int, dict[str, tuple[str, str, int]]] = {}
         for rule in self.profile.rules:
-            if rule.target.message is None:
+            if rule.target.message is None or is_frame_rule(rule):
                 continue
             msg = MESSAGES[rule.target.message]
             names = [n for n in rule.fields_of(msg) if n is not None] + list(rule.target.where or ())
@@ -314,6 +322,8 @@ class Engine:
         if rebuild:
             self._live = self._new_state()
         self._live.active_at_s = now_s
+        if self.frame_ops is not None:
+            self.frame_ops.activate(now_s)
 
     def process(
         self,
@@ -495,6 +505,8 @@ class Engine:
     def _new_state(self) -> _State:
         plans: dict[int, list[_Compiled]] = {mid: [] for mid in self.message_ids}
         for i, rule in enumerate(self.profile.rules):
+            if is_frame_rule(rule):
+                continue  # the frame operations keep their own state (attack_profiles/frame_ops.py)
             cls = PRIMITIVES.get(rule.kind) or primitive(rule.kind)  # type: ignore[attr-defined]
             if cls is None:  # a plugin's rule that reached a process without the plugin
                 raise InputError(self.profile.source, f"rules[{i}].kind", rule.kind, "no such primitive installed here")

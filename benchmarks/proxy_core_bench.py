@@ -12,6 +12,10 @@ a ratio:
 - ``idle profile``: a profile installed that targets nothing in the stream;
 - ``rewrite 10%``: a bias on sensor 0, decoded and re-packed;
 - ``... batched``: five frames per datagram instead of one.
+- ``injecting uplink`` / ``downlink``: a profile with an ``inject`` rule (not yet due) in that
+  direction; downlink frames go through, so ``uplink`` shows a forging profile costs untouched
+  directions nothing, and ``downlink`` what noting every frame's sequence number costs while the
+  proxy forges in that direction.
 
 Targets (issue 5, whole proxy incl. sockets): pass-through >= 50 k frames/s on
 one core, rewriting >= 30 k/s, so the core must be far above both.
@@ -83,7 +87,15 @@ def pipeline(profile_rules: list[dict] | None, bypass: bool = False, key: bytes 
     if profile_rules is not None:
         slot.offer(parse_profile({"name": "bench", "rules": profile_rules}, "bench.yaml"))
     stage = AttackStage(slot, active=not bypass)
-    return Pipeline(0, [stage], stats=LinkStats(1), signer=None if key is None else Signer(key))
+    pipe = Pipeline(0, [stage], stats=LinkStats(1), signer=None if key is None else Signer(key))
+    pipe.next_tick_s()  # what the link does: a direction the profile forges in is watched from now on
+    return pipe
+
+
+def forging(direction: str) -> list[dict]:
+    """A profile that will inject a STATUSTEXT in ``direction`` (not within the run)."""
+    return [{"kind": "inject", "target": {"message": "STATUSTEXT", "direction": direction}, "from_sysid": 1,
+             "fields": {"text": "bench"}, "start_s": 1e6}]  # fmt: skip
 
 
 def adversarial(repeat: int) -> None:
@@ -184,6 +196,8 @@ def main() -> None:
         ("no profile", through(frames, lambda: pipeline(None))),
         ("idle profile (targets sensor 9, absent)", through(frames, lambda: pipeline(idle))),
         ("rewrite 10% (bias on sensor 0)", through(frames, lambda: pipeline(rewrite))),
+        ("injecting uplink (downlink frames untouched)", through(frames, lambda: pipeline(forging("uplink")))),
+        ("injecting downlink (each frame's seq noted)", through(frames, lambda: pipeline(forging("downlink")))),
         ("pymavlink parse_buffer, 5 frames/datagram", baseline(five)),
         ("bypass, 5 frames/datagram", through(five, lambda: pipeline(rewrite, bypass=True))),
         ("rewrite 10%, 5 frames/datagram", through(five, lambda: pipeline(rewrite))),

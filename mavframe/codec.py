@@ -29,11 +29,22 @@ from typing import Any, Final
 
 from pymavlink.dialects.v20 import ardupilotmega as dialect
 
-from mavframe.frames import CRC_EXTRA, IFLAG_SIGNED, V1_HEADER_LEN, V2_HEADER_LEN, crc_of
+from mavframe.frames import CRC_EXTRA, IFLAG_SIGNED, V1_HEADER_LEN, V2_HEADER_LEN, _mcrf4xx, crc_of
 from mavframe.packet import Direction, Header, Packet
 from mavframe.signing import Signer
 
-__all__ = ["DecodeError", "EncodeError", "build", "decode", "encode", "message_class", "message_id", "sign_injected"]
+__all__ = [
+    "DecodeError",
+    "EncodeError",
+    "build",
+    "decode",
+    "encode",
+    "message_class",
+    "message_id",
+    "restamp",
+    "sign_injected",
+    "unsigned",
+]
 
 MAVLINK_MAP: Final = dialect.mavlink_map
 BY_NAME: Final[dict[str, type[dialect.MAVLink_message]]] = {cls.msgname: cls for cls in MAVLINK_MAP.values()}
@@ -281,6 +292,42 @@ def sign_injected(frame: bytes, signer: Signer) -> bytes:
         raise EncodeError(f"message id {msgid} is not in the dialect")
     body = frame[:2] + bytes((frame[2] | IFLAG_SIGNED,)) + frame[3:-2]
     return signer.sign_new(body + _CRC.pack(crc_of(body, len(body), extra)))
+
+
+_SIGNATURE_LEN = 13
+
+
+def unsigned(frame: bytes) -> bytes:
+    """A signed v2 ``frame`` without its signature and flag 0x01 (its CRC made anew); other frames as they are."""
+    if frame[0] != 0xFD or not frame[2] & IFLAG_SIGNED:
+        return frame
+    body = frame[:2] + bytes((frame[2] & ~IFLAG_SIGNED,)) + frame[3 : -_SIGNATURE_LEN - 2]
+    return body + _CRC.pack(crc_of(body, len(body), _extra_of(frame[: -_SIGNATURE_LEN])))
+
+
+def restamp(frame: bytes, seq: int) -> bytes:
+    """An unsigned ``frame`` (v1 or v2) with sequence number ``seq`` and a fresh CRC.
+
+    A message id the dialect does not know still gets a valid CRC: its CRC_EXTRA is the one byte that
+    makes the frame's own CRC come out (256 one-byte steps; such frames are not CRC-checked on the way in,
+    so nothing is cached from them), and renumbering never turns a newer sender's frame into a bad one.
+    """
+    at = 4 if frame[0] == 0xFD else 2
+    if frame[at] == seq:
+        return frame
+    body = frame[:at] + bytes((seq & 0xFF,)) + frame[at + 1 : -2]
+    return body + _CRC.pack(crc_of(body, len(body), _extra_of(frame)))
+
+
+def _extra_of(frame: bytes) -> int:
+    """CRC_EXTRA of an unsigned ``frame`` (or a signed one cut before its signature)."""
+    msgid = frame[7] | frame[8] << 8 | frame[9] << 16 if frame[0] == 0xFD else frame[5]
+    extra = CRC_EXTRA.get(msgid)
+    if extra is None:
+        crc = _CRC.unpack_from(frame, len(frame) - 2)[0]
+        state = _mcrf4xx(bytes(frame[1:-2]), 0xFFFF)
+        extra = next((e for e in range(256) if _mcrf4xx(bytes((e,)), state) == crc), 0)
+    return extra
 
 
 def build(

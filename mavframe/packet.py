@@ -55,5 +55,6 @@ class Packet:
     fields: dict[str, Any] | None = None  # decoded payload, wire units; None until a stage decodes
     changed: bool = False  # True: re-pack from ``fields`` on the way out
     injected: bool = False  # built by a stage, not received
+    origin: str = ""  # for an injected packet, what made it: "inject", "duplicate", "replay" (counted apart)
     release_s: float = 0.0  # monotonic time before which it must not be sent (delay)
     notes: list[str] = field(default_factory=list)  # who changed it and why, for the record index

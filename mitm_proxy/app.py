@@ -201,6 +201,7 @@ class Proxy:
                 stages.append(parts.secure.stage)
             signer = None if self.signer is None else self.signer.for_link()  # replay state per link
             pipeline = Pipeline(i, stages, stats=parts.stats, observers=[recorder] if recorder else (), signer=signer)
+            parts.slot.unkeyed = pipeline.unkeyed_signed  # a profile that writes frames where it cannot is refused
             grounds = [self.endpoints[ep] for ep in link_cfg.ground_endpoints]
             link = Link(i, sysid, pipeline, parts.stats, self.endpoints[link_cfg.vehicle_endpoint], grounds)
             self.links.append(link)

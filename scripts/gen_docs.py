@@ -192,7 +192,7 @@ def _error_examples() -> str:
 
 
 def outputs() -> dict[str, str]:
-    from attack_profiles import dialect, directions, engine, quantities, where
+    from attack_profiles import dialect, directions, engine, frame_ops_doc, quantities, where
     from attack_profiles.profile import Profile, profile_schema_text
     from mitm_proxy.config import ProxyConfig
     from mitm_proxy.net import rules as routes
@@ -213,6 +213,7 @@ def outputs() -> dict[str, str]:
         + "\nUnits converted to a physical unit (any other stays in wire units):\n\n" + dialect.units_table()
         + "\n### where\n\n" + _doc_text(where.__doc__)
         + "\n## No reading stays no reading\n\n" + _doc_text(engine.__doc__.split("No reading: ", 1)[1])
+        + "\n## Frame operations: injection, duplicates, replay, missions, signing\n\n" + _doc_text(frame_ops_doc.GUIDE)
         + "\n## Fields\n\n" + field_table(Profile, "Profile"),
         "study.md": HEADER + "# Study files\n\nSchema: [schema/study.schema.json](schema/study.schema.json) "
         "(also `secuav-study schema`).\n\n" + field_table(Study, "Study"),

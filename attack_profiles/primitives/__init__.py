@@ -15,9 +15,13 @@ from attack_profiles.primitives.bias import Bias
 from attack_profiles.primitives.coordinated_spoof import CoordinatedSpoof
 from attack_profiles.primitives.delay import Delay
 from attack_profiles.primitives.drop import Drop
+from attack_profiles.primitives.duplicate import Duplicate
+from attack_profiles.primitives.frame_replay import FrameReplay
 from attack_profiles.primitives.freeze import Freeze
 from attack_profiles.primitives.garbage import Garbage
+from attack_profiles.primitives.inject import Inject
 from attack_profiles.primitives.intermittent import Intermittent
+from attack_profiles.primitives.mission_shift import MissionShift
 from attack_profiles.primitives.noise import Noise
 from attack_profiles.primitives.ramp import Ramp
 from attack_profiles.primitives.replay import Replay
@@ -43,6 +47,11 @@ PRIMITIVES: dict[str, type[Primitive]] = {
         Intermittent,
         Garbage,
         CoordinatedSpoof,
+        # Frame operations (attack_profiles/frame_ops.py runs them, not the value engine):
+        Inject,
+        Duplicate,
+        FrameReplay,
+        MissionShift,
     )
 }
 

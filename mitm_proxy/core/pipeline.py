@@ -31,6 +31,16 @@ under ``signed_untouched``, handed to the stage's optional ``signed_untouched(he
 (so its state can say it is inert) and logged once per stage and sending
 system as ``<stage>.signed_no_key``. A stage that raises does not stop forwarding: the frame leaves as it
 came, the error is counted under ``bad["stage_error"]`` and logged once.
+
+Time-driven frames (an injection at a rate, a replayed recording) do not wait for traffic: a stage
+that has them answers ``next_due_s()`` (monotonic, or None) and ``due(now_s, link)``, and the edge
+calls :meth:`Pipeline.tick` when :meth:`Pipeline.next_tick_s` says, and only then (no timer while
+nothing is scheduled). Every frame a stage adds, by ``process`` or ``due``, takes the next sequence
+number of the source it impersonates and that source's later frames are renumbered
+(:mod:`mitm_proxy.core.sequence`); a direction nobody forges in keeps no sequencer, so its fast path
+pays one truth test. On a direction where signed frames arrived and the proxy has no key, forged
+frames are not sent (a receiver that checks signatures would drop them): they are counted under
+``signed_untouched`` and the stage is told (``signed_untouched``), as for a frame it could not rewrite.
 """
 
 from __future__ import annotations
@@ -43,7 +53,8 @@ from typing import NamedTuple, Protocol
 from mavframe import codec
 from mavframe.frames import TEXT, split, tiles
 from mavframe.packet import Direction, Header, Packet
-from mavframe.signing import Signer
+from mavframe.signing import SIGNATURE_LEN, Signer
+from mitm_proxy.core.sequence import Sequencer
 from mitm_proxy.core.stats import DirectionStats, LinkStats
 
 __all__ = ["Observer", "Outgoing", "Pipeline", "Stage"]
@@ -68,6 +79,9 @@ class Stage(Protocol):
     hands it nothing else, so untargeted traffic costs one set lookup.
     ``process`` returns the packets to pass on: ``[]`` drops, ``[pkt]`` passes
     (changed or not), extra packets are injected after it.
+
+    Optional (see the module doc): ``next_due_s()``, ``due(now_s, link)`` for frames made on a
+    clock, and ``forges`` (the directions it may add frames to, so their sequence numbers are watched).
     """
 
     name: str
@@ -145,6 +159,9 @@ class Pipeline:
         self._union_key: tuple[frozenset[int], ...] = ()
         self._union: frozenset[int] = _NOTHING
         self._budget = {d: _HostileBudget() for d in Direction}
+        # Directions whose sequence numbers are watched (a stage forges there, or did): none, the usual case,
+        # costs the fast path one truth test.
+        self._seqs: dict[Direction, Sequencer] = {}
 
     def attach(self, observer: Observer) -> None:
         """From the next datagram on, ``observer`` sees every frame (see :class:`Observer`)."""
@@ -241,6 +258,10 @@ class Pipeline:
                     self._signed_untouched(header, direction, active)
             elif header.msgid in wanted:
                 slow = True
+        if self._seqs and not slow:
+            seqr = self._seqs.get(direction)
+            if seqr is not None:
+                slow = seqr.observe(frames)
         if not slow:
             if not frames:
                 return []
@@ -260,6 +281,7 @@ class Pipeline:
     ) -> list[Outgoing]:
         signer = self.signer
         observers = self.observers
+        seqr = self._seqs.get(direction)
         for o in observers:
             o.frames_in(direction, frames)
         now_parts: list[bytes] = []
@@ -271,9 +293,10 @@ class Pipeline:
                     st.add_bad(reason)
                     continue
             if header.msgid not in wanted or (header.signed and signer is None):
-                now_parts.append(raw)
+                data = raw if seqr is None else self._renumber(header, raw, raw, seqr, st)
+                now_parts.append(data)
                 for o in observers:
-                    o.frame_out(direction, pos, header, raw, raw, None, 0.0)
+                    o.frame_out(direction, pos, header, raw, data, None, 0.0)
                 continue
             pkt = Packet(raw, header, direction, self.link, now_s)
             try:
@@ -287,10 +310,14 @@ class Pipeline:
                 pkts = [pkt]
             if not any(p is pkt for p in pkts):
                 st.dropped += 1
+                if seqr is not None:
+                    seqr.dropped(header)
                 for o in observers:
                     o.dropped(direction, pos, header, raw, pkt)
             for p in pkts:
                 data = self._wire(p, st)
+                if p.injected or self._seqs:  # forged: a number of its own; real: renumbered if its source is
+                    data = self._sequence(p, data, st)
                 delay_s = 0.0
                 if p.release_s > now_s:
                     delay_s = p.release_s - now_s
@@ -347,12 +374,108 @@ class Pipeline:
                     st.resigned += 1
         if p.injected:
             st.injected += 1
-            if self.signer is not None and not p.header.signed:
-                try:
-                    data = codec.sign_injected(data, self.signer)
-                except codec.EncodeError as exc:  # not a v2 frame of a known id: it leaves unsigned
-                    st.add_bad(ENCODE_ERROR)
-                    self._log_once("sign_injected", "pipeline.sign_error", msgid=p.header.msgid, error=str(exc))
-                else:
-                    st.resigned += 1
+            if p.origin == "duplicate":
+                st.duplicated += 1
+            elif p.origin == "replay":
+                st.replayed += 1
         return data
+
+    def _sequence(self, p: Packet, data: bytes, st: DirectionStats) -> bytes:
+        """Sequence number (and signature) of one packet leaving: see :mod:`mitm_proxy.core.sequence`."""
+        seqr = self._seqs.get(p.direction)
+        if not p.injected:
+            return data if seqr is None else self._renumber(p.header, data, p.raw, seqr, st)
+        if seqr is None:
+            seqr = self._seqs[p.direction] = Sequencer()
+        h = p.header
+        data = codec.unsigned(data)  # a copy of a signed frame: the old signature would be a replay
+        data = codec.restamp(data, seqr.forged(h.sysid, h.compid, data[4 if data[0] == 0xFD else 2]))
+        if self.signer is not None:
+            try:
+                data = codec.sign_injected(data, self.signer)
+            except codec.EncodeError as exc:  # not a v2 frame of a known id: it leaves unsigned
+                st.add_bad(ENCODE_ERROR)
+                self._log_once("sign_injected", "pipeline.sign_error", msgid=h.msgid, error=str(exc))
+            else:
+                st.resigned += 1
+        return data
+
+    def _renumber(self, h: Header, data: bytes, original: bytes, seqr: Sequencer, st: DirectionStats) -> bytes:
+        """A real frame with the number its source's stream needs; signed ones only with the key."""
+        seq = seqr.real(h)
+        if seq == h.seq:
+            return data
+        if not h.signed:
+            return codec.restamp(data, seq)
+        if self.signer is None:
+            return data  # cannot re-sign: it leaves as it came (forging there was refused or withheld)
+        st.resigned += 1
+        return self.signer.resign(codec.restamp(data[:-SIGNATURE_LEN], seq), original)
+
+    # -- frames on a clock ------------------------------------------------------------------------
+
+    def unkeyed_signed(self) -> frozenset[Direction]:
+        """Directions where signed frames arrived and this proxy has no key to sign what it would add or change."""
+        if self.signer is not None:
+            return frozenset()
+        return frozenset(d for d, s in self.stats.directions.items() if s.signed)
+
+    def next_tick_s(self) -> float | None:
+        """When :meth:`tick` has something to send (monotonic), or None; also starts watching the sequence
+        numbers of every direction an active stage may forge in (and stops where nothing was forged)."""
+        best: float | None = None
+        forging: set[Direction] = set()
+        for stage in self.stages:
+            if not stage.active:
+                continue
+            forging |= getattr(stage, "forges", frozenset())
+            ask = getattr(stage, "next_due_s", None)
+            t = None if ask is None else ask()
+            if t is not None and (best is None or t < best):
+                best = t
+        for d in forging:
+            self._seqs.setdefault(d, Sequencer())
+        for d in [d for d, seqr in self._seqs.items() if d not in forging and not seqr.offset]:
+            del self._seqs[d]  # nothing renumbered there: the fast path is free again
+        return best
+
+    def tick(self, now_s: float) -> list[tuple[Direction, Outgoing]]:
+        """What the stages' clocks have due at ``now_s``: one datagram per direction."""
+        parts: dict[Direction, list[bytes]] = {}
+        unkeyed = self.unkeyed_signed()
+        for stage in self.stages:
+            due = getattr(stage, "due", None)
+            if due is None or not stage.active:
+                continue
+            try:
+                pkts = due(now_s, self.link)
+            except Exception as exc:  # a stage bug must not stop the link
+                self._log_once(f"tick:{type(exc).__name__}", "pipeline.stage_error", error=repr(exc))
+                continue
+            for p in pkts:
+                st = self.stats.directions[p.direction]
+                if p.direction in unkeyed:
+                    st.signed_untouched += 1
+                    self._forge_withheld(stage, p)
+                    continue
+                data = self._sequence(p, self._wire(p, st), st)
+                parts.setdefault(p.direction, []).append(data)
+                for o in self.observers:
+                    o.frames_in(p.direction, ())
+                    o.frame_out(p.direction, 0, p.header, p.raw, data, p, 0.0)
+        out: list[tuple[Direction, Outgoing]] = []
+        for d, chunk in parts.items():
+            st = self.stats.directions[d]
+            joined = b"".join(chunk)
+            st.frames_out += len(chunk)
+            st.bytes_out += len(joined)
+            out.append((d, Outgoing(joined, now_s, now_s, len(chunk))))
+        return out
+
+    def _forge_withheld(self, stage: Stage, p: Packet) -> None:
+        tell = getattr(stage, "signed_untouched", None)
+        if tell is not None:
+            tell(p.header)
+        self._log_once(f"forge_no_key:{p.direction}", f"{stage.name}.forge_no_key", direction=str(p.direction),
+                       detail=f"the {p.direction} of this link is signed and this proxy has no signing key: frames "
+                       "it would forge there are not sent (start secuav-proxy with --signing-key FILE)")  # fmt: skip

@@ -30,7 +30,9 @@ class DirectionStats:
     bytes_out: int = 0
     rewritten: int = 0  # frames re-packed with changed fields
     dropped: int = 0  # valid frames a stage dropped
-    injected: int = 0  # frames a stage added
+    injected: int = 0  # frames a stage added (duplicated and replayed ones included)
+    duplicated: int = 0  # ... of them, copies of a frame that passed (profile rule ``duplicate``)
+    replayed: int = 0  # ... of them, recorded frames played back (profile rule ``frame_replay``)
     delayed: int = 0  # frames held back (release_s in the future)
     unknown: int = 0  # frames of message ids the dialect does not know (forwarded, not CRC-checked)
     signed: int = 0  # signed v2 frames seen
@@ -51,6 +53,8 @@ class DirectionStats:
             "rewritten": self.rewritten,
             "dropped": self.dropped,
             "injected": self.injected,
+            "duplicated": self.duplicated,
+            "replayed": self.replayed,
             "delayed": self.delayed,
             "unknown": self.unknown,
             "signed": self.signed,

@@ -22,6 +22,12 @@ the autopilots apply them):
 If the pipeline raises (a bug, never bad input: bad input is counted inside),
 the datagram is forwarded as it came and the error logged once: the proxy
 fails open, so a vehicle never loses its link because of us.
+
+Frames on a clock (an injection, a replayed recording): the link arms one timer at
+:meth:`Pipeline.next_tick_s` and, when it fires, sends what :meth:`Pipeline.tick` returns
+(uplink to the vehicle, downlink to every ground endpoint), then arms the next. With nothing
+scheduled there is no timer; a stage says when that may have changed through its
+``on_schedule`` hook, which the link sets to :meth:`Link.wake`.
 """
 
 from __future__ import annotations
@@ -63,7 +69,14 @@ class Link:
         self.pending = 0  # delayed frames not yet sent
         self._loop = asyncio.get_running_loop()
         self._handles: set[asyncio.TimerHandle] = set()
+        self._tick: asyncio.TimerHandle | None = None
+        self._tick_at: float | None = None  # monotonic time the armed tick is for
+        self.tick_errors = 0
         vehicle.receiver = self.from_vehicle
+        for stage in pipeline.stages:
+            if hasattr(stage, "on_schedule"):
+                stage.on_schedule = self.wake  # type: ignore[attr-defined]
+        self.wake()
 
     def from_vehicle(self, data: bytes, rx_s: float) -> None:
         self._feed(data, Direction.DOWNLINK, rx_s, self.grounds)
@@ -102,12 +115,52 @@ class Link:
         self._handles.add(handle)
         self.pending += 1
 
+    def wake(self) -> None:
+        """(Re)arm the tick timer for the pipeline's next due frame; nothing due: no timer."""
+        try:
+            at = self.pipeline.next_tick_s()
+        except Exception:  # a stage bug: no clock-driven frames, forwarding goes on
+            at = None
+            self.tick_errors += 1
+            if self.tick_errors == 1:
+                log.exception("link.tick_error", extra={"sysid": self.sysid})
+        if self._tick is not None:
+            if at is not None and at == self._tick_at:
+                return
+            self._tick.cancel()
+            self._tick = self._tick_at = None
+        if at is None:
+            return
+        self._tick_at = at
+        self._tick = self._loop.call_at(self._loop.time() + max(0.0, at - time.monotonic()), self._on_tick)
+
+    def _on_tick(self) -> None:
+        self._tick = self._tick_at = None
+        now = time.monotonic()
+        try:
+            outs = self.pipeline.tick(now)
+        except Exception:
+            outs = []
+            self.tick_errors += 1
+            if self.tick_errors == 1:
+                log.exception("link.tick_error", extra={"sysid": self.sysid})
+        for direction, out in outs:
+            for ep in self.grounds if direction is Direction.DOWNLINK else (self.vehicle,):
+                ep.send(out.data)
+        self.wake()
+
     def close(self) -> None:
-        """Cancel frames still held back (they are counted as delayed, never sent)."""
+        """Cancel frames still held back (they are counted as delayed, never sent), and the tick timer."""
         for handle in self._handles:
             handle.cancel()
         self._handles.clear()
         self.pending = 0
+        if self._tick is not None:
+            self._tick.cancel()
+            self._tick = self._tick_at = None
+        for stage in self.pipeline.stages:
+            if getattr(stage, "on_schedule", None) == self.wake:
+                stage.on_schedule = None  # type: ignore[attr-defined]
 
 
 class GroundRouter:

@@ -15,9 +15,17 @@ messages that may carry a true copy of what the profile attacks
 (:mod:`mitm_proxy.stages.true_copy_watch`): such a frame is told to the slot and
 passes as it came, undecoded. ``active = False`` is the seed's bypass; with no profile in
 the slot the stage is inactive too, so the pipeline skips it for free.
+
+The profile's frame operations (``engine.frame_ops``: inject, duplicate, frame_replay,
+mission_shift) run after the value rules on the frames they target, and on the clock through
+:meth:`AttackStage.due` / :meth:`AttackStage.next_due_s`, which the pipeline's ``tick`` asks.
+Whoever drives the clock (the link) sets :attr:`AttackStage.on_schedule`; the stage calls it when
+what is due may have changed: a profile installed or cleared, the bypass switched, a recording begun.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 from mavframe import codec
 from mavframe.packet import Direction, Header, Packet
@@ -33,16 +41,58 @@ class AttackStage:
 
     def __init__(self, slot: AttackSlot, *, active: bool = True) -> None:
         self.slot = slot
-        self.enabled = active
+        self._enabled = active
+        self.on_schedule: Callable[[], None] | None = None
+        slot.listeners.append(self._rescheduled)
 
     @property
     def active(self) -> bool:
         """False when bypassed or when no profile is installed."""
-        return self.enabled and self.slot.engine is not None
+        return self._enabled and self.slot.engine is not None  # per datagram: no property call inside
 
     @active.setter
     def active(self, value: bool) -> None:
         self.enabled = value
+
+    @property
+    def enabled(self) -> bool:
+        """False while bypassed (the ``attack/mode`` switch writes it); a change re-arms the link's clock."""
+        return self._enabled
+
+    @enabled.setter
+    def enabled(self, value: bool) -> None:
+        changed = value != self._enabled
+        self._enabled = value
+        if changed:
+            self._rescheduled()
+
+    def _rescheduled(self) -> None:
+        if self.on_schedule is not None:
+            self.on_schedule()
+
+    @property
+    def forges(self) -> frozenset[Direction]:
+        """Directions the profile adds frames to (their sequence numbers must be watched)."""
+        engine = self.slot.engine
+        ops = None if engine is None else engine.frame_ops
+        return frozenset() if ops is None else ops.forges
+
+    def next_due_s(self) -> float | None:
+        engine = self.slot.engine
+        ops = None if engine is None else engine.frame_ops
+        return None if ops is None else ops.next_due_s(self.slot.sysid)
+
+    def due(self, now_s: float, link: int) -> list[Packet]:
+        engine = self.slot.engine
+        ops = None if engine is None else engine.frame_ops
+        if ops is None:
+            return []
+        pkts = ops.due(now_s, self.slot.sysid, link)
+        if pkts:
+            prefix = f"attack:{engine.profile.name}:"  # type: ignore[union-attr]
+            for p in pkts:
+                p.notes[:] = [prefix + n for n in p.notes]
+        return pkts
 
     @property
     def message_ids(self) -> frozenset[int]:
@@ -72,18 +122,28 @@ class AttackStage:
                 return [pkt]
         fields = codec.decode(pkt)
         action = engine.process(now_s, h.msgid, fields, pkt.direction, h.sysid, h.compid)
-        if action.untouched:
-            return [pkt]
-        notes = [f"attack:{engine.profile.name}:rules[{i}]" for i in action.rules]
-        if action.drop:
+        ops = engine.frame_ops
+        if not action.untouched:
+            notes = [f"attack:{engine.profile.name}:rules[{i}]" for i in action.rules]
+            if action.drop:
+                pkt.notes.extend(notes)
+                return []
+            if action.fields:
+                fields.update(action.fields)
+                pkt.changed = True
+            if action.clamped:
+                notes.append("clamped:" + ",".join(action.clamped))
+            if action.delay_s > 0.0:
+                pkt.release_s = max(pkt.release_s, now_s + action.delay_s)
             pkt.notes.extend(notes)
-            return []
-        if action.fields:
-            fields.update(action.fields)
-            pkt.changed = True
-        if action.clamped:
-            notes.append("clamped:" + ",".join(action.clamped))
-        if action.delay_s > 0.0:
-            pkt.release_s = max(pkt.release_s, now_s + action.delay_s)
-        pkt.notes.extend(notes)
-        return [pkt]
+        if ops is None or h.msgid not in ops.message_ids:
+            return [pkt]
+        before = len(pkt.notes)
+        pkts = ops.process(pkt, now_s, self.slot.sysid)
+        prefix = f"attack:{engine.profile.name}:"
+        for p in pkts:
+            start = before if p is pkt else 0
+            p.notes[start:] = [n if n.startswith("attack:") else prefix + n for n in p.notes[start:]]
+        if ops.rescheduled(self.slot.sysid):
+            self._rescheduled()
+        return pkts

@@ -26,6 +26,12 @@ warned about once the vehicle is seen sending such a carrier
 (:class:`~mitm_proxy.stages.true_copy_watch.TrueCopyWatch`: ``attack.true_copy``
 in the log and the state); a rule toward the vehicle is noted once at install
 (``attack.vehicle_reports``): the autopilot will report the lie it was fed.
+
+A profile that would write frames (rewrite a field, inject,
+duplicate, replay, shift a mission) in a direction where signed frames already arrived and the proxy
+has no key is refused at apply, with the reason, and the previous profile stays: ``unkeyed`` (the
+link's :meth:`~mitm_proxy.core.pipeline.Pipeline.unkeyed_signed`, set by the proxy) says where.
+Whoever must know when the profile changes (the attack stage, for its clock) is in ``listeners``.
 """
 
 from __future__ import annotations
@@ -38,14 +44,17 @@ from typing import Any, NamedTuple
 from attack_profiles.control import profile_from_payload
 from attack_profiles.directions import check_no_uplink, describe, directions_of
 from attack_profiles.engine import Engine
+from attack_profiles.frame_ops import needs_key
 from attack_profiles.profile import Profile
 from attack_profiles.true_copy import findings, vehicle_reports
 from mavframe import codec
+from mavframe.packet import Direction
 from mitm_proxy.control.switch import Switch, SwitchHost
 from mitm_proxy.stages.true_copy_watch import TrueCopyWatch
 from secuav_common.controlplane.payloads import AttackState
 from secuav_common.controlplane.switches.attack import SPEC
 from secuav_common.controlplane.topics import vehicle_topic
+from secuav_common.loading import InputError
 from secuav_common.scenario import Scenario
 
 SlotState = AttackState  # what ``secuav/v<sysid>/attack/state`` carries (retained)
@@ -85,6 +94,8 @@ class AttackSlot(Switch[AttackState]):
         self._hash: str | None = None  # of the engine's profile, kept with it (states are built 5 times a second)
         self._since: float | None = None
         self._signed: dict[int, int] = {}  # sysid -> the first message id left alone for want of a key
+        self.unkeyed: Callable[[], frozenset[Direction]] | None = None  # signed directions without a key
+        self.listeners: list[Callable[[], None]] = []  # told after every install or clear
 
     @classmethod
     def build(cls, host: SwitchHost, sysid: int | None) -> AttackSlot | None:
@@ -155,10 +166,12 @@ class AttackSlot(Switch[AttackState]):
         if isinstance(payload, _Built):
             engine: Engine | None = payload.engine
             self._allowed(payload.engine.profile, source)
+            self._check_signing(payload.engine, source)
             payload.engine.activate(time.monotonic(), rebuild=False)  # built off the loop: only the clock starts
             self.engine, self._hash, self._since = engine, payload.hash, time.time()
             self._signed = {}
             self._warn(engine)
+            self._tell()
             return
         if isinstance(payload, Engine):
             engine = payload  # built and started by the caller (secuav-record shares one clock)
@@ -169,12 +182,34 @@ class AttackSlot(Switch[AttackState]):
             self._allowed(profile, source)
             engine = None if profile is None else Engine(profile, self.seed, self.scenario)
             if engine is not None:
+                self._check_signing(engine, source)
                 engine.activate(time.monotonic())
+        if isinstance(payload, Engine):
+            self._check_signing(engine, source)
         self.engine = engine
         self._hash = None if engine is None else engine.profile.content_hash()
         self._since = time.time()
         self._signed = {}  # the new profile may target what is not signed; the next frames tell
         self._warn(engine)
+        self._tell()
+
+    def _tell(self) -> None:
+        for listener in self.listeners:
+            listener()
+
+    def _check_signing(self, engine: Engine | None, source: str) -> None:
+        """Refuse (``InputError``) a profile that would write frames where the link signs and we have no key."""
+        if engine is None or self.unkeyed is None:
+            return
+        signed = self.unkeyed()
+        if not signed:
+            return
+        for i, kind, directions in needs_key(engine.profile):
+            hit = sorted(directions & signed)
+            if hit:
+                raise InputError(source, f"rules[{i}]", kind, f"the {hit[0]} of vehicle {self.sysid} is signed and "
+                                 "this proxy has no signing key: it cannot forge or rewrite frames there (start "
+                                 "secuav-proxy with --signing-key FILE, docs/interfaces.md)")  # fmt: skip
 
     def _allowed(self, profile: Profile | None, source: str) -> None:
         """Every door (MQTT, the file reload, ``--profile``, an engine) passes here: with ``forbid_uplink`` a rule

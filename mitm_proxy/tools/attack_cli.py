@@ -174,9 +174,14 @@ def _stats_line(stats: dict[str, Any]) -> str:
     for direction in ("downlink", "uplink"):
         d = stats.get(direction)
         if isinstance(d, dict):
+            forged = ""
+            if d.get("injected"):  # frames the proxy added: said only when there are some
+                forged = (f", injected {d['injected']} (duplicated {d.get('duplicated', 0)}, "
+                          f"replayed {d.get('replayed', 0)})")  # fmt: skip
             parts.append(
                 f"{direction} {d.get('frames_in', '?')} in/{d.get('frames_out', '?')} out, "
-                f"rewritten {d.get('rewritten', '?')}, dropped {d.get('dropped', '?')}, bad {d.get('bad_total', '?')}"
+                f"rewritten {d.get('rewritten', '?')}, dropped {d.get('dropped', '?')}{forged}, "
+                f"bad {d.get('bad_total', '?')}"
             )
     lat = stats.get("latency_ms")
     if isinstance(lat, dict) and lat.get("p50") is not None:

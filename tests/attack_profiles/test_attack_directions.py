@@ -132,3 +132,16 @@ def test_validate_says_the_directions_words_the_warning_as_a_condition_and_notes
     lines = done.stderr.splitlines()
     assert any(ln.startswith("warning: rules[0] rewrite") and "if the vehicle sends it" in ln for ln in lines)
     assert any(ln.startswith("note: rules[0] feed the vehicle a false rangefinder distance") for ln in lines)
+
+
+def test_frame_operations_name_every_direction_they_write() -> None:
+    """An injection toward the vehicle is uplink; a mission shift that hides itself also rewrites the read-back
+    toward the ground, and the no-uplink switch refuses both."""
+    from attack_profiles.resolve import resolve_profile
+
+    assert directions_of(resolve_profile("inject-rtl")) == ["uplink"]
+    assert directions_of(resolve_profile("mission-shift")) == ["downlink", "uplink"]
+    assert directions_of(resolve_profile("mission-shift", {"hide": False})) == ["uplink"]
+    for name in ("inject-rtl", "mission-shift", "takeoff-altitude", "vehicle-rangefinder-bias"):
+        with pytest.raises(InputError, match=r"rules\[0\]"):
+            check_no_uplink(resolve_profile(name), name)
