@@ -41,7 +41,7 @@ from pathlib import Path
 from typing import Any
 
 from pydantic import ValidationError
-from sse_starlette.sse import EventSourceResponse
+from sse_starlette.sse import EventSourceResponse, SendTimeoutError
 from starlette.applications import Starlette
 from starlette.requests import Request
 from starlette.responses import FileResponse, JSONResponse, Response
@@ -56,6 +56,7 @@ from secuav_common.controlplane import switches
 from secuav_common.controlplane.payloads import MAX_PAYLOAD_BYTES, request_bytes
 from secuav_common.controlplane.topics import vehicle_topic
 from secuav_common.loading import InputError, first_error, parse_document
+from secuav_common.logs import RateLimitedLog
 from webconsole.fleet import AckTimeout, Fleet, Session
 from webconsole.security import LOOPBACK_NAMES, guarded
 from webconsole.world import world_json
@@ -66,6 +67,7 @@ BACKFILL_S = 120.0  # a page that (re)connects gets this much history at once
 MAX_BODY = 256 * 1024
 MAX_STREAMS_PER_CLIENT = 4  # a few tabs of one operator
 MAX_STREAMS = 32  # every update is built once per stream: this bounds the console's work
+STREAM_SEND_TIMEOUT_S = 15.0  # a stream whose client has read nothing for this long (buffers full) is cut off
 LOGIN_FREE_FAILURES = 5  # wrong passwords from one address before it must wait (2 s, doubling)
 LOGIN_MAX_WAIT_S = 300.0
 log = logging.getLogger("secuav-console")
@@ -249,7 +251,8 @@ class StreamSlots:
 
 
 def build_app(fleet: Fleet, session: Session, password: str | None = None, ack_timeout_s: float = 5.0,
-              hosts: Iterable[str] = LOOPBACK_NAMES, streams: StreamSlots | None = None) -> ASGIApp:  # fmt: skip
+              hosts: Iterable[str] = LOOPBACK_NAMES, streams: StreamSlots | None = None,
+              stream_send_timeout_s: float = STREAM_SEND_TIMEOUT_S) -> ASGIApp:  # fmt: skip
     """The ASGI application behind ``webconsole.security``'s guards (``hosts``: the Host names it answers
     to), and behind :class:`BasicAuth` when a password is given."""
     library_cache: list[dict[str, Any]] = []
@@ -356,11 +359,14 @@ def build_app(fleet: Fleet, session: Session, password: str | None = None, ack_t
             watched = int(request.query_params.get("vehicle", "0"))
         except ValueError:
             return _error(400, "vehicle: must be a sysid")
+        if request.method != "GET":  # HEAD: the headers a stream would have, and no slot (nothing will run)
+            return Response(status_code=200, media_type="text/event-stream", headers={"Cache-Control": "no-store"})
         client = request.client.host if request.client else "?"
         refused = slots.take(client)
         if refused is not None:
             return _error(429, refused)
-        return EventSourceResponse(_events(request, fleet, watched, lambda: slots.give_back(client)), ping=15)
+        return SlotStream(_updates(request, fleet, watched), lambda: slots.give_back(client), ping=15,
+                          send_timeout=stream_send_timeout_s)  # fmt: skip
 
     routes = [
         Route("/", index),
@@ -380,17 +386,36 @@ def build_app(fleet: Fleet, session: Session, password: str | None = None, ack_t
     return guarded(BasicAuth(app, password) if password else app, hosts, MAX_BODY)
 
 
-async def _events(request: Request, fleet: Fleet, watched: int,
-                  done: Callable[[], None]) -> AsyncIterator[dict[str, str]]:  # fmt: skip
-    """12.5 updates a second: the fleet table, and the watched vehicle's samples since the last one."""
-    try:
-        async for event in _updates(request, fleet, watched):
-            yield event
-    finally:
-        done()
+class SlotStream(EventSourceResponse):
+    """An event stream that gives its slot back when the response ends, however it ends.
+
+    The slot is tied to the response, not to its generator: a response that never starts
+    its generator (a client gone before the first byte) still gives it back. A client that
+    stops reading is cut off once one send has waited ``send_timeout`` seconds (its socket
+    buffers full), so a stream nobody reads cannot hold its slot either.
+    """
+
+    def __init__(self, content: AsyncIterator[dict[str, str]], release: Callable[[], None], **options: Any) -> None:
+        super().__init__(content, **options)
+        self._release: Callable[[], None] | None = release
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        try:
+            await super().__call__(scope, receive, send)
+        except SendTimeoutError:
+            client = (scope.get("client") or ("?", 0))[0]
+            stalled.event("console.stream_stalled", client=client, waited_s=self.send_timeout)
+        finally:
+            release, self._release = self._release, None
+            if release is not None:
+                release()
+
+
+stalled = RateLimitedLog(log)
 
 
 async def _updates(request: Request, fleet: Fleet, watched: int) -> AsyncIterator[dict[str, str]]:
+    """12.5 updates a second: the fleet table, and the watched vehicle's samples since the last one."""
     cursor, first = 0, True
     loop = asyncio.get_running_loop()
     due = loop.time()
