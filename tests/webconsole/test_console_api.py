@@ -27,6 +27,7 @@ from secuav_common.broker import BrokerAddress, EmbeddedBroker
 from secuav_common.scenario import load_scenario
 from tests.conftest import free_tcp_port
 from webconsole.api import build_app
+from webconsole.connections import server_config
 from webconsole.fleet import Fleet, Session
 
 pytestmark = pytest.mark.timeout(60)
@@ -66,9 +67,9 @@ def call(base: str, path: str, body: Any = None, auth: str | None = None) -> tup
 @contextlib.asynccontextmanager
 async def serve(fleet: Fleet, session: Session, password: str | None = None, **options: Any) -> AsyncIterator[str]:
     port = free_tcp_port()
+    served = {k: options.pop(k) for k in ("trusted_proxies", "limits") if k in options}
     app = build_app(fleet, session, password, ack_timeout_s=2.0, **options)
-    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1",
-                                           port=port, log_level="warning", lifespan="off"))  # fmt: skip
+    server = uvicorn.Server(server_config(app, "127.0.0.1", port, **served))  # as secuav-console serves it
     server.install_signal_handlers = lambda: None  # type: ignore[method-assign]
     task = asyncio.create_task(server.serve())
     while not server.started:
