@@ -281,14 +281,17 @@ def build_app(fleet: Fleet, session: Session, password: str | None = None, ack_t
         except ValueError as exc:
             raise InputError("request", "", None, f"not JSON: {exc}") from None
 
-    def known(request: Request) -> int | None:
+    def row_of(request: Request) -> dict[str, Any] | None:
+        """The vehicle's fleet row; None once its proxy has stopped and it left the fleet (or it never came)."""
         sysid = int(request.path_params["sysid"])
-        return sysid if sysid in fleet.vehicles else None
+        return next((r for r in fleet.summary() if r["sysid"] == sysid), None)
 
     async def send(request: Request, leaf: str, build: Callable[[Any], dict[str, Any] | None]) -> Response:
-        sysid = known(request)
-        if sysid is None:
-            return _error(404, f"no vehicle {request.path_params['sysid']} on the broker")
+        sysid = int(request.path_params["sysid"])
+        if not fleet.owners().get(sysid):  # nobody would answer: say so now rather than after ack_timeout_s
+            if sysid in fleet.vehicles:
+                return _error(404, f"no proxy serves vehicle {sysid} now (its proxy has stopped)")
+            return _error(404, f"no vehicle {sysid} on the broker")
         try:
             payload = build(await json_body(request))
         except InputError as exc:
@@ -310,11 +313,10 @@ def build_app(fleet: Fleet, session: Session, password: str | None = None, ack_t
         return JSONResponse(fleet.summary())
 
     async def vehicle(request: Request) -> Response:
-        sysid = known(request)
-        if sysid is None:
+        row = row_of(request)
+        if row is None:
             return _error(404, f"no vehicle {request.path_params['sysid']} on the broker")
-        row = next(r for r in fleet.summary() if r["sysid"] == sysid)
-        scenario = fleet.scenario_of(sysid)
+        scenario = fleet.scenario_of(row["sysid"])
         return JSONResponse({**row, "world": world_json(scenario) if scenario is not None else None})
 
     async def profiles(request: Request) -> Response:

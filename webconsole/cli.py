@@ -23,7 +23,9 @@ import asyncio
 import contextlib
 import ipaddress
 import logging
+import os
 import signal
+import socket
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -95,6 +97,13 @@ async def serve(args: argparse.Namespace, host: str, port: int, password: str | 
     from webconsole.security import allowed_hosts
 
     scenarios = [load_scenario(s) for s in args.scenario]
+    try:  # bound here, before anything starts: a busy port is one line, not uvicorn's traceback
+        listener = socket.create_server((host, port), family=socket.AF_INET6 if ":" in host else socket.AF_INET,
+                                        backlog=2048)  # fmt: skip
+    except OSError as exc:
+        why = os.strerror(exc.errno) if exc.errno else str(exc)
+        return _fail(f"cannot serve on {host}:{port}: {why} (another program listens there? "
+                     "choose another with --listen HOST:PORT)", 1)  # fmt: skip
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -118,13 +127,13 @@ async def serve(args: argparse.Namespace, host: str, port: int, password: str | 
         quiet_accept_errors(loop)
         server = uvicorn.Server(server_config(app, host, port, trusted_proxies=args.trusted_proxy, **tls))
         server.install_signal_handlers = lambda: None  # type: ignore[method-assign]  # ours above
-        web = asyncio.create_task(server.serve(), name="console-http")
+        web = asyncio.create_task(server.serve(sockets=[listener]), name="console-http")
         await asyncio.sleep(0)
         while not server.started and not web.done():
             await asyncio.sleep(0.05)
-        if web.done():  # the port was taken, or the address does not exist
+        if web.done():  # the TLS files did not load, say
             mqtt.cancel()
-            return _fail(f"cannot serve on {host}:{port} (in use, or not an address of this machine)", 1)
+            return _fail(f"cannot serve on {host}:{port}: {web.exception() or 'the server stopped at start'}", 1)
         log.info("console.ready", extra={"url": url, "broker": redact(address.url),
                                          "auth": "password" if password else "none (loopback only)",
                                          "tls": bool(args.tls_cert),
