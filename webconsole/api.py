@@ -11,7 +11,7 @@
 ``POST /api/vehicles/{sysid}/attack/mode``  ``{"mode": "on" | "bypass"}``
 ``POST /api/vehicles/{sysid}/secure``      ``{"estimator": name | "off", "params": {}}``
 ``POST /api/vehicles/{sysid}/switches/{kind}``  any declared vehicle switch: the body is its request
-``GET /api/stream?vehicle=N``              server-sent events, 12.5 per second: the fleet and N's new samples
+``GET /api/stream?vehicle=N``              server-sent events, 12.5 per second: the fleet, N's new samples, the broker
 =========================================  ===================================================
 
 A POST answers with the proxy's own acknowledgement (``ok``, ``error``), or 422
@@ -53,6 +53,7 @@ from attack_profiles import library
 from attack_profiles.control import profile_from_payload
 from attack_profiles.profile import parse_profile, parse_text
 from secuav_common.controlplane import switches
+from secuav_common.controlplane.address import redact
 from secuav_common.controlplane.payloads import MAX_PAYLOAD_BYTES, request_bytes
 from secuav_common.controlplane.topics import vehicle_topic
 from secuav_common.loading import InputError, first_error, parse_document
@@ -378,7 +379,7 @@ def build_app(fleet: Fleet, session: Session, password: str | None = None, ack_t
         refused = slots.take(client)
         if refused is not None:
             return _error(429, refused)
-        return SlotStream(_updates(request, fleet, watched), lambda: slots.give_back(client), ping=15,
+        return SlotStream(_updates(request, fleet, watched, session), lambda: slots.give_back(client), ping=15,
                           send_timeout=stream_send_timeout_s)  # fmt: skip
 
     routes = [
@@ -427,8 +428,10 @@ class SlotStream(EventSourceResponse):
 stalled = RateLimitedLog(log)
 
 
-async def _updates(request: Request, fleet: Fleet, watched: int) -> AsyncIterator[dict[str, str]]:
-    """12.5 updates a second: the fleet table, and the watched vehicle's samples since the last one."""
+async def _updates(request: Request, fleet: Fleet, watched: int, session: Session) -> AsyncIterator[dict[str, str]]:
+    """12.5 updates a second: the fleet table, the watched vehicle's samples since the last one, and whether
+    the console reaches its broker (``broker``: ``connected``, ``url``; the page says "live" only then)."""
+    broker_url = redact(session.address.url)
     cursor, first = 0, True
     loop = asyncio.get_running_loop()
     due = loop.time()
@@ -440,7 +443,8 @@ async def _updates(request: Request, fleet: Fleet, watched: int) -> AsyncIterato
             if samples:
                 cursor = samples[-1]["seq"]
             first = False
-        payload = {"t": time.time(), "fleet": fleet.summary(), "vehicle": watched, "samples": samples}
+        payload = {"t": time.time(), "fleet": fleet.summary(), "vehicle": watched, "samples": samples,
+                   "broker": {"connected": session.connected.is_set(), "url": broker_url}}
         yield {"event": "update", "data": json.dumps(payload, separators=(",", ":"), allow_nan=False, default=str)}
         due = max(due + STREAM_PERIOD_S, loop.time())  # a fixed schedule: the time spent here does not add up
         await asyncio.sleep(due - loop.time())

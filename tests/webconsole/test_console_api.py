@@ -172,7 +172,15 @@ async def test_mode_secure_unknown_vehicles_and_a_silent_proxy(bench: Bench) -> 
     assert status == 409 and "not available" in ack["error"]  # refused by the proxy: it has no scenario
     status, ack = await asyncio.to_thread(call, bench.base, "/api/vehicles/9/attack", {"profile": None})
     assert status == 404 and "no vehicle 9" in ack["error"]
-    await bench.plane.aclose()  # the proxy goes; the console still knows the vehicle
+    await bench.plane.aclose()  # the proxy goes cleanly (its record says offline): 404 at once (issue 36)
+    for _ in range(100):
+        if not bench.fleet.owners():
+            break
+        await asyncio.sleep(0.05)
+    status, ack = await asyncio.to_thread(call, bench.base, "/api/vehicles/1/attack", {"profile": "wall-spoof"})
+    assert status == 404 and "stopped" in ack["error"]
+    # A proxy that says it is online but does not answer (stuck, or gone before its will fired): 504.
+    bench.fleet.on_message("secuav/proxy/stuck/online", {"instance": "stuck", "online": True, "vehicles": [1]})
     status, ack = await asyncio.to_thread(call, bench.base, "/api/vehicles/1/attack", {"profile": "wall-spoof"})
     assert status == 504 and "no acknowledgement" in ack["error"]
 

@@ -161,6 +161,7 @@ async def test_half_sent_requests_are_refused_past_a_share_and_timed_out(caplog:
 async def test_a_body_sent_too_slowly_is_answered_408(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(api, "BODY_TIMEOUT_S", 0.5)
     fleet, session = _offline_console()
+    fleet.on_message("secuav/proxy/lab/online", {"instance": "lab", "online": True, "vehicles": [1]})
     fleet.on_message("secuav/v1/stats", {"downlink": {}})
     async with serve(fleet, session) as base:
         host, port = base.removeprefix("http://").split(":")
