@@ -1,5 +1,6 @@
 """The console's page in a real chromium, as a crew uses it (issue 36): a fleet row is selected by a press of
-any length while the table is rebuilt 12.5 times a second, and no green "live" badge shows without a broker.
+any length while the table is rebuilt 12.5 times a second, no green "live" badge shows without a broker, and
+a page on another origin cannot take the event-stream slots with HEAD requests.
 
 The app is the real one over uvicorn on loopback; the vehicles' proxy records
 and stats come over a real embedded broker.
@@ -20,6 +21,8 @@ from secuav_common.broker import BrokerAddress, EmbeddedBroker
 from tests.conftest import free_tcp_port
 from tests.webconsole.test_console_api import serve
 from tests.webconsole.test_console_browser import browser  # noqa: F401  (a fixture)
+from tests.webconsole.test_console_security import hostile_page  # noqa: F401  (a fixture)
+from webconsole.api import StreamSlots
 from webconsole.fleet import Fleet, Session
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(120)]
@@ -101,3 +104,25 @@ async def test_without_a_broker_the_page_says_so_and_shows_no_live_badge(browser
     finally:
         mqtt.cancel()
         await asyncio.gather(mqtt, return_exceptions=True)
+
+
+async def test_head_requests_from_another_origin_take_no_stream_slot(
+    browser: Any,  # noqa: F811
+    hostile_page: tuple[int, list[str]],  # noqa: F811
+) -> None:
+    """The review: four no-cors HEAD fetches from a page on another origin locked the operator's stream out."""
+    port, pages = hostile_page
+    fleet = Fleet([])
+    session = Session(BrokerAddress("127.0.0.1", free_tcp_port()), fleet, "http://test/")
+    slots = StreamSlots(per_client=4, total=32)
+    async with serve(fleet, session, streams=slots) as base:
+        pages[0] = f"""<!doctype html><html><body><script>
+Promise.all([1, 2, 3, 4, 5, 6].map(() => fetch("{base}/api/stream?vehicle=1", {{method: "HEAD", mode: "no-cors"}})
+  .catch(() => null))).then(() => {{ document.title = "sent"; }});
+</script></body></html>"""
+        await asyncio.to_thread(browser.get, f"http://127.0.0.1:{port}/")
+        await _wait(browser, lambda d: d.title == "sent", 20, "the hostile page's HEADs sent")
+        assert not slots.open, slots.open
+        await asyncio.to_thread(browser.get, base + "/")  # the operator's own page gets its stream
+        badge = "return document.getElementById('link-state').textContent"
+        await _wait(browser, lambda d: d.execute_script(badge) in ("no broker", "live"), 20, "the page's stream")
