@@ -47,6 +47,12 @@ log = logging.getLogger("secuav-console")
 MAX_CONNECTIONS = 256  # well under the descriptor limit (raised to its hard cap at start, see raise_file_limit)
 MAX_CONNECTIONS_PER_ADDRESS = 32  # a browser opens 6 per host, plus 4 event streams; a few tabs and scripts
 HEADER_TIMEOUT_S = 10.0
+# Connections accepted per turn of the loop (and the kernel's queue): each batch is admitted or refused, closing
+# its descriptors, before the next is taken, so a burst does not run even a 1024-descriptor process out of them
+# (then asyncio stops accepting for a second). Measured with benchmarks/lockout_bench.py --cases slowloris:
+# 2048 (uvicorn's default) answered the operator in ~1 s, 128 in 18 ms to 1 s (a full queue drops the SYN), 512
+# in 86-146 ms.
+BACKLOG = 512
 ACCEPT_ERRORS = (errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM)
 
 
@@ -150,7 +156,7 @@ def server_config(app: ASGIApp, host: str, port: int, *, trusted_proxies: Iterab
     guard = ConnectionGuard(limits or ConnectionLimits(), trusted)
     return uvicorn.Config(app, host=host, port=port, http=guarded_protocol(guard), log_level="warning",
                           access_log=False, lifespan="off", proxy_headers=bool(trusted),
-                          forwarded_allow_ips=trusted or None, **options)  # fmt: skip
+                          forwarded_allow_ips=trusted or None, backlog=BACKLOG, **options)  # fmt: skip
 
 
 def quiet_accept_errors(loop: asyncio.AbstractEventLoop) -> RateLimitedLog:
