@@ -409,7 +409,7 @@ class TcpServerEndpoint(_StreamEndpoint):
     async def _evict_idle(self) -> None:
         """Drop the clients that sent no whole frame for ``idle_s``: a silent connection gives its seat back."""
         while True:
-            await asyncio.sleep(self.idle_s / 4)
+            await asyncio.sleep(max(self.idle_s / 4, 0.05))
             now = time.monotonic()
             for conn in [c for c in self.clients if now - c.last_frame_s > self.idle_s]:
                 self._event("client_idle", f"no MAVLink from {_fmt(conn.peer)} for {self.idle_s:g} s (URL option "
