@@ -23,9 +23,9 @@ a ``tcpin`` client is evicted, and a ``tcp``/``serial`` link drops what arrives
 for the rest of that second. A ``tcpin`` endpoint serves at most
 ``max_clients`` clients and ``max_clients_per_address`` from one address (URL
 options, defaults ``DEFAULT_MAX_CLIENTS`` and ``DEFAULT_MAX_PER_ADDRESS``; one
-more is refused), and drops a client that has sent no whole MAVLink frame (a
-GCS sends HEARTBEAT at 1 Hz) for ``idle_s`` (default ``DEFAULT_IDLE_S``; 0:
-never), so silent connections cannot hold the seats. A client whose send
+more is refused), and drops a client that has not sent one whole MAVLink frame
+(a GCS sends HEARTBEAT at 1 Hz) within ``idle_s`` of connecting (default
+``DEFAULT_IDLE_S``; 0: never), so silent connections cannot hold the seats. A client whose send
 buffer stays over ``MAX_PENDING_SEND_BYTES`` for ``SLOW_CLIENT_S`` is evicted
 (meanwhile it loses frames, counted) rather than making the proxy buffer
 without bound. A ``tcp`` peer that stays silent for ``SILENT_PEER_S`` (one that
@@ -64,7 +64,7 @@ SLICE_BYTES = 2048
 GARBAGE_BYTES_PER_S = 64 * 1024
 DEFAULT_MAX_CLIENTS = 16
 DEFAULT_MAX_PER_ADDRESS = 4  # a few ground tools on one machine; one address cannot take every seat
-DEFAULT_IDLE_S = 15.0  # a tcpin client that sends no MAVLink frame for this long gives its seat back
+DEFAULT_IDLE_S = 15.0  # a tcpin client that sends no MAVLink frame this long after connecting gives its seat back
 SLOW_CLIENT_S = 5.0  # a tcpin client that reads nothing for this long while we send is evicted
 SILENT_PEER_S = 10.0  # an autopilot sends HEARTBEAT at 1 Hz; a tcp peer silent this long is dialled again
 KEEPALIVE = {"TCP_KEEPIDLE": 5, "TCP_KEEPINTVL": 2, "TCP_KEEPCNT": 3}  # a vanished peer is found in ~11 s
@@ -110,7 +110,8 @@ class _Connection(asyncio.Protocol):
         self.transport: asyncio.WriteTransport | None = None
         self.peer: Any = None
         self.lost = asyncio.get_running_loop().create_future()
-        self.last_rx_s = self.last_frame_s = time.monotonic()
+        self.last_rx_s = self.since_s = time.monotonic()
+        self.spoke = False  # sent a whole MAVLink frame: a peer, not a silent connection holding a seat
         self.garbage = _GarbageBudget()  # its own: another client's garbage never costs this one
         self._on_lost = on_lost
         self._inbox: list[bytes] = []  # reads not yet framed; the first from _inbox_at on
@@ -164,7 +165,7 @@ class _Connection(asyncio.Protocol):
         if not whole:
             return
         if tiles(whole):
-            self.last_frame_s = rx_s  # only MAVLink keeps a tcpin seat: garbage within the budget does not
+            self.spoke = True  # only MAVLink earns a tcpin seat: garbage within the budget does not
         elif not self.garbage.spend(len(whole), rx_s):
             owner.over_budget(self, len(whole))
             return
@@ -407,13 +408,15 @@ class TcpServerEndpoint(_StreamEndpoint):
         conn.abort()
 
     async def _evict_idle(self) -> None:
-        """Drop the clients that sent no whole frame for ``idle_s``: a silent connection gives its seat back."""
+        """Drop the clients that sent no whole frame within ``idle_s`` of connecting: a connection that never
+        speaks MAVLink gives its seat back. One that has spoken keeps it however quiet it gets later (a script
+        that waits for a long manoeuvre between two commands)."""
         while True:
             await asyncio.sleep(max(self.idle_s / 4, 0.05))
             now = time.monotonic()
-            for conn in [c for c in self.clients if now - c.last_frame_s > self.idle_s]:
-                self._event("client_idle", f"no MAVLink from {_fmt(conn.peer)} for {self.idle_s:g} s (URL option "
-                                           "idle_s); disconnected")  # fmt: skip
+            for conn in [c for c in self.clients if not c.spoke and now - c.since_s > self.idle_s]:
+                self._event("client_idle", f"no MAVLink from {_fmt(conn.peer)} within {self.idle_s:g} s of "
+                                           "connecting (URL option idle_s); disconnected")  # fmt: skip
                 conn.abort()
 
     def _gone(self, conn: _Connection, exc: Exception | None) -> None:
@@ -480,7 +483,7 @@ def _count_option(endpoint: Endpoint, name: str, default: int) -> int:
 
 
 def idle_s_of(endpoint: Endpoint) -> float:
-    """The ``idle_s`` URL option of a ``tcpin`` endpoint: seconds without a frame before a client is dropped."""
+    """The ``idle_s`` URL option of a ``tcpin`` endpoint: seconds a new client has to send its first frame."""
     text = endpoint.option("idle_s")
     if text is None:
         return DEFAULT_IDLE_S
