@@ -137,11 +137,11 @@ class EmbeddedBroker:
         if self.process:
             await self._start_child()
         else:
-            from amqtt.broker import Broker  # imported lazily: only the embedding process needs it
+            from secuav_common.broker_cap import CappedBroker  # amqtt, lazily: only the embedding process needs it
 
             quiet_amqtt()
             a = self.address
-            broker = Broker(amqtt_config(a.host, a.port, a.username, a.password))
+            broker = CappedBroker(amqtt_config(a.host, a.port, a.username, a.password))
             await broker.start()
             self._broker = broker
         self.started = True

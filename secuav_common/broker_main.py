@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import os
 import signal
 import sys
@@ -21,10 +22,12 @@ from secuav_common.broker import PASSWORD_ENV, amqtt_config, quiet_amqtt
 
 
 async def serve(host: str, port: int, username: str | None = None) -> int:
-    from amqtt.broker import Broker
+    from secuav_common.broker_cap import CappedBroker
 
     quiet_amqtt()
-    broker = Broker(amqtt_config(host, port, username, os.environ.get(PASSWORD_ENV) if username else None))
+    # Nothing reads this process's stderr once it is ready: no warning may go there (a full pipe would stop it).
+    logging.getLogger().addHandler(logging.NullHandler())
+    broker = CappedBroker(amqtt_config(host, port, username, os.environ.get(PASSWORD_ENV) if username else None))
     await broker.start()
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()

@@ -94,3 +94,34 @@ def cli_error(prog: str, message: str, code: int = 2) -> int:
     """Print ``PROG: error: MESSAGE`` on stderr (argparse's shape) and return ``code`` for ``main``."""
     print(f"{prog}: error: {message}", file=sys.stderr)
     return code
+
+
+class RateLimitedLog:
+    """At most one line per event name every ``every_s`` seconds, the rest counted into the next line.
+
+    For events an outsider can make happen at will (a refused connection, an evicted
+    client): the first one is logged at once, and while they keep coming, one line
+    every ``every_s`` says how many there were (``count``: since the last line).
+    ``totals`` keeps every event's count for stats and tests.
+    """
+
+    def __init__(self, logger: logging.Logger, every_s: float = 10.0, clock: Any = time.monotonic) -> None:
+        self.logger, self.every_s, self.clock = logger, every_s, clock
+        self.totals: dict[str, int] = {}
+        self.lines = 0  # lines written: what the rate limit keeps small
+        self._last: dict[str, float] = {}
+        self._held: dict[str, int] = {}
+
+    def event(self, name: str, level: int = logging.WARNING, **fields: Any) -> bool:
+        """Count one ``name``; log it (with ``count``) unless a line for it went out less than ``every_s`` ago."""
+        self.totals[name] = self.totals.get(name, 0) + 1
+        held = self._held.get(name, 0) + 1
+        now = self.clock()
+        last = self._last.get(name)
+        if last is not None and now - last < self.every_s:
+            self._held[name] = held
+            return False
+        self._last[name], self._held[name] = now, 0
+        self.lines += 1
+        self.logger.log(level, name, extra={**fields, "count": held})
+        return True

@@ -6,8 +6,10 @@ place only after that peer fell silent, see mitm_proxy.net.endpoints);
 ``tcp://HOST:PORT`` connects to a MAVLink TCP server (ArduPilot SITL's 5760) and reconnects when it goes
 or falls silent for 10 s;
 ``tcpin://HOST:PORT`` is a TCP server: every client that connects is a peer, up to ``max_clients`` of them
-(``tcpin://0.0.0.0:5760?max_clients=4``; default 16); a client that floods it with bytes that are not
-MAVLink (over 64 kB a second) or reads nothing for 5 s while frames wait is disconnected;
+(``tcpin://0.0.0.0:5760?max_clients=4``; default 16) and up to ``max_clients_per_address`` from one address
+(default 4); a client that floods it with bytes that are not MAVLink (over 64 kB a second, counted per
+client), reads nothing for 5 s while frames wait, or sends no MAVLink frame within ``idle_s`` seconds of
+connecting (default 15; a GCS's 1 Hz HEARTBEAT is one; ``idle_s=0`` for a script that only reads) is disconnected;
 ``serial:///dev/ttyUSB0?baud=57600`` is a serial port (a telemetry radio).
 Every stream is framed a slice at a time, so no peer holds up the others (mitm_proxy.net.tcp_serial).
 

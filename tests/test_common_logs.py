@@ -47,3 +47,20 @@ def test_version_on_every_command(command: str) -> None:
     exe = Path(sys.executable).parent / command
     done = subprocess.run([str(exe), "--version"], capture_output=True, text=True, timeout=60, check=False)
     assert done.returncode == 0 and re.fullmatch(rf"{command} \d+\.\d+\.\d+\S*\n", done.stdout), done
+
+
+def test_a_rate_limited_event_is_one_line_per_window_with_the_count(caplog: pytest.LogCaptureFixture) -> None:
+    """What an outsider can repeat at will (issue 36: 125,961 lines in 10 s) is a line per 10 s, counted."""
+    from secuav_common.logs import RateLimitedLog
+
+    now = [0.0]
+    events = RateLimitedLog(logging.getLogger("test.rate"), every_s=10.0, clock=lambda: now[0])
+    caplog.set_level(logging.INFO, logger="test.rate")
+    for i in range(1000):  # 1000 events over 25 s, and another kind once
+        now[0] = i * 0.025
+        events.event("endpoint.client_evicted", peer="127.0.0.1")
+    events.event("endpoint.client_refused")
+    lines = [(r.getMessage(), r.count) for r in caplog.records]  # type: ignore[attr-defined]
+    assert lines == [("endpoint.client_evicted", 1), ("endpoint.client_evicted", 400),
+                     ("endpoint.client_evicted", 400), ("endpoint.client_refused", 1)]  # fmt: skip
+    assert events.totals == {"endpoint.client_evicted": 1000, "endpoint.client_refused": 1} and events.lines == 4

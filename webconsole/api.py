@@ -11,7 +11,7 @@
 ``POST /api/vehicles/{sysid}/attack/mode``  ``{"mode": "on" | "bypass"}``
 ``POST /api/vehicles/{sysid}/secure``      ``{"estimator": name | "off", "params": {}}``
 ``POST /api/vehicles/{sysid}/switches/{kind}``  any declared vehicle switch: the body is its request
-``GET /api/stream?vehicle=N``              server-sent events, 12.5 per second: the fleet and N's new samples
+``GET /api/stream?vehicle=N``              server-sent events, 12.5 per second: the fleet, N's new samples, the broker
 =========================================  ===================================================
 
 A POST answers with the proxy's own acknowledgement (``ok``, ``error``), or 422
@@ -41,7 +41,7 @@ from pathlib import Path
 from typing import Any
 
 from pydantic import ValidationError
-from sse_starlette.sse import EventSourceResponse
+from sse_starlette.sse import EventSourceResponse, SendTimeoutError
 from starlette.applications import Starlette
 from starlette.requests import Request
 from starlette.responses import FileResponse, JSONResponse, Response
@@ -53,9 +53,11 @@ from attack_profiles import library
 from attack_profiles.control import profile_from_payload
 from attack_profiles.profile import parse_profile, parse_text
 from secuav_common.controlplane import switches
+from secuav_common.controlplane.address import redact
 from secuav_common.controlplane.payloads import MAX_PAYLOAD_BYTES, request_bytes
 from secuav_common.controlplane.topics import vehicle_topic
 from secuav_common.loading import InputError, first_error, parse_document
+from secuav_common.logs import RateLimitedLog
 from webconsole.fleet import AckTimeout, Fleet, Session
 from webconsole.security import LOOPBACK_NAMES, guarded
 from webconsole.world import world_json
@@ -64,14 +66,20 @@ STATIC = Path(__file__).resolve().parent / "static"
 STREAM_PERIOD_S = 0.08  # 12.5 updates a second, on a fixed schedule (the issue asks for 10 or more)
 BACKFILL_S = 120.0  # a page that (re)connects gets this much history at once
 MAX_BODY = 256 * 1024
+BODY_TIMEOUT_S = 10.0  # a request's body must arrive within this (the headers' limit is webconsole.connections)
 MAX_STREAMS_PER_CLIENT = 4  # a few tabs of one operator
 MAX_STREAMS = 32  # every update is built once per stream: this bounds the console's work
+STREAM_SEND_TIMEOUT_S = 15.0  # a stream whose client has read nothing for this long (buffers full) is cut off
 LOGIN_FREE_FAILURES = 5  # wrong passwords from one address before it must wait (2 s, doubling)
 LOGIN_MAX_WAIT_S = 300.0
 log = logging.getLogger("secuav-console")
 
 
 class RequestTooLarge(Exception):
+    pass
+
+
+class RequestTimeout(Exception):
     pass
 
 
@@ -249,7 +257,8 @@ class StreamSlots:
 
 
 def build_app(fleet: Fleet, session: Session, password: str | None = None, ack_timeout_s: float = 5.0,
-              hosts: Iterable[str] = LOOPBACK_NAMES, streams: StreamSlots | None = None) -> ASGIApp:  # fmt: skip
+              hosts: Iterable[str] = LOOPBACK_NAMES, streams: StreamSlots | None = None,
+              stream_send_timeout_s: float = STREAM_SEND_TIMEOUT_S) -> ASGIApp:  # fmt: skip
     """The ASGI application behind ``webconsole.security``'s guards (``hosts``: the Host names it answers
     to), and behind :class:`BasicAuth` when a password is given."""
     library_cache: list[dict[str, Any]] = []
@@ -258,31 +267,40 @@ def build_app(fleet: Fleet, session: Session, password: str | None = None, ack_t
 
     async def json_body(request: Request) -> Any:
         chunks, size = [], 0
-        async for chunk in request.stream():  # counted as it arrives: a huge body is never held
-            size += len(chunk)
-            if size > MAX_BODY:
-                raise RequestTooLarge
-            chunks.append(chunk)
+        try:
+            async with asyncio.timeout(BODY_TIMEOUT_S):  # a body sent a byte at a time holds nothing for long
+                async for chunk in request.stream():  # counted as it arrives: a huge body is never held
+                    size += len(chunk)
+                    if size > MAX_BODY:
+                        raise RequestTooLarge
+                    chunks.append(chunk)
+        except TimeoutError:
+            raise RequestTimeout from None
         raw = b"".join(chunks)
         try:
             return json.loads(raw or b"null")
         except ValueError as exc:
             raise InputError("request", "", None, f"not JSON: {exc}") from None
 
-    def known(request: Request) -> int | None:
+    def row_of(request: Request) -> dict[str, Any] | None:
+        """The vehicle's fleet row; None once its proxy has stopped and it left the fleet (or it never came)."""
         sysid = int(request.path_params["sysid"])
-        return sysid if sysid in fleet.vehicles else None
+        return next((r for r in fleet.summary() if r["sysid"] == sysid), None)
 
     async def send(request: Request, leaf: str, build: Callable[[Any], dict[str, Any] | None]) -> Response:
-        sysid = known(request)
-        if sysid is None:
-            return _error(404, f"no vehicle {request.path_params['sysid']} on the broker")
+        sysid = int(request.path_params["sysid"])
+        if not fleet.owners().get(sysid):  # nobody would answer: say so now rather than after ack_timeout_s
+            if sysid in fleet.vehicles:
+                return _error(404, f"no proxy serves vehicle {sysid} now (its proxy has stopped)")
+            return _error(404, f"no vehicle {sysid} on the broker")
         try:
             payload = build(await json_body(request))
         except InputError as exc:
             return _error(422, str(exc), exc.field or None)
         except RequestTooLarge:
             return _error(413, f"request body larger than {MAX_BODY} bytes")
+        except RequestTimeout:
+            return _error(408, f"request body not complete within {BODY_TIMEOUT_S:g} s")
         try:
             state = await session.request(vehicle_topic(sysid, leaf, "set"), payload, ack_timeout_s)
         except AckTimeout as exc:
@@ -296,11 +314,10 @@ def build_app(fleet: Fleet, session: Session, password: str | None = None, ack_t
         return JSONResponse(fleet.summary())
 
     async def vehicle(request: Request) -> Response:
-        sysid = known(request)
-        if sysid is None:
+        row = row_of(request)
+        if row is None:
             return _error(404, f"no vehicle {request.path_params['sysid']} on the broker")
-        row = next(r for r in fleet.summary() if r["sysid"] == sysid)
-        scenario = fleet.scenario_of(sysid)
+        scenario = fleet.scenario_of(row["sysid"])
         return JSONResponse({**row, "world": world_json(scenario) if scenario is not None else None})
 
     async def profiles(request: Request) -> Response:
@@ -356,11 +373,14 @@ def build_app(fleet: Fleet, session: Session, password: str | None = None, ack_t
             watched = int(request.query_params.get("vehicle", "0"))
         except ValueError:
             return _error(400, "vehicle: must be a sysid")
+        if request.method != "GET":  # HEAD: the headers a stream would have, and no slot (nothing will run)
+            return Response(status_code=200, media_type="text/event-stream", headers={"Cache-Control": "no-store"})
         client = request.client.host if request.client else "?"
         refused = slots.take(client)
         if refused is not None:
             return _error(429, refused)
-        return EventSourceResponse(_events(request, fleet, watched, lambda: slots.give_back(client)), ping=15)
+        return SlotStream(_updates(request, fleet, watched, session), lambda: slots.give_back(client), ping=15,
+                          send_timeout=stream_send_timeout_s)  # fmt: skip
 
     routes = [
         Route("/", index),
@@ -380,17 +400,38 @@ def build_app(fleet: Fleet, session: Session, password: str | None = None, ack_t
     return guarded(BasicAuth(app, password) if password else app, hosts, MAX_BODY)
 
 
-async def _events(request: Request, fleet: Fleet, watched: int,
-                  done: Callable[[], None]) -> AsyncIterator[dict[str, str]]:  # fmt: skip
-    """12.5 updates a second: the fleet table, and the watched vehicle's samples since the last one."""
-    try:
-        async for event in _updates(request, fleet, watched):
-            yield event
-    finally:
-        done()
+class SlotStream(EventSourceResponse):
+    """An event stream that gives its slot back when the response ends, however it ends.
+
+    The slot is tied to the response, not to its generator: a response that never starts
+    its generator (a client gone before the first byte) still gives it back. A client that
+    stops reading is cut off once one send has waited ``send_timeout`` seconds (its socket
+    buffers full), so a stream nobody reads cannot hold its slot either.
+    """
+
+    def __init__(self, content: AsyncIterator[dict[str, str]], release: Callable[[], None], **options: Any) -> None:
+        super().__init__(content, **options)
+        self._release: Callable[[], None] | None = release
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        try:
+            await super().__call__(scope, receive, send)
+        except SendTimeoutError:
+            client = (scope.get("client") or ("?", 0))[0]
+            stalled.event("console.stream_stalled", client=client, waited_s=self.send_timeout)
+        finally:
+            release, self._release = self._release, None
+            if release is not None:
+                release()
 
 
-async def _updates(request: Request, fleet: Fleet, watched: int) -> AsyncIterator[dict[str, str]]:
+stalled = RateLimitedLog(log)
+
+
+async def _updates(request: Request, fleet: Fleet, watched: int, session: Session) -> AsyncIterator[dict[str, str]]:
+    """12.5 updates a second: the fleet table, the watched vehicle's samples since the last one, and whether
+    the console reaches its broker (``broker``: ``connected``, ``url``; the page says "live" only then)."""
+    broker_url = redact(session.address.url)
     cursor, first = 0, True
     loop = asyncio.get_running_loop()
     due = loop.time()
@@ -402,7 +443,8 @@ async def _updates(request: Request, fleet: Fleet, watched: int) -> AsyncIterato
             if samples:
                 cursor = samples[-1]["seq"]
             first = False
-        payload = {"t": time.time(), "fleet": fleet.summary(), "vehicle": watched, "samples": samples}
+        payload = {"t": time.time(), "fleet": fleet.summary(), "vehicle": watched, "samples": samples,
+                   "broker": {"connected": session.connected.is_set(), "url": broker_url}}
         yield {"event": "update", "data": json.dumps(payload, separators=(",", ":"), allow_nan=False, default=str)}
         due = max(due + STREAM_PERIOD_S, loop.time())  # a fixed schedule: the time spent here does not add up
         await asyncio.sleep(due - loop.time())

@@ -11,6 +11,7 @@ without a password of at least 12 characters (``--password-file`` or
 scripts send as a Bearer token, and without TLS (``--tls-cert``/``--tls-key``)
 unless told ``--insecure-http``. It answers only to the Host names it knows:
 its listen address, loopback names and each ``--allowed-host`` (docs/security.md).
+Forwarded headers (``X-Forwarded-For``) are believed only from a ``--trusted-proxy``.
 Stops cleanly on Ctrl-C or SIGTERM: the console's online record says offline
 and the proxies stop publishing readings.
 """
@@ -22,7 +23,9 @@ import asyncio
 import contextlib
 import ipaddress
 import logging
+import os
 import signal
+import socket
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -58,6 +61,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a further Host name the console answers to (repeatable; loopback names always work)")
     p.add_argument("--tls-cert", metavar="F", type=Path, help="serve HTTPS with this certificate (PEM)")
     p.add_argument("--tls-key", metavar="F", type=Path, help="the certificate's private key (PEM)")
+    p.add_argument("--trusted-proxy", action="append", default=[], metavar="ADDR",
+                   help="a reverse proxy (address or network) whose X-Forwarded-For/-Proto headers are believed "
+                        "(repeatable; from anyone else they are ignored)")
     p.add_argument("--insecure-http", action="store_true",
                    help="beyond loopback, serve plain HTTP anyway (the password then crosses the network in clear)")
     p.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
@@ -86,10 +92,18 @@ async def serve(args: argparse.Namespace, host: str, port: int, password: str | 
     import uvicorn
 
     from webconsole.api import build_app
+    from webconsole.connections import quiet_accept_errors, raise_file_limit, server_config
     from webconsole.fleet import Fleet, Session
     from webconsole.security import allowed_hosts
 
     scenarios = [load_scenario(s) for s in args.scenario]
+    try:  # bound here, before anything starts: a busy port is one line, not uvicorn's traceback
+        listener = socket.create_server((host, port), family=socket.AF_INET6 if ":" in host else socket.AF_INET,
+                                        backlog=2048)  # fmt: skip
+    except OSError as exc:
+        why = os.strerror(exc.errno) if exc.errno else str(exc)
+        return _fail(f"cannot serve on {host}:{port}: {why} (another program listens there? "
+                     "choose another with --listen HOST:PORT)", 1)  # fmt: skip
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -109,17 +123,17 @@ async def serve(args: argparse.Namespace, host: str, port: int, password: str | 
         mqtt = asyncio.create_task(session.run(), name="console-mqtt")
         app = build_app(fleet, session, password, hosts=allowed_hosts(host, args.allowed_host))
         tls = {"ssl_certfile": str(args.tls_cert), "ssl_keyfile": str(args.tls_key)} if args.tls_cert else {}
-        config = uvicorn.Config(app, host=host, port=port, log_level="warning", access_log=False, lifespan="off",
-                                **tls)  # fmt: skip
-        server = uvicorn.Server(config)
+        raise_file_limit()
+        quiet_accept_errors(loop)
+        server = uvicorn.Server(server_config(app, host, port, trusted_proxies=args.trusted_proxy, **tls))
         server.install_signal_handlers = lambda: None  # type: ignore[method-assign]  # ours above
-        web = asyncio.create_task(server.serve(), name="console-http")
+        web = asyncio.create_task(server.serve(sockets=[listener]), name="console-http")
         await asyncio.sleep(0)
         while not server.started and not web.done():
             await asyncio.sleep(0.05)
-        if web.done():  # the port was taken, or the address does not exist
+        if web.done():  # the TLS files did not load, say
             mqtt.cancel()
-            return _fail(f"cannot serve on {host}:{port} (in use, or not an address of this machine)", 1)
+            return _fail(f"cannot serve on {host}:{port}: {web.exception() or 'the server stopped at start'}", 1)
         log.info("console.ready", extra={"url": url, "broker": redact(address.url),
                                          "auth": "password" if password else "none (loopback only)",
                                          "tls": bool(args.tls_cert),
@@ -150,6 +164,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         broker_password = secret_or_env(args.broker_password_file, "--broker-password-file")
     except (InputError, ValueError) as exc:
         return _fail(str(exc))
+    for proxy in args.trusted_proxy:
+        try:
+            ipaddress.ip_network(proxy, strict=False)
+        except ValueError:
+            return _fail(f"--trusted-proxy {proxy}: expected an IP address or network (e.g. 127.0.0.1, 10.0.0.0/8)")
     if bool(args.tls_cert) != bool(args.tls_key):
         return _fail("--tls-cert and --tls-key go together")
     for flag, path in (("--tls-cert", args.tls_cert), ("--tls-key", args.tls_key)):

@@ -40,6 +40,7 @@ from mavframe import frames
 from mavframe.codec import MAVLINK_MAP
 from mavframe.packet import Direction
 from mitm_proxy.net.rules import NO_RULES, EndpointGate, EndpointRules
+from secuav_common.logs import RateLimitedLog
 from secuav_common.urls import Endpoint
 
 log = logging.getLogger(__name__)
@@ -86,6 +87,7 @@ class BaseEndpoint:
         self.tx = 0
         self.faults: Counter[str] = Counter()
         self._reported: set[str] = set()
+        self.events = RateLimitedLog(log)  # what an outsider can repeat at will: one line per 10 s, with counts
         self._gated_in = self._gated_out = False
         self.set_rules(rules)
 
@@ -144,6 +146,11 @@ class BaseEndpoint:
         if kind not in self._reported:
             self._reported.add(kind)
             log.warning(f"endpoint.{kind}", extra={"endpoint": self.name, "url": str(self.endpoint), "detail": detail})
+
+    def _event(self, kind: str, detail: str, level: int = logging.WARNING, **fields: Any) -> None:
+        """Count ``kind`` in the faults; log it rate-limited (a connect-and-garbage loop must not fill the disk)."""
+        self.faults[kind] += 1
+        self.events.event(f"endpoint.{kind}", level, endpoint=self.name, detail=detail, **fields)
 
     def _cleared(self, kind: str) -> None:
         """The condition ended: log it again if it comes back."""

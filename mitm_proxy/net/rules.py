@@ -121,13 +121,15 @@ def rules_from_options(endpoint: Endpoint, source: str = "<url>") -> EndpointRul
     """The rules a URL's options give (``listen_only``, ``allow``, ``deny_up``, ``allow_sysid``, ...).
 
     Unknown options and bad values raise :class:`InputError` naming the URL and the option. Settings of the
-    endpoint itself (``max_clients`` of a ``tcpin`` server) are not rules and are left to the endpoint.
+    endpoint itself (``ENDPOINT_SETTINGS``: ``max_clients`` of a ``tcpin`` server, ...) are not rules and are
+    left to the endpoint.
     """
     pairs = [(k, v) for k, v in endpoint.options if (endpoint.mode, k) not in ENDPOINT_SETTINGS]
     return rules_from_pairs(pairs, f"{endpoint} option", source, f"{source} {endpoint.without_options()}")
 
 
-ENDPOINT_SETTINGS = {("tcpin", "max_clients")}  # (scheme, URL option) read by the endpoint, not a routing rule
+# (scheme, URL option) read by the endpoint, not a routing rule
+ENDPOINT_SETTINGS = {("tcpin", "max_clients"), ("tcpin", "max_clients_per_address"), ("tcpin", "idle_s")}
 
 
 def rules_from_query(query: str, source: str) -> EndpointRules:

@@ -17,17 +17,22 @@ link above sees the same shape as a UDP datagram.
 No peer can stall the others (docs/security.md). What arrives is framed
 ``SLICE_BYTES`` at a time, one slice per turn of the event loop (reading
 paused meanwhile), so a 256 kB read cannot hold the loop for other vehicles.
-Bytes that are not MAVLink count against the endpoint's budget of
-``GARBAGE_BYTES_PER_S``, as on the UDP path: past it a ``tcpin`` client is
-evicted, and a ``tcp``/``serial`` link drops what arrives for the rest of that
-second. A ``tcpin`` endpoint serves at most ``max_clients`` clients (URL
-option, default ``DEFAULT_MAX_CLIENTS``; one more is refused), and a client
-whose send buffer stays over ``MAX_PENDING_SEND_BYTES`` for ``SLOW_CLIENT_S``
-is evicted (meanwhile it loses frames, counted) rather than making the proxy
-buffer without bound. A ``tcp`` peer that stays silent for ``SILENT_PEER_S``
-(one that accepts and never sends, or a half-open connection) is dropped and
-dialled again; TCP keepalive finds a vanished peer on ``tcpin`` too. Each of
-these is counted in the endpoint's faults and logged once.
+Bytes that are not MAVLink count against each connection's own budget of
+``GARBAGE_BYTES_PER_S`` (one client's garbage costs only that client): past it
+a ``tcpin`` client is evicted, and a ``tcp``/``serial`` link drops what arrives
+for the rest of that second. A ``tcpin`` endpoint serves at most
+``max_clients`` clients and ``max_clients_per_address`` from one address (URL
+options, defaults ``DEFAULT_MAX_CLIENTS`` and ``DEFAULT_MAX_PER_ADDRESS``; one
+more is refused), and drops a client that has not sent one whole MAVLink frame
+(a GCS sends HEARTBEAT at 1 Hz) within ``idle_s`` of connecting (default
+``DEFAULT_IDLE_S``; 0: never), so silent connections cannot hold the seats. A client whose send
+buffer stays over ``MAX_PENDING_SEND_BYTES`` for ``SLOW_CLIENT_S`` is evicted
+(meanwhile it loses frames, counted) rather than making the proxy buffer
+without bound. A ``tcp`` peer that stays silent for ``SILENT_PEER_S`` (one that
+accepts and never sends, or a half-open connection) is dropped and dialled
+again; TCP keepalive finds a vanished peer on ``tcpin`` too. Each of these is
+counted in the endpoint's faults; what a client can repeat at will (refusals,
+evictions, connects) is logged at most once per 10 s per kind, with the count.
 """
 
 from __future__ import annotations
@@ -37,6 +42,7 @@ import contextlib
 import logging
 import socket
 import time
+from collections import Counter
 from collections.abc import Callable
 from typing import Any
 
@@ -57,6 +63,8 @@ STABLE_S = 2.0  # a connection that lasted this long resets the backoff
 SLICE_BYTES = 2048
 GARBAGE_BYTES_PER_S = 64 * 1024
 DEFAULT_MAX_CLIENTS = 16
+DEFAULT_MAX_PER_ADDRESS = 4  # a few ground tools on one machine; one address cannot take every seat
+DEFAULT_IDLE_S = 15.0  # a tcpin client that sends no MAVLink frame this long after connecting gives its seat back
 SLOW_CLIENT_S = 5.0  # a tcpin client that reads nothing for this long while we send is evicted
 SILENT_PEER_S = 10.0  # an autopilot sends HEARTBEAT at 1 Hz; a tcp peer silent this long is dialled again
 KEEPALIVE = {"TCP_KEEPIDLE": 5, "TCP_KEEPINTVL": 2, "TCP_KEEPCNT": 3}  # a vanished peer is found in ~11 s
@@ -74,7 +82,7 @@ def _keepalive(transport: asyncio.BaseTransport) -> None:
 
 
 class _GarbageBudget:
-    """Bytes that were not MAVLink, in the current one-second window of one endpoint."""
+    """Bytes that were not MAVLink, in the current one-second window of one connection."""
 
     __slots__ = ("spent", "window_s")
 
@@ -102,7 +110,9 @@ class _Connection(asyncio.Protocol):
         self.transport: asyncio.WriteTransport | None = None
         self.peer: Any = None
         self.lost = asyncio.get_running_loop().create_future()
-        self.last_rx_s = time.monotonic()
+        self.last_rx_s = self.since_s = time.monotonic()
+        self.spoke = False  # sent a whole MAVLink frame: a peer, not a silent connection holding a seat
+        self.garbage = _GarbageBudget()  # its own: another client's garbage never costs this one
         self._on_lost = on_lost
         self._inbox: list[bytes] = []  # reads not yet framed; the first from _inbox_at on
         self._inbox_at = 0
@@ -148,15 +158,18 @@ class _Connection(asyncio.Protocol):
 
     def _take(self, piece: bytes, rx_s: float) -> None:
         owner = self.owner
-        if owner.garbage.over(rx_s):
+        if self.garbage.over(rx_s):
             owner.over_budget(self, len(piece))
             return
         whole = self.framer.feed(piece)
-        if whole and not tiles(whole) and not owner.garbage.spend(len(whole), rx_s):
+        if not whole:
+            return
+        if tiles(whole):
+            self.spoke = True  # only MAVLink earns a tcpin seat: garbage within the budget does not
+        elif not self.garbage.spend(len(whole), rx_s):
             owner.over_budget(self, len(whole))
             return
-        if whole:
-            owner._deliver(whole, rx_s)
+        owner._deliver(whole, rx_s)
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.transport = None
@@ -196,7 +209,6 @@ class _StreamEndpoint(BaseEndpoint):
 
     def __init__(self, endpoint: Endpoint, name: str, role: Role = "ground", rules: EndpointRules = NO_RULES) -> None:
         super().__init__(endpoint, name, role, rules)
-        self.garbage = _GarbageBudget()
         self.dropped_bytes = 0  # dropped unread: over the garbage budget, or from an evicted client
 
     def snapshot(self) -> dict[str, Any]:
@@ -214,8 +226,7 @@ class _StreamEndpoint(BaseEndpoint):
 
     def too_slow(self, conn: _Connection) -> None:
         """A peer read nothing for ``SLOW_CLIENT_S`` while we sent: drop it (it reconnects or stays gone)."""
-        self._fault("slow_peer_evicted", f"{_fmt(conn.peer)} read nothing for {SLOW_CLIENT_S:g} s; disconnected")
-        self._cleared("slow_peer_evicted")  # every eviction is news
+        self._event("slow_peer_evicted", f"{_fmt(conn.peer)} read nothing for {SLOW_CLIENT_S:g} s; disconnected")
         conn.abort()
 
 
@@ -339,8 +350,12 @@ class TcpServerEndpoint(_StreamEndpoint):
         super().__init__(endpoint, name, role, rules)
         self.clients: list[_Connection] = []
         self.connects = 0
-        self.max_clients = max_clients_of(endpoint)
+        self.max_clients = _count_option(endpoint, "max_clients", DEFAULT_MAX_CLIENTS)
+        self.max_per_address = _count_option(endpoint, "max_clients_per_address", DEFAULT_MAX_PER_ADDRESS)
+        self.idle_s = idle_s_of(endpoint)
+        self.per_address: Counter[str] = Counter()
         self._server: asyncio.Server | None = None
+        self._idle_task: asyncio.Task[None] | None = None
 
     async def open(self) -> TcpServerEndpoint:
         loop = asyncio.get_running_loop()
@@ -352,36 +367,67 @@ class TcpServerEndpoint(_StreamEndpoint):
                                            f"{exc.strerror or exc}") from exc  # fmt: skip
         sock = self._server.sockets[0]
         self.local = tuple(sock.getsockname()[:2])  # type: ignore[assignment]
+        if self.idle_s > 0:
+            self._idle_task = asyncio.create_task(self._evict_idle(), name=f"idle {self.name}")
         return self
 
     def _accept(self) -> asyncio.Protocol:
+        # The peer's address is known only once the transport exists: the caps are checked there.
+        return _Admission(self)
+
+    def admit(self, transport: asyncio.BaseTransport) -> _Connection | None:
+        """A new client, or None when it was refused (and cut off): the endpoint or its address is full."""
+        peer = transport.get_extra_info("peername")
+        address = _address(peer)
         if len(self.clients) >= self.max_clients:
-            return _Refused(self)
-        conn = _Connection(self, self._gone)
-        self.clients.append(conn)
-        self.connects += 1
-        asyncio.get_running_loop().call_soon(self._greet, conn)
-        return conn
+            why = f"{self.max_clients} clients are connected, the most this endpoint serves (URL option max_clients)"
+        elif self.per_address[address] >= self.max_per_address:
+            why = (f"{self.max_per_address} clients are connected from {address}, the most one address may hold "
+                   "(URL option max_clients_per_address)")  # fmt: skip
+        else:
+            conn = _Connection(self, self._gone)
+            self.clients.append(conn)
+            self.per_address[address] += 1
+            self.connects += 1
+            transport.set_protocol(conn)
+            conn.connection_made(transport)
+            self.peer = conn.peer
+            self._cleared("no_peer")
+            self.events.event("endpoint.client", logging.INFO, endpoint=self.name, peer=_fmt(conn.peer),
+                              clients=len(self.clients))  # fmt: skip
+            return conn
+        self._event("client_refused", f"{_fmt(peer)}: {why}")
+        transport.abort()  # type: ignore[attr-defined]
+        return None
 
     def over_budget(self, conn: _Connection, size: int) -> None:
         """A client that floods the endpoint with bytes that are not MAVLink is disconnected."""
         self.dropped_bytes += size
-        self._fault("client_evicted", f"{_fmt(conn.peer)} sent more than {GARBAGE_BYTES_PER_S} bytes that are not "
+        self._event("client_evicted", f"{_fmt(conn.peer)} sent more than {GARBAGE_BYTES_PER_S} bytes that are not "
                                       "MAVLink in a second; disconnected")  # fmt: skip
-        self._cleared("client_evicted")  # every eviction is news
         conn.abort()
 
-    def _greet(self, conn: _Connection) -> None:
-        self.peer = conn.peer
-        self._cleared("no_peer")
-        log.info("endpoint.client",
-                 extra={"endpoint": self.name, "peer": _fmt(conn.peer), "clients": len(self.clients)})  # fmt: skip
+    async def _evict_idle(self) -> None:
+        """Drop the clients that sent no whole frame within ``idle_s`` of connecting: a connection that never
+        speaks MAVLink gives its seat back. One that has spoken keeps it however quiet it gets later (a script
+        that waits for a long manoeuvre between two commands)."""
+        while True:
+            await asyncio.sleep(max(self.idle_s / 4, 0.05))
+            now = time.monotonic()
+            for conn in [c for c in self.clients if not c.spoke and now - c.since_s > self.idle_s]:
+                self._event("client_idle", f"no MAVLink from {_fmt(conn.peer)} within {self.idle_s:g} s of "
+                                           "connecting (URL option idle_s); disconnected")  # fmt: skip
+                conn.abort()
 
     def _gone(self, conn: _Connection, exc: Exception | None) -> None:
         with contextlib.suppress(ValueError):
             self.clients.remove(conn)
-        log.info("endpoint.client_gone", extra={"endpoint": self.name, "peer": _fmt(conn.peer),
-                                                "clients": len(self.clients)})  # fmt: skip
+            address = _address(conn.peer)
+            self.per_address[address] -= 1
+            if self.per_address[address] <= 0:
+                del self.per_address[address]
+        self.events.event("endpoint.client_gone", logging.INFO, endpoint=self.name, peer=_fmt(conn.peer),
+                          clients=len(self.clients))  # fmt: skip
         self.peer = self.clients[-1].peer if self.clients else None
 
     def _write(self, data: bytes) -> bool:
@@ -396,6 +442,9 @@ class TcpServerEndpoint(_StreamEndpoint):
         return sent
 
     def close(self) -> None:
+        if self._idle_task is not None:
+            self._idle_task.cancel()
+            self._idle_task = None
         for conn in list(self.clients):
             conn.close()
         if self._server is not None:
@@ -409,24 +458,40 @@ class TcpServerEndpoint(_StreamEndpoint):
         return out
 
 
-class _Refused(asyncio.Protocol):
-    """A client past ``max_clients``: counted, logged once, and cut off as soon as it is connected."""
+class _Admission(asyncio.Protocol):
+    """A client just accepted: admitted (its transport then talks to its :class:`_Connection`) or refused."""
 
     def __init__(self, owner: TcpServerEndpoint) -> None:
         self.owner = owner
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        peer = transport.get_extra_info("peername")
-        self.owner._fault("client_refused", f"{_fmt(peer)}: {self.owner.max_clients} clients are connected, the "
-                                            "most this endpoint serves (URL option max_clients)")  # fmt: skip
-        transport.abort()  # type: ignore[attr-defined]
+        self.owner.admit(transport)
 
 
-def max_clients_of(endpoint: Endpoint) -> int:
-    """The ``max_clients`` URL option of a ``tcpin`` endpoint (default ``DEFAULT_MAX_CLIENTS``)."""
-    text = endpoint.option("max_clients")
+def _address(peer: Any) -> str:
+    return str(peer[0]) if isinstance(peer, tuple) and peer else str(peer)
+
+
+def _count_option(endpoint: Endpoint, name: str, default: int) -> int:
+    """A whole-number URL option of a ``tcpin`` endpoint (at least 1)."""
+    text = endpoint.option(name)
     if text is None:
-        return DEFAULT_MAX_CLIENTS
+        return default
     if not text.isdigit() or int(text) < 1:
-        raise InputError("<url>", f"{endpoint.without_options()} option max_clients", text, "must be a number >= 1")
+        raise InputError("<url>", f"{endpoint.without_options()} option {name}", text, "must be a number >= 1")
     return int(text)
+
+
+def idle_s_of(endpoint: Endpoint) -> float:
+    """The ``idle_s`` URL option of a ``tcpin`` endpoint: seconds a new client has to send its first frame."""
+    text = endpoint.option("idle_s")
+    if text is None:
+        return DEFAULT_IDLE_S
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not 0 <= value < 1e6:
+        raise InputError("<url>", f"{endpoint.without_options()} option idle_s", text,
+                         "must be seconds >= 0 (0: never drop a silent client)")  # fmt: skip
+    return value

@@ -27,6 +27,9 @@ from secuav_common.controlplane.topics import Topic, parse
 
 MAX_PAYLOAD_BYTES = 64 * 1024  # a set request larger than this is refused unread
 MAX_MESSAGE_BYTES = 256 * 1024  # a consumer skips anything larger without decoding it
+# The largest MQTT packet (a message, its topic and headers) a broker we configure takes and a client of ours
+# reads; a packet that declares more is refused on its fixed header, before its body is read.
+MAX_PACKET_BYTES = MAX_MESSAGE_BYTES + 4096
 
 # A request id the CLI puts first in its JSON, so an oversized or broken payload can still be answered.
 _REQUEST_ID_PREFIX = re.compile(rb'\A\s*\{\s*"request_id"\s*:\s*"([A-Za-z0-9_.:@/-]{1,100})"')

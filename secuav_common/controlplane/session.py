@@ -21,6 +21,8 @@ from dataclasses import dataclass
 import aiomqtt
 
 from secuav_common.controlplane.address import BrokerAddress
+from secuav_common.controlplane.payloads import MAX_PACKET_BYTES
+from secuav_common.logs import RateLimitedLog
 
 MqttError = aiomqtt.MqttError
 Client = aiomqtt.Client
@@ -35,6 +37,35 @@ class LastWill:
 
 
 Serve = Callable[[aiomqtt.Client], Awaitable[None]]
+
+
+class PacketTooLarge(OSError):
+    """An incoming MQTT packet declared more bytes than we read: the connection is dropped unread."""
+
+
+def cap_incoming(client: aiomqtt.Client, limit: int, said: RateLimitedLog | None = None) -> None:
+    """Drop the connection on an incoming packet whose fixed header declares more than ``limit`` bytes,
+    before its body is read (a broker without a size limit would otherwise make us hold any message).
+
+    paho reads a packet's fixed header, then its body with ``_sock_recv``; the hook sits there, on this
+    client's own paho instance (aiomqtt builds one per client). An OSError from it is what paho does with a
+    failed read: the connection is lost, and :meth:`Session.run` reconnects with backoff; ``said`` logs
+    ``mqtt.packet_too_large`` (once per 10 s, with the count: a retained one comes back at each reconnect).
+    tests/test_common_broker_limits.py checks the hook still holds with the paho that is installed.
+    """
+    paho = client._client
+    recv = paho._sock_recv
+
+    def capped(bufsize: int) -> bytes:
+        state = paho._in_packet  # replaced by a fresh dict after each packet: looked up each time
+        if state["have_remaining"] and state["remaining_length"] > limit:
+            if said is not None:
+                said.event("mqtt.packet_too_large", bytes=state["remaining_length"], limit=limit)
+            raise PacketTooLarge(f"an incoming MQTT packet of {state['remaining_length']} bytes is larger than "
+                                 f"{limit} bytes; connection dropped unread")  # fmt: skip
+        return recv(bufsize)
+
+    paho._sock_recv = capped
 
 
 class Session:
@@ -72,6 +103,7 @@ class Session:
         self.timeout_s = timeout_s
         self.backoff_s = backoff_s
         self.log = log or logging.getLogger(__name__)
+        self._too_large = RateLimitedLog(self.log)
         self._client_log = client_log
         self._max_in_flight = max_in_flight
         self.connected = asyncio.Event()
@@ -97,6 +129,7 @@ class Session:
         if self._max_in_flight is not None:
             # aiomqtt warns above 10 publishes in flight; a caller that batches says how many it means.
             client.pending_calls_threshold = self._max_in_flight
+        cap_incoming(client, MAX_PACKET_BYTES, self._too_large)
         return client
 
     async def run(self, serve: Serve, on_down: Callable[[], None] | None = None) -> None:

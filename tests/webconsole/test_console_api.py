@@ -27,6 +27,7 @@ from secuav_common.broker import BrokerAddress, EmbeddedBroker
 from secuav_common.scenario import load_scenario
 from tests.conftest import free_tcp_port
 from webconsole.api import build_app
+from webconsole.connections import server_config
 from webconsole.fleet import Fleet, Session
 
 pytestmark = pytest.mark.timeout(60)
@@ -66,9 +67,9 @@ def call(base: str, path: str, body: Any = None, auth: str | None = None) -> tup
 @contextlib.asynccontextmanager
 async def serve(fleet: Fleet, session: Session, password: str | None = None, **options: Any) -> AsyncIterator[str]:
     port = free_tcp_port()
+    served = {k: options.pop(k) for k in ("trusted_proxies", "limits") if k in options}
     app = build_app(fleet, session, password, ack_timeout_s=2.0, **options)
-    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1",
-                                           port=port, log_level="warning", lifespan="off"))  # fmt: skip
+    server = uvicorn.Server(server_config(app, "127.0.0.1", port, **served))  # as secuav-console serves it
     server.install_signal_handlers = lambda: None  # type: ignore[method-assign]
     task = asyncio.create_task(server.serve())
     while not server.started:
@@ -171,7 +172,15 @@ async def test_mode_secure_unknown_vehicles_and_a_silent_proxy(bench: Bench) -> 
     assert status == 409 and "not available" in ack["error"]  # refused by the proxy: it has no scenario
     status, ack = await asyncio.to_thread(call, bench.base, "/api/vehicles/9/attack", {"profile": None})
     assert status == 404 and "no vehicle 9" in ack["error"]
-    await bench.plane.aclose()  # the proxy goes; the console still knows the vehicle
+    await bench.plane.aclose()  # the proxy goes cleanly (its record says offline): 404 at once (issue 36)
+    for _ in range(100):
+        if not bench.fleet.owners():
+            break
+        await asyncio.sleep(0.05)
+    status, ack = await asyncio.to_thread(call, bench.base, "/api/vehicles/1/attack", {"profile": "wall-spoof"})
+    assert status == 404 and "stopped" in ack["error"]
+    # A proxy that says it is online but does not answer (stuck, or gone before its will fired): 504.
+    bench.fleet.on_message("secuav/proxy/stuck/online", {"instance": "stuck", "online": True, "vehicles": [1]})
     status, ack = await asyncio.to_thread(call, bench.base, "/api/vehicles/1/attack", {"profile": "wall-spoof"})
     assert status == 504 and "no acknowledgement" in ack["error"]
 

@@ -61,6 +61,31 @@ function fmt(value, digits = 0) {
   return typeof value === "number" ? value.toFixed(digits) : "-";
 }
 
+// The table is rebuilt with every update (12.5 a second): a row that was pressed may be gone by the time the
+// button comes up, so a click on it would never arrive. A row is selected on the press itself, by one
+// listener on the table body that outlives the rows.
+function pickRow(event) {
+  const tr = event.target.closest("tr[data-sysid]");
+  if (tr && event.button === 0) select(Number(tr.dataset.sysid));
+}
+
+// Whether the console itself reaches the broker: without it the page shows nothing live, and says so.
+function renderBroker(broker) {
+  if (!broker) return;
+  const badge = $("link-state");
+  if (broker.connected) {
+    badge.textContent = "live";
+    badge.className = "badge on";
+    badge.title = `broker ${broker.url}`;
+  } else {
+    badge.textContent = "no broker";
+    badge.className = "badge off";
+    badge.title = `the console cannot reach the broker at ${broker.url}`;
+  }
+  $("fleet-empty").textContent = broker.connected ? "No vehicle yet: start secuav-proxy on this broker."
+    : `Not connected to the broker at ${broker.url}: nothing on this page is live until it is reachable.`;
+}
+
 function renderFleet(rows) {
   const body = document.querySelector("#fleet tbody");
   $("fleet-empty").hidden = rows.length > 0;
@@ -92,8 +117,7 @@ function renderFleet(rows) {
       }
       tr.append(td);
     }
-    tr.addEventListener("click", () => select(r.sysid));
-    return tr;
+    return tr;   // selected on pointerdown, by one listener on the table body (init)
   }));
   const mine = rows.find((r) => r.sysid === state.selected);
   if (mine && state.formsFor !== mine.sysid) {   // the controls start from what is in force
@@ -228,10 +252,11 @@ function connect() {
   if (state.source) state.source.close();
   const source = new EventSource(`/api/stream?vehicle=${state.selected || 0}`);
   state.source = source;
-  source.addEventListener("open", () => { $("link-state").textContent = "live"; $("link-state").className = "badge on"; });
+  source.addEventListener("open", () => { $("link-state").textContent = "connected"; $("link-state").className = "badge off"; });
   source.addEventListener("error", () => { $("link-state").textContent = "reconnecting…"; $("link-state").className = "badge off"; });
   source.addEventListener("update", (event) => {
     const update = JSON.parse(event.data);
+    renderBroker(update.broker);
     renderFleet(update.fleet);
     if (update.vehicle === state.selected) {
       for (const sample of update.samples) ingest(sample);
@@ -594,6 +619,7 @@ async function init() {
   $("mode-on").addEventListener("click", () => post("attack/mode", { mode: "on" }, "attack stage on"));
   $("mode-bypass").addEventListener("click", () => post("attack/mode", { mode: "bypass" }, "attack stage bypass"));
   $("apply-secure").addEventListener("click", applySecure);
+  document.querySelector("#fleet tbody").addEventListener("pointerdown", pickRow);
   connect();
   requestAnimationFrame(frame);
 }
