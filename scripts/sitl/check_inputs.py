@@ -29,6 +29,7 @@ import math
 import os
 import re
 import shutil
+import socket
 import statistics
 import subprocess
 import sys
@@ -235,8 +236,11 @@ def connect(url: str, sysid: int, timeout_s: float = 60.0) -> Any:
     end = time.monotonic() + timeout_s
     while True:
         try:
-            return mavutil.mavlink_connection(url, source_system=sysid, source_component=COMPANION,
+            conn = mavutil.mavlink_connection(url, source_system=sysid, source_component=COMPANION,
                                               dialect="ardupilotmega", retries=0)  # fmt: skip
+            if isinstance(conn, mavutil.mavtcp):  # each frame on its own, as the sensor sent it (no Nagle)
+                conn.port.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            return conn
         except OSError:
             if time.monotonic() > end:
                 raise
@@ -520,9 +524,11 @@ class ArduPilot(Autopilot):
             # one of them moved; a finding, not a pass/fail row: MAVLink rangefinders do not tell ids apart
             Group("three MAVLink rangefinders, one feed moved", ARDUPILOT_PARAMS / "vehicle-rangefinders.parm",
                   together=True, paths=[
-                InputPath("DISTANCE_SENSOR id 0", "DISTANCE_SENSOR id 0", three, 3.0, 0.0, 0.0, 10.0,
+                # rates a little apart, as three sensors' clocks are, so no feed stays in step with the
+                # autopilot's 20 Hz rangefinder update and wins every time it reads
+                InputPath("DISTANCE_SENSOR id 0", "DISTANCE_SENSOR id 0", three, 3.0, 0.0, 0.0, 9.7,
                           send_distance(0), []),
-                InputPath("DISTANCE_SENSOR id 1", "DISTANCE_SENSOR id 1", three, 3.0, 0.0, 0.0, 10.0,
+                InputPath("DISTANCE_SENSOR id 1", "DISTANCE_SENSOR id 1", three, 3.0, 0.0, 0.0, 10.3,
                           send_distance(1), []),
                 InputPath("DISTANCE_SENSOR id 2 (biased)", "DISTANCE_SENSOR id 2", three, 3.0, 5.0, 2.0, 10.0,
                           send_distance(2),
@@ -621,6 +627,7 @@ class Row:
     expected: float
     moved: dict[str, float | None] = field(default_factory=dict)
     span: dict[str, tuple[float, float]] = field(default_factory=dict)  # each report's min, max after the ramp
+    share: dict[str, float] = field(default_factory=dict)  # of its values after the ramp, those at the fed one
     sent: int = 0
 
     @property
@@ -718,8 +725,11 @@ def run_group(ap: Autopilot, group: Group, work: Path, settle_s: float, hold_s: 
             for via in ("direct", "proxy"):
                 link = links[via]
                 ramp = feeder.offsets[p.name]
+                if p.info_only and via == "proxy":  # a finding: the same move again, from where it started
+                    ramp.to(p.base, time.time(), 0.0)
+                    time.sleep(settle_s / 2)
                 old = ramp.at(time.time())
-                new = old + p.swing if via == "direct" else old - p.swing
+                new = old + p.swing if via == "direct" or p.info_only else old - p.swing
                 for q in group.paths if group.together else [p]:
                     feeder.via[q.name] = via
                 if group.exclusive:
@@ -737,8 +747,10 @@ def run_group(ap: Autopilot, group: Group, work: Path, settle_s: float, hold_s: 
                     after = median_between(series, t_end - WINDOW_S, t_end)
                     row.moved[r.label] = None if before is None or after is None else after - before
                     late = [v for t, v in series if t_end - WINDOW_S <= t <= t_end]
-                    if late:
+                    if late and before is not None:
                         row.span[r.label] = (min(late), max(late))
+                        hit = sum(1 for v in late if abs(v - (before + row.expected)) <= TOLERANCE_MIN)
+                        row.share[r.label] = hit / len(late)
                 rows.append(row)
                 print_row(row, flush=True)
         stats = last_stats(proxy_log)
@@ -766,7 +778,8 @@ def print_row(row: Row, flush: bool = False) -> None:
     def one(k: str, v: float | None) -> str:
         text = f"{k} {'none' if v is None else f'{v:+.2f}'}"
         if row.path.info_only and k in row.span:
-            text += " (then {:.2f}..{:.2f})".format(*row.span[k])
+            lo, hi = row.span[k]
+            text += f" (then {lo:.2f}..{hi:.2f}, {row.share[k]:.0%} at the fed value)"
         return text
 
     moved = "; ".join(one(k, v) for k, v in row.moved.items())
