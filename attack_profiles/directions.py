@@ -20,6 +20,23 @@ A +5 m lie fed to the autopilot's MAVLink rangefinder 0, whatever the ground is 
         kind: bias
         offset: 5
 
+Where a lie toward the vehicle lands depends on which MAVLink inputs the autopilot
+is set to take from a companion; measured on ArduCopter SITL and PX4 SIH, with
+the parameters that enable each path, in docs/vehicle-inputs.md:
+
+| message toward the vehicle | ArduPilot | PX4 |
+|---|---|---|
+| DISTANCE_SENSOR | ``RNGFNDn_TYPE 10``; as height ``EK3_SRC1_POSZ 2`` | always; ``EKF2_RNG_CTRL 1`` |
+| VISION_POSITION_ESTIMATE, ODOMETRY | ``VISO_TYPE 1``, ``EK3_SRC1_POSXY 6`` | ``EKF2_EV_CTRL 1`` |
+| GPS_INPUT | ``GPS1_TYPE 14`` | not taken |
+| HIL_GPS | not taken | ``MAV_USEHILGPS 1`` |
+
+ArduPilot matches a MAVLink rangefinder by orientation, not by DISTANCE_SENSOR
+id; PX4 takes HIL_GPS only from the vehicle's own sysid.
+Commands, missions and parameters (COMMAND_LONG/INT, MISSION_ITEM_INT,
+PARAM_SET, SET_POSITION_TARGET_*) reach every autopilot without a parameter:
+a rule toward the vehicle on them changes what it is told to do.
+
 A profile touches the union of its rules' directions. The proxy says which
 (``directions`` in ``secuav/v<N>/attack/state``: ``["downlink"]``, ``["uplink"]``,
 both, or ``[]`` for no profile; ``secuav-attack apply`` and ``status``, the
