@@ -47,7 +47,7 @@ from estimators.noise import CALIBRATION_PARAM, TAIL_PARAM
 from estimators.scenario_models import anchor_model, two_vehicle_model, wall_group_model
 from evaluation.recorded import load_recording
 from evaluation.report import plot, summarise, table, write_results
-from evaluation.trial import RATE_HZ, TrialResult, evaluate, is_formation, is_wall, run_trial
+from evaluation.trial import RATE_HZ, SparseReadings, TrialResult, evaluate, is_formation, is_wall, run_trial
 from secuav_common.loading import InputError
 from secuav_common.logs import add_common_flags
 from secuav_common.scenario import Scenario, load_scenario, resolve_scenario_path
@@ -225,6 +225,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("secuav-eval: interrupted, nothing written", file=sys.stderr)
         return 130
+    except SparseReadings as err:  # a calibration window shorter than the fit needs
+        print(f"secuav-eval: {InputError('--calibrate', '', err.value, err.reason)}", file=sys.stderr)
+        return 2
     trials = [_scored(t, args) for t in trials]
     summary = summarise(trials)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -274,7 +277,12 @@ def _main_tlog(
     except InputError as err:
         print(f"secuav-eval: {err}", file=sys.stderr)
         return 2
-    trial = evaluate(scenario, streams, engine, names, from_log=True, params=_params(args), dims=args.dims)
+    try:
+        trial = evaluate(scenario, streams, engine, names, from_log=True, params=_params(args), dims=args.dims)
+    except SparseReadings as err:
+        flag = "--calibrate" if err.option == CALIBRATION_PARAM else "--rate"
+        print(f"secuav-eval: {InputError(str(args.ranges or args.tlog), flag, err.value, err.reason)}", file=sys.stderr)
+        return 2
     trial = _scored(trial, args)
     summary = summarise([trial])
     args.out.mkdir(parents=True, exist_ok=True)

@@ -144,6 +144,9 @@ def summarise(trials: list[TrialResult]) -> dict[str, dict[str, Any]]:
             },
         })  # fmt: skip
         row.update(false_alarms(trials, name))
+        # Per trial, what --calibrate did: status, and per link the readings used, the offset and the scale.
+        reports = [tr.traces[name].calibration for tr in trials]
+        row["calibration"] = None if all(r is None for r in reports) else reports
         if not scored_detection:
             row["attack_detection_precision"] = row["attack_detection_recall"] = None
         if devs:
@@ -193,7 +196,31 @@ def table(summary: dict[str, dict[str, Any]]) -> str:
         " reading; events per hour (consecutive steps count once), per step and per run in results.json."
     )
     lines.append("Time per step: one step of every estimator (ReCaP: its one sensor group), median over all steps.")
+    lines += calibration_lines(summary)
     return "\n".join(lines)
+
+
+def calibration_lines(summary: dict[str, dict[str, Any]]) -> list[str]:
+    """One line per trial saying what --calibrate did (the first estimator's window; each one's in results.json)."""
+    for name, row in summary.items():
+        reports = row.get("calibration")
+        if not reports:
+            continue
+        lines = []
+        for i, rep in enumerate(reports):
+            where = f" (trial {i})" if len(reports) > 1 else ""
+            if rep is None or rep["status"] != "calibrated":
+                lines.append(f"Calibration{where}: {'none' if rep is None else rep['status']}: "
+                             f"{'' if rep is None else rep.get('reason')}")  # fmt: skip
+                continue
+            links = ", ".join(
+                f"{sid}: {v['readings']} x {v['offset_m']:+.3f} m / {v['sigma_m']:.3f} m"
+                for sid, v in rep["links"].items()
+            )
+            lines.append(f"Calibration{where} ({name}, first {rep['window_s']:g} s, {rep['steps_with_fix']} steps "
+                         f"with a fix): per link, sensor id: readings used x offset / sigma told, {links}")  # fmt: skip
+        return lines
+    return []
 
 
 def write_results(out_dir: Path, meta: dict[str, Any], summary: dict[str, dict[str, Any]]) -> Path:

@@ -56,6 +56,9 @@ class EstimatorTrace:
     # The method's own claims (Estimate.own_attacked/own_alarm), None for a method that does not detect.
     own_named: np.ndarray | None = None  # (T, p) bool
     own_alarm: np.ndarray | None = None  # (T,) bool
+    # What its calibration window did (estimators.noise.Calibrated.report: status, per-link readings, offsets,
+    # scales); None without --calibrate.
+    calibration: dict[str, Any] | None = None
 
 
 def _own(est: Estimator | noise.Calibrated, shape: tuple[int, int]) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -184,11 +187,61 @@ def evaluate(
     attack added here (``engine``) is known, and errors cannot be scored at all.
     """
     first = scenario.vehicles[0].sysid
+    if is_wall(scenario):
+        s1 = _attacked_height(engine, streams[first])
+        check_readings(scenario, streams, dims, params, variants, from_log=from_log)
+        return _wall_trial(scenario, s1, engine, names, from_log, params or {}, variants)
+    inp = _inputs(scenario, streams, engine, dims)
+    model, s1, z, clean, known, truth2 = inp.model, inp.s1, inp.z, inp.clean, inp.known, inp.truth2
+    _refuse_sparse(model, s1.t_s, z, params, variants, from_log)
+    local = None if s1.local_ned_m is None else s1.local_ned_m[:, :2]
+    traces = {
+        name: _run_estimator(name, model, s1, z, known, truth2, local, params or {}, variants) for name in names
+    }
+    n_anchor = len(scenario.anchor_positions())
+    anchors = np.array([scenario.anchor_positions()[k] for k in sorted(scenario.anchor_positions())])[:n_anchor, :2]
+    offsets, floor, scored_err, scored_det = _offsets(
+        model, z, clean, engine, inp.truth_state, inp.truth_known, from_log
+    )
+    return TrialResult(
+        t_s=s1.t_s,
+        truth_xy_m=s1.truth_ned_m[:, :2],
+        anchors_xy_m=anchors,
+        offsets_m=offsets,
+        sigma_m=model.sigma_m,
+        sensor_ids=model.ids(),
+        traces=traces,
+        named_floor_m=floor,
+        scored_errors=scored_err,
+        scored_detection=scored_det,
+        local_xy_m=local,
+        readings_m=z,
+        truth_down_m=s1.truth_ned_m[:, 2],
+        added_m=z - clean,
+        score_from_s=score_from(params),
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class _Inputs:
+    """What the estimators read (``z``, attacked), the clean readings, the known inputs and the truth to score."""
+
+    model: MeasurementModel
+    s1: VehicleStream
+    z: np.ndarray
+    clean: np.ndarray
+    known: np.ndarray
+    truth_state: np.ndarray
+    truth_known: np.ndarray
+    truth2: np.ndarray | None
+
+
+def _inputs(scenario: Scenario, streams: dict[int, VehicleStream], engine: Engine | None, dims: int) -> _Inputs:
+    """The readings matrix of test case 1 or 2 (not the wall group), attacked by ``engine`` (None: clean)."""
+    first = scenario.vehicles[0].sysid
     clean_laser = streams[first].laser_down_m
     streams = {sysid: _attacked_height(engine, st) for sysid, st in streams.items()}
     s1 = streams[first]
-    if is_wall(scenario):
-        return _wall_trial(scenario, s1, engine, names, from_log, params or {}, variants)
     if is_formation(scenario):
         second = scenario.vehicles[1].sysid
         model: MeasurementModel = two_vehicle_model(scenario, first, second)
@@ -221,30 +274,91 @@ def evaluate(
     if known.shape[1]:
         # A missing laser reading: keep the last height (the model's default before the first one).
         known = _hold_last(known, np.asarray(model.default_known, dtype=float).reshape(-1))
-    local = None if s1.local_ned_m is None else s1.local_ned_m[:, :2]
-    traces = {
-        name: _run_estimator(name, model, s1, z, known, truth2, local, params or {}, variants) for name in names
-    }
-    n_anchor = len(scenario.anchor_positions())
-    anchors = np.array([scenario.anchor_positions()[k] for k in sorted(scenario.anchor_positions())])[:n_anchor, :2]
-    offsets, floor, scored_err, scored_det = _offsets(model, z, clean, engine, truth_state, truth_known, from_log)
-    return TrialResult(
-        t_s=s1.t_s,
-        truth_xy_m=s1.truth_ned_m[:, :2],
-        anchors_xy_m=anchors,
-        offsets_m=offsets,
-        sigma_m=model.sigma_m,
-        sensor_ids=model.ids(),
-        traces=traces,
-        named_floor_m=floor,
-        scored_errors=scored_err,
-        scored_detection=scored_det,
-        local_xy_m=local,
-        readings_m=z,
-        truth_down_m=s1.truth_ned_m[:, 2],
-        added_m=z - clean,
-        score_from_s=score_from(params),
+    return _Inputs(model, s1, z, clean, known, truth_state, truth_known, truth2)
+
+
+class SparseReadings(ValueError):
+    """The readings are too sparse for the asked calibration window or framing rate (one line says which link).
+
+    ``option``: what asked too much, ``calibration_s`` (with ``value`` the window) or ``rate_hz`` (the framing)."""
+
+    def __init__(self, reason: str, option: str, value: float) -> None:
+        super().__init__(reason)
+        self.reason, self.option, self.value = reason, option, value
+
+
+def _windows(params: dict[str, Any] | None, variants: Variants | None, names: list[str] | None = None) -> list[float]:
+    """Every calibration window asked for: the shared ``params``' and each variant's own."""
+    asked = [(params or {}).get(noise.CALIBRATION_PARAM)]
+    for label, (_, own) in (variants or {}).items():
+        if names is None or label in names:
+            asked.append({**(params or {}), **own}.get(noise.CALIBRATION_PARAM))
+    return sorted({float(w) for w in asked if w is not None})
+
+
+MIN_FIX_SHARE = 0.5  # framing: at least this share of the frames must hold the readings a fix needs
+
+
+def _refuse_sparse(
+    model: MeasurementModel,
+    t_s: np.ndarray,
+    z: np.ndarray,
+    params: dict[str, Any] | None,
+    variants: Variants | None,
+    from_log: bool,
+) -> None:
+    """``SparseReadings`` when a calibration window or (for a recording) the framing rate asks for more readings
+    than the links give; see docs/recorded-ranges.md ("Too sparse")."""
+    ids = model.ids()
+    for window in _windows(params, variants):
+        reason = noise.count_window(model, t_s, z, window).refusal(ids)
+        if reason is not None:
+            raise SparseReadings(reason, noise.CALIBRATION_PARAM, window)
+    if not from_log or t_s.size < 2:
+        return
+    have = np.isfinite(z)
+    share = float(np.mean(have.sum(axis=1) >= model.min_sensors))
+    if share >= MIN_FIX_SHARE:
+        return
+    rate = 1.0 / float(np.median(np.diff(t_s)))
+    per_link = have.mean(axis=0) * rate  # readings per second each link brings into the frames
+    # The fastest framing at which the average frame holds min_sensors readings (a link faster than the frames
+    # fills every one of them): the largest R with sum_i min(1, r_i / R) >= min_sensors.
+    best = 0.0
+    for r in np.geomspace(0.01, rate, 400):
+        if float(np.minimum(1.0, per_link / r).sum()) >= model.min_sensors:
+            best = float(r)
+    links = ", ".join(f"{sid}: {r:.2f}" for sid, r in zip(ids, per_link, strict=True))
+    raise SparseReadings(
+        f"framing at {rate:.3g} Hz: only {share:.0%} of the frames hold the {model.min_sensors} readings a fix "
+        f"needs (needs {MIN_FIX_SHARE:.0%}); readings per second per link, sensor id: rate, {links}; "
+        + (f"frame at {best:.2g} Hz or slower" if best > 0 else "too few links read at all"),
+        "rate_hz",
+        rate,
     )
+
+
+def check_readings(
+    scenario: Scenario,
+    streams: dict[int, VehicleStream],
+    dims: int,
+    params: dict[str, Any] | None,
+    variants: Variants | None = None,
+    *,
+    from_log: bool = True,
+) -> None:
+    """Refuse (``SparseReadings``, one line naming the link and the numbers) streams too sparse for the asked
+    calibration window or framing rate, before any estimator runs (``secuav-eval``, a study's validation)."""
+    first = scenario.vehicles[0].sysid
+    if is_wall(scenario):
+        s1 = streams[first]
+        model: MeasurementModel = wall_group_model(scenario, s1.sysid)
+        target = scenario.vehicles[0].target
+        assert isinstance(target, WallDistanceTarget)
+        _refuse_sparse(model, s1.t_s, _matrix(s1, list(target.sensor_ids)), params, variants, from_log)
+        return
+    inp = _inputs(scenario, streams, None, dims)
+    _refuse_sparse(inp.model, inp.s1.t_s, inp.z, params, variants, from_log)
 
 
 def _height(stream: VehicleStream) -> np.ndarray:
@@ -330,7 +444,12 @@ def _run_estimator(
             true_range = float(np.linalg.norm(s1.truth_ned_m[k] - truth2[k]))
             rerr[k] = abs(est_range - true_range)
     dev = None if local is None else np.linalg.norm(xy - local, axis=1)
-    return EstimatorTrace(err, rerr, xy, times, named, alarm, dev, nees, degraded, herr, nis, own_named, own_alarm)
+    return EstimatorTrace(err, rerr, xy, times, named, alarm, dev, nees, degraded, herr, nis, own_named, own_alarm,
+                          _calibration(est))  # fmt: skip
+
+
+def _calibration(est: Estimator | noise.Calibrated) -> dict[str, Any] | None:
+    return est.report() if isinstance(est, noise.Calibrated) else None
 
 
 def _create(
@@ -395,7 +514,7 @@ def _wall_trial(
             nis[k] = _nis(out)
         traces[name] = EstimatorTrace(
             np.abs(d_est - true_d), None, d_est[:, None], times, named, alarm, None, nees, degraded, None, nis,
-            own_named, own_alarm,
+            own_named, own_alarm, _calibration(est),
         )
     offsets, floor, scored_err, scored_det = _offsets(
         model, z, clean, engine, true_d[:, None], np.zeros((z.shape[0], 1)), from_log

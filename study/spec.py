@@ -343,6 +343,8 @@ def expand(study: Study, source: str) -> list[Cell]:
             raise InputError(source, f"estimators[{i}].params", getattr(entry, "params", None), str(exc)) from None
     if study.mode == "offline":
         _check_tunings(study, tunings, scenario, source)
+    if recording is not None:
+        _check_sparse(study, tunings, scenario, recording, source)
     cells: list[Cell] = []
     seen: set[str] = set()
     scenario_hash = hashlib.sha256(dump_json(scenario).encode()).hexdigest()[:16]
@@ -384,6 +386,20 @@ def _recording(study: Study, scenario: Scenario, base: Path, source: str) -> tup
     if truth is not None:
         digest.update(truth.read_bytes())
     return rec, f"{digest.hexdigest()[:16]}@{rec.rate_hz:.6g}"
+
+
+def _check_sparse(study: Study, tunings: list[dict[str, Any]], scenario: Scenario, recording: Any, source: str) -> None:
+    """A recording too sparse for a calibration window or the framing rate fails the study file with one line
+    naming the link and the numbers (evaluation.trial.check_readings), not every cell."""
+    from evaluation.trial import SparseReadings, check_readings
+
+    own = {v.label: (v.name, v.params) for v in study.variants()}
+    for tuning in tunings:
+        try:
+            check_readings(scenario, recording.streams, study.dims, tuning, own)
+        except SparseReadings as err:
+            field = "recording.rate_hz" if err.option == "rate_hz" else f"estimator_params.{err.option}"
+            raise InputError(source, field, err.value, err.reason) from None
 
 
 def _check_tunings(study: Study, tunings: list[dict[str, Any]], scenario: Scenario, source: str) -> None:
