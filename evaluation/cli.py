@@ -46,7 +46,7 @@ from estimators.models import MeasurementModel
 from estimators.noise import CALIBRATION_PARAM, TAIL_PARAM
 from estimators.scenario_models import anchor_model, two_vehicle_model, wall_group_model
 from evaluation.recorded import load_recording
-from evaluation.report import plot, summarise, table, write_results
+from evaluation.report import BASELINES, compare_with_ls, plot, summarise, table, write_results
 from evaluation.trial import RATE_HZ, SparseReadings, TrialResult, evaluate, is_formation, is_wall, run_trial
 from secuav_common.loading import InputError
 from secuav_common.logs import add_common_flags
@@ -61,8 +61,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--estimators",
         default=None,
-        help="comma-separated (default: all that run on the scenario); `secuav-plugins --builtin` lists them "
-        "with their parameters",
+        help="comma-separated (default: all that run on the scenario); the baselines ls and ekf run in every table "
+        "(added when missing); `secuav-plugins --builtin` lists them with their parameters",
     )
     p.add_argument("--trials", type=int, default=3)
     p.add_argument("--seed", type=int, default=0)
@@ -145,6 +145,8 @@ def _estimators(given: str | None, model: Any) -> list[str]:
     if given is None:
         return estimators.names(model)  # a listing: every built-in and plugin that runs on it
     names = [n.strip() for n in given.split(",") if n.strip()]
+    # The undefended baselines are in every table: the snapshot least-squares fix and the EKF, first if not given.
+    names = [*(b for b in BASELINES if b not in names), *names] if names else names
     for name in names:
         try:
             cls = estimators.registry.get(name)
@@ -230,6 +232,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     trials = [_scored(t, args) for t in trials]
     summary = summarise(trials)
+    compare_with_ls(summary, clean=profile is None)
     args.out.mkdir(parents=True, exist_ok=True)
     meta = {
         "scenario": scenario.name,
@@ -285,6 +288,9 @@ def _main_tlog(
         return 2
     trial = _scored(trial, args)
     summary = summarise([trial])
+    # A log recorded behind an attack is not clean even without --attack: only an evaluation that injects
+    # nothing and has truth calls a method's loss to least squares a clean-data loss.
+    compare_with_ls(summary, clean=profile is None and trial.scored_errors)
     args.out.mkdir(parents=True, exist_ok=True)
     meta = {
         "source": "tlog" if args.tlog is not None else "ranges",

@@ -458,7 +458,18 @@ def _create(
     """The estimator a name or a variant label stands for, with the shared ``params`` and its own over them
     (``estimators.noise.create``: ``estimators.create`` plus a calibration window when the params ask for one)."""
     name, own = (variants or {}).get(label, (label, {}))
-    return noise.create(name, model, **{**params, **own})
+    return noise.create(name, model, **{**shared_params(name, params), **own})
+
+
+def shared_params(name: str, params: dict[str, Any]) -> dict[str, Any]:
+    """The shared parameters an estimator gets: all of them, except the vehicle's motion input
+    (``velocity_std_mps``) for a method without one (``ls`` and the snapshot methods run without it, as the
+    baselines every study compares with do; listed with its own params they still refuse it)."""
+    from estimators import registry
+
+    if "velocity_std_mps" in params and not registry.get(name).motion_input:
+        return {k: v for k, v in params.items() if k != "velocity_std_mps"}
+    return params
 
 
 def _nis(out: Estimate) -> float:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -69,10 +70,15 @@ def test_a_study_on_recorded_ranges(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stderr
     assert json.loads(done.stdout.strip().splitlines()[-1])["ran"] == 2
     rows = pd.read_parquet(out / "results.parquet")
-    assert (rows["status"] == "ok").all() and len(rows) == 4
+    # ls: the undefended least-squares baseline, run in every offline study though not listed.
+    assert (rows["status"] == "ok").all() and len(rows) == 6 and set(rows["estimator"]) == {"ls", "ekf", "secekf"}
     attacked = rows[rows["attack"] != "none"].set_index("estimator")
     assert attacked.loc["secekf", "rmse_m"] < attacked.loc["ekf", "rmse_m"]
     assert rows.loc[rows["attack"] == "none", "estimator_params"].notna().all()  # calibration_s went along
+    report = (out / "report.md").read_text()
+    assert "| RMSE / LS |" in report and "| none | ls calibration_s=15.0 | " in report  # clean table, Table 5.1
+    assert re.search(r"\| ls calibration_s=15.0 \| leg hover \| 1 \| [0-9.]+ \| [0-9.]+ \| 1\.00 \|", report)
+    assert re.search(r"\| secekf calibration_s=15.0 \| leg hover \| 1 \| [0-9.]+ \| [0-9.]+ \| [0-9]\.[0-9]{2}", report)
     # What the window did, per row: every link's readings used, offset and scale.
     for text in rows["calibration"]:
         rep = json.loads(text)
