@@ -15,7 +15,7 @@ recorded log (:func:`evaluate` with ``from_log``, streams from
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -25,7 +25,7 @@ from attack_profiles import Engine
 from attack_profiles.profile import Profile
 from estimators import noise
 from estimators.base import Estimate, Estimator
-from estimators.models import AnchorRangesHeight, MeasurementModel
+from estimators.models import AnchorRangesHeight, Known, MeasurementModel, TwoVehicleRanges
 from estimators.scenario_models import anchor_model, two_vehicle_model, wall_group_model
 from evaluation.streams import Leg, VehicleStream, fly
 from secuav_common.scenario import Scenario, WallDistanceTarget, with_noise_scale
@@ -177,8 +177,12 @@ def evaluate(
     params: dict[str, Any] | None = None,
     dims: int = 3,
     variants: Variants | None = None,
+    asynchronous: bool = False,
 ) -> TrialResult:
     """Run the estimators on framed streams (a headless flight, or a recorded log).
+
+    ``asynchronous`` (a recording of one vehicle's anchor ranges): the estimators of ``ASYNCHRONOUS`` take every
+    reading at its own time instead of the frames (:func:`_async_feed`); the others stay framed.
 
     From a flight the attack is the only thing that changes readings, so the
     offsets it added are known exactly. From a log the readings may already be
@@ -195,9 +199,12 @@ def evaluate(
     model, s1, z, clean, known, truth2 = inp.model, inp.s1, inp.z, inp.clean, inp.known, inp.truth2
     _refuse_sparse(model, s1.t_s, z, params, variants, from_log)
     local = None if s1.local_ned_m is None else s1.local_ned_m[:, :2]
+    raw = _raw_inputs(inp, engine) if asynchronous else None
     traces = {
-        name: _run_estimator(name, model, s1, z, known, truth2, local, params or {}, variants) for name in names
-    }
+        name: _run_estimator(name, model, s1, z, known, truth2, local, params or {}, variants,
+                             raw if _runs_async(name, variants) else None)
+        for name in names
+    }  # fmt: skip
     n_anchor = len(scenario.anchor_positions())
     anchors = np.array([scenario.anchor_positions()[k] for k in sorted(scenario.anchor_positions())])[:n_anchor, :2]
     offsets, floor, scored_err, scored_det = _offsets(
@@ -411,8 +418,10 @@ def _run_estimator(
     local: np.ndarray | None = None,
     params: dict[str, Any] | None = None,
     variants: Variants | None = None,
+    raw: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> EstimatorTrace:
     est = _create(name, model, params or {}, variants)
+    feed = None if raw is None else _async_feed(est, *raw)
     own_named, own_alarm = _own(est, z.shape)
     n = z.shape[0]
     err = np.full(n, np.nan)
@@ -427,8 +436,11 @@ def _run_estimator(
     for k in range(n):
         kn = None if known.shape[1] == 0 else float(known[k, 0]) if known.shape[1] == 1 else known[k]
         vel = None if s1.velocity_ned_m_s is None else s1.velocity_ned_m_s[k]
-        out = est.step(float(s1.t_s[k]), z[k], kn, velocity=vel)
-        times[k] = out.step_time_s
+        if feed is None:
+            out = est.step(float(s1.t_s[k]), z[k], kn, velocity=vel)
+            times[k] = out.step_time_s
+        else:
+            out, times[k] = feed(float(s1.t_s[k]), z[k], kn)
         alarm[k], degraded[k] = out.alarm, not out.valid
         named[k, list(out.attacked)] = True
         _record_own(out, k, own_named, own_alarm)
@@ -446,6 +458,67 @@ def _run_estimator(
     dev = None if local is None else np.linalg.norm(xy - local, axis=1)
     return EstimatorTrace(err, rerr, xy, times, named, alarm, dev, nees, degraded, herr, nis, own_named, own_alarm,
                           _calibration(est))  # fmt: skip
+
+
+ASYNCHRONOUS = ("ekf",)  # estimators that take readings one at a time with their own timestamps (--async)
+
+
+def _runs_async(label: str, variants: Variants | None) -> bool:
+    return (variants or {}).get(label, (label, {}))[0] in ASYNCHRONOUS
+
+
+def _raw_inputs(inp: _Inputs, engine: Engine | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every reading of the first vehicle at its own time: (times (N,), readings (N, p) with NaN where a sensor did
+    not read at that time, known inputs (N, k) held from the frame the time falls in), attacked by ``engine``."""
+    s1, model = inp.s1, inp.model
+    if s1.raw is None or isinstance(model, TwoVehicleRanges):
+        raise ValueError("asynchronous processing needs one vehicle's recorded ranges (--ranges or --tlog)")
+    ids = list(model.ids())
+    laser = s1.laser_down_id if isinstance(model, AnchorRangesHeight) else None
+    cols = [laser if (laser is not None and i == len(ids) - 1) else sid for i, sid in enumerate(ids)]
+    series = [s1.raw.get(sid, (np.zeros(0), np.zeros(0))) if sid is not None else (np.zeros(0), np.zeros(0))
+              for sid in cols]  # fmt: skip
+    t = np.unique(np.concatenate([ts for ts, _ in series])) if series else np.zeros(0)
+    z = np.full((t.size, len(ids)), np.nan)
+    for j, (ts, vs) in enumerate(series):
+        z[np.searchsorted(t, ts), j] = vs
+    z[~(z >= 0.0)] = np.nan  # missing or negative readings, as framed
+    if engine is not None:
+        clock = t + s1.boot_offset_s if engine.profile.clock == "vehicle" else t
+        frames = next(p for p in (s1.local_ned_m, s1.attacker_view_ned_m, s1.truth_ned_m) if p is not None)
+        where = np.column_stack([np.interp(t, s1.t_s, frames[:, c]) for c in range(3)])
+        anchors = len(ids) - (1 if laser is not None else 0)
+        z[:, :anchors] = engine.apply_array(clock, z[:, :anchors], ids[:anchors], sysid=s1.sysid, position_ned_m=where)
+    frame = np.clip(np.searchsorted(s1.t_s, t - 1e-9), 0, s1.t_s.size - 1)  # the frame each reading falls in
+    return t, z, inp.known[frame]
+
+
+def _async_feed(
+    est: Estimator | noise.Calibrated, t_raw: np.ndarray, z_raw: np.ndarray, known_raw: np.ndarray
+) -> Callable[[float, np.ndarray, Known], tuple[Estimate, float]]:
+    """Step ``est`` through every reading up to each frame time, each at its own time (a sequential update of
+    the readings that share a timestamp), then once at the frame time with no reading (a prediction to it): that
+    is the frame's output. Until the estimator has a first estimate the frame's readings start it instead (a
+    tag that polls one anchor at a time never has the readings of a fix at one timestamp)."""
+    nan_row = np.full(z_raw.shape[1], np.nan)
+    state = {"j": 0, "ok": False}
+
+    def known_at(j: int) -> Known:
+        return None if known_raw.shape[1] == 0 else float(known_raw[j, 0]) if known_raw.shape[1] == 1 else known_raw[j]
+
+    def feed(t_s: float, framed: np.ndarray, kn: Known) -> tuple[Estimate, float]:
+        spent = 0.0
+        j = state["j"]
+        while j < t_raw.size and t_raw[j] <= t_s + 1e-9:
+            if state["ok"]:
+                spent += est.step(float(t_raw[j]), z_raw[j], known_at(j)).step_time_s
+            j += 1
+        state["j"] = j
+        out = est.step(t_s, nan_row if state["ok"] else framed, kn)
+        state["ok"] = state["ok"] or out.ok
+        return out, spent + out.step_time_s
+
+    return feed
 
 
 def _calibration(est: Estimator | noise.Calibrated) -> dict[str, Any] | None:
