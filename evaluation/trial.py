@@ -293,6 +293,9 @@ class SparseReadings(ValueError):
         super().__init__(reason)
         self.reason, self.option, self.value = reason, option, value
 
+    def __reduce__(self) -> tuple[type, tuple[str, str, float]]:  # raised in a worker process (--jobs)
+        return (SparseReadings, (self.reason, self.option, self.value))
+
 
 def _windows(params: dict[str, Any] | None, variants: Variants | None, names: list[str] | None = None) -> list[float]:
     """Every calibration window asked for: the shared ``params``' and each variant's own."""

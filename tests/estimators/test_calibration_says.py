@@ -139,3 +139,13 @@ def test_eval_records_what_it_calibrated(tmp_path: Path, capsys: pytest.CaptureF
         (rep,) = res["estimators"][name]["calibration"]
         assert rep["status"] == "calibrated" and rep["window_s"] == 10.0
         assert rep["links"]["17"]["readings"] == 101 and {"offset_m", "sigma_m"} <= set(rep["links"]["17"])
+
+
+def test_a_flight_too_short_for_its_window_is_refused_too(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Flown trials (here two, in worker processes) count the window the same way: 1 s at 10 Hz is 11 steps."""
+    argv = ["--scenario", "anchors8", "--attack", "none", "--estimators", "ekf", "--trials", "2", "--jobs", "2",
+            "--duration", "3", "--calibrate", "1", "--out", str(tmp_path / "o")]  # fmt: skip
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith("secuav-eval: --calibrate: calibration window 1 s holds too few readings")
+    assert "11 of 11 steps have a fix (needs 20)" in err and not (tmp_path / "o").exists()
