@@ -17,6 +17,7 @@ import numpy as np
 
 from estimators.attribution import Namer, Trail, agreeing, explain, sidak_gate
 from estimators.bank import Chi2Table, EkfBank, cv_matrices, gauss_newton, inv_small
+from estimators.envelope import MAX_SPEED_MPS, SLACK_M, Envelope
 from estimators.models import Known, MeasurementModel
 from estimators.observability import mirrors
 
@@ -74,6 +75,9 @@ class Estimate:
     own_attacked: frozenset[int] | None = None
     own_alarm: bool | None = None
     ambiguous: bool = False
+    # The output left the envelope the anchors' geometry and the motion bound allow, or the filter lost track
+    # (estimators.envelope): reported on the envelope, alarm set, not valid, and the estimator started again.
+    reinitialised: bool = False
 
 
 def _indices(mask: np.ndarray) -> frozenset[int]:
@@ -111,8 +115,12 @@ class Estimator:
         p0_vel_mps: float = 0.5,
         n_iter: int = 6,
         velocity_std_mps: float | None = None,
+        max_speed_mps: float = MAX_SPEED_MPS,
+        motion_slack_m: float = SLACK_M,
     ) -> None:
         self.model = model
+        # Never unsafe: outputs outside the anchors' box or the motion bound are caught here (estimators.envelope).
+        self.envelope = Envelope.of(model, max_speed_mps, motion_slack_m)
         if velocity_std_mps is not None and not (self.motion_input and velocity_std_mps > 0):
             raise ValueError(
                 f"velocity_std_mps={velocity_std_mps}: {self.name} has no motion input"
@@ -159,10 +167,14 @@ class Estimator:
         self.trail = Trail(self.model.d)  # where the vehicle can be, for judging alarms and explanations
         self.accused = np.zeros((EVIDENCE_STEPS, self.model.p), dtype=bool)  # ring: who was named, last steps
         self.accused_k = 0
+        if self.envelope is not None:  # forget the motion bound's anchor point; a given x0 is the new one
+            self.envelope.last_pos, self.envelope.last_t = None, None
         x = None
         if x0 is not None:
             x0 = np.asarray(x0, dtype=float).reshape(-1)
             x = np.concatenate([x0, np.zeros(self.model.d)]) if x0.size == self.model.d else x0.copy()
+            if self.envelope is not None and np.isfinite(x[: self.model.d]).all():
+                self.envelope.accept(x[: self.model.d], float(t_s))
         self._reset(x, self._initial_cov() if P0 is None else np.asarray(P0, dtype=float))
 
     def step(self, t_s: float, z: np.ndarray, known: Known = None, velocity: np.ndarray | None = None) -> Estimate:
@@ -187,6 +199,8 @@ class Estimator:
             object.__setattr__(est, "own_alarm", est.alarm)
         if est.ok and self.secure:
             self._attribute(zv, est, kn)
+        if est.ok and self.envelope is not None:
+            self._guard(est)
         # The Estimate is frozen for its readers; stamping our own fresh instance costs far less than replace().
         object.__setattr__(est, "step_time_s", time.perf_counter() - t0)
         return est
@@ -256,6 +270,39 @@ class Estimator:
         if est.valid and self.mirrors and self._tie(z, est.position_m, known):
             object.__setattr__(est, "valid", False)
             object.__setattr__(est, "ambiguous", True)
+
+    def _guard(self, est: Estimate) -> None:
+        """Hold the output to the envelope (estimators.envelope): a valid output outside it, or from a filter that
+        has lost track, is an alarm and the estimator starts again; a degraded one is only held inside it."""
+        env = self.envelope
+        assert env is not None
+        inside = env.allows(est.position_m, est.t_s)
+        if not est.valid:
+            # Already degraded by its own account: a large covariance is honest then, and its trail and evidence
+            # (what it knows about the attack) must not be thrown away; only where it is reported is held.
+            if not inside:
+                object.__setattr__(est, "position_m", env.project(est.position_m, est.t_s))
+                object.__setattr__(est, "alarm", True)
+            return
+        if inside and not env.lost(est.covariance, self.model.d):
+            env.accept(est.position_m, est.t_s)
+            return
+        object.__setattr__(est, "position_m", env.project(est.position_m, est.t_s))
+        object.__setattr__(est, "velocity_mps", None)  # a diverged filter's velocity says nothing
+        object.__setattr__(est, "covariance", None)
+        object.__setattr__(est, "valid", False)
+        object.__setattr__(est, "alarm", True)
+        object.__setattr__(est, "reinitialised", True)
+        last = (env.last_pos, env.last_t)
+        # What a calibration told the tests (estimators.noise) outlives the restart.
+        vif, drift = self.namer.window_vif, getattr(self, "drift", None)
+        drift_vif = getattr(drift, "vif", None)
+        self.reset()  # from the next readings, as at the first step; the motion bound keeps its anchor point
+        self.t_s = est.t_s
+        env.last_pos, env.last_t = last
+        self.namer.window_vif = vif
+        if drift_vif is not None and hasattr(getattr(self, "drift", None), "vif"):
+            self.drift.vif = drift_vif
 
     def _tie(self, z: np.ndarray, pos: np.ndarray, known: Known) -> bool:
         """Whether the output's mirror image across a line or plane of anchors explains the readings with no more

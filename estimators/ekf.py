@@ -12,6 +12,12 @@ gain form ``K = P H^T (H P H^T + R)^-1``, ``x+ = x- + K nu``, ``P+ = P- - K H P-
 computed with d x d algebra only (push-through identity; see ``bank.EkfBank``). The first step, without ``x0``,
 starts from a least-squares fix of the first readings. With ``velocity_std_mps`` the vehicle's own velocity
 (``step(..., velocity=)``) updates the velocity state after each prediction (``bank.EkfBank.update_velocity``).
+
+Asynchronous readings: ``step`` takes any subset of the readings (NaN = not read) at the time given, so the
+filter can take readings one at a time, each at its own timestamp (a sequential update: predict to the reading's
+time, update with it; readings sharing a timestamp are one update), and ``step(t, all NaN)`` predicts to ``t``
+without an update. ``secuav-eval --async`` feeds it that way (docs/recorded-ranges.md); framed, it reads one
+vector of readings per frame as if taken together.
 """
 
 from __future__ import annotations

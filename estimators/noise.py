@@ -23,6 +23,10 @@ heavy-tailed noise instead of at several times it. The window tests' variance is
 on the model with ``sigma_m = s``, warmed up on the last ``WARM_STEPS`` corrected readings of
 the window, and reads ``z - b``.
 
+It says what it did: the window must hold ``MIN_STEPS`` steps with a fix and, per link, ``MIN_LINK_READINGS``
+readings in them (:func:`count_window`); if not, it refuses (:meth:`WindowCount.refusal`, one line naming every
+link's count and what it needs) and the estimator goes on uncalibrated with :meth:`Calibrated.report` saying so.
+
 What it cannot do: an offset pattern that a shift of the position explains (its projection on
 the span of the range Jacobian at the window's positions) stays in the position, as it would with
 any self-calibration without truth; an attacker present during the window is calibrated in (the
@@ -32,6 +36,7 @@ errors (about 2 s) is not whitened: the evidence window still sees correlated ho
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -45,7 +50,10 @@ from estimators.models import Known, MeasurementModel
 from estimators.registry import create as create_estimator
 
 WARM_STEPS = 20  # readings replayed into the rebuilt estimator (2 s at 10 Hz) so it takes over converged
-MIN_STEPS = 20  # fewer usable steps than this in the window: no calibration, the estimator goes on as it was
+MIN_STEPS = 20  # steps of the window with a fix (min_sensors readings) the fit needs
+# Readings of each link, in steps with a fix, the fit needs: its offset is their median and its scale their MAD; with
+# 20 the median's own spread is about 0.28 sigma (1.25 sigma / sqrt(20)), a third of the naming tests' margin.
+MIN_LINK_READINGS = 20
 CALIBRATION_PARAM = "calibration_s"
 TAIL_PARAM = "calibration_tail_dof"  # optional: Student-t dof of the errors, measured beforehand
 
@@ -57,6 +65,53 @@ class Calibration:
     tail_factor: float  # k: the Gaussian-matching inflation of the robust scale
     steps: int  # steps of the window that gave a fix
     window_vif: float = 1.0  # variance inflation of a WINDOW-step mean from the residuals' autocorrelation
+    readings: np.ndarray | None = None  # (p,) readings of each link the fit used (in steps with a fix)
+
+
+@dataclass(frozen=True)
+class WindowCount:
+    """What a calibration window holds: its steps, those with a fix, and each link's readings in them."""
+
+    window_s: float
+    span_s: float  # the time the window's steps cover (less than window_s: the readings ended first)
+    steps: int
+    fixes: int  # steps with at least min_sensors readings (a least-squares fix exists)
+    readings: tuple[int, ...]  # per link: readings in steps with a fix (what the fit can use)
+
+    def refusal(self, ids: Sequence[int]) -> str | None:
+        """None if the window can be calibrated on; else one line naming each link's count and what it needs."""
+        per_link = ", ".join(f"{sid}: {n}" for sid, n in zip(ids, self.readings, strict=True))
+        short = [str(sid) for sid, n in zip(ids, self.readings, strict=True) if n < MIN_LINK_READINGS]
+        if self.span_s < self.window_s:
+            return (f"calibration window {self.window_s:g} s: the readings end after {self.span_s:.1f} s "
+                    f"({self.steps} steps); give a shorter window or a longer recording")  # fmt: skip
+        if not short and self.fixes >= MIN_STEPS:
+            return None
+        return (f"calibration window {self.window_s:g} s holds too few readings to calibrate: {self.fixes} of "
+                f"{self.steps} steps have a fix (needs {MIN_STEPS}); readings per link in them, sensor id: count, "
+                f"{per_link} (each link needs {MIN_LINK_READINGS}"
+                + (f"; short: {', '.join(short)}" if short else "")
+                + "); give a longer window")  # fmt: skip
+
+
+def window_length(t_s: np.ndarray, window_s: float) -> int:
+    """How many steps :class:`Calibrated` collects from times ``t_s``: up to and including the first step at
+    least ``window_s`` after the first (all of them if the times end before)."""
+    t = np.asarray(t_s, dtype=float)
+    if t.size == 0:
+        return 0
+    late = np.flatnonzero(t - t[0] >= window_s)
+    return int(late[0]) + 1 if late.size else int(t.size)
+
+
+def count_window(model: MeasurementModel, t_s: np.ndarray, z: np.ndarray, window_s: float) -> WindowCount:
+    """Count the readings a calibration window of ``window_s`` seconds would hold (``z`` (T, p), NaN missing)."""
+    n = window_length(t_s, window_s)
+    win = np.isfinite(np.asarray(z, dtype=float)[:n])
+    fix = win.sum(axis=1) >= model.min_sensors
+    span = float(t_s[n - 1] - t_s[0]) if n else 0.0
+    readings = tuple(int(v) for v in win[fix].sum(axis=0))
+    return WindowCount(float(window_s), span, n, int(fix.sum()), readings)
 
 
 def _fix(model: MeasurementModel, z: np.ndarray, known: Known, start: np.ndarray, n_iter: int = 8) -> np.ndarray | None:
@@ -101,8 +156,9 @@ def calibrate(
             resid[k] = zk - model.h(pos, known[k])
             start = pos
         steps = int(np.isfinite(resid).any(axis=1).sum())
-        if steps < MIN_STEPS:
-            return None
+        used = np.isfinite(resid).sum(axis=0)
+        if steps < MIN_STEPS or used.min() < MIN_LINK_READINGS:
+            return None  # the caller's WindowCount says why (count_window counts the same readings)
         offsets = offsets + np.nan_to_num(np.nanmedian(resid, axis=0))
     centred = resid - np.nanmedian(resid, axis=0)
     dof = np.sqrt(p / max(p - d, 1))
@@ -117,7 +173,8 @@ def calibrate(
     else:  # the tails measured on this hardware beforehand (docs/datasets.md), not guessed from the window
         factor = max(1.0, float(_t_ratio(np.array([float(tail_dof)]), 1.0 - test_level)[0]))
     vif = window_vif(centred, EVIDENCE_STEPS)
-    return Calibration(offsets_m=offsets, sigma_m=robust * factor, tail_factor=factor, steps=steps, window_vif=vif)
+    return Calibration(offsets_m=offsets, sigma_m=robust * factor, tail_factor=factor, steps=steps, window_vif=vif,
+                       readings=used)  # fmt: skip
 
 
 _DOFS = np.geomspace(2.2, 300.0, 120)
@@ -189,6 +246,8 @@ class Calibrated:
         self._t: list[float] = []
         self._velocity: list[np.ndarray | None] = []
         self._done = False
+        self.refused: str | None = None  # why the window could not be calibrated on (WindowCount.refusal)
+        self.count: WindowCount | None = None
 
     @property
     def secure(self) -> bool:
@@ -225,7 +284,12 @@ class Calibrated:
         z = np.array(self._z)
         alpha = float(self.params.get("alpha", 0.01))
         level = 1.0 - (1.0 - alpha / 2.0) ** (1.0 / self.model.p)  # the per-reading Sidak level of attribution
-        self.calibration = calibrate(self.model, z, self._known, test_level=level, tail_dof=self.tail_dof)
+        self.count = count_window(self.model, np.array(self._t), z, self.window_s)
+        self.refused = self.count.refusal(self.model.ids())
+        if self.refused is None:
+            self.calibration = calibrate(self.model, z, self._known, test_level=level, tail_dof=self.tail_dof)
+            if self.calibration is None:  # cannot happen while count_window counts what calibrate uses; never silent
+                self.refused = f"calibration window {self.window_s:g} s: the fit found too few readings"
         if self.calibration is not None:
             tuned = replace(self.model, sigma_m=self.calibration.sigma_m)
             self.inner = create_estimator(self.name, tuned, **self.params)
@@ -237,6 +301,33 @@ class Calibrated:
                 self.inner.step(self._t[k], z[k] - self.calibration.offsets_m, self._known[k],
                                 velocity=self._velocity[k])  # fmt: skip
         self._z, self._known, self._velocity = [], [], []
+
+    def report(self) -> dict[str, Any]:
+        """What the window did, for results.json: ``status`` calibrated, refused (``reason``: the one line of
+        :meth:`WindowCount.refusal`) or incomplete (the readings ended inside the window); per link (wire sensor
+        id) the readings the fit used, the offset subtracted and the sigma the estimator is told."""
+        ids = self.model.ids()
+        out: dict[str, Any] = {"window_s": self.window_s, "tail_dof": self.tail_dof}
+        if not self._done:
+            n = len(self._t)
+            span = self._t[-1] - self._t[0] if n else 0.0
+            reason = f"calibration window {self.window_s:g} s: the readings ended after {span:.1f} s ({n} steps)"
+            return {**out, "status": "incomplete", "reason": reason, "steps": n}
+        count = self.count
+        assert count is not None
+        out.update(steps=count.steps, steps_with_fix=count.fixes)
+        cal = self.calibration
+        if cal is None:
+            links = {str(sid): {"readings": n} for sid, n in zip(ids, count.readings, strict=True)}
+            return {**out, "status": "refused", "reason": self.refused, "links": links}
+        used = cal.readings if cal.readings is not None else np.array(count.readings)
+        links = {
+            str(sid): {"readings": int(n), "offset_m": round(float(b), 4), "sigma_m": round(float(sg), 4),
+                       "stated_sigma_m": round(float(s0), 4)}
+            for sid, n, b, sg, s0 in zip(ids, used, cal.offsets_m, cal.sigma_m, self.model.sigma_m, strict=True)
+        }  # fmt: skip
+        return {**out, "status": "calibrated", "tail_factor": round(cal.tail_factor, 4),
+                "window_vif": round(cal.window_vif, 4), "links": links}  # fmt: skip
 
 
 def create(name: str, model: MeasurementModel, **params: Any) -> Estimator | Calibrated:

@@ -144,6 +144,9 @@ def summarise(trials: list[TrialResult]) -> dict[str, dict[str, Any]]:
             },
         })  # fmt: skip
         row.update(false_alarms(trials, name))
+        # Per trial, what --calibrate did: status, and per link the readings used, the offset and the scale.
+        reports = [tr.traces[name].calibration for tr in trials]
+        row["calibration"] = None if all(r is None for r in reports) else reports
         if not scored_detection:
             row["attack_detection_precision"] = row["attack_detection_recall"] = None
         if devs:
@@ -155,6 +158,26 @@ def summarise(trials: list[TrialResult]) -> dict[str, dict[str, Any]]:
             row["inter_vehicle_range"] = None
         out[name] = row
     return out
+
+
+BASELINES = ("ls", "ekf")  # undefended: the snapshot least-squares fix and the EKF, in every table
+
+
+def compare_with_ls(summary: dict[str, dict[str, Any]], clean: bool) -> None:
+    """Add ``rmse_vs_ls`` (RMSE over the least-squares baseline's) and, on a clean run, ``loses_to_ls_clean``
+    (a secure method whose RMSE exceeds the undefended least-squares fix's) to every row."""
+    import estimators
+
+    base = (summary.get("ls") or {}).get("rmse_m")
+    for name, row in summary.items():
+        rmse = row.get("rmse_m")
+        ratio = rmse / base if rmse is not None and base else None
+        row["rmse_vs_ls"] = ratio
+        try:
+            secure = bool(estimators.registry.get(name).secure)
+        except (ValueError, ImportError):
+            secure = False
+        row["loses_to_ls_clean"] = bool(clean and secure and ratio is not None and ratio > 1.0) if clean else None
 
 
 def _per_hour(value: float | None) -> str:
@@ -172,15 +195,18 @@ def table(summary: dict[str, dict[str, Any]]) -> str:
     if two:
         head += f" | {'Range mean [m]':>14} | {'Range max [m]':>13}"
     head += f" | {'False alarms /h':>15} | {'False accus. /h':>15}"
-    head += f" | {'Time per step [ms]':>18} | {'p99 [ms]':>8}"
+    head += f" | {'Time per step [ms]':>18} | {'p99 [ms]':>8} | {'RMSE / LS':>10}"
     lines = [head, "-" * len(head)]
     for name, row in summary.items():
-        line = f"{name:<10} | {_cell(row['mean_error_m'], 19)} | {_cell(row['max_error_m'], 18)}"
+        mark = "*" if row.get("loses_to_ls_clean") else ""
+        line = f"{name + mark:<10} | {_cell(row['mean_error_m'], 19)} | {_cell(row['max_error_m'], 18)}"
         if two:
             rng = row["inter_vehicle_range"]
             line += f" | {_cell(rng['mean_error_m'], 14)} | {_cell(rng['max_error_m'], 13)}"
         line += f" | {_per_hour(row.get('false_alarms_per_hour'))} | {_per_hour(row.get('false_accusations_per_hour'))}"
         line += f" | {row['step_time_us_median'] / 1000:>18.3f} | {row['step_time_us_p99'] / 1000:>8.3f}"
+        ratio = row.get("rmse_vs_ls")
+        line += f" | {'n/a':>10}" if ratio is None else f" | {ratio:>10.2f}"
         lines.append(line)
     silent = [name for name, row in summary.items() if row.get("estimate_fraction", 1.0) == 0.0]
     if silent:
@@ -193,7 +219,35 @@ def table(summary: dict[str, dict[str, Any]]) -> str:
         " reading; events per hour (consecutive steps count once), per step and per run in results.json."
     )
     lines.append("Time per step: one step of every estimator (ReCaP: its one sensor group), median over all steps.")
+    lines.append("RMSE / LS: RMSE over the undefended snapshot least-squares fix's (ls and ekf run in every table).")
+    losers = [f"{n} ({row['rmse_vs_ls']:.2f}x)" for n, row in summary.items() if row.get("loses_to_ls_clean")]
+    if losers:
+        lines.append(f"* loses to the undefended least-squares fix on this clean run: {', '.join(losers)}.")
+    lines += calibration_lines(summary)
     return "\n".join(lines)
+
+
+def calibration_lines(summary: dict[str, dict[str, Any]]) -> list[str]:
+    """One line per trial saying what --calibrate did (the first estimator's window; each one's in results.json)."""
+    for name, row in summary.items():
+        reports = row.get("calibration")
+        if not reports:
+            continue
+        lines = []
+        for i, rep in enumerate(reports):
+            where = f" (trial {i})" if len(reports) > 1 else ""
+            if rep is None or rep["status"] != "calibrated":
+                lines.append(f"Calibration{where}: {'none' if rep is None else rep['status']}: "
+                             f"{'' if rep is None else rep.get('reason')}")  # fmt: skip
+                continue
+            links = ", ".join(
+                f"{sid}: {v['readings']} x {v['offset_m']:+.3f} m / {v['sigma_m']:.3f} m"
+                for sid, v in rep["links"].items()
+            )
+            lines.append(f"Calibration{where} ({name}, first {rep['window_s']:g} s, {rep['steps_with_fix']} steps "
+                         f"with a fix): per link, sensor id: readings used x offset / sigma told, {links}")  # fmt: skip
+        return lines
+    return []
 
 
 def write_results(out_dir: Path, meta: dict[str, Any], summary: dict[str, dict[str, Any]]) -> Path:

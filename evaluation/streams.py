@@ -48,6 +48,9 @@ class VehicleStream:
     attacker_view_ned_m: np.ndarray | None = None
     laser_down_id: int | None = None  # DISTANCE_SENSOR id of the downward laser (attacked like any reading)
     velocity_ned_m_s: np.ndarray | None = None  # (T, 3) the vehicle's own velocity estimate (module docstring)
+    # Logs only: every reading at its own time before framing, sensor id -> (times on this stream's clock, metres),
+    # for the estimators that take readings one at a time (secuav-eval --async)
+    raw: dict[int, tuple[np.ndarray, np.ndarray]] | None = None
 
 
 def _altitude(scenario: Scenario, sysid: int) -> float:

@@ -221,5 +221,16 @@ def log_streams(
         if log.local_ned:
             arr = np.array(log.local_ned)
             local = _sample(arr[:, 0], arr[:, 1:4], t_end, max_gap_s=1.0)
-        out[s] = VehicleStream(s, t_end - t0 + period, truth_ned, readings, laser, local, t0 - period)
+        boot = t0 - period
+        raw = {i: _raw(rows, float(t_end[0]) - period, float(t_end[-1]), boot) for i, rows in log.readings.items()}
+        out[s] = VehicleStream(s, t_end - boot, truth_ned, readings, laser, local, boot, raw=raw)
     return out, t0 - period
+
+
+def _raw(rows: list[tuple[float, float]], after: float, until: float, boot: float) -> tuple[np.ndarray, np.ndarray]:
+    """The readings in (after, until] on the boot clock, in time order, as (times - boot, values)."""
+    if not rows:
+        return np.zeros(0), np.zeros(0)
+    arr = np.array(sorted(rows, key=lambda r: r[0]))
+    keep = (arr[:, 0] > after + 1e-6) & (arr[:, 0] <= until + 1e-6)
+    return arr[keep, 0] - boot, arr[keep, 1]

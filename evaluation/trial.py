@@ -15,7 +15,7 @@ recorded log (:func:`evaluate` with ``from_log``, streams from
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -25,7 +25,7 @@ from attack_profiles import Engine
 from attack_profiles.profile import Profile
 from estimators import noise
 from estimators.base import Estimate, Estimator
-from estimators.models import AnchorRangesHeight, MeasurementModel
+from estimators.models import AnchorRangesHeight, Known, MeasurementModel, TwoVehicleRanges
 from estimators.scenario_models import anchor_model, two_vehicle_model, wall_group_model
 from evaluation.streams import Leg, VehicleStream, fly
 from secuav_common.scenario import Scenario, WallDistanceTarget, with_noise_scale
@@ -56,6 +56,9 @@ class EstimatorTrace:
     # The method's own claims (Estimate.own_attacked/own_alarm), None for a method that does not detect.
     own_named: np.ndarray | None = None  # (T, p) bool
     own_alarm: np.ndarray | None = None  # (T,) bool
+    # What its calibration window did (estimators.noise.Calibrated.report: status, per-link readings, offsets,
+    # scales); None without --calibrate.
+    calibration: dict[str, Any] | None = None
 
 
 def _own(est: Estimator | noise.Calibrated, shape: tuple[int, int]) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -174,8 +177,12 @@ def evaluate(
     params: dict[str, Any] | None = None,
     dims: int = 3,
     variants: Variants | None = None,
+    asynchronous: bool = False,
 ) -> TrialResult:
     """Run the estimators on framed streams (a headless flight, or a recorded log).
+
+    ``asynchronous`` (a recording of one vehicle's anchor ranges): the estimators of ``ASYNCHRONOUS`` take every
+    reading at its own time instead of the frames (:func:`_async_feed`); the others stay framed.
 
     From a flight the attack is the only thing that changes readings, so the
     offsets it added are known exactly. From a log the readings may already be
@@ -184,11 +191,64 @@ def evaluate(
     attack added here (``engine``) is known, and errors cannot be scored at all.
     """
     first = scenario.vehicles[0].sysid
+    if is_wall(scenario):
+        s1 = _attacked_height(engine, streams[first])
+        check_readings(scenario, streams, dims, params, variants, from_log=from_log)
+        return _wall_trial(scenario, s1, engine, names, from_log, params or {}, variants)
+    inp = _inputs(scenario, streams, engine, dims)
+    model, s1, z, clean, known, truth2 = inp.model, inp.s1, inp.z, inp.clean, inp.known, inp.truth2
+    _refuse_sparse(model, s1.t_s, z, params, variants, from_log)
+    local = None if s1.local_ned_m is None else s1.local_ned_m[:, :2]
+    raw = _raw_inputs(inp, engine) if asynchronous else None
+    traces = {
+        name: _run_estimator(name, model, s1, z, known, truth2, local, params or {}, variants,
+                             raw if _runs_async(name, variants) else None)
+        for name in names
+    }  # fmt: skip
+    n_anchor = len(scenario.anchor_positions())
+    anchors = np.array([scenario.anchor_positions()[k] for k in sorted(scenario.anchor_positions())])[:n_anchor, :2]
+    offsets, floor, scored_err, scored_det = _offsets(
+        model, z, clean, engine, inp.truth_state, inp.truth_known, from_log
+    )
+    return TrialResult(
+        t_s=s1.t_s,
+        truth_xy_m=s1.truth_ned_m[:, :2],
+        anchors_xy_m=anchors,
+        offsets_m=offsets,
+        sigma_m=model.sigma_m,
+        sensor_ids=model.ids(),
+        traces=traces,
+        named_floor_m=floor,
+        scored_errors=scored_err,
+        scored_detection=scored_det,
+        local_xy_m=local,
+        readings_m=z,
+        truth_down_m=s1.truth_ned_m[:, 2],
+        added_m=z - clean,
+        score_from_s=score_from(params),
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class _Inputs:
+    """What the estimators read (``z``, attacked), the clean readings, the known inputs and the truth to score."""
+
+    model: MeasurementModel
+    s1: VehicleStream
+    z: np.ndarray
+    clean: np.ndarray
+    known: np.ndarray
+    truth_state: np.ndarray
+    truth_known: np.ndarray
+    truth2: np.ndarray | None
+
+
+def _inputs(scenario: Scenario, streams: dict[int, VehicleStream], engine: Engine | None, dims: int) -> _Inputs:
+    """The readings matrix of test case 1 or 2 (not the wall group), attacked by ``engine`` (None: clean)."""
+    first = scenario.vehicles[0].sysid
     clean_laser = streams[first].laser_down_m
     streams = {sysid: _attacked_height(engine, st) for sysid, st in streams.items()}
     s1 = streams[first]
-    if is_wall(scenario):
-        return _wall_trial(scenario, s1, engine, names, from_log, params or {}, variants)
     if is_formation(scenario):
         second = scenario.vehicles[1].sysid
         model: MeasurementModel = two_vehicle_model(scenario, first, second)
@@ -221,30 +281,94 @@ def evaluate(
     if known.shape[1]:
         # A missing laser reading: keep the last height (the model's default before the first one).
         known = _hold_last(known, np.asarray(model.default_known, dtype=float).reshape(-1))
-    local = None if s1.local_ned_m is None else s1.local_ned_m[:, :2]
-    traces = {
-        name: _run_estimator(name, model, s1, z, known, truth2, local, params or {}, variants) for name in names
-    }
-    n_anchor = len(scenario.anchor_positions())
-    anchors = np.array([scenario.anchor_positions()[k] for k in sorted(scenario.anchor_positions())])[:n_anchor, :2]
-    offsets, floor, scored_err, scored_det = _offsets(model, z, clean, engine, truth_state, truth_known, from_log)
-    return TrialResult(
-        t_s=s1.t_s,
-        truth_xy_m=s1.truth_ned_m[:, :2],
-        anchors_xy_m=anchors,
-        offsets_m=offsets,
-        sigma_m=model.sigma_m,
-        sensor_ids=model.ids(),
-        traces=traces,
-        named_floor_m=floor,
-        scored_errors=scored_err,
-        scored_detection=scored_det,
-        local_xy_m=local,
-        readings_m=z,
-        truth_down_m=s1.truth_ned_m[:, 2],
-        added_m=z - clean,
-        score_from_s=score_from(params),
+    return _Inputs(model, s1, z, clean, known, truth_state, truth_known, truth2)
+
+
+class SparseReadings(ValueError):
+    """The readings are too sparse for the asked calibration window or framing rate (one line says which link).
+
+    ``option``: what asked too much, ``calibration_s`` (with ``value`` the window) or ``rate_hz`` (the framing)."""
+
+    def __init__(self, reason: str, option: str, value: float) -> None:
+        super().__init__(reason)
+        self.reason, self.option, self.value = reason, option, value
+
+    def __reduce__(self) -> tuple[type, tuple[str, str, float]]:  # raised in a worker process (--jobs)
+        return (SparseReadings, (self.reason, self.option, self.value))
+
+
+def _windows(params: dict[str, Any] | None, variants: Variants | None, names: list[str] | None = None) -> list[float]:
+    """Every calibration window asked for: the shared ``params``' and each variant's own."""
+    asked = [(params or {}).get(noise.CALIBRATION_PARAM)]
+    for label, (_, own) in (variants or {}).items():
+        if names is None or label in names:
+            asked.append({**(params or {}), **own}.get(noise.CALIBRATION_PARAM))
+    return sorted({float(w) for w in asked if w is not None})
+
+
+MIN_FIX_SHARE = 0.5  # framing: at least this share of the frames must hold the readings a fix needs
+
+
+def _refuse_sparse(
+    model: MeasurementModel,
+    t_s: np.ndarray,
+    z: np.ndarray,
+    params: dict[str, Any] | None,
+    variants: Variants | None,
+    from_log: bool,
+) -> None:
+    """``SparseReadings`` when a calibration window or (for a recording) the framing rate asks for more readings
+    than the links give; see docs/recorded-ranges.md ("Too sparse")."""
+    ids = model.ids()
+    for window in _windows(params, variants):
+        reason = noise.count_window(model, t_s, z, window).refusal(ids)
+        if reason is not None:
+            raise SparseReadings(reason, noise.CALIBRATION_PARAM, window)
+    if not from_log or t_s.size < 2:
+        return
+    have = np.isfinite(z)
+    share = float(np.mean(have.sum(axis=1) >= model.min_sensors))
+    if share >= MIN_FIX_SHARE:
+        return
+    rate = 1.0 / float(np.median(np.diff(t_s)))
+    per_link = have.mean(axis=0) * rate  # readings per second each link brings into the frames
+    # The fastest framing at which the average frame holds min_sensors readings (a link faster than the frames
+    # fills every one of them): the largest R with sum_i min(1, r_i / R) >= min_sensors.
+    best = 0.0
+    for r in np.geomspace(0.01, rate, 400):
+        if float(np.minimum(1.0, per_link / r).sum()) >= model.min_sensors:
+            best = float(r)
+    links = ", ".join(f"{sid}: {r:.2f}" for sid, r in zip(ids, per_link, strict=True))
+    raise SparseReadings(
+        f"framing at {rate:.3g} Hz: only {share:.0%} of the frames hold the {model.min_sensors} readings a fix "
+        f"needs (needs {MIN_FIX_SHARE:.0%}); readings per second per link, sensor id: rate, {links}; "
+        + (f"frame at {best:.2g} Hz or slower" if best > 0 else "too few links read at all"),
+        "rate_hz",
+        rate,
     )
+
+
+def check_readings(
+    scenario: Scenario,
+    streams: dict[int, VehicleStream],
+    dims: int,
+    params: dict[str, Any] | None,
+    variants: Variants | None = None,
+    *,
+    from_log: bool = True,
+) -> None:
+    """Refuse (``SparseReadings``, one line naming the link and the numbers) streams too sparse for the asked
+    calibration window or framing rate, before any estimator runs (``secuav-eval``, a study's validation)."""
+    first = scenario.vehicles[0].sysid
+    if is_wall(scenario):
+        s1 = streams[first]
+        model: MeasurementModel = wall_group_model(scenario, s1.sysid)
+        target = scenario.vehicles[0].target
+        assert isinstance(target, WallDistanceTarget)
+        _refuse_sparse(model, s1.t_s, _matrix(s1, list(target.sensor_ids)), params, variants, from_log)
+        return
+    inp = _inputs(scenario, streams, None, dims)
+    _refuse_sparse(inp.model, inp.s1.t_s, inp.z, params, variants, from_log)
 
 
 def _height(stream: VehicleStream) -> np.ndarray:
@@ -297,8 +421,10 @@ def _run_estimator(
     local: np.ndarray | None = None,
     params: dict[str, Any] | None = None,
     variants: Variants | None = None,
+    raw: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> EstimatorTrace:
     est = _create(name, model, params or {}, variants)
+    feed = None if raw is None else _async_feed(est, *raw)
     own_named, own_alarm = _own(est, z.shape)
     n = z.shape[0]
     err = np.full(n, np.nan)
@@ -313,8 +439,11 @@ def _run_estimator(
     for k in range(n):
         kn = None if known.shape[1] == 0 else float(known[k, 0]) if known.shape[1] == 1 else known[k]
         vel = None if s1.velocity_ned_m_s is None else s1.velocity_ned_m_s[k]
-        out = est.step(float(s1.t_s[k]), z[k], kn, velocity=vel)
-        times[k] = out.step_time_s
+        if feed is None:
+            out = est.step(float(s1.t_s[k]), z[k], kn, velocity=vel)
+            times[k] = out.step_time_s
+        else:
+            out, times[k] = feed(float(s1.t_s[k]), z[k], kn)
         alarm[k], degraded[k] = out.alarm, not out.valid
         named[k, list(out.attacked)] = True
         _record_own(out, k, own_named, own_alarm)
@@ -330,7 +459,73 @@ def _run_estimator(
             true_range = float(np.linalg.norm(s1.truth_ned_m[k] - truth2[k]))
             rerr[k] = abs(est_range - true_range)
     dev = None if local is None else np.linalg.norm(xy - local, axis=1)
-    return EstimatorTrace(err, rerr, xy, times, named, alarm, dev, nees, degraded, herr, nis, own_named, own_alarm)
+    return EstimatorTrace(err, rerr, xy, times, named, alarm, dev, nees, degraded, herr, nis, own_named, own_alarm,
+                          _calibration(est))  # fmt: skip
+
+
+ASYNCHRONOUS = ("ekf",)  # estimators that take readings one at a time with their own timestamps (--async)
+
+
+def _runs_async(label: str, variants: Variants | None) -> bool:
+    return (variants or {}).get(label, (label, {}))[0] in ASYNCHRONOUS
+
+
+def _raw_inputs(inp: _Inputs, engine: Engine | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every reading of the first vehicle at its own time: (times (N,), readings (N, p) with NaN where a sensor did
+    not read at that time, known inputs (N, k) held from the frame the time falls in), attacked by ``engine``."""
+    s1, model = inp.s1, inp.model
+    if s1.raw is None or isinstance(model, TwoVehicleRanges):
+        raise ValueError("asynchronous processing needs one vehicle's recorded ranges (--ranges or --tlog)")
+    ids = list(model.ids())
+    laser = s1.laser_down_id if isinstance(model, AnchorRangesHeight) else None
+    cols = [laser if (laser is not None and i == len(ids) - 1) else sid for i, sid in enumerate(ids)]
+    series = [s1.raw.get(sid, (np.zeros(0), np.zeros(0))) if sid is not None else (np.zeros(0), np.zeros(0))
+              for sid in cols]  # fmt: skip
+    t = np.unique(np.concatenate([ts for ts, _ in series])) if series else np.zeros(0)
+    z = np.full((t.size, len(ids)), np.nan)
+    for j, (ts, vs) in enumerate(series):
+        z[np.searchsorted(t, ts), j] = vs
+    z[~(z >= 0.0)] = np.nan  # missing or negative readings, as framed
+    if engine is not None:
+        clock = t + s1.boot_offset_s if engine.profile.clock == "vehicle" else t
+        frames = next(p for p in (s1.local_ned_m, s1.attacker_view_ned_m, s1.truth_ned_m) if p is not None)
+        where = np.column_stack([np.interp(t, s1.t_s, frames[:, c]) for c in range(3)])
+        anchors = len(ids) - (1 if laser is not None else 0)
+        z[:, :anchors] = engine.apply_array(clock, z[:, :anchors], ids[:anchors], sysid=s1.sysid, position_ned_m=where)
+    frame = np.clip(np.searchsorted(s1.t_s, t - 1e-9), 0, s1.t_s.size - 1)  # the frame each reading falls in
+    return t, z, inp.known[frame]
+
+
+def _async_feed(
+    est: Estimator | noise.Calibrated, t_raw: np.ndarray, z_raw: np.ndarray, known_raw: np.ndarray
+) -> Callable[[float, np.ndarray, Known], tuple[Estimate, float]]:
+    """Step ``est`` through every reading up to each frame time, each at its own time (a sequential update of
+    the readings that share a timestamp), then once at the frame time with no reading (a prediction to it): that
+    is the frame's output. Until the estimator has a first estimate the frame's readings start it instead (a
+    tag that polls one anchor at a time never has the readings of a fix at one timestamp)."""
+    nan_row = np.full(z_raw.shape[1], np.nan)
+    state = {"j": 0, "ok": False}
+
+    def known_at(j: int) -> Known:
+        return None if known_raw.shape[1] == 0 else float(known_raw[j, 0]) if known_raw.shape[1] == 1 else known_raw[j]
+
+    def feed(t_s: float, framed: np.ndarray, kn: Known) -> tuple[Estimate, float]:
+        spent = 0.0
+        j = state["j"]
+        while j < t_raw.size and t_raw[j] <= t_s + 1e-9:
+            if state["ok"]:
+                spent += est.step(float(t_raw[j]), z_raw[j], known_at(j)).step_time_s
+            j += 1
+        state["j"] = j
+        out = est.step(t_s, nan_row if state["ok"] else framed, kn)
+        state["ok"] = state["ok"] or out.ok
+        return out, spent + out.step_time_s
+
+    return feed
+
+
+def _calibration(est: Estimator | noise.Calibrated) -> dict[str, Any] | None:
+    return est.report() if isinstance(est, noise.Calibrated) else None
 
 
 def _create(
@@ -339,7 +534,18 @@ def _create(
     """The estimator a name or a variant label stands for, with the shared ``params`` and its own over them
     (``estimators.noise.create``: ``estimators.create`` plus a calibration window when the params ask for one)."""
     name, own = (variants or {}).get(label, (label, {}))
-    return noise.create(name, model, **{**params, **own})
+    return noise.create(name, model, **{**shared_params(name, params), **own})
+
+
+def shared_params(name: str, params: dict[str, Any]) -> dict[str, Any]:
+    """The shared parameters an estimator gets: all of them, except the vehicle's motion input
+    (``velocity_std_mps``) for a method without one (``ls`` and the snapshot methods run without it, as the
+    baselines every study compares with do; listed with its own params they still refuse it)."""
+    from estimators import registry
+
+    if "velocity_std_mps" in params and not registry.get(name).motion_input:
+        return {k: v for k, v in params.items() if k != "velocity_std_mps"}
+    return params
 
 
 def _nis(out: Estimate) -> float:
@@ -395,7 +601,7 @@ def _wall_trial(
             nis[k] = _nis(out)
         traces[name] = EstimatorTrace(
             np.abs(d_est - true_d), None, d_est[:, None], times, named, alarm, None, nees, degraded, None, nis,
-            own_named, own_alarm,
+            own_named, own_alarm, _calibration(est),
         )
     offsets, floor, scored_err, scored_det = _offsets(
         model, z, clean, engine, true_d[:, None], np.zeros((z.shape[0], 1)), from_log

@@ -111,7 +111,7 @@ def run_cell(cell: Cell, variants: list[Variant] | list[str]) -> list[dict[str, 
             err = per.pop("error", None)
             row.update(per, status="error" if err else "ok", error=err)
         row.update(worker=worker, started_at=started, wall_s=wall_s)
-        for key in ("recall_by_sigma", "flagged"):
+        for key in ("recall_by_sigma", "flagged", "calibration"):
             if isinstance(row.get(key), dict):
                 row[key] = as_json(row[key])
         rows.append(row)

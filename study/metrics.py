@@ -131,6 +131,7 @@ def trial_rows(trial: TrialResult) -> dict[str, dict[str, Any]]:
             "attack_detection_recall": row["attack_detection_recall"],
             "step_time_us_median": row["step_time_us_median"],
             "step_time_us_p99": row["step_time_us_p99"],
+            "calibration": None if row.get("calibration") is None else row["calibration"][0],
             **detection_figures(trial, name),
         }
     return rows

@@ -102,10 +102,52 @@ def summarise(frame: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(out)
 
 
+BASELINE = "ls"  # the undefended snapshot least-squares fix every offline table is compared with
+
+
+def secure_names(frame: pd.DataFrame) -> dict[str, bool]:
+    """Per estimator label: whether the method it runs is a secure one (a plugin that cannot be loaded: False)."""
+    import estimators
+
+    names = frame["estimator_name"] if "estimator_name" in frame else frame["estimator"]
+    out = {}
+    for label, name in zip(frame["estimator"], names, strict=True):
+        try:
+            out[label] = bool(estimators.registry.get(name if isinstance(name, str) else label).secure)
+        except (ValueError, ImportError):
+            out[label] = False
+    return out
+
+
+def _vs_ls(summary: pd.DataFrame, ls_of: dict[str, str]) -> pd.Series:
+    """Each group's mean RMSE over the least-squares baseline's in the same place and at the same grid point of
+    ``estimator_params`` (``ls_of``: label -> that baseline's label); NaN where it has none."""
+    where = ["attack", "params", "leg", "position", "noise_scale"]
+
+    def place(r: pd.Series) -> tuple[Any, ...]:
+        return tuple(None if _missing(r[c]) else r[c] for c in where)  # NaN != NaN: a missing position or params
+
+    ls = {(r["estimator"], *place(r)): r["rmse_m"] for _, r in summary.iterrows()}
+    ratio = []
+    for _, r in summary.iterrows():
+        base = ls.get((ls_of.get(r["estimator"], BASELINE), *place(r)))
+        ok = base is not None and not _missing(base) and base > 0 and not _missing(r["rmse_m"])
+        ratio.append(float(r["rmse_m"]) / float(base) if ok else float("nan"))
+    return pd.Series(ratio, index=summary.index)
+
+
+def _ratio_cell(ratio: float, worse: bool) -> str:
+    if _missing(ratio):
+        return "n/a"
+    return f"{ratio:.2f}" + (" **worse than LS**" if worse else "")
+
+
 def _attack_section(name: str, s: pd.DataFrame, closed_loop: bool) -> list[str]:
     axis = _magnitude_axis(s)
     lines = [f"### {name}", ""]
     head = ["magnitude" if axis is None else axis, "estimator", "n", "RMSE [m] mean [95% CI]", "worst [m]"]
+    if not closed_loop:
+        head.append("RMSE / LS")
     offline = ["recall (all attacked readings)", "precision (readings named)", "detection delay [s] (detected/n)",
                "false alarms", "claimed valid", "RMSE when claimed valid [m]"]  # fmt: skip
     head += ["collided"] if closed_loop else offline
@@ -117,6 +159,8 @@ def _attack_section(name: str, s: pd.DataFrame, closed_loop: bool) -> list[str]:
             x = r["params"] if axis is None else r["_x"]
             cells = [str(x), r["estimator"], str(r["n"]), _fmt(r["rmse_m"], r["rmse_m_lo"], r["rmse_m_hi"]),
                      _fmt(r["worst_error_m"])]  # fmt: skip
+            if not closed_loop:
+                cells.append(_ratio_cell(r["vs_ls"], False))
             if closed_loop:
                 cells.append("n/a" if _missing(r["collided"]) else f"{r['collided']:.0%}")
             else:
@@ -141,17 +185,29 @@ def _x_value(params: str | None, axis: str | None) -> float:
     return float(value) if isinstance(value, int | float) else 0.0
 
 
-def _table51(frame: pd.DataFrame) -> list[str]:
+def _table51(frame: pd.DataFrame, closed_loop: bool = False) -> list[str]:
     lines = ["## Summary in the layout of the seed's Table 5.1", "",
-             "Pooled over magnitudes, positions, legs, noise scales and seeds (successful rows only).", "",
-             "| attack | estimator | mean abs. error [m] | max abs. error [m] | time per step [ms] |",
-             "|---|---|---|---|---|"]  # fmt: skip
+             "Pooled over magnitudes, positions, legs, noise scales and seeds (successful rows only)"
+             + ("." if closed_loop else "; RMSE / LS: the mean RMSE over the undefended least-squares fix's."), "",
+             "| attack | estimator | mean abs. error [m] | max abs. error [m] | time per step [ms] |"
+             + ("" if closed_loop else " RMSE / LS |"),
+             "|---|---|---|---|---|" + ("" if closed_loop else "---|")]  # fmt: skip
+    ls_rmse = frame.groupby(["attack", "estimator"], sort=False)["rmse_m"].mean()
+    ls_of = dict(zip(frame["estimator"], frame["ls_label"], strict=True)) if "ls_label" in frame else {}
+    secure = secure_names(frame)
     for (attack, est), g in frame.groupby(["attack", "estimator"], sort=False):
         mean = g["mean_error_m"].mean() if g["mean_error_m"].notna().any() else g["rmse_m"].mean()
         worst = g["max_error_m"].max()
         step = g["step_time_us_median"].median()
         step_text = "n/a" if pd.isna(step) else f"{step / 1000:.3f}"
-        lines.append(f"| {attack} | {est} | {_fmt(mean)} | {_fmt(worst)} | {step_text} |")
+        line = f"| {attack} | {est} | {_fmt(mean)} | {_fmt(worst)} | {step_text} |"
+        if not closed_loop:
+            base = ls_rmse.get((attack, ls_of.get(est, BASELINE)))
+            rmse = g["rmse_m"].mean()
+            ratio = float(rmse / base) if base is not None and not _missing(base) and base > 0 else float("nan")
+            worse = attack == "none" and secure.get(est, False) and not _missing(ratio) and ratio > 1.0
+            line += f" {_ratio_cell(ratio, worse)} |"
+        lines.append(line)
     return [*lines, ""]
 
 
@@ -201,18 +257,20 @@ def _figures(out: Path, summary: pd.DataFrame) -> list[Path]:
     return paths
 
 
+def _label(name: str, params: str | None) -> str:
+    if not isinstance(params, str) or not params:
+        return name
+    return name + " " + " ".join(f"{k}={v}" for k, v in json.loads(params).items())
+
+
 def labelled(frame: pd.DataFrame) -> pd.DataFrame:
-    """The estimator column with its grid point of ``estimator_params`` (``secekf alpha=0.001``), if any."""
+    """The estimator column with its grid point of ``estimator_params`` (``secekf alpha=0.001``), if any; and
+    ``ls_label``, the least-squares baseline's label at the same grid point (what the row is compared with)."""
     if "estimator_params" not in frame or frame["estimator_params"].isna().all():
-        return frame
-
-    def label(name: str, params: str | None) -> str:
-        if not isinstance(params, str) or not params:
-            return name
-        return name + " " + " ".join(f"{k}={v}" for k, v in json.loads(params).items())
-
-    pairs = zip(frame["estimator"], frame["estimator_params"], strict=True)
-    return frame.assign(estimator=[label(n, p) for n, p in pairs])
+        return frame.assign(ls_label=BASELINE)
+    params = frame["estimator_params"]
+    return frame.assign(estimator=[_label(n, p) for n, p in zip(frame["estimator"], params, strict=True)],
+                        ls_label=[_label(BASELINE, p) for p in params])  # fmt: skip
 
 
 def write_report(out: Path) -> Path:
@@ -240,6 +298,9 @@ def write_report(out: Path) -> Path:
         lines.append("No successful rows yet.")
     else:
         summary = summarise(ok)
+        ls_of = dict(zip(ok["estimator"], ok["ls_label"], strict=True))
+        summary = summary.assign(vs_ls=_vs_ls(summary, ls_of))
+        secure = secure_names(ok)
         partial = summary[summary["estimate_fraction"].notna() & (summary["estimate_fraction"] < 1.0)]
         if len(partial):
             lines += ["## Where estimators gave no estimate on some steps", "",
@@ -257,22 +318,32 @@ def write_report(out: Path) -> Path:
                       "NIS: the output filter's normalised innovation squared per degree of freedom over the "
                       "same steps (1 when its covariance and noise model are honest; none for snapshot "
                       "estimators).", "",
-                      "| estimator | where | n | false-alarm rate [95% CI] | RMSE [m] [95% CI] | NEES [95% CI] "
-                      "| NIS / dof [95% CI] |",
-                      "|---|---|---|---|---|---|---|"]  # fmt: skip
+                      "RMSE / LS: the mean RMSE over the undefended snapshot least-squares fix's in the same "
+                      "place; a secure method above 1 loses to it on clean data and is marked.", "",
+                      "| estimator | where | n | false-alarm rate [95% CI] | RMSE [m] [95% CI] | RMSE / LS "
+                      "| NEES [95% CI] | NIS / dof [95% CI] |",
+                      "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+            losers = []
             for _, r in clean.iterrows():
                 where = _row_where(r)
+                worse = secure.get(r["estimator"], False) and not _missing(r["vs_ls"]) and r["vs_ls"] > 1.0
+                if worse:
+                    losers.append(f"{r['estimator']} ({where}: {r['vs_ls']:.2f}x)")
                 lines.append(f"| {r['estimator']} | {where} | {r['n']} | "
                              f"{_fmt(r['false_alarm_rate'], r['false_alarm_rate_lo'], r['false_alarm_rate_hi'])} | "
                              f"{_fmt(r['rmse_m'], r['rmse_m_lo'], r['rmse_m_hi'])} | "
+                             f"{_ratio_cell(r['vs_ls'], worse)} | "
                              f"{_fmt(r['nees_mean'], r['nees_mean_lo'], r['nees_mean_hi'], 2)} | "
                              f"{_fmt(r['nis_mean'], r['nis_mean_lo'], r['nis_mean_hi'], 2)} |")  # fmt: skip
             lines.append("")
+            if losers:
+                lines += ["Secure methods that lose to the undefended least-squares fix on clean data: "
+                          + "; ".join(losers) + ".", ""]  # fmt: skip
         lines += ["## Per attack and magnitude", ""]
         attacked = summary if closed_loop else summary[summary["attack"] != "none"]
         for attack, s in attacked.groupby("attack", sort=False):
             lines += _attack_section(str(attack), s, closed_loop)
-        lines += _table51(ok)
+        lines += _table51(ok, closed_loop)
         figures = _figures(out, summary)
         if figures:
             lines += ["## Figures", ""] + [f"![{p.stem}](figures/{p.name})" for p in figures] + [""]

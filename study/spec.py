@@ -37,6 +37,7 @@ from secuav_common.scenario import HoldTarget, Scenario, load_scenario, resolve_
 Mode = Literal["offline", "closed-loop"]
 Leg = Literal["hover", "moving"]
 SECURE_OFF = "off"  # closed loop: fly with the secure stage bypassed
+BASELINES = ("ls", "ekf")  # undefended: the snapshot least-squares fix and the EKF, in every offline study
 
 
 class _Strict(BaseModel):
@@ -102,7 +103,9 @@ class Study(_Strict):
     estimators: list[EstimatorEntry] = Field(
         min_length=1,
         description="names (built-in, plugin, package.module:Class), or {name, params} to tune one estimator alone "
-        "(a list in its params is a grid axis for it only); closed loop also 'off'",
+        "(a list in its params is a grid axis for it only); closed loop also 'off'. Offline studies always run the "
+        "undefended baselines ls (snapshot least squares) and ekf too, appended when not listed; a shared "
+        "velocity_std_mps reaches only the estimators with a motion input",
     )
     estimator_params: dict[str, Any] = Field(
         default_factory=dict,
@@ -196,6 +199,22 @@ class Study(_Strict):
             if self.positions is not None:
                 raise ValueError("positions: closed-loop flights hold the demo's target; leave positions out")
         return self
+
+    @model_validator(mode="before")
+    @classmethod
+    def _baselines(cls, data: Any) -> Any:
+        # Every offline table compares against the undefended baselines: the snapshot least-squares fix and the
+        # EKF run in every offline study, listed or not (appended where missing, so the study file's indices
+        # in error messages stay the file's own). A closed-loop study flies the
+        # demo's secure stage, where a baseline would be a different vehicle, so it is left as written.
+        if not isinstance(data, dict) or data.get("mode", "offline") != "offline":
+            return data
+        given = data.get("estimators")
+        if not isinstance(given, list) or not given:
+            return data
+        names = [e.get("name") if isinstance(e, dict) else getattr(e, "name", e) for e in given]
+        missing = [b for b in BASELINES if b not in names]
+        return {**data, "estimators": [*given, *missing]} if missing else data
 
     def seed_list(self) -> list[int]:
         return list(range(self.seeds)) if isinstance(self.seeds, int) else list(self.seeds)
@@ -343,6 +362,8 @@ def expand(study: Study, source: str) -> list[Cell]:
             raise InputError(source, f"estimators[{i}].params", getattr(entry, "params", None), str(exc)) from None
     if study.mode == "offline":
         _check_tunings(study, tunings, scenario, source)
+    if recording is not None:
+        _check_sparse(study, tunings, scenario, recording, source)
     cells: list[Cell] = []
     seen: set[str] = set()
     scenario_hash = hashlib.sha256(dump_json(scenario).encode()).hexdigest()[:16]
@@ -386,15 +407,31 @@ def _recording(study: Study, scenario: Scenario, base: Path, source: str) -> tup
     return rec, f"{digest.hexdigest()[:16]}@{rec.rate_hz:.6g}"
 
 
+def _check_sparse(study: Study, tunings: list[dict[str, Any]], scenario: Scenario, recording: Any, source: str) -> None:
+    """A recording too sparse for a calibration window or the framing rate fails the study file with one line
+    naming the link and the numbers (evaluation.trial.check_readings), not every cell."""
+    from evaluation.trial import SparseReadings, check_readings
+
+    own = {v.label: (v.name, v.params) for v in study.variants()}
+    for tuning in tunings:
+        try:
+            check_readings(scenario, recording.streams, study.dims, tuning, own)
+        except SparseReadings as err:
+            field = "recording.rate_hz" if err.option == "rate_hz" else f"estimator_params.{err.option}"
+            raise InputError(source, field, err.value, err.reason) from None
+
+
 def _check_tunings(study: Study, tunings: list[dict[str, Any]], scenario: Scenario, source: str) -> None:
     """Build every estimator with every grid point once, so a bad parameter fails the study file, not each cell."""
     from evaluation.cli import model_for
+    from evaluation.trial import shared_params
 
     model = model_for(scenario, study.dims)
     for tuning in tunings:
         for v in study.variants():
             try:
-                noise.create(v.name, model, **{**tuning, **v.params})  # estimators.create, plus calibration_s
+                # estimators.create, plus calibration_s; a shared motion input only where there is one
+                noise.create(v.name, model, **{**shared_params(v.name, tuning), **v.params})
             except (TypeError, ValueError) as exc:
                 where = f"estimators ({v.label})" if v.params else f"estimator_params ({v.name})"
                 raise InputError(source, where, {**tuning, **v.params}, str(exc)) from None

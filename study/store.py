@@ -45,6 +45,9 @@ SCHEMA = pa.schema([
     # The method's own detection (its own attacked/alarm, before the shared attribution judged its output);
     # null for a method that claims none. The detection columns above are the shared attribution's.
     ("own_alarm_fraction", _F), ("own_recall_all", _F), ("own_precision_all", _F), ("own_false_alarm_rate", _F),
+    # JSON: what the calibration window did (estimators.noise.Calibrated.report: status, per link the readings
+    # used, the offset and the scale); null without calibration_s
+    ("calibration", _S),
     ("step_time_us_median", _F), ("step_time_us_p99", _F),
     ("collided", pa.bool_()), ("min_distance_m", _F), ("flagged", _S),  # closed loop
     ("worker", _S), ("started_at", pa.timestamp("ms", tz="UTC")), ("wall_s", _F),

@@ -79,7 +79,7 @@ def test_secuav_eval_runs_the_plugin_estimator_on_the_plugin_attack_and_scenario
                 "--out", str(tmp_path))  # fmt: skip
     assert done.returncode == 0, done.stderr
     rows = json.loads((tmp_path / "results.json").read_text())["estimators"]
-    assert set(rows) == {"ekf", "huber", "secuav_example_plugin.huber:Huber"}
+    assert set(rows) == {"ls", "ekf", "huber", "secuav_example_plugin.huber:Huber"}  # ls: the baseline, always
     assert rows["huber"]["rmse_m"] == rows["secuav_example_plugin.huber:Huber"]["rmse_m"]  # one class, two names
 
 
@@ -110,7 +110,7 @@ def test_a_study_on_plain_dask_workers_tunes_the_plugin_alone(
     rows = pd.read_parquet(out / "results.parquet")
     assert (rows["status"] == "ok").all(), rows["error"].dropna().tolist()
     assert set(rows["worker"]) <= set(workers)
-    assert sorted(set(rows["estimator"])) == ["ekf", "huber[huber_k=1.0]", "huber[huber_k=1.345]"]
+    assert sorted(set(rows["estimator"])) == ["ekf", "huber[huber_k=1.0]", "huber[huber_k=1.345]", "ls"]
     huber = rows[rows["estimator_name"] == "huber"]
     assert (huber["estimator_dist"] == DIST).all() and (huber["estimator_version"] == "0.1.0").all()
     attacked = rows[rows["attack"] == "anchors-moving-bias"]

@@ -143,7 +143,7 @@ def _expected(version: str, variant: str) -> dict[str, dict[str, list[float]]]:
 def leaderboard(out: Path, version: str = LATEST) -> tuple[pd.DataFrame, list[str]]:
     """One row per (study, method variant) over ``out``; and the provenance lines."""
     from study import store
-    from study.report import mean_ci
+    from study.report import BASELINE, mean_ci, secure_names
 
     meta = json.loads((out / "suite.json").read_text(encoding="utf-8"))
     bands = _expected(version, meta["variant"])
@@ -165,9 +165,17 @@ def leaderboard(out: Path, version: str = LATEST) -> tuple[pd.DataFrame, list[st
             dirty = " (dirty)" if r.secuav_dirty else ""
             prov.add(f"secuav {r.secuav_version} {str(r.secuav_commit)[:12]}{dirty}, python {r.python_version}, "
                      f"numpy {r.numpy_version}, scipy {r.scipy_version}")  # fmt: skip
+        clean = ok[ok["attack"] == "none"]
+        secure = secure_names(ok)
         for (label, dist, version_), g in ok.groupby(["estimator", "estimator_dist", "estimator_version"],
                                                        dropna=False, sort=False):  # fmt: skip
             mean, lo, hi, n = mean_ci(g["rmse_m"])
+            mine = clean[clean["estimator"] == label]["rmse_m"].mean()
+            # The baseline at the same grid point of the study's estimator_params (rows of one grid point only).
+            tuning = g["estimator_params"].dropna().unique() if "estimator_params" in g else []
+            same = clean["estimator_params"].isin(tuning) if len(tuning) else clean["estimator_params"].isna()
+            ls_clean = clean[(clean["estimator"] == BASELINE) & same]["rmse_m"].mean()
+            vs_ls = float(mine / ls_clean) if ls_clean == ls_clean and ls_clean > 0 and mine == mine else None
             band = bands.get(stem, {}).get(label)
             verdict = "" if band is None or mean is None else ("in band" if band[0] <= mean <= band[1] else "OUT")
             rows.append({
@@ -178,6 +186,7 @@ def leaderboard(out: Path, version: str = LATEST) -> tuple[pd.DataFrame, list[st
                 "false_alarm_rate": g["false_alarm_rate"].mean(),
                 "cell_wall_s": float(frame.drop_duplicates("cell")["wall_s"].median()),
                 "step_us": g["step_time_us_median"].median(),
+                "clean_vs_ls": vs_ls, "worse_than_ls": bool(secure.get(label) and vs_ls is not None and vs_ls > 1),
                 "band": "" if band is None else f"{band[0]:.3f}-{band[1]:.3f}", "check": verdict,
                 "failed": int((frame[frame["estimator"] == label]["status"] != "ok").sum()),
             })  # fmt: skip
@@ -194,17 +203,21 @@ def _num(v: Any, digits: int = 3) -> str:
 
 def markdown(board: pd.DataFrame, provenance: list[str]) -> str:
     lines = [f"# {provenance[0]}", "", *(f"- computed by: {p}" for p in provenance[1:]), ""]
-    cols = ["method", "from", "n", "RMSE [m] mean [95% CI]", "valid", "own recall", "attribution recall",
-            "false alarms", "cell [s]", "step [us]", "expected band", "check"]  # fmt: skip
+    cols = ["method", "from", "n", "RMSE [m] mean [95% CI]", "clean RMSE / LS", "valid", "own recall",
+            "attribution recall", "false alarms", "cell [s]", "step [us]", "expected band", "check"]  # fmt: skip
     for study, g in board.groupby("study", sort=False):
         lines += [f"## {study}", "", "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
         for r in g.itertuples(index=False):
             ci = f"{_num(r.rmse_m)} [{_num(r.rmse_lo)}, {_num(r.rmse_hi)}]"
-            lines.append(f"| {r.method} | {r.origin} | {r.n} | {ci} | "
+            vs = _num(r.clean_vs_ls, 2) or "n/a"
+            vs += " **worse than LS**" if r.worse_than_ls else ""
+            lines.append(f"| {r.method} | {r.origin} | {r.n} | {ci} | {vs} | "
                          f"{_num(r.valid_fraction, 2)} | {_num(r.own_recall, 2)} | {_num(r.recall, 2)} | "
                          f"{_num(r.false_alarm_rate, 3)} | "
                          f"{_num(r.cell_wall_s, 1)} | {_num(r.step_us, 0)} | {r.band} | {r.check} |")  # fmt: skip
         lines.append("")
+    lines.append("clean RMSE / LS: a method's mean RMSE on the study's clean runs over the undefended snapshot "
+                 "least-squares fix's (ls, run in every offline study); a secure method above 1 is marked.")
     return "\n".join(lines)
 
 

@@ -31,7 +31,7 @@ def test_test_case_1_outputs_and_same_seed_same_numbers(tmp_path: Path, capsys: 
     printed = capsys.readouterr().out
     assert "Mean abs. error [m]" in printed and "Time per step [ms]" in printed
     res = json.loads((tmp_path / "a" / "results.json").read_text())
-    assert res["test_case"] == 1 and set(res["estimators"]) == {"ekf", "secekf", "rarse"}
+    assert res["test_case"] == 1 and set(res["estimators"]) == {"ls", "ekf", "secekf", "rarse"}  # ls: baseline
     for row in res["estimators"].values():
         assert set(row) >= FIELDS
     sec, ekf = res["estimators"]["secekf"], res["estimators"]["ekf"]

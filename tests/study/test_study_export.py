@@ -59,7 +59,7 @@ def test_an_exported_bundle_reproduces_the_rows_row_for_row(tmp_path: Path) -> N
     assert done.returncode == 0, done.stderr
     before = pd.read_csv(bundle / "results.csv")
     after = pd.read_parquet(again / "results.parquet")
-    assert len(before) == len(after) == 2 * 3
+    assert len(before) == len(after) == 2 * 4  # ekf, secekf at two windows, and the ls baseline
     both = before.merge(after, on=["cell", "estimator"], suffixes=("_then", "_now"))
     assert len(both) == len(before)
     for col in ("rmse_m", "max_error_m", "alarm_fraction", "code_key", "attack_hash"):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -69,10 +70,20 @@ def test_a_study_on_recorded_ranges(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stderr
     assert json.loads(done.stdout.strip().splitlines()[-1])["ran"] == 2
     rows = pd.read_parquet(out / "results.parquet")
-    assert (rows["status"] == "ok").all() and len(rows) == 4
+    # ls: the undefended least-squares baseline, run in every offline study though not listed.
+    assert (rows["status"] == "ok").all() and len(rows) == 6 and set(rows["estimator"]) == {"ls", "ekf", "secekf"}
     attacked = rows[rows["attack"] != "none"].set_index("estimator")
     assert attacked.loc["secekf", "rmse_m"] < attacked.loc["ekf", "rmse_m"]
     assert rows.loc[rows["attack"] == "none", "estimator_params"].notna().all()  # calibration_s went along
+    report = (out / "report.md").read_text()
+    assert "| RMSE / LS |" in report and "| none | ls calibration_s=15.0 | " in report  # clean table, Table 5.1
+    assert re.search(r"\| ls calibration_s=15.0 \| leg hover \| 1 \| [0-9.]+ \| [0-9.]+ \| 1\.00 \|", report)
+    assert re.search(r"\| secekf calibration_s=15.0 \| leg hover \| 1 \| [0-9.]+ \| [0-9.]+ \| [0-9]\.[0-9]{2}", report)
+    # What the window did, per row: every link's readings used, offset and scale.
+    for text in rows["calibration"]:
+        rep = json.loads(text)
+        assert rep["status"] == "calibrated" and rep["window_s"] == 15.0 and len(rep["links"]) == 8
+        assert all(v["readings"] == 151 and abs(v["offset_m"]) < 0.5 for v in rep["links"].values())
 
 
 def test_recording_cells_are_keyed_by_content_and_refused_where_they_make_no_sense(tmp_path: Path) -> None:
@@ -88,3 +99,20 @@ def test_recording_cells_are_keyed_by_content_and_refused_where_they_make_no_sen
         parse_study(STUDY_TEXT + "legs: [moving]\n", source)
     with pytest.raises(InputError, match=r"recording.*no such file"):
         expand(parse_study(STUDY_TEXT.replace("ranges.csv", "gone.csv"), source), source)
+
+
+def test_a_window_too_sparse_to_calibrate_fails_the_study_file(tmp_path: Path) -> None:
+    """A study's calibration window that holds too few readings is refused at validation, with one line naming
+    each link's count and what it needs, instead of running uncalibrated while the rows say calibration_s."""
+    _recording(tmp_path)
+    source = str(tmp_path / "study.yaml")
+    text = STUDY_TEXT.replace("{calibration_s: [null, 15.0]}", "{calibration_s: [null, 1.0]}")
+    with pytest.raises(InputError) as err:
+        expand(parse_study(text, source), source)
+    line = str(err.value)
+    assert "\n" not in line and "estimator_params.calibration_s" in line
+    assert "11 of 11 steps have a fix (needs 20)" in line and "10: 11, 11: 11" in line and "each link needs 20" in line
+    # A too-fast framing of the same recording: the rate is named.
+    fast = STUDY_TEXT.replace("truth: truth.csv}", "truth: truth.csv, rate_hz: 100}")
+    with pytest.raises(InputError, match=r"recording.rate_hz: framing at 100 Hz: only 10% of the frames"):
+        expand(parse_study(fast, source), source)

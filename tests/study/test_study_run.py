@@ -24,7 +24,7 @@ SMALL = """
 name: small
 scenario: anchors8
 duration_s: 6
-estimators: [ekf, secekf]
+estimators: [ls, ekf, secekf]
 seeds: 2
 attacks:
   - none
@@ -53,7 +53,7 @@ def test_small_study_on_a_local_cluster_writes_rows_report_and_figures(tmp_path:
     assert done.returncode == 0, done.stderr
     assert _summary(done) == {"cells": 4, "ran": 4, "skipped": 0, "failed": 0, "changed": 0, "out": str(out)}
     rows = pd.read_parquet(out / "results.parquet")
-    assert len(rows) == 8 and set(rows["estimator"]) == {"ekf", "secekf"} and (rows["status"] == "ok").all()
+    assert len(rows) == 12 and set(rows["estimator"]) == {"ls", "ekf", "secekf"} and (rows["status"] == "ok").all()
     for column in ("cell", "params", "seed", "rmse_m", "p95_error_m", "max_error_m", "estimate_fraction",
                    "attack_detection_precision", "attack_detection_recall", "detection_delay_s", "false_alarm_rate",
                    "step_time_us_median", "worker", "started_at", "wall_s"):  # fmt: skip
@@ -68,7 +68,7 @@ def test_small_study_on_a_local_cluster_writes_rows_report_and_figures(tmp_path:
     assert "Clean runs: false alarms" in report and "anchors-constant" in report and "Table 5.1" in report
     again = _run("run", str(out / ".." / "study.yaml"), "--out", str(out), "--no-progress")
     assert again.returncode == 0 and _summary(again)["skipped"] == 4 and _summary(again)["ran"] == 0
-    assert len(pd.read_parquet(out / "results.parquet")) == 8
+    assert len(pd.read_parquet(out / "results.parquet")) == 12
 
 
 def test_a_run_killed_half_way_resumes_without_duplicates_or_gaps(tmp_path: Path) -> None:
@@ -92,7 +92,7 @@ def test_a_run_killed_half_way_resumes_without_duplicates_or_gaps(tmp_path: Path
     assert summary["cells"] == 60 and summary["skipped"] >= before["cell"].nunique()
     assert summary["ran"] + summary["skipped"] == 60
     rows = pd.read_parquet(parts)
-    assert len(rows) == 120 and not rows.duplicated(["cell", "estimator"]).any()
+    assert len(rows) == 180 and not rows.duplicated(["cell", "estimator"]).any()
     kept = rows.merge(before, on=["cell", "estimator"], suffixes=("", "_before"))
     assert len(kept) == len(before) and (kept["rmse_m"] == kept["rmse_m_before"]).all()  # never rewritten
 
@@ -138,7 +138,7 @@ def test_a_real_scheduler_and_workers_run_the_cells_and_are_named_in_the_rows(
     assert done.returncode == 0, done.stderr
     assert _summary(done)["ran"] == 12
     rows = pd.read_parquet(out / "results.parquet")
-    assert set(rows["worker"]) <= set(workers) and len(rows) == 24
+    assert set(rows["worker"]) <= set(workers) and len(rows) == 36
     assert "workers: " + ", ".join(sorted(set(rows["worker"]))) in (out / "report.md").read_text()
 
 

@@ -209,7 +209,8 @@ def test_a_cell_runs_its_estimators_with_the_grid_point() -> None:
 def test_an_estimators_own_params_are_a_grid_for_it_alone() -> None:
     text = BASE.replace("estimators: [ekf, secekf]", "estimators: [ekf, {name: secekf, params: {window: [5, 10]}}]")
     study = parse_study(text, "s.yaml")
-    assert [v.label for v in study.variants()] == ["ekf", "secekf[window=5]", "secekf[window=10]"]
+    # ls: the undefended least-squares baseline every offline study runs, appended where not listed.
+    assert [v.label for v in study.variants()] == ["ekf", "secekf[window=5]", "secekf[window=10]", "ls"]
     assert len(expand(study, "s.yaml")) == len(_cells(BASE))  # the same cells: the grid is per estimator
     with pytest.raises(InputError, match=r"estimators\[1\]\.params.*tuning_budget 1"):
         expand(parse_study(text + "tuning_budget: 1\n", "s.yaml"), "s.yaml")

@@ -54,6 +54,7 @@ def test_a_quick_suite_study_with_a_plugin_added_and_its_leaderboard(tmp_path: P
     assert builtin["check"].isin(["in band", "OUT"]).all()  # every built-in has a measured band
     assert check.returncode == (1 if (builtin["check"] == "OUT").any() else 0), check.stdout
     text = (out / "leaderboard.md").read_text()
+    assert "clean RMSE / LS" in text and {"clean_vs_ls", "worse_than_ls"} <= set(board.columns)
     assert text.startswith("# SecUAV suite v1 (quick)") and "computed by: secuav " in text and "numpy" in text
     assert json.loads((out / "suite.json").read_text())["added"] == ["huber"]
 
