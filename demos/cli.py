@@ -3,7 +3,7 @@
 wall-hover, localise and formation fly ``secuav-sim`` (``--autopilot flightsim``); height-hold flies
 ArduCopter SITL (``--autopilot ardupilot``), whose binary is built outside the package (docs/ardupilot.md);
 rangefinder-feed flies either (ArduCopter SITL by default), holding altitude on the vehicle from a
-companion's rangefinders that the attack rewrites on their way to it (docs/demos.md).
+companion's rangefinders that the attack rewrites on their way to it (docs/ardupilot.md).
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="wall-hover, localise, formation fly secuav-sim; height-hold flies the wall-hover "
                    "problem on ArduCopter SITL, as height over ground on three downward rangefinders "
                    "(docs/ardupilot.md); rangefinder-feed holds altitude on the vehicle itself from three rangefinders "
-                   "a companion feeds it through the proxy, lied to on their way (docs/demos.md)")  # fmt: skip
+                   "a companion feeds it through the proxy, lied to on their way (docs/ardupilot.md)")  # fmt: skip
     p.add_argument("--autopilot", choices=AUTOPILOTS, default=None,
                    help="the vehicle: flightsim (secuav-sim; wall-hover, localise, formation) or ardupilot "
                    "(ArduCopter SITL; height-hold); rangefinder-feed flies both, ardupilot by default "
@@ -57,8 +57,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=None, help="flightsim's noise seed (default: the scenario's)")
     p.add_argument("--out", type=Path, default=None, help="output directory (default out/<demo>)")
     p.add_argument("--base-port", type=int, default=None,
-                   help="ports BASE+i (proxy), BASE+10+i (MAVSDK), BASE+20 (GCS), BASE+21 (MQTT) "
-                   "instead of the port plan in docs/interfaces.md")  # fmt: skip
+                   help="ports BASE+i (proxy), BASE+10+i (MAVSDK), BASE+20 (GCS), BASE+21 (MQTT), BASE+9 "
+                   "(rangefinder-feed's companion feed) instead of the port plan in docs/interfaces.md")  # fmt: skip
     p.add_argument("--no-progress", action="store_true", help="no progress bar per flight")
     sim = p.add_argument_group("ArduPilot SITL (--autopilot ardupilot)")
     sim.add_argument("--sitl-binary", type=Path, default=None,

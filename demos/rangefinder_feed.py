@@ -1,6 +1,6 @@
 """The rangefinder-feed demo: the autopilot itself holds its altitude on a companion's rangefinders, and is lied to.
 
-Issue 33's first vehicle-side demo (docs/demos.md). The vehicle's height comes from three downward
+Issue 33's first vehicle-side demo (docs/ardupilot.md). The vehicle's height comes from three downward
 rangefinders of a companion computer, DISTANCE_SENSOR ids 0, 1, 2 that ``secuav-feed`` computes from the
 simulator's own truth and sends through ``secuav-proxy`` to the autopilot; the altitude hold runs ON THE
 VEHICLE (ArduCopter GUIDED after take-off, or flightsim's Hold), the ground only takes off and lands

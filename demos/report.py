@@ -33,7 +33,7 @@ PANELS: dict[str, list[tuple[str, str, float | None]]] = {
         ("truth", "true height above ground [m] (SITL)", 5.0),
         ("seen", "height the controller used [m]", 5.0),
     ],
-    "rangefinder-feed": [  # the autopilot holds on its own estimate: docs/demos.md
+    "rangefinder-feed": [  # the autopilot holds on its own estimate: docs/ardupilot.md
         ("truth", "true height above ground [m]", 5.0),
         ("seen", "the autopilot's own altitude [m]", 5.0),
     ],

@@ -1,6 +1,6 @@
 """Take off with MAVSDK and let the autopilot hold the altitude itself: flightsim's side of rangefinder-feed.
 
-``secuav-demo rangefinder-feed --autopilot flightsim`` (docs/demos.md): ``secuav-sim``'s autopilot, like
+``secuav-demo rangefinder-feed --autopilot flightsim`` (docs/ardupilot.md): ``secuav-sim``'s autopilot, like
 PX4, holds the take-off altitude in Hold on its own estimate (here its height from a companion's
 rangefinders, the scenario's ``external`` block). This script commands nothing during the hold; it logs
 the autopilot's own altitude (LOCAL_POSITION_NED, -down) and the rangefinder echoes, then lands.

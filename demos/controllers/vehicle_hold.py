@@ -1,6 +1,6 @@
 """Take off and let ArduPilot hold the altitude itself: the ground only starts and ends the flight.
 
-The controller of ``secuav-demo rangefinder-feed --autopilot ardupilot`` (docs/demos.md): the altitude
+The controller of ``secuav-demo rangefinder-feed --autopilot ardupilot`` (docs/ardupilot.md): the altitude
 hold runs on the vehicle, in GUIDED after MAV_CMD_NAV_TAKEOFF, on ArduPilot's own estimate (EKF3's
 height, here from its MAVLink rangefinders: ``demos/ardupilot/vehicle-rangefinders.parm``). This script
 commands nothing while the vehicle holds; it logs what the autopilot says its altitude is
