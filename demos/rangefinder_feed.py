@@ -53,6 +53,7 @@ FEED_OFFSET = 9  # the feed's port: the proxy block's last (vehicle i's proxy po
 BOOT_S = 60.0
 ARMED_S = 300.0  # ArduPilot arms once its EKF has converged, 40-45 s after boot on a loaded machine
 TAKEOFF_S = 120.0
+CONNECT_S = 60.0  # the proxy imports its estimators (scipy) before it forwards: 20 s and more on a loaded machine
 
 
 def feed_port(ports: Ports) -> int:
@@ -146,6 +147,7 @@ async def _fly_flightsim(case: Case, opts: Options, out: Path, log: Path, target
         await procs.start("controller1", [
             sys.executable, "-m", "demos.controllers.onboard_hold", "--url", f"udpin://127.0.0.1:{p.api}",
             "--seconds", str(opts.seconds), "--log", str(log), "--altitude", str(target_m),
+            "--connect-timeout", str(CONNECT_S),
         ])  # fmt: skip
         hold_s, t_scored, landing, acks = await _hold_and_attack(bar, tap, procs, log, case, opts, TAKEOFF_S)
         truth = [(x.wall_s, x.payload) for x in tap.on(vehicle_topic(SYSID, "truth"))]
