@@ -1,7 +1,9 @@
-"""``secuav-demo wall-hover|localise|formation|height-hold``: fly a closed-loop demo and write a report.
+"""``secuav-demo wall-hover|localise|formation|height-hold|rangefinder-feed``: fly a closed-loop demo, report.
 
 wall-hover, localise and formation fly ``secuav-sim`` (``--autopilot flightsim``); height-hold flies
-ArduCopter SITL (``--autopilot ardupilot``), whose binary is built outside the package (docs/ardupilot.md).
+ArduCopter SITL (``--autopilot ardupilot``), whose binary is built outside the package (docs/ardupilot.md);
+rangefinder-feed flies either (ArduCopter SITL by default), holding altitude on the vehicle from a
+companion's rangefinders that the attack rewrites on their way to it (docs/ardupilot.md).
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from pathlib import Path
 from types import ModuleType
 
 from attack_profiles.resolve import parse_params
-from demos import formation, height_hold, localise, sitl, wall_hover
+from demos import formation, height_hold, localise, rangefinder_feed, sitl, wall_hover
 from demos.flight import Case, Options
 from demos.report import plot, write_report
 from demos.stack import Ports
@@ -26,6 +28,7 @@ from secuav_common.logs import add_common_flags
 
 DEMOS: dict[str, ModuleType] = {
     "wall-hover": wall_hover, "localise": localise, "formation": formation, "height-hold": height_hold,
+    "rangefinder-feed": rangefinder_feed,
 }  # fmt: skip
 AUTOPILOTS = ("flightsim", "ardupilot")
 NO_SITL = 3  # exit code: the demo needs an ArduPilot SITL binary and none was found (docs/interfaces.md)
@@ -36,10 +39,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("demo", choices=list(DEMOS),
                    help="wall-hover, localise, formation fly secuav-sim; height-hold flies the wall-hover "
                    "problem on ArduCopter SITL, as height over ground on three downward rangefinders "
-                   "(docs/ardupilot.md)")  # fmt: skip
+                   "(docs/ardupilot.md); rangefinder-feed holds altitude on the vehicle itself from three rangefinders "
+                   "a companion feeds it through the proxy, lied to on their way (docs/ardupilot.md)")  # fmt: skip
     p.add_argument("--autopilot", choices=AUTOPILOTS, default=None,
                    help="the vehicle: flightsim (secuav-sim; wall-hover, localise, formation) or ardupilot "
-                   "(ArduCopter SITL; height-hold) (default: the demo's)")  # fmt: skip
+                   "(ArduCopter SITL; height-hold); rangefinder-feed flies both, ardupilot by default "
+                   "(default: the demo's)")  # fmt: skip
     p.add_argument("--attack", default=None,
                    help="library profile name or profile file; 'none' for no attack (default: the demo's)")  # fmt: skip
     p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
@@ -52,8 +57,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=None, help="flightsim's noise seed (default: the scenario's)")
     p.add_argument("--out", type=Path, default=None, help="output directory (default out/<demo>)")
     p.add_argument("--base-port", type=int, default=None,
-                   help="ports BASE+i (proxy), BASE+10+i (MAVSDK), BASE+20 (GCS), BASE+21 (MQTT) "
-                   "instead of the port plan in docs/interfaces.md")  # fmt: skip
+                   help="ports BASE+i (proxy), BASE+10+i (MAVSDK), BASE+20 (GCS), BASE+21 (MQTT), BASE+9 "
+                   "(rangefinder-feed's companion feed) instead of the port plan in docs/interfaces.md")  # fmt: skip
     p.add_argument("--no-progress", action="store_true", help="no progress bar per flight")
     sim = p.add_argument_group("ArduPilot SITL (--autopilot ardupilot)")
     sim.add_argument("--sitl-binary", type=Path, default=None,

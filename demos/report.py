@@ -33,8 +33,13 @@ PANELS: dict[str, list[tuple[str, str, float | None]]] = {
         ("truth", "true height above ground [m] (SITL)", 5.0),
         ("seen", "height the controller used [m]", 5.0),
     ],
+    "rangefinder-feed": [  # the autopilot holds on its own estimate: docs/ardupilot.md
+        ("truth", "true height above ground [m]", 5.0),
+        ("seen", "the autopilot's own altitude [m]", 5.0),
+    ],
 }
-SURFACE = {"wall-hover": "wall", "height-hold": "ground"}  # the true-distance panel's zero line
+# the true-distance panel's zero line
+SURFACE = {"wall-hover": "wall", "height-hold": "ground", "rangefinder-feed": "ground"}
 
 
 def plot(out: Path, demo: str, results: list[dict[str, Any]]) -> Path:

@@ -128,6 +128,19 @@ class Sitl:
         raise RuntimeError(f"SITL instance {self.instance} did not open tcp {tcp_port(self.instance)} "
                            f"within {timeout_s:.0f} s: see {self.log}")  # fmt: skip
 
+    async def serial_open(self, serial: int, timeout_s: float = 30.0) -> None:
+        """Until SITL listens on SERIAL``serial`` (it opens SERIAL1 and up only once SERIAL0 has a client)."""
+        line = f"SERIAL{serial} on TCP port"
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            if line in self.log.read_text(errors="replace"):
+                return
+            if self.proc is not None and self.proc.returncode is not None:
+                raise RuntimeError(f"SITL instance {self.instance} exited ({self.proc.returncode}): see {self.log}")
+            await asyncio.sleep(0.2)
+        raise RuntimeError(f"SITL instance {self.instance} did not open SERIAL{serial} within {timeout_s:.0f} s: "
+                           f"see {self.log}")  # fmt: skip
+
     async def __aexit__(self, *exc: object) -> None:
         proc = self.proc
         if proc is None or proc.returncode is not None:

@@ -82,7 +82,7 @@ def wall_group_model(scenario: Scenario, sysid: int = 1) -> ScalarGroup:
     target = vehicle.target
     if not isinstance(target, WallDistanceTarget):
         raise ValueError(f"vehicle {sysid} of scenario {scenario.name!r} has no wall_distance target")
-    by_id = {r.id: r for r in vehicle.sensors.rangefinders}
+    by_id = {r.id: r for r in vehicle.all_rangefinders}  # its own, or a companion's fed to it (external)
     return ScalarGroup.build(
         [max(by_id[i].noise_std_m, 1e-3) for i in target.sensor_ids],
         sensor_ids=tuple(target.sensor_ids),
