@@ -1,4 +1,4 @@
-"""Figures from trials: results.json fields, the Table 5.1 layout, and the plots of Figs. 5.3-5.6."""
+"""Figures from trials: results.json fields, the summary table, and the plots (attack and error over time)."""
 
 from __future__ import annotations
 
@@ -203,7 +203,7 @@ def write_results(out_dir: Path, meta: dict[str, Any], summary: dict[str, dict[s
 
 
 def plot(out_dir: Path, trial: TrialResult) -> list[Path]:
-    """Fig. 5.3 (the attack over time), Figs. 5.4-5.6 (error over time), and the trajectory with anchors."""
+    """The attack over time, the error over time, and the trajectory with anchors."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -218,7 +218,7 @@ def plot(out_dir: Path, trial: TrialResult) -> list[Path]:
     ax.set_xlabel("time [s]")
     # From a log with truth the offset is the reading minus the range the true position implies.
     ax.set_ylabel("attack offset [m]" if trial.named_floor_m is None else "reading - true range [m]")
-    ax.set_title("Attack over time (cf. seed Fig. 5.3)")
+    ax.set_title("Attack over time")
     if len(attacked):
         ax.legend(fontsize=8)
     fig.tight_layout()
@@ -240,7 +240,7 @@ def plot(out_dir: Path, trial: TrialResult) -> list[Path]:
         ax.set_ylabel(f"{name}\n|err| [m]", fontsize=8)
         ax.set_yscale("symlog", linthresh=0.1)
     axes[-1, 0].set_xlabel("time [s]")
-    fig.suptitle("Absolute error over time per estimator (cf. seed Figs. 5.4-5.6)")
+    fig.suptitle("Absolute error over time per estimator")
     fig.tight_layout()
     paths.append(out_dir / "errors.png")
     fig.savefig(paths[-1], dpi=110)

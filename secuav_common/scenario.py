@@ -278,14 +278,14 @@ class StartPose(_Strict):
 
 
 class HoldTarget(_Strict):
-    """Hold a position (seed test case 1: the area's centre)."""
+    """Hold a position (anchors8: the area's centre)."""
 
     kind: Literal["hold"] = "hold"
     pos_ned_m: Vec3
 
 
 class WallDistanceTarget(_Strict):
-    """Hold a distance from a wall, measured by a rangefinder group (seed Fig. A.5)."""
+    """Hold a distance from a wall, measured by a rangefinder group (wall_hover)."""
 
     kind: Literal["wall_distance"] = "wall_distance"
     wall: str
@@ -295,7 +295,7 @@ class WallDistanceTarget(_Strict):
 
 
 class KeepRangeTarget(_Strict):
-    """Keep a distance from another vehicle (seed test case 2)."""
+    """Keep a distance from another vehicle (formation)."""
 
     kind: Literal["keep_range"] = "keep_range"
     peer: int
