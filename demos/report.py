@@ -46,7 +46,7 @@ CAPTION = {
     "wall-hover": "x: the vehicle touched the wall (the simulator's contact flag). The controller flies on the mean "
     "of its five forward sensors; with two of them ramped away (the default attack, wall-spoof-two) it keeps "
     "that mean at 2.5 m while closing on the wall. The step in the lower panel at about 29-34 s after the onset: "
-    "the true distance falls below the radar's 0.3 m minimum and the radar stops reporting (the mean jumps up), "
+    "the vehicle touches the wall, below the radar's 0.3 m minimum, so the radar stops reporting (the mean jumps up), "
     "then the spoofed sonar passes its 7 m maximum and drops out too (the mean falls back).",
 }
 
