@@ -4,7 +4,8 @@
 child process (so MQTT traffic never takes the forwarding loop's time); the
 console, the demos and tests run it on their own loop. If something already listens on
 the port (a mosquitto, or another SecUAV process's embedded broker) we use that
-instead of failing, so two SecUAV processes can share one control plane.
+instead of failing, so two SecUAV processes can share one control plane, and say in
+one line whose it is (the proxies and consoles whose online records say they are on it).
 """
 
 from __future__ import annotations
@@ -97,7 +98,7 @@ OWNERS_WAIT_S = 0.5  # retained records follow the SUBACK at once; this long is 
 
 async def owners(address: BrokerAddress, wait_s: float = OWNERS_WAIT_S) -> str:
     """Who uses the broker at ``address``, from the retained online records (docs/interfaces.md):
-    ``"proxy lab-a (v1, v2), console 3f2a"``; empty when none says online or the broker cannot be read."""
+    ``"proxy lab-a (v1, v2), console 3f2a"``, or a few words saying there is none or they cannot be read."""
     from secuav_common.controlplane.session import MqttError, Session
     from secuav_common.controlplane.topics import CONSOLES_ONLINE, INSTANCES_ONLINE, parse
 
@@ -122,9 +123,9 @@ async def owners(address: BrokerAddress, wait_s: float = OWNERS_WAIT_S) -> str:
                         vehicles = [v for v in record.get("vehicles") or () if isinstance(v, int)]
                         served = f" ({', '.join(f'v{v}' for v in vehicles)})" if vehicles else ""
                         seen[f"{topic.scope} {topic.key}"] = f"{topic.scope} {topic.key}{served}"
-    except MqttError:
-        return ""
-    return ", ".join(seen.values())
+    except MqttError as exc:
+        return f"unknown (cannot read its online records: {exc})"
+    return ", ".join(seen.values()) or "none online (no SecUAV proxy or console says it is on it)"
 
 
 class EmbeddedBroker:
@@ -167,7 +168,7 @@ class EmbeddedBroker:
             # so say whose it is (on a shared host it may be another user's).
             log.warning("broker.reuse", extra={
                 "url": self.address.url,
-                "users": await owners(self.address) or "none online (a broker no SecUAV process uses)",
+                "users": await owners(self.address),
                 "detail": "a broker already listens here and is shared as it is (not started by this process); "
                 "give --broker-port N for one of your own, or --broker mqtt://HOST:PORT to choose one",
             })  # fmt: skip
