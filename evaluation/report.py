@@ -166,7 +166,7 @@ def _cell(value: float | None, width: int, scale: float = 1.0) -> str:
 
 
 def table(summary: dict[str, dict[str, Any]]) -> str:
-    """Laid out like the seed's Table 5.1: absolute errors and time per step."""
+    """The summary table: absolute errors and time per step."""
     two = any(row.get("inter_vehicle_range") for row in summary.values())
     head = f"{'Estimator':<10} | {'Mean abs. error [m]':>19} | {'Max abs. error [m]':>18}"
     if two:
