@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import dataclasses
 import logging
 import signal
 import sys
@@ -59,6 +60,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--base-port", type=int, default=None,
                    help="ports BASE+i (proxy), BASE+10+i (MAVSDK), BASE+20 (GCS), BASE+21 (MQTT), BASE+9 "
                    "(rangefinder-feed's companion feed) instead of the port plan in docs/interfaces.md")  # fmt: skip
+    p.add_argument("--broker-port", type=int, default=None, metavar="N",
+                   help="the demo's own broker on 127.0.0.1:N (default 1883, or the --base-port block's)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar per flight")
     sim = p.add_argument_group("ArduPilot SITL (--autopilot ardupilot)")
     sim.add_argument("--sitl-binary", type=Path, default=None,
@@ -112,12 +115,18 @@ def sitl_options(args: argparse.Namespace) -> sitl.SitlOptions | None:
     return sitl.SitlOptions(binary, instance, 1.0 if args.speedup is None else args.speedup)
 
 
+def ports_of(args: argparse.Namespace) -> Ports:
+    """The run's loopback ports: the port plan, or the ``--base-port`` block; ``--broker-port`` moves the broker
+    alone (a shared host whose 1883 is someone else's)."""
+    ports = Ports() if args.base_port is None else Ports.block(args.base_port)
+    return ports if args.broker_port is None else dataclasses.replace(ports, mqtt=args.broker_port)
+
+
 async def _main(args: argparse.Namespace, sim: sitl.SitlOptions | None) -> int:
     demo = DEMOS[args.demo]
     out = args.out or Path("out") / args.demo
     matrix = args.matrix or (args.attack is None and args.secure is None)
-    base = args.base_port
-    ports = Ports() if base is None else Ports.block(base)
+    ports = ports_of(args)
     params = {**getattr(demo, "DEFAULT_PARAMS", {}), **parse_params(args.param)}
     opts = Options(out=out, seconds=args.seconds, settle_s=args.settle, seed=args.seed, ports=ports,
                    attack_params=params, progress=not args.no_progress and sys.stderr.isatty(), sitl=sim)  # fmt: skip

@@ -49,8 +49,8 @@ def distance_metrics(
     vehicle = next(v for v in scenario.vehicles if v.sysid == sysid)
     target_m = float(getattr(vehicle.target, "distance_m", 2.5))
     true_series = [(t, wall_distance_m(scenario, d["pos_ned_m"], sysid)) for t, d in truth]
-    collided = any(bool(d.get("collided")) for _, d in truth)
-    return held_distance_metrics(true_series, target_m, collided, steps, estimates, window)
+    hit = next((t for t, d in truth if d.get("collided")), None)  # the simulator's own contact flag
+    return held_distance_metrics(true_series, target_m, hit is not None, steps, estimates, window, hit)
 
 
 GROUND_CONTACT_M = 0.05  # a true height above ground this low is touching it
@@ -66,8 +66,8 @@ def height_metrics(
     """Figures of one height-hold flight (the ground as the wall): ``true_height`` is (wall time, true height above
     ground) from the simulator; "collided" is touching the ground inside the scored window (the flight begins
     and ends on it)."""
-    collided = any(h <= GROUND_CONTACT_M for t, h in true_height if _in(window, t))
-    return held_distance_metrics(true_height, target_m, collided, steps, estimates, window)
+    hit = next((t for t, h in true_height if h <= GROUND_CONTACT_M and _in(window, t)), None)
+    return held_distance_metrics(true_height, target_m, hit is not None, steps, estimates, window, hit)
 
 
 def held_distance_metrics(
@@ -77,8 +77,10 @@ def held_distance_metrics(
     steps: list[dict[str, Any]],
     estimates: list[tuple[float, dict[str, Any]]],
     window: Window,
+    collided_at: float | None = None,
 ) -> dict[str, Any]:
-    """The figures of a flight that holds one distance: true (from the simulator) against the controller's."""
+    """The figures of a flight that holds one distance: true (from the simulator) against the controller's;
+    ``collided_at`` (the same clock as the series) is when the vehicle first touched the surface."""
     scored = [(t, d) for t, d in true_series if _in(window, t)]
     seen = [(float(s["wall_s"]), s["distance_m"]) for s in steps if s.get("distance_m") is not None]
     seen_scored = [d for t, d in seen if _in(window, t)]
@@ -89,6 +91,7 @@ def held_distance_metrics(
         "distance_error_m": _rms_max([d - target_m for _, d in scored]),
         "min_distance_m": round(min((d for _, d in scored), default=math.nan), 4),
         "collided": collided,
+        "collided_at_s": None if collided_at is None else round(collided_at - window.start_s, 3),  # from onset
         "seen_error_m": _rms_max([d - target_m for d in seen_scored]),
         "flagged_by_proxy": detection(estimates, window),
         "flagged_by_controller_steps": {str(k): v for k, v in sorted(flagged_by_controller.items())},

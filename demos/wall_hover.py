@@ -1,4 +1,4 @@
-"""The wall-hover demo (seed Fig. A.5): hold 2.5 m from a wall on five forward range sensors.
+"""The wall-hover demo: hold 2.5 m from a wall on five forward range sensors.
 
 The controller (``demos/controllers/wall_hover.py``, also
 ``examples/wall_hover_controller.py``) takes off and holds; after ``settle_s``

@@ -1,4 +1,4 @@
-"""Figures from trials: results.json fields, the Table 5.1 layout, and the plots of Figs. 5.3-5.6."""
+"""Figures from trials: results.json fields, the summary table, and the plots (attack and error over time)."""
 
 from __future__ import annotations
 
@@ -189,7 +189,7 @@ def _cell(value: float | None, width: int, scale: float = 1.0) -> str:
 
 
 def table(summary: dict[str, dict[str, Any]]) -> str:
-    """Laid out like the seed's Table 5.1: absolute errors and time per step."""
+    """The summary table: absolute errors and time per step."""
     two = any(row.get("inter_vehicle_range") for row in summary.values())
     head = f"{'Estimator':<10} | {'Mean abs. error [m]':>19} | {'Max abs. error [m]':>18}"
     if two:
@@ -257,7 +257,7 @@ def write_results(out_dir: Path, meta: dict[str, Any], summary: dict[str, dict[s
 
 
 def plot(out_dir: Path, trial: TrialResult) -> list[Path]:
-    """Fig. 5.3 (the attack over time), Figs. 5.4-5.6 (error over time), and the trajectory with anchors."""
+    """The attack over time, the error over time, and the trajectory with anchors."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -272,7 +272,7 @@ def plot(out_dir: Path, trial: TrialResult) -> list[Path]:
     ax.set_xlabel("time [s]")
     # From a log with truth the offset is the reading minus the range the true position implies.
     ax.set_ylabel("attack offset [m]" if trial.named_floor_m is None else "reading - true range [m]")
-    ax.set_title("Attack over time (cf. seed Fig. 5.3)")
+    ax.set_title("Attack over time")
     if len(attacked):
         ax.legend(fontsize=8)
     fig.tight_layout()
@@ -294,7 +294,7 @@ def plot(out_dir: Path, trial: TrialResult) -> list[Path]:
         ax.set_ylabel(f"{name}\n|err| [m]", fontsize=8)
         ax.set_yscale("symlog", linthresh=0.1)
     axes[-1, 0].set_xlabel("time [s]")
-    fig.suptitle("Absolute error over time per estimator (cf. seed Figs. 5.4-5.6)")
+    fig.suptitle("Absolute error over time per estimator")
     fig.tight_layout()
     paths.append(out_dir / "errors.png")
     fig.savefig(paths[-1], dpi=110)

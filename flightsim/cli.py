@@ -21,6 +21,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from secuav_common.broker import parse_broker_url, secret_or_env
+from secuav_common.controlplane.address import with_port
 from secuav_common.extras import require
 from secuav_common.loading import InputError
 from secuav_common.logs import add_common_flags, cli_error, setup_logging
@@ -62,6 +63,8 @@ def build_parser() -> argparse.ArgumentParser:
         "udpout://127.0.0.1:14550 when running without the proxy",
     )
     p.add_argument("--broker", metavar="URL", help="publish ground truth to mqtt://HOST[:PORT] (secuav/v<sysid>/truth)")
+    p.add_argument("--broker-port", type=int, metavar="N",
+                   help="the broker's port: without --broker, publish ground truth to mqtt://127.0.0.1:N")
     p.add_argument("--broker-tls-ca", metavar="FILE", type=Path,
                    help="CA file of a TLS broker (mqtts://) signed by a private CA")  # fmt: skip
     p.add_argument("--broker-username", metavar="NAME", help="broker account (or in the URL: mqtt://NAME@HOST)")
@@ -112,7 +115,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         scenario = load_scenario(args.scenario)
         endpoints = endpoints_for(args.mavlink, scenario)
-        broker = parse_broker_url(args.broker) if args.broker else None
+        url = args.broker or (None if args.broker_port is None else "mqtt://127.0.0.1")
+        broker = parse_broker_url(with_port(url, args.broker_port)) if url else None
         if broker is not None:
             username = args.broker_username or broker.username
             password = secret_or_env(args.broker_password_file, "--broker-password-file") or broker.password

@@ -162,7 +162,7 @@ class Proxy:
             "secure": next((s.stage.config.estimator for s in self.secure.values() if s.stage.config.estimator), "off")
             if self.secure else "unavailable (no --scenario)",
             "secure_on": next((WORDS_ON[s.stage.config.direction] for s in self.secure.values()), "-"),
-            "broker": redact(self.config.broker), "instance": self.instance, "record": self.config.record or "off",
+            "broker": redact(self.config.broker_url), "instance": self.instance, "record": self.config.record or "off",
             "signing": "on" if self.signer else "off",
         })  # fmt: skip
         for slot in self.slots.values():  # the start profile's notes, now that the log says them
@@ -253,13 +253,15 @@ class Proxy:
             return
         from mitm_proxy.control.plane import ControlPlane
         from secuav_common.broker import EmbeddedBroker, parse_broker_url
+        from secuav_common.ports import MQTT_PORT
 
         if cfg.broker == "embedded":
-            embedded = EmbeddedBroker(process=True, username=cfg.broker_username, password=cfg.broker_password)
+            embedded = EmbeddedBroker(port=cfg.broker_port or MQTT_PORT, process=True, username=cfg.broker_username,
+                                      password=cfg.broker_password)  # fmt: skip
             broker = await self._stack.enter_async_context(embedded)  # in its own process: off the forwarding loop
             url = broker.address.url
         else:
-            url = cfg.broker
+            url = cfg.broker_url
         parse_broker_url(url)
         ca = str(cfg.broker_tls_ca) if cfg.broker_tls_ca else None
         plane = ControlPlane(url, self.build_controls(), stats=self.stats_snapshot, describe=self._describe,

@@ -38,7 +38,8 @@ def build_parser() -> argparse.ArgumentParser:
         action="append",
         default=[],
         help="vehicle side (default udpin://127.0.0.1:14560+i): udpin://, udpout://, tcp:// (e.g. ArduPilot SITL's "
-        "tcp://127.0.0.1:5760), tcpin://HOST:PORT or serial:///dev/ttyUSB0?baud=57600; "
+        "tcp://127.0.0.1:5760), tcpin://HOST:PORT or serial:///dev/ttyUSB0?baud=57600 (udp:// means udpin://; "
+        "MAVSDK's udp://:PORT is refused: write udpin://127.0.0.1:PORT or udpin://0.0.0.0:PORT); "
         "once (link i uses PORT+i) or once per link",
     )
     p.add_argument(
@@ -76,9 +77,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--broker",
         metavar="URL",
-        help="embedded (default: amqtt on 127.0.0.1:1883, or the broker already there), "
+        help="embedded (default: amqtt on 127.0.0.1:1883 or --broker-port, or the broker already there), "
         "mqtt://[user:pass@]HOST[:PORT], mqtts://..., or none",
     )
+    p.add_argument("--broker-port", type=int, metavar="N",
+                   help="the broker's port: --broker embedded starts it on 127.0.0.1:N (default 1883), "
+                   "a --broker URL without a port gets N")
     p.add_argument("--broker-username", metavar="NAME",
                    help="broker account; with --broker embedded that broker then admits this account only")
     p.add_argument("--broker-password", metavar="PASS",
@@ -113,8 +117,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 FLAG_KEYS = ("scenario", "vehicles", "profile", "attack", "secure", "secure_direction", "no_uplink_attacks",
-             "broker", "broker_username", "broker_password", "broker_tls_ca", "instance", "record", "signing_key",
-             "seed", "stats_interval_s")  # fmt: skip
+             "broker", "broker_port", "broker_username", "broker_password", "broker_tls_ca", "instance", "record",
+             "signing_key", "seed", "stats_interval_s")  # fmt: skip
 
 
 def config_from_args(args: argparse.Namespace) -> ProxyConfig:

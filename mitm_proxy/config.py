@@ -133,6 +133,11 @@ class ProxyConfig(_Strict):
         False, description="refuse any attack profile with a rule toward the vehicle (direction uplink or both)"
     )
     broker: str = "embedded"  # embedded | none | mqtt://[user:pass@]host[:port] | mqtts://...
+    broker_port: int | None = Field(
+        None, ge=1, le=65535,
+        description="port of the broker on 127.0.0.1: where broker embedded starts (or finds) it (default 1883), "
+        "or the port of the broker URL",
+    )  # fmt: skip
     broker_username: str | None = None
     broker_password: str | None = None
     broker_tls_ca: Path | None = None
@@ -158,6 +163,21 @@ class ProxyConfig(_Strict):
 
         parse_broker_url(v)
         return v
+
+    @model_validator(mode="after")
+    def _broker_port_fits(self) -> ProxyConfig:
+        if self.broker not in ("embedded", "none"):
+            from secuav_common.controlplane.address import with_port
+
+            with_port(self.broker, self.broker_port)  # a URL naming another port: ValueError
+        return self
+
+    @property
+    def broker_url(self) -> str:
+        """``broker`` with ``broker_port`` applied (embedded and none unchanged)."""
+        from secuav_common.controlplane.address import with_port
+
+        return self.broker if self.broker in ("embedded", "none") else with_port(self.broker, self.broker_port)
 
     @model_validator(mode="after")
     def _links_consistent(self) -> ProxyConfig:

@@ -4,13 +4,15 @@
 child process (so MQTT traffic never takes the forwarding loop's time); the
 console, the demos and tests run it on their own loop. If something already listens on
 the port (a mosquitto, or another SecUAV process's embedded broker) we use that
-instead of failing, so two SecUAV processes can share one control plane.
+instead of failing, so two SecUAV processes can share one control plane, and say in
+one line whose it is (the proxies and consoles whose online records say they are on it).
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import logging
 import os
 import socket
@@ -91,6 +93,41 @@ async def admits(
         return False
 
 
+OWNERS_WAIT_S = 0.5  # retained records follow the SUBACK at once; this long is plenty on loopback
+
+
+async def owners(address: BrokerAddress, wait_s: float = OWNERS_WAIT_S) -> str:
+    """Who uses the broker at ``address``, from the retained online records (docs/interfaces.md):
+    ``"proxy lab-a (v1, v2), console 3f2a"``, or a few words saying there is none or they cannot be read."""
+    from secuav_common.controlplane.session import MqttError, Session
+    from secuav_common.controlplane.topics import CONSOLES_ONLINE, INSTANCES_ONLINE, parse
+
+    seen: dict[str, str] = {}
+    session = Session(address, timeout_s=2.0)
+    try:
+        async with session.client() as client:
+            await client.subscribe([(INSTANCES_ONLINE, 0), (CONSOLES_ONLINE, 0)])
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(wait_s):
+                    async for message in client.messages:
+                        topic = parse(str(message.topic))
+                        try:
+                            record = json.loads(bytes(message.payload))  # type: ignore[arg-type]
+                        except (TypeError, ValueError):
+                            continue
+                        if topic is None or topic.key is None or not isinstance(record, dict):
+                            continue
+                        if record.get("online") is not True:
+                            seen.pop(f"{topic.scope} {topic.key}", None)
+                            continue
+                        vehicles = [v for v in record.get("vehicles") or () if isinstance(v, int)]
+                        served = f" ({', '.join(f'v{v}' for v in vehicles)})" if vehicles else ""
+                        seen[f"{topic.scope} {topic.key}"] = f"{topic.scope} {topic.key}{served}"
+    except MqttError as exc:
+        return f"unknown (cannot read its online records: {exc})"
+    return ", ".join(seen.values()) or "none online (no SecUAV proxy or console says it is on it)"
+
+
 class EmbeddedBroker:
     """``async with EmbeddedBroker(port=1883) as broker: ... broker.address``.
 
@@ -127,11 +164,13 @@ class EmbeddedBroker:
                     f"a broker already listens on {self.address.url} and lets anyone in without a password; "
                     "refusing it because broker credentials are configured (stop it, or give another --broker)"
                 )
-            # Someone else's broker (another proxy's, a mosquitto): it works, but it may not be the one meant.
+            # Someone else's broker (another proxy's, a mosquitto): it works, but it may not be the one meant,
+            # so say whose it is (on a shared host it may be another user's).
             log.warning("broker.reuse", extra={
                 "url": self.address.url,
-                "detail": "a broker already listens here and is used as it is (not started by this process); "
-                "give --broker mqtt://HOST:PORT to choose one",
+                "users": await owners(self.address),
+                "detail": "a broker already listens here and is shared as it is (not started by this process); "
+                "give --broker-port N for one of your own, or --broker mqtt://HOST:PORT to choose one",
             })  # fmt: skip
             return self
         if self.process:

@@ -18,7 +18,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from secuav_common import plugins
-from secuav_common.loading import load_model, parse_document, validate
+from secuav_common.loading import InputError, load_model, parse_document, validate
 from secuav_common.sensor_ids import MAX_ANCHORS, MAX_PEER_SYSID, MAX_RANGEFINDERS
 
 Vec3 = tuple[float, float, float]
@@ -278,14 +278,14 @@ class StartPose(_Strict):
 
 
 class HoldTarget(_Strict):
-    """Hold a position (seed test case 1: the area's centre)."""
+    """Hold a position (anchors8: the area's centre)."""
 
     kind: Literal["hold"] = "hold"
     pos_ned_m: Vec3
 
 
 class WallDistanceTarget(_Strict):
-    """Hold a distance from a wall, measured by a rangefinder group (seed Fig. A.5)."""
+    """Hold a distance from a wall, measured by a rangefinder group (wall_hover)."""
 
     kind: Literal["wall_distance"] = "wall_distance"
     wall: str
@@ -295,7 +295,7 @@ class WallDistanceTarget(_Strict):
 
 
 class KeepRangeTarget(_Strict):
-    """Keep a distance from another vehicle (seed test case 2)."""
+    """Keep a distance from another vehicle (formation)."""
 
     kind: Literal["keep_range"] = "keep_range"
     peer: int
@@ -442,15 +442,21 @@ DEFAULT_SCENARIO = SCENARIO_DIR / "wall_hover.yaml"
 
 
 def resolve_scenario_path(name_or_path: str | Path) -> Path:
-    """Accept a path, or a bare name of a bundled scenario (``anchors8``) or of a plugin's (docs/plugins.md)."""
+    """Accept a path, or a bare name of a bundled scenario (``anchors8``) or of a plugin's (docs/plugins.md).
+
+    A bare name that is neither raises ``InputError`` listing the names there are (as a profile name does).
+    """
     path = Path(name_or_path)
-    if path.exists() or path.suffix:
+    if path.exists() or path.suffix or "/" in str(name_or_path):
         return path
     bundled = SCENARIO_DIR / f"{name_or_path}.yaml"
-    if bundled.is_file() or "/" in str(name_or_path):
+    if bundled.is_file():
         return bundled
     found = plugins.yaml_catalogue(plugins.SCENARIOS).get(str(name_or_path))
-    return bundled if found is None else found[0]
+    if found is None:
+        names = ", ".join(scenario_names())
+        raise InputError("scenario", "", str(name_or_path), f"no such file or scenario name (scenarios: {names})")
+    return found[0]
 
 
 def scenario_names(with_plugins: bool = True) -> list[str]:

@@ -13,8 +13,11 @@ connecting (default 15; a GCS's 1 Hz HEARTBEAT is one; ``idle_s=0`` for a script
 ``serial:///dev/ttyUSB0?baud=57600`` is a serial port (a telemetry radio).
 Every stream is framed a slice at a time, so no peer holds up the others (mitm_proxy.net.tcp_serial).
 
+``udp://`` (MAVSDK's spelling) and mavutil's ``udp:`` mean ``udpin``: they listen. MAVSDK's ``udp://:PORT``
+(no host: every interface) is refused with a line that says to write ``udpin://127.0.0.1:PORT`` or, to
+listen on every interface on purpose, ``udpin://0.0.0.0:PORT``.
 mavutil's spellings are accepted too (``udpin:HOST:PORT``, ``udpout:HOST:PORT``, ``tcp:HOST:PORT``,
-``tcpin:HOST:PORT``, ``udp:`` for ``udpin:``, ``/dev/ttyUSB0,57600``), and IPv6 literals in brackets
+``tcpin:HOST:PORT``, ``/dev/ttyUSB0,57600``), and IPv6 literals in brackets
 (``udpin://[::1]:14550``). What follows ``?`` is kept as the endpoint's options (``listen_only=true``,
 ``deny=DISTANCE_SENSOR``; ``mitm_proxy.net.rules`` reads them); ``str()`` gives the canonical URL back.
 """
@@ -92,6 +95,10 @@ def parse_endpoint(url: str) -> Endpoint:
         rest_opts = tuple((k, v) for k, v in options if k != "baud")
         return _serial(url, rest, baud_opts[-1] if baud_opts else None, rest_opts)
     host, colon, port_text = rest.rpartition(":")
+    if colon and not host and scheme in ("udpin", "tcpin"):  # MAVSDK's udp://:14540 (every interface)
+        raise ValueError(f"endpoint {url!r}: give the address to listen on: {scheme}://127.0.0.1:{port_text} "
+                         f"(this machine only) or {scheme}://0.0.0.0:{port_text} (every interface, as MAVSDK's "
+                         f"udp://:{port_text} means)")  # fmt: skip
     if not colon or not host:
         raise ValueError(f"endpoint {url!r}: missing HOST:PORT")
     if host.startswith("["):

@@ -4,7 +4,7 @@ Per attack, magnitude and estimator: the mean over seeds with a 95 % bootstrap
 confidence interval (``scipy.stats.bootstrap``, percentile method, fixed
 random state so the same rows give the same report) of the RMSE, recall and
 detection delay; the worst error over seeds; the false-alarm rate on clean runs;
-and a summary laid out like the seed's Table 5.1. A study that sweeps
+and a summary of error and time per step per attack and estimator. A study that sweeps
 ``estimator_params`` shows each grid point as its own estimator (``secekf alpha=0.001``). Rows that failed are listed,
 and every group whose estimate fraction is below 1 is named: a step without an
 estimate is never silently left out of an error figure.
@@ -186,7 +186,7 @@ def _x_value(params: str | None, axis: str | None) -> float:
 
 
 def _table51(frame: pd.DataFrame, closed_loop: bool = False) -> list[str]:
-    lines = ["## Summary in the layout of the seed's Table 5.1", "",
+    lines = ["## Summary: error and time per step, per attack and estimator", "",
              "Pooled over magnitudes, positions, legs, noise scales and seeds (successful rows only)"
              + ("." if closed_loop else "; RMSE / LS: the mean RMSE over the undefended least-squares fix's."), "",
              "| attack | estimator | mean abs. error [m] | max abs. error [m] | time per step [ms] |"

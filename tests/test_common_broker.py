@@ -20,6 +20,7 @@ async def test_a_broker_already_there_is_reused_and_said_so(caplog: pytest.LogCa
     warnings = [r for r in caplog.records if r.getMessage() == "broker.reuse"]
     assert len(warnings) == 1 and warnings[0].levelno == logging.WARNING
     assert f"127.0.0.1:{port}" in warnings[0].__dict__["url"]
+    assert warnings[0].__dict__["users"].startswith("none online")  # nobody's online record on it
 
 
 async def test_the_proxys_broker_runs_in_its_own_process_and_dies_with_its_parent(tmp_path: object) -> None:

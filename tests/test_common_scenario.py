@@ -94,6 +94,17 @@ def test_missing_file_is_one_line(tmp_path) -> None:
         load_scenario(tmp_path / "nope.yaml")
 
 
+def test_a_mistyped_name_lists_the_scenarios_there_are_not_an_internal_path() -> None:
+    """Issue 36: ``secuav-sim wal_hover`` said ``.../secuav_common/scenarios/wal_hover.yaml: No such file``."""
+    with pytest.raises(InputError) as err:
+        load_scenario("wal_hover")
+    text = str(err.value)
+    assert "'wal_hover'" in text and "scenarios: anchors8, " in text and "wall_hover" in text, text
+    assert "secuav_common" not in text and ".yaml" not in text, text
+    with pytest.raises(InputError, match=r"^lab/nope: "):  # a path stays the user's path
+        load_scenario("lab/nope")
+
+
 @settings(max_examples=200, deadline=None)
 @given(st.text(max_size=200) | st.binary(max_size=200).map(lambda b: b.decode("latin-1")))
 def test_garbage_documents_raise_only_input_error(text: str) -> None:

@@ -54,6 +54,9 @@ def test_options_are_kept_and_printed_back() -> None:
         ("serial://ttyUSB0", "device path"),
         ("serial:///dev/ttyUSB0?baud=fast", "baud 'fast'"),
         ("udpin://127.0.0.1:1?deny", "KEY=VALUE"),
+        # MAVSDK's every-interface form: refused, saying what to write instead (issue 36)
+        ("udp://:14540", "udpin://127.0.0.1:14540 (this machine only) or udpin://0.0.0.0:14540"),
+        ("tcpin://:5760", "tcpin://127.0.0.1:5760"),
     ],
 )
 def test_a_bad_url_is_one_error_naming_it(url: str, needle: str) -> None:

@@ -1,6 +1,7 @@
 """``secuav-console``: the live web console (see ``webconsole.api`` for what it serves).
 
     secuav-console                                   # 127.0.0.1:8080, embedded broker on 127.0.0.1:1883
+    secuav-console --broker-port 1884                # its own broker on 127.0.0.1:1884 (a shared host)
     secuav-console --scenario wall_hover --broker mqtt://127.0.0.1:1883
     secuav-console --listen 0.0.0.0:8443 --password-file console.pw --tls-cert c.pem --tls-key k.pem \
                    --allowed-host console.lab.example
@@ -31,9 +32,11 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from secuav_common.broker import EmbeddedBroker, parse_broker_url, redact, secret_or_env
+from secuav_common.controlplane.address import with_port
 from secuav_common.extras import require
 from secuav_common.loading import InputError
 from secuav_common.logs import add_common_flags, cli_error, setup_logging
+from secuav_common.ports import MQTT_PORT
 from secuav_common.scenario import load_scenario
 
 PROG = "secuav-console"
@@ -48,7 +51,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--listen", default=DEFAULT_LISTEN, metavar="HOST:PORT",
                    help=f"where the page is served (default {DEFAULT_LISTEN}; another address needs a password)")
     p.add_argument("--broker", default="embedded", metavar="URL",
-                   help="embedded (default: amqtt on 127.0.0.1:1883, or the broker already there) or mqtt://HOST:PORT")
+                   help="embedded (default: amqtt on 127.0.0.1:1883 or --broker-port, or the broker already there) "
+                   "or mqtt://HOST:PORT")
+    p.add_argument("--broker-port", type=int, metavar="N",
+                   help="the broker's port: --broker embedded starts it on 127.0.0.1:N (default 1883), "
+                   "a --broker URL without a port gets N")
     p.add_argument("--broker-username", metavar="NAME",
                    help="broker account; with --broker embedded that broker then admits this account only")
     p.add_argument("--broker-password-file", metavar="F", type=Path,
@@ -111,11 +118,12 @@ async def serve(args: argparse.Namespace, host: str, port: int, password: str | 
             loop.add_signal_handler(sig, stop.set)
     async with contextlib.AsyncExitStack() as stack:
         if args.broker == "embedded":
-            embedded = EmbeddedBroker(username=args.broker_username, password=broker_password)
+            embedded = EmbeddedBroker(port=args.broker_port or MQTT_PORT, username=args.broker_username,
+                                      password=broker_password)  # fmt: skip
             broker = await stack.enter_async_context(embedded)
             address = broker.address
         else:
-            address = parse_broker_url(args.broker)
+            address = parse_broker_url(with_port(args.broker, args.broker_port))
         scheme = "https" if args.tls_cert else "http"
         url = f"{scheme}://{host if ':' not in host else f'[{host}]'}:{port}/"
         fleet = Fleet(scenarios)
@@ -156,8 +164,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     require("secuav-console")
     try:
         host, port = parse_listen(args.listen)
+        if args.broker_port is not None and not 0 < args.broker_port < 65536:
+            raise ValueError(f"--broker-port {args.broker_port}: outside 1..65535")
         if args.broker != "embedded":
-            parse_broker_url(args.broker)
+            parse_broker_url(with_port(args.broker, args.broker_port))
         for name in args.scenario:
             load_scenario(name)
         password = secret_or_env(args.password_file, "--password-file", "SECUAV_CONSOLE_PASSWORD")

@@ -25,6 +25,7 @@ from pathlib import Path
 
 from flightsim.companion.feed import SENSORS
 from secuav_common.broker import parse_broker_url
+from secuav_common.controlplane.address import with_port
 from secuav_common.loading import InputError
 from secuav_common.logs import add_common_flags, cli_error, setup_logging
 from secuav_common.scenario import Scenario, load_scenario
@@ -71,10 +72,13 @@ def build_parser() -> argparse.ArgumentParser:
                    "(the proxy listens there: --ground udpin://...) or udpin://HOST:PORT "
                    "(the proxy sends there, as to a GCS)")  # fmt: skip
     p.add_argument("--sysid", type=int, default=None, help="the vehicle to feed (default: the scenario's first)")
-    p.add_argument("--truth", default="mqtt://127.0.0.1:1883", metavar="SRC",
-                   help="mqtt://HOST[:PORT] (secuav-sim --broker: secuav/v<sysid>/truth, default); "
+    p.add_argument("--truth", default=None, metavar="SRC",
+                   help="mqtt://HOST[:PORT] (secuav-sim --broker: secuav/v<sysid>/truth; default "
+                   "mqtt://127.0.0.1:1883, or --broker-port's); "
                    "udpin://, udpout:// or tcp://HOST:PORT (a SITL's truth: SIM_STATE, HIL_STATE_QUATERNION); "
                    "or a .tlog file")  # fmt: skip
+    p.add_argument("--broker-port", type=int, metavar="N",
+                   help="the broker's port (the truth's, without --truth: mqtt://127.0.0.1:N)")
     p.add_argument("--sensors", metavar="LIST",
                    help=f"comma-separated, of {', '.join(SENSOR_NAMES)} (default: what the scenario's "
                    "external block declares)")  # fmt: skip
@@ -142,9 +146,12 @@ def parse_config(args: argparse.Namespace) -> FeedConfig:
         raise ValueError(f"--speed {args.speed}: must be 0 (as fast as possible) or positive")
     if not args.status_interval > 0:
         raise ValueError(f"--status-interval {args.status_interval}: must be positive")
-    truth = args.truth
+    truth = args.truth or "mqtt://127.0.0.1"
     if truth.startswith(("mqtt://", "mqtts://")):
+        truth = with_port(truth, args.broker_port)
         parse_broker_url(truth)
+    elif args.broker_port is not None:
+        raise ValueError(f"--broker-port {args.broker_port}: the truth comes from {truth}, not from a broker")
     elif "://" in truth:
         ep = parse_endpoint(truth)
         if ep.mode not in ("udpin", "udpout", "tcp"):

@@ -11,7 +11,8 @@ that carries that id: the proxy's own verdict, not just the broker's receipt.
 
 A vehicle switch's verb without ``--vehicle`` goes to every vehicle that has
 a retained state of that switch on the broker (else an ``attack/state``), i.e.
-every link of the running proxies. A proxy-wide switch's verb has ``show``
+every link of the running proxies. With ``--vehicle N`` it fails at once (exit 3, naming the vehicles each
+proxy serves) when the proxies' online records say none of them serves N. A proxy-wide switch's verb has ``show``
 (``routes show``) and ``set`` actions on one instance (``--instance`` when
 several are online). ``status`` lists every proxy instance on the broker and
 its vehicles (``--watch``: a live table).
@@ -38,21 +39,24 @@ from attack_profiles import cli as profiles_cli
 from mitm_proxy.tools.board import Board
 from secuav_common.broker import read_secret
 from secuav_common.controlplane import switches
-from secuav_common.controlplane.address import parse_broker_url
+from secuav_common.controlplane.address import parse_broker_url, with_port
 from secuav_common.controlplane.session import Client, MqttError
 from secuav_common.controlplane.session import Session as MqttSession
 from secuav_common.controlplane.topics import ANY, INSTANCES_ONLINE, PROXY_ONLINE, proxy_topic, vehicle_topic
 from secuav_common.loading import InputError
 
-DEFAULT_BROKER = "mqtt://127.0.0.1:1883"
+DEFAULT_HOST = "mqtt://127.0.0.1"
+DEFAULT_BROKER = f"{DEFAULT_HOST}:1883"
 EXIT_OK, EXIT_REJECTED, EXIT_USAGE, EXIT_UNREACHABLE = 0, 1, 2, 3
 
 
 def add_options(command: str, parser: argparse.ArgumentParser) -> None:
     """Transport options of the live subcommands (the ``live_options`` hook of the shared parser)."""
     parser.add_argument(
-        "--broker", default=DEFAULT_BROKER, metavar="URL", help=f"MQTT broker (default {DEFAULT_BROKER})"
+        "--broker", default=None, metavar="URL", help=f"MQTT broker (default {DEFAULT_BROKER})"
     )
+    parser.add_argument("--broker-port", type=int, metavar="N",
+                        help="the broker's port (the one secuav-proxy --broker-port N started; default 1883)")
     parser.add_argument("--timeout", type=float, default=5.0, metavar="S", help="wait this long for the proxy (5)")
     parser.add_argument("--tls-ca", metavar="FILE", help="CA file for a TLS broker (mqtts://)")
     parser.add_argument("--username", metavar="NAME", help="broker user (or in the URL: mqtt://NAME@HOST)")
@@ -78,6 +82,8 @@ Body = Callable[[Client, Board], Awaitable[int]]
 def _session(args: argparse.Namespace, topics: list[str], body: Body) -> int:
     """Connect, subscribe, run ``body``; broker trouble becomes one line and exit 3."""
     try:
+        args.broker = with_port(args.broker or DEFAULT_HOST, args.broker_port) if args.broker_port else (
+            args.broker or DEFAULT_BROKER)  # every message below then names the real port
         address = parse_broker_url(args.broker)
         password = address.password
         if password is None and args.password_file is not None:
@@ -112,6 +118,19 @@ def _session(args: argparse.Namespace, topics: list[str], body: Body) -> int:
         return EXIT_UNREACHABLE
 
 
+def _served_elsewhere(board: Board, sysid: int) -> str | None:
+    """Which vehicles the online proxies serve, when their online records say none serves ``sysid``; else None.
+
+    No online record at all (an older proxy, one still connecting) says nothing: the request is then sent and
+    waits for its acknowledgement as before.
+    """
+    online = {name: rec for name, rec in board.instances().items() if rec.get("online") is True}
+    if not online or any(sysid in (rec.get("vehicles") or ()) for rec in online.values()):
+        return None
+    return "; ".join(f"{name} serves " + (", ".join(f"v{v}" for v in rec.get("vehicles") or ()) or "no vehicle")
+                     for name, rec in online.items())  # fmt: skip
+
+
 def _online(board: Board) -> str:
     value = board.latest.get(PROXY_ONLINE)
     return "online" if value is True else "offline" if value is False else "unknown"
@@ -124,6 +143,11 @@ async def _request(
     leaf = spec.kind
     if args.vehicle is not None:
         vehicles = [args.vehicle]
+        await board.settle(args.timeout)
+        if (elsewhere := _served_elsewhere(board, args.vehicle)) is not None:
+            print(f"secuav-attack: v{args.vehicle}: no proxy on the broker at {args.broker} serves vehicle "
+                  f"{args.vehicle} ({elsewhere})", file=sys.stderr)  # fmt: skip
+            return EXIT_UNREACHABLE
     else:
         await board.settle(args.timeout)
         vehicles = board.vehicles(spec.state_leaf) or board.vehicles()
@@ -165,7 +189,7 @@ def run_verb(spec: switches.SwitchSpec, verb: switches.Verb, args: argparse.Name
         return _session(args, topics, lambda c, b: _proxy_verb(c, b, args, spec, verb, body))
     body = verb.request(args)  # InputError -> exit 1, naming the file or option
     topics = list(dict.fromkeys([vehicle_topic(ANY, spec.kind, "state"), vehicle_topic(ANY, "attack", "state"),
-                                 PROXY_ONLINE]))  # fmt: skip
+                                 PROXY_ONLINE, INSTANCES_ONLINE]))  # fmt: skip
     return _session(args, topics, lambda c, b: _request(c, b, args, spec, verb, body))
 
 

@@ -44,3 +44,22 @@ def redact(url: str) -> str:
         return url
     netloc = parts.netloc.replace(f":{parts.password}@", ":***@", 1)
     return parts._replace(netloc=netloc).geturl()
+
+
+def with_port(url: str, port: int | None) -> str:
+    """``url`` (``mqtt://...``) moved to ``port`` (``--broker-port``); ``ValueError`` if it names another port."""
+    if port is None:
+        return url
+    if not 0 < port < 65536:
+        raise ValueError(f"--broker-port {port}: outside 1..65535")
+    parts = urlsplit(url)
+    try:
+        given = parts.port
+    except ValueError:
+        raise ValueError(f"broker {url!r}: bad port") from None
+    if given is not None and given != port:
+        raise ValueError(f"broker {redact(url)!r} names port {given} but --broker-port says {port}: give one")
+    host = parts.netloc.rpartition("@")[2].rsplit(":", 1)[0] if given is not None else parts.netloc.rpartition("@")[2]
+    userinfo = parts.netloc.rpartition("@")[0]
+    netloc = (f"{userinfo}@" if userinfo else "") + f"{host}:{port}"
+    return parts._replace(netloc=netloc).geturl()

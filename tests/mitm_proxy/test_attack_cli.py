@@ -137,10 +137,13 @@ async def test_clear_and_status(bench: Bench, capsys: pytest.CaptureFixture[str]
     assert report["vehicles"]["v1"]["stats"]["downlink"]["frames_in"] == 10
 
 
-async def test_an_unknown_vehicle_times_out_with_exit_3(bench: Bench, capsys: pytest.CaptureFixture[str]) -> None:
+async def test_an_unknown_vehicle_fails_at_once_with_exit_3(bench: Bench, capsys: pytest.CaptureFixture[str]) -> None:
+    """The proxies' online records list the vehicles they serve: none serves v7, so nothing is sent and
+    nobody waits for an acknowledgement that cannot come (issue 36)."""
     code, out, err = await cli(capsys, "apply", "drift", "--vehicle", "7", "--timeout", "1", "--broker", bench.url)
     assert code == 3 and out == ""
-    assert "v7: no acknowledgement within 1 s (proxy online; is vehicle 7 one of its links?" in err
+    assert f"v7: no proxy on the broker at {bench.url} serves vehicle 7 (" in err and "serves v1, v2)" in err, err
+    assert "no acknowledgement" not in err
 
 
 async def test_no_broker_and_no_proxy_exit_3(capsys: pytest.CaptureFixture[str], tcp_port: Callable[[], int]) -> None:

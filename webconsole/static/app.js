@@ -5,7 +5,8 @@
 
 const PLOT_WINDOW_S = 60;   // seconds of readings on the plots
 const TRAIL_S = 15;         // seconds of trail on the top view
-const MAX_PLOTS = 4;        // sensor plots shown at once
+const MAX_PLOTS = 6;        // sensor plots ticked at first when the target names no sensor group
+const NO_PROFILE = "";      // the library drop-down's entry for "no attack in force"
 // The switches the panel has controls of its own for; every other declared vehicle switch (the row's
 // `switches`) is listed generically under "Other switches", with a field to send it a JSON request.
 const OWN_CONTROLS = new Set(["attack", "attack/mode", "secure"]);
@@ -24,6 +25,8 @@ const state = {
   picked: new Set(),        // sensor ids plotted
   plots: new Map(),         // id -> uPlot
   formsFor: null,           // the vehicle whose state the forms were last filled from
+  formsProfile: null,       // the profile in force they were filled from ("" none)
+  secureFormsFor: null,     // the vehicle whose secure stage the estimator form was filled from
   switchItems: new Map(),   // kind -> its <li> under "Other switches" (kept, so a half-typed request survives)
   dirty: false,
 };
@@ -54,6 +57,11 @@ function showAck(what, result) {
     lines.push(`estimator: ${d.estimator || "off"}${given}`);
   }
   box.textContent = lines.join("\n");
+  if (result.status === 200) {   // a later success: an old profile error no longer describes what is in force
+    $("yaml-error").hidden = true;
+    $("yaml-error").textContent = "";
+    $("yaml").classList.remove("invalid");
+  }
 }
 
 // ---------------------------------------------------------------- fleet table
@@ -120,12 +128,19 @@ function renderFleet(rows) {
     return tr;   // selected on pointerdown, by one listener on the table body (init)
   }));
   const mine = rows.find((r) => r.sysid === state.selected);
-  if (mine && state.formsFor !== mine.sysid) {   // the controls start from what is in force
+  if (mine && (state.formsFor !== mine.sysid || state.formsProfile !== (mine.profile || NO_PROFILE))) {
+    // the controls start from what is in force, and follow it when it changes (a Clear, another operator)
     state.formsFor = mine.sysid;
-    if (mine.profile && state.library.some((p) => p.name === mine.profile)) {
-      $("library").value = mine.profile;
+    state.formsProfile = mine.profile || NO_PROFILE;
+    const fromLibrary = mine.profile && state.library.some((p) => p.name === mine.profile);
+    // a pasted profile in force leaves the drop-down and the text as they are (the text is the operator's)
+    if ((fromLibrary || !mine.profile) && $("library").value !== (mine.profile || NO_PROFILE)) {
+      $("library").value = mine.profile || NO_PROFILE;
       renderParams();
     }
+  }
+  if (mine && state.formsFor === mine.sysid && state.secureFormsFor !== mine.sysid) {
+    state.secureFormsFor = mine.sysid;
     if (mine.secure_available) {
       $("estimator").value = mine.secure || "off";
       renderEstimatorParams(mine.secure_params || {});
@@ -281,7 +296,7 @@ function ingest(s) {
       if (!series) {
         series = { t: [], original: [], attacked: [], forwarded: [], secure: [], truth: [] };
         state.sensors.set(id, series);
-        if (state.picked.size < MAX_PLOTS) state.picked.add(id);
+        if (pickedByDefault(id)) state.picked.add(id);
         renderPicker();
       }
       series.t.push(s.t);
@@ -324,6 +339,14 @@ async function select(sysid) {
   const { data } = await api(`/api/vehicles/${sysid}`);
   state.world = data && data.world ? data.world : null;
   connect();
+}
+
+// A sensor is plotted from the start when the vehicle's target holds on it (wall_hover's five forward sensors,
+// the radar among them), or, when the target names no group, while fewer than MAX_PLOTS are.
+function pickedByDefault(id) {
+  const v = state.world && state.world.vehicles[String(state.selected)];
+  const held = v && v.target && Array.isArray(v.target.sensor_ids) ? v.target.sensor_ids.map(String) : [];
+  return held.length ? held.includes(id) : state.picked.size < MAX_PLOTS;
 }
 
 function renderPicker() {
@@ -573,6 +596,10 @@ async function applySecure() {
 
 async function applyLibrary() {
   if (state.selected === null) return;
+  if ($("library").value === NO_PROFILE) {
+    showAck("attack", { status: 422, data: { error: "choose a profile to apply (Clear removes the one in force)" } });
+    return;
+  }
   const result = await api(`/api/vehicles/${state.selected}/attack`, { profile: $("library").value, params: params() });
   if (result.status === 422 && result.data.field) {
     for (const input of $("params").querySelectorAll("input")) {
@@ -589,7 +616,7 @@ async function applyYaml() {
   const invalid = result.status === 422;
   $("yaml").classList.toggle("invalid", invalid);
   error.hidden = !invalid;
-  error.textContent = invalid ? (result.data.field ? `${result.data.field}: ` : "") + result.data.error : "";
+  error.textContent = invalid ? result.data.error : "";   // the error already names the field
   error.dataset.field = invalid && result.data.field ? result.data.field : "";
   showAck("attack (pasted profile)", result);
 }
@@ -603,14 +630,23 @@ async function init() {
   const [library, estimators] = await Promise.all([api("/api/library"), api("/api/estimators/params")]);
   state.library = library.data || [];
   state.estimators = Array.isArray(estimators.data) ? estimators.data : [];
-  $("library").replaceChildren(...state.library.map((p) => new Option(p.name, p.name)));
+  $("library").replaceChildren(new Option("(no profile)", NO_PROFILE), ...state.library.map((p) => new Option(p.name, p.name)));
   $("estimator").replaceChildren(new Option("off", "off"), ...state.estimators.map((e) => new Option(e.name, e.name)));
   $("estimator").addEventListener("change", () => renderEstimatorParams());
   renderEstimatorParams();
   $("library").addEventListener("change", renderParams);
   renderParams();
   $("apply-library").addEventListener("click", applyLibrary);
-  $("clear-attack").addEventListener("click", () => post("attack", { profile: null }, "attack cleared"));
+  $("clear-attack").addEventListener("click", async () => {
+    if (state.selected === null) return;
+    const result = await api(`/api/vehicles/${state.selected}/attack`, { profile: null });
+    if (result.status === 200) {   // nothing in force now: the drop-down says so (the fleet row follows)
+      $("library").value = NO_PROFILE;
+      state.formsProfile = NO_PROFILE;
+      renderParams();
+    }
+    showAck("attack cleared", result);
+  });
   $("apply-yaml").addEventListener("click", applyYaml);
   $("upload").addEventListener("change", async (event) => {
     const file = event.target.files[0];
