@@ -16,7 +16,9 @@
 # when the tree has a build), PX4_INSTANCE (default 0: the first PX4 instance number, which moves
 # PX4's own ports and run folder so two runs on one machine do not collide), SECUAV_PX4_PROXY_PORT
 # (default 14560: vehicle k sends to it + k), SECUAV_PX4_DIRECT_PORT (unset: a second, direct GCS
-# link to it + k), PX4_HOME_LAT / PX4_HOME_LON / PX4_HOME_ALT (SIH's home), PX4_NICE (default 5).
+# link to it + k), PX4_HOME_LAT / PX4_HOME_LON / PX4_HOME_ALT (SIH's home), PX4_NICE (default 5),
+# SECUAV_PX4_PARAMS (a file of PX4 `param set` lines, e.g. scripts/sitl/px4/inputs-vision.params,
+# sourced before the simulator and EKF2 start).
 # Nothing of PX4 is kept in this repository; see docs/px4.md.
 set -euo pipefail
 
@@ -117,4 +119,4 @@ cmd_run() {
   echo "a PX4 instance stopped; see $cache/run/*/px4.log" >&2
 }
 
-sitl_main 20 "$@"
+sitl_main 22 "$@"
