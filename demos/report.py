@@ -33,6 +33,10 @@ PANELS: dict[str, list[tuple[str, str, float | None]]] = {
         ("truth", "true height above ground [m] (SITL)", 5.0),
         ("seen", "height the controller used [m]", 5.0),
     ],
+    "vision": [  # on PX4 SIH: docs/px4.md
+        ("drift", "true distance from the hold point [m] (SIH)", 0.0),
+        ("estimate_error", "PX4's position estimate minus truth [m]", 0.0),
+    ],
 }
 SURFACE = {"wall-hover": "wall", "height-hold": "ground"}  # the true-distance panel's zero line
 
