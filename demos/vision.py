@@ -23,6 +23,7 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import shutil
 import socket
 import subprocess
 import threading
@@ -253,6 +254,8 @@ def fly(case: Case, opts: Options) -> dict[str, Any]:
             if p.poll() is None:
                 p.terminate()
         px4.stop()
+        if px4.run_log.is_file():  # PX4's own log, which the next case's start overwrites
+            shutil.copyfile(px4.run_log, out / "px4.log")
         for p in procs.values():
             try:
                 p.wait(10.0)
@@ -285,13 +288,25 @@ def _stats(values: list[float]) -> dict[str, float | None]:
     return {"rms": round(rms, 3), "max": round(max(values), 3), "final": round(values[-1], 3)}
 
 
+def _slope(pts: list[tuple[float, float]]) -> float | None:
+    """Least-squares slope of (t, v); None with fewer than two distinct times."""
+    if len(pts) < 2:
+        return None
+    mt = sum(t for t, _ in pts) / len(pts)
+    mv = sum(v for _, v in pts) / len(pts)
+    den = sum((t - mt) ** 2 for t, _ in pts)
+    return None if den == 0 else sum((t - mt) * (v - mv) for t, v in pts) / den
+
+
 def score(truth: list[tuple[float, float, float, float]], estimate: list[tuple[float, float, float, float]],
           target: tuple[float, float, float], t0: float, t1: float, attack_s: float | None,
           params: dict[str, Any], case: Case) -> dict[str, Any]:  # fmt: skip
     """Truth-scored figures of the window ``t0``..``t1`` (monotonic s).
 
     The hold point is where the vehicle truly was in the second before ``t0``; ``drift_m`` is the true
-    horizontal distance from it, ``estimate_error_m`` PX4's LOCAL_POSITION_NED against the truth at the same
+    horizontal distance from it, ``north_rate_m_s`` the true north displacement's least-squares rate once
+    the lie began (the ramp's own rate, with the opposite sign, when the vehicle flies off by the lie),
+    ``estimate_error_m`` PX4's LOCAL_POSITION_NED against the truth at the same
     moment, ``estimate_from_setpoint_m`` what PX4's own estimate says of its distance from the setpoint.
     """
     before = [r for r in truth if t0 - 1.0 <= r[0] < t0]
@@ -314,6 +329,10 @@ def score(truth: list[tuple[float, float, float, float]], estimate: list[tuple[f
         series["drift"].append((rel, round(d, 3)))
         series["north"].append((rel, round(n - hn, 3)))
         series["estimate_error"].append((rel, round(x, 3)))
+    # The true north displacement's rate while the lie grows (least squares over the window after it began).
+    since = attack_s if attack_s is not None else t0
+    pts = [(t, n - hn) for t, n, _e, _d in window if t >= since]
+    rate = _slope(pts)
     ramp = params.get("rate_m_s", 0.2) if case.attack is not None else 0.0
     lie_s = (t1 - attack_s) if attack_s is not None else 0.0
     return {
@@ -321,6 +340,7 @@ def score(truth: list[tuple[float, float, float, float]], estimate: list[tuple[f
         "scored_s": round(t1 - t0, 1), "truth_samples": len(window),
         "hold_point_ned_m": [round(hn, 3), round(he, 3)], "setpoint_ned_m": [round(c, 3) for c in target],
         "drift_m": _stats(drift), "north_displacement_final_m": round(north[-1], 3),
+        "north_rate_m_s": None if rate is None else round(rate, 4),
         "lie_at_end_m": round(ramp * lie_s, 2) if attack_s is not None else 0.0,
         "attack_applied_after_s": None if attack_s is None else round(attack_s - t0, 2),
         "estimate_error_m": _stats(err), "estimate_from_setpoint_m": _stats(said),
@@ -335,5 +355,6 @@ async def run_case(case: Case, opts: Options) -> dict[str, Any]:
 def summary(f: dict[str, Any]) -> str:
     d, x, s = f["drift_m"], f["estimate_error_m"], f["estimate_from_setpoint_m"]
     return (f"true drift rms {d['rms']} m, max {d['max']} m, north at end {f['north_displacement_final_m']:+} m "
+            f"({f['north_rate_m_s']:+} m/s) "
             f"(lie at end {f['lie_at_end_m']} m); PX4's estimate vs truth rms {x['rms']} m, max {x['max']} m; "
             f"PX4's estimate from its setpoint rms {s['rms']} m")  # fmt: skip

@@ -103,8 +103,9 @@ def test_the_scoring_measures_true_drift_and_the_estimate_against_truth() -> Non
     assert math.isclose(f["estimate_error_m"]["final"], 4.0, abs_tol=0.02)
     assert f["estimate_from_setpoint_m"]["max"] == 0.0
     assert f["lie_at_end_m"] == 4.0 and f["north_displacement_final_m"] == pytest.approx(4.0, abs=0.02)
+    assert f["north_rate_m_s"] == pytest.approx(rate, abs=1e-3)  # the truth moved at the ramp's rate
     held = vision.score(estimate, estimate, (1.0, -2.0, -5.0), t0, t0 + 20.0, None, {}, Case(None, "secekf"))
-    assert held["drift_m"]["max"] == 0.0 and held["lie_at_end_m"] == 0.0
+    assert held["drift_m"]["max"] == 0.0 and held["lie_at_end_m"] == 0.0 and held["north_rate_m_s"] == 0.0
 
 
 def test_the_parameters_file_turns_on_vision_and_off_gps() -> None:
