@@ -50,11 +50,11 @@ class Run:
     down_out: list[bytes] = field(default_factory=list)
 
 
-def fly(scenario: Scenario, secure: SecureConfig | None, seconds: float = 20.0) -> Run:
+def fly(scenario: Scenario, secure: SecureConfig | None, seconds: float = 20.0, profile: dict | None = None) -> Run:
     """The companion (sysid 1, compid 197) sends vision at 30 Hz and the eight anchor ranges at 10 Hz toward the
     vehicle; the vehicle sends LOCAL_POSITION_NED and ATTITUDE toward the ground."""
     slot = AttackSlot(1, scenario)
-    assert slot.offer(parse_profile(RAMP, "ramp.yaml")).ok
+    assert slot.offer(parse_profile(profile or RAMP, "ramp.yaml")).ok
     stages: list = [AttackStage(slot)]
     if secure is not None:
         stages.append(SecureStage(secure, scenario, 1))
@@ -132,3 +132,24 @@ def test_on_the_downlink_the_vision_fed_to_the_vehicle_is_left_alone(scenario: S
     got = vision_received(run.up_out)
     late = got[got[:, 0] > 15.0]
     assert np.all(late[:, 1] - TRUE[0] > RAMP_M_S * 14.0)
+
+
+def test_when_the_anchors_cannot_be_trusted_the_vision_frames_keep_the_last_trusted_position(
+    scenario: Scenario,
+) -> None:
+    """Four of the eight anchor ranges lie too, from 5 s (more than secekf corrects): the estimate is degraded,
+    and the autopilot is given the last position that was not, never the degraded one nor the ramped vision."""
+    lying = [{"target": {"message": "DISTANCE_SENSOR", "sensor_id": sid, "field": "current_distance",
+                         "direction": "uplink"}, "kind": "bias", "offset": 1.5, "start_s": 5.0}
+             for sid in (10, 11, 12, 13)]  # fmt: skip
+    profile = {"name": "vision-and-anchors", "rules": [*RAMP["rules"], *lying]}
+    stage_cfg = SecureConfig(estimator="secekf", executor="inline", direction="uplink")
+    run = fly(scenario, stage_cfg, profile=profile)
+    got = vision_received(run.up_out)
+    mav = mavlink.MAVLink(None)
+    sent = (mav.parse_char(bytearray(r)) for r in run.up_out[-200:])
+    flagged = [m.signal_quality for m in sent if m.get_type() == "DISTANCE_SENSOR"]
+    assert len(flagged) > 100 and np.mean(np.array(flagged) == 1) > 0.9  # the estimate is not to be trusted
+    late = got[got[:, 0] > 8.0]
+    err = np.hypot(late[:, 1] - TRUE[0], late[:, 2] - TRUE[1])
+    assert err.max() < 0.3, err.max()  # the last trusted fix, not the 1.5 m lie nor the ramp (up to 10 m)
