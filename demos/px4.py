@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -76,14 +77,17 @@ class Px4:
         self.proc = subprocess.Popen(["bash", str(PX4_SH), "run", "1"], stdout=self.log.open("wb"),
                                      stderr=subprocess.STDOUT, start_new_session=True, env=env)  # fmt: skip
 
-    def wait_started(self, timeout_s: float = 120.0) -> None:
+    def wait_started(self, timeout_s: float = 120.0, stop: threading.Event | None = None) -> None:
+        """Until PX4's startup script has run; ``stop`` set: ``RuntimeError`` at once."""
+        stop = stop or threading.Event()
         end = time.monotonic() + timeout_s
         while time.monotonic() < end:
             if self.run_log.is_file() and STARTED in self.run_log.read_text(errors="replace"):
                 return
             if self.proc is not None and self.proc.poll() is not None:
                 break
-            time.sleep(0.5)
+            if stop.wait(0.5):
+                raise RuntimeError("stopped while PX4 was starting")
         raise RuntimeError(f"PX4 did not finish its startup script in {timeout_s:.0f} s: see {self.run_log}")
 
     def stop(self) -> None:

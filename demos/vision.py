@@ -21,6 +21,7 @@ second, direct link. Each case starts a fresh PX4; the flight ends by stopping P
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import math
 import shutil
@@ -140,7 +141,17 @@ class Setpoints:
         self._thread.join(2.0)
 
 
-def _wait(what: str, ok: Any, timeout_s: float, procs: dict[str, subprocess.Popen[bytes]], out: Path) -> None:
+class Stopped(RuntimeError):
+    """The flight was asked to stop (Ctrl-C, SIGTERM: ``run_case`` cancelled)."""
+
+
+def _sleep(stop: threading.Event, seconds: float) -> None:
+    if stop.wait(seconds):
+        raise Stopped("stopped")
+
+
+def _wait(what: str, ok: Any, timeout_s: float, procs: dict[str, subprocess.Popen[bytes]], out: Path,
+          stop: threading.Event) -> None:  # fmt: skip
     end = time.monotonic() + timeout_s
     while time.monotonic() < end:
         if ok():
@@ -148,7 +159,7 @@ def _wait(what: str, ok: Any, timeout_s: float, procs: dict[str, subprocess.Pope
         for name, p in procs.items():
             if p.poll() is not None:
                 raise RuntimeError(f"{name} exited ({p.returncode}) while waiting for {what}: see {out / name}.log")
-        time.sleep(0.2)
+        _sleep(stop, 0.2)
     raise RuntimeError(f"timed out after {timeout_s:.0f} s waiting for {what}; logs in {out}")
 
 
@@ -157,8 +168,11 @@ def _applied(proxy_log: Path) -> int:
     return proxy_log.read_text(errors="replace").count("attack.applied") if proxy_log.is_file() else 0
 
 
-def fly(case: Case, opts: Options) -> dict[str, Any]:
-    """One flight of one case (blocking); the figures of :func:`score` plus the flight's own facts."""
+def fly(case: Case, opts: Options, stop: threading.Event | None = None) -> dict[str, Any]:
+    """One flight of one case (blocking); the figures of :func:`score` plus the flight's own facts.
+
+    ``stop`` set: :class:`Stopped` at the next wait, every process stopped on the way out."""
+    stop = stop or threading.Event()
     if opts.px4 is None:
         raise ValueError("the vision demo flies PX4 SIH: Options.px4 is required")
     scenario = load_scenario(SCENARIO)
@@ -179,7 +193,7 @@ def fly(case: Case, opts: Options) -> dict[str, Any]:
 
     try:
         px4.start()
-        px4.wait_started()
+        px4.wait_started(stop=stop)
         secure = [] if case.secure == "off" else ["--secure", case.secure, "--secure-direction", "uplink"]
         start("proxy", [tool("secuav-proxy"), "--scenario", SCENARIO,
                         "--vehicle", f"udpin://127.0.0.1:{proxy_port}", "--ground", f"udpout://127.0.0.1:{gcs_port}",
@@ -189,11 +203,11 @@ def fly(case: Case, opts: Options) -> dict[str, Any]:
         start("feed", [tool("secuav-feed"), SCENARIO, "--sensors", "vision,uwb", "--compid", "197",
                        "--to", f"udpout://127.0.0.1:{feed_port}", "--truth", f"udpin://127.0.0.1:{direct_port}",
                        "--status-interval", "10"])  # fmt: skip
-        _wait("PX4's HEARTBEAT through the proxy", gcs.heard.is_set, 60.0, procs, out)
+        _wait("PX4's HEARTBEAT through the proxy", gcs.heard.is_set, 60.0, procs, out, stop)
         hsq = mavutil.mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION
         for _ in range(5):
             gcs.command(mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, hsq, 50_000)
-            time.sleep(1.0)
+            _sleep(stop, 1.0)
             if gcs.last("truth") is not None:
                 break
 
@@ -203,18 +217,18 @@ def fly(case: Case, opts: Options) -> dict[str, Any]:
                 return False
             return math.hypot(est[1] - t[1], est[2] - t[2]) < 0.3
 
-        _wait("PX4's estimate to settle on the fed vision", aligned, READY_S, procs, out)
-        time.sleep(3.0)
+        _wait("PX4's estimate to settle on the fed vision", aligned, READY_S, procs, out, stop)
+        _sleep(stop, 3.0)
         est = gcs.last("estimate")
         assert est is not None
         target = (est[1], est[2], hold_z)
         setpoints = Setpoints(gcs, target)
-        time.sleep(1.0)
+        _sleep(stop, 1.0)
         deadline = time.monotonic() + 30.0
         while not (gcs.armed and gcs.mode == PX4_OFFBOARD) and time.monotonic() < deadline:
             gcs.command(mavutil.mavlink.MAV_CMD_DO_SET_MODE, 1, PX4_OFFBOARD)
             gcs.command(mavutil.mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
-            time.sleep(1.5)
+            _sleep(stop, 1.5)
         if not (gcs.armed and gcs.mode == PX4_OFFBOARD):
             raise RuntimeError(f"PX4 would not arm in Offboard in 30 s (its last texts: {gcs.texts[-3:]})")
         armed_s = time.monotonic()
@@ -223,8 +237,8 @@ def fly(case: Case, opts: Options) -> dict[str, Any]:
             t = gcs.last("truth")
             return t is not None and t[3] < hold_z + 0.3
 
-        _wait(f"the climb to {-hold_z:g} m", airborne, AIRBORNE_S, procs, out)
-        time.sleep(opts.settle_s)
+        _wait(f"the climb to {-hold_z:g} m", airborne, AIRBORNE_S, procs, out, stop)
+        _sleep(stop, opts.settle_s)
         t0 = time.monotonic()
         attack_s: float | None = None
         if case.attack is not None:
@@ -236,11 +250,11 @@ def fly(case: Case, opts: Options) -> dict[str, Any]:
                 if _applied(out / "proxy.log") > before:
                     attack_s = time.monotonic()
                     break
-                time.sleep(0.1)
+                _sleep(stop, 0.1)
             if attack_s is None:
                 raise RuntimeError(f"the proxy did not apply {case.attack} within 15 s: see {out / 'proxy.log'}")
         end = t0 + opts.seconds
-        _wait(f"{opts.seconds:g} s of hold", lambda: time.monotonic() >= end, opts.seconds + 5.0, procs, out)
+        _wait(f"{opts.seconds:g} s of hold", lambda: time.monotonic() >= end, opts.seconds + 5.0, procs, out, stop)
         t1 = time.monotonic()
         with gcs._lock:
             truth, estimate = list(gcs.truth), list(gcs.estimate)
@@ -349,7 +363,16 @@ def score(truth: list[tuple[float, float, float, float]], estimate: list[tuple[f
 
 
 async def run_case(case: Case, opts: Options) -> dict[str, Any]:
-    return await asyncio.to_thread(fly, case, opts)
+    """The flight in a thread; cancelled (Ctrl-C), it tells the thread to stop and waits for its clean-up."""
+    stop = threading.Event()
+    flight = asyncio.ensure_future(asyncio.to_thread(fly, case, opts, stop))
+    try:
+        return await asyncio.shield(flight)
+    except asyncio.CancelledError:
+        stop.set()
+        with contextlib.suppress(Exception):
+            await flight  # PX4, proxy and feed are stopped before the cancellation goes on
+        raise
 
 
 def summary(f: dict[str, Any]) -> str:
