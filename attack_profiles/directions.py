@@ -75,7 +75,11 @@ in ``secure/set``, default ``downlink``): with ``uplink`` it reads its sensor gr
 from the frames travelling to the vehicle (a companion's redundant rangefinders)
 and substitutes the secure estimate in them, so the autopilot receives it,
 while everything the vehicle sends passes byte for byte
-(mitm_proxy/README.md).
+(mitm_proxy/README.md). With UWB anchor ranges fed alongside external vision,
+the anchors group also writes its secure position into the VISION_POSITION_ESTIMATE
+frames travelling to the vehicle (while degraded, the last position that was not):
+a second source standing in for a vision feed that may lie (docs/px4.md, the
+vision demo).
 """
 
 from __future__ import annotations

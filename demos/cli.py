@@ -1,9 +1,10 @@
-"""``secuav-demo wall-hover|localise|formation|height-hold|rangefinder-feed``: fly a closed-loop demo, report.
+"""``secuav-demo wall-hover|localise|formation|height-hold|rangefinder-feed|vision``: fly a closed-loop demo.
 
 wall-hover, localise and formation fly ``secuav-sim`` (``--autopilot flightsim``); height-hold flies
 ArduCopter SITL (``--autopilot ardupilot``), whose binary is built outside the package (docs/ardupilot.md);
 rangefinder-feed flies either (ArduCopter SITL by default), holding altitude on the vehicle from a
-companion's rangefinders that the attack rewrites on their way to it (docs/ardupilot.md).
+companion's rangefinders that the attack rewrites on their way to it (docs/ardupilot.md); vision flies
+PX4 SIH (``--autopilot px4``, docs/px4.md), built outside the package too.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from pathlib import Path
 from types import ModuleType
 
 from attack_profiles.resolve import parse_params
-from demos import formation, height_hold, localise, rangefinder_feed, sitl, wall_hover
+from demos import formation, height_hold, localise, px4, rangefinder_feed, sitl, vision, wall_hover
 from demos.flight import Case, Options
 from demos.report import plot, write_report
 from demos.stack import Ports
@@ -30,9 +31,10 @@ from secuav_common.logs import add_common_flags
 DEMOS: dict[str, ModuleType] = {
     "wall-hover": wall_hover, "localise": localise, "formation": formation, "height-hold": height_hold,
     "rangefinder-feed": rangefinder_feed,
+    "vision": vision,
 }  # fmt: skip
-AUTOPILOTS = ("flightsim", "ardupilot")
-NO_SITL = 3  # exit code: the demo needs an ArduPilot SITL binary and none was found (docs/interfaces.md)
+AUTOPILOTS = ("flightsim", "ardupilot", "px4")
+NO_SITL = 3  # exit code: the demo needs an ArduPilot or PX4 SITL binary and none was found (docs/interfaces.md)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -41,11 +43,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="wall-hover, localise, formation fly secuav-sim; height-hold flies the wall-hover "
                    "problem on ArduCopter SITL, as height over ground on three downward rangefinders "
                    "(docs/ardupilot.md); rangefinder-feed holds altitude on the vehicle itself from three rangefinders "
-                   "a companion feeds it through the proxy, lied to on their way (docs/ardupilot.md)")  # fmt: skip
+                   "a companion feeds it through the proxy, lied to on their way (docs/ardupilot.md); vision flies "
+                   "PX4 SIH holding position on external vision fed through the proxy (docs/px4.md)")  # fmt: skip
     p.add_argument("--autopilot", choices=AUTOPILOTS, default=None,
-                   help="the vehicle: flightsim (secuav-sim; wall-hover, localise, formation) or ardupilot "
-                   "(ArduCopter SITL; height-hold); rangefinder-feed flies both, ardupilot by default "
-                   "(default: the demo's)")  # fmt: skip
+                   help="the vehicle: flightsim (secuav-sim; wall-hover, localise, formation), ardupilot "
+                   "(ArduCopter SITL; height-hold), px4 (PX4 SIH; vision); rangefinder-feed flies flightsim or "
+                   "ardupilot, ardupilot by default (default: the demo's)")  # fmt: skip
     p.add_argument("--attack", default=None,
                    help="library profile name or profile file; 'none' for no attack (default: the demo's)")  # fmt: skip
     p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
@@ -63,13 +66,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--broker-port", type=int, default=None, metavar="N",
                    help="the demo's own broker on 127.0.0.1:N (default 1883, or the --base-port block's)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar per flight")
-    sim = p.add_argument_group("ArduPilot SITL (--autopilot ardupilot)")
+    sim = p.add_argument_group("ArduPilot SITL and PX4 SIH (--autopilot ardupilot, px4)")
     sim.add_argument("--sitl-binary", type=Path, default=None,
                      help="ArduCopter SITL binary (default: $ARDUPILOT_BIN, else latest/arducopter in "
-                     "$SECUAV_ARDUPILOT_CACHE, which defaults to ~/.cache/secuav/ardupilot)")  # fmt: skip
+                     "$SECUAV_ARDUPILOT_CACHE, which defaults to ~/.cache/secuav/ardupilot); with px4 the px4 "
+                     "binary (default: $PX4_BIN, else latest/bin/px4 in $SECUAV_PX4_CACHE, ~/.cache/secuav/px4)",
+                     )  # fmt: skip
     sim.add_argument("--instance", type=int, default=None,
                      help=f"SITL instance I: MAVLink on tcp 5760+10*I, truth on 5762+10*I "
-                     f"(default {sitl.DEFAULT_INSTANCE})")  # fmt: skip
+                     f"(default {sitl.DEFAULT_INSTANCE}); with px4 PX4's instance (its ports 18570+I, "
+                     f"default {px4.DEFAULT_INSTANCE})")  # fmt: skip
     sim.add_argument("--speedup", type=float, default=None, help="SITL's speed-up over real time (default 1)")
     p.add_argument("-v", "--verbose", action="store_true")
     add_common_flags(p, log_flags=False)
@@ -94,10 +100,14 @@ def check_autopilot(args: argparse.Namespace) -> str | None:
         return f"{args.demo} flies on {' or '.join(flies)}, not {args.autopilot}{why}"
     sitl_flags = [f for f, v in (("--sitl-binary", args.sitl_binary), ("--instance", args.instance),
                                  ("--speedup", args.speedup)) if v is not None]  # fmt: skip
-    if args.autopilot != "ardupilot" and sitl_flags:
-        return f"{', '.join(sitl_flags)}: only with --autopilot ardupilot"
+    if args.autopilot == "flightsim" and sitl_flags:
+        return f"{', '.join(sitl_flags)}: only with --autopilot ardupilot or px4"
+    if args.autopilot == "px4" and args.speedup is not None:
+        return "--speedup: only with --autopilot ardupilot (PX4 SIH runs in real time here)"
     if args.autopilot == "ardupilot" and args.seed is not None:
         return "--seed: flightsim's noise seed; ArduPilot SITL draws its own"
+    if args.autopilot == "px4" and args.seed is not None:
+        return "--seed: flightsim's noise seed; PX4 SIH draws its own (the feed's noise is the scenario's seed)"
     if args.instance is not None and args.instance < 0:
         return f"--instance: a non-negative integer, got {args.instance}"
     if args.speedup is not None and args.speedup <= 0:
@@ -122,14 +132,23 @@ def ports_of(args: argparse.Namespace) -> Ports:
     return ports if args.broker_port is None else dataclasses.replace(ports, mqtt=args.broker_port)
 
 
-async def _main(args: argparse.Namespace, sim: sitl.SitlOptions | None) -> int:
+def px4_options(args: argparse.Namespace) -> px4.Px4Options | None:
+    """The PX4 to fly for ``--autopilot px4`` (``px4.NoPx4`` when there is no binary), else None."""
+    if args.autopilot != "px4":
+        return None
+    binary = px4.find_binary(args.sitl_binary)
+    return px4.Px4Options(binary, px4.DEFAULT_INSTANCE if args.instance is None else args.instance)
+
+
+async def _main(args: argparse.Namespace, sim: sitl.SitlOptions | None, px4_opts: px4.Px4Options | None = None) -> int:
     demo = DEMOS[args.demo]
     out = args.out or Path("out") / args.demo
     matrix = args.matrix or (args.attack is None and args.secure is None)
     ports = ports_of(args)
     params = {**getattr(demo, "DEFAULT_PARAMS", {}), **parse_params(args.param)}
     opts = Options(out=out, seconds=args.seconds, settle_s=args.settle, seed=args.seed, ports=ports,
-                   attack_params=params, progress=not args.no_progress and sys.stderr.isatty(), sitl=sim)  # fmt: skip
+                   attack_params=params, progress=not args.no_progress and sys.stderr.isatty(), sitl=sim,
+                   px4=px4_opts)  # fmt: skip
     settings: dict[str, object] = {"autopilot": args.autopilot}
     if sim is not None:
         built = sitl.build_info(sim.binary)
@@ -138,6 +157,10 @@ async def _main(args: argparse.Namespace, sim: sitl.SitlOptions | None) -> int:
         print(f"ArduPilot SITL {built.get('version', '?')} built from {built.get('commit', '?')}: {sim.binary}, "
               f"instance {sim.instance} (tcp {sitl.tcp_port(sim.instance)}), speedup {sim.speedup:g}",
               flush=True)  # fmt: skip
+    if px4_opts is not None:
+        built = px4.build_info(px4_opts.binary)
+        settings.update(px4=built, px4_binary=str(px4_opts.binary), px4_instance=px4_opts.instance)
+        print(f"PX4 SIH {built['commit']}: {px4_opts.binary}, instance {px4_opts.instance}", flush=True)
     selected = cases(demo, args.attack, args.secure, matrix)
     results = []
     for i, case in enumerate(selected, 1):
@@ -161,13 +184,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     require("secuav-demo")
     try:
         sim = sitl_options(args)
-    except sitl.NoSitl as exc:
+        px4_opts = px4_options(args)
+    except (sitl.NoSitl, px4.NoPx4) as exc:
         print(f"secuav-demo: {exc}", file=sys.stderr)
         return NO_SITL
     level = logging.INFO if args.verbose else logging.WARNING
     logging.basicConfig(level=level, format="%(levelname)s %(name)s %(message)s")
     loop = asyncio.new_event_loop()
-    task = loop.create_task(_main(args, sim))
+    task = loop.create_task(_main(args, sim, px4_opts))
     for sig in (signal.SIGINT, signal.SIGTERM):
         with contextlib.suppress(NotImplementedError):
             loop.add_signal_handler(sig, task.cancel)

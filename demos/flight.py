@@ -24,6 +24,7 @@ from secuav_common.broker import EmbeddedBroker
 from secuav_common.controlplane.topics import CONSOLES_ONLINE, parse, vehicle_topic
 
 if TYPE_CHECKING:
+    from demos.px4 import Px4Options
     from demos.sitl import SitlOptions
 
 
@@ -54,6 +55,7 @@ class Options:
     attack_params: dict[str, Any] | None = None
     progress: bool = True  # a progress bar per flight on stderr
     sitl: SitlOptions | None = None  # the demos that fly ArduPilot SITL (secuav-demo --autopilot ardupilot)
+    px4: Px4Options | None = None  # the demos that fly PX4 SIH (secuav-demo --autopilot px4)
 
 
 @dataclass

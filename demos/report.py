@@ -38,6 +38,10 @@ PANELS: dict[str, list[tuple[str, str, float | None]]] = {
         ("truth", "true height above ground [m]", 5.0),
         ("seen", "the autopilot's own altitude [m]", 5.0),
     ],
+    "vision": [  # on PX4 SIH: docs/px4.md
+        ("drift", "true distance from the hold point [m] (SIH)", 0.0),
+        ("estimate_error", "PX4's position estimate minus truth [m]", 0.0),
+    ],
 }
 # the true-distance panel's zero line
 SURFACE = {"wall-hover": "wall", "height-hold": "ground", "rangefinder-feed": "ground"}

@@ -42,7 +42,7 @@ def _build(folder: Path, copter_parm: bool = True) -> Path:
 def test_help_lists_height_hold_and_the_sitl_flags() -> None:
     done = subprocess.run([str(DEMO), "--help"], capture_output=True, text=True, timeout=60, check=False)
     assert done.returncode == 0, done.stderr
-    for text in ("height-hold", "--autopilot {flightsim,ardupilot}", "--sitl-binary", "--instance", "--speedup"):
+    for text in ("height-hold", "--autopilot {flightsim,ardupilot,px4}", "--sitl-binary", "--instance", "--speedup"):
         assert text in done.stdout
 
 
@@ -87,7 +87,7 @@ def test_a_binary_without_copter_parm_is_refused_with_exit_3(tmp_path: Path) -> 
         (["height-hold", "--seed", "4"], "--seed: flightsim's noise seed"),
         (["height-hold", "--instance", "-1"], "--instance: a non-negative integer"),
         (["height-hold", "--speedup", "0"], "--speedup: a positive number"),
-        (["height-hold", "--autopilot", "px4"], "invalid choice: 'px4'"),
+        (["height-hold", "--autopilot", "px4"], "height-hold flies on ardupilot, not px4"),
     ],
 )
 def test_flags_that_do_not_fit_the_demo_are_bad_flags(

@@ -17,6 +17,9 @@ the proxy's numbers comparable with the offline evaluation:
   Inter-vehicle ranges (id 50+n) become the distance between this vehicle's
   secure position and peer n's, when peer n's link runs a secure stage on the
   same :class:`~mitm_proxy.stages.secure.stage.PeerBoard`; a reading far from it is flagged.
+  VISION_POSITION_ESTIMATE frames travelling to the vehicle (external vision a companion feeds the
+  autopilot) carry the secure position too, when the stage sits on the uplink: the anchors are then a
+  second position source that outvotes a lying vision feed.
 
 Substitution uses ``model.h(position, known)`` for every reading, so a reading
 becomes exactly what the secure position implies.
@@ -32,12 +35,15 @@ import numpy as np
 import estimators
 from estimators.models import MeasurementModel
 from estimators.scenario_models import anchor_model, wall_group_model
+from mavframe.codec import BY_NAME
 from mavframe.layout import ATTITUDE, DISTANCE_SENSOR, GLOBAL_POSITION_INT, HOME_POSITION, LOCAL_POSITION_NED
 from mitm_proxy.stages.secure.config import SecureConfig
 from mitm_proxy.stages.secure.tilt import Geometry
 from secuav_common.loading import InputError
 from secuav_common.scenario import Home, Scenario, Vehicle, WallDistanceTarget
 from secuav_common.sensor_ids import ORIENTATION, SensorKind, classify, peer_sensor_id
+
+VISION_POSITION_ESTIMATE = BY_NAME["VISION_POSITION_ESTIMATE"].id  # 102: external vision fed to the autopilot
 
 
 @dataclass(frozen=True, slots=True)
@@ -101,7 +107,7 @@ def build_layout(config: SecureConfig, scenario: Scenario, sysid: int, source: s
         wanted.add(LOCAL_POSITION_NED)  # the vehicle's own velocity: the filters' motion input
     if group == "anchors":
         position_dims = config.dims
-        wanted |= {LOCAL_POSITION_NED, GLOBAL_POSITION_INT, HOME_POSITION}
+        wanted |= {LOCAL_POSITION_NED, GLOBAL_POSITION_INT, HOME_POSITION, VISION_POSITION_ESTIMATE}
         if config.dims == 2:
             down = [r.id for r in vehicle.sensors.rangefinders if r.orientation == "down"]
             height_id = down[0] if down else None

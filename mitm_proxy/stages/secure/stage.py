@@ -44,7 +44,10 @@ the stage reads and rewrites what the vehicle sends (downlink), shielding the
 ground. With ``uplink`` it reads the group's readings from the frames travelling
 to the vehicle (a companion's MAVLink rangefinders, UWB ranges fed to the
 autopilot) and substitutes the secure estimate in those frames, so the
-autopilot's own estimator receives it; ``both`` does both, for a group whose
+autopilot's own estimator receives it (the anchors group also writes its
+secure position into the VISION_POSITION_ESTIMATE frames a companion feeds
+the autopilot: a second source standing in for a vision feed that may lie);
+``both`` does both, for a group whose
 sensors travel different ways (some fed to the autopilot, some its own): a
 DISTANCE_SENSOR id once seen travelling to the vehicle is read from the uplink
 only, its downlink frames being the autopilot's echo of what it was given
@@ -83,6 +86,7 @@ from mitm_proxy.stages.secure.layout import (
     DISTANCE_SENSOR,
     HOME_POSITION,
     LOCAL_POSITION_NED,
+    VISION_POSITION_ESTIMATE,
     Layout,
     build_estimator,
     build_layout,
@@ -201,7 +205,8 @@ class SecureStage:
             return [pkt]
         msgid = pkt.header.msgid
         echo = downlink and not mine and msgid == DISTANCE_SENSOR  # the autopilot's echo of what it was fed
-        told = not downlink and msgid != DISTANCE_SENSOR  # its state is what it says, not what it is told
+        # its state is what it says, not what it is told; external vision fed to it is rewritten, never read
+        told = not downlink and msgid not in (DISTANCE_SENSOR, VISION_POSITION_ESTIMATE)
         if echo or told:
             return [pkt]
         self.counters.frames_seen += 1

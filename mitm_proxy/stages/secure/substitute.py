@@ -3,7 +3,8 @@
 Each group reading becomes what the secure estimate implies for it (the secure
 distance; the range from the secure position to that anchor), and a sensor
 judged attacked gets ``signal_quality`` 1 ("invalid"). LOCAL_POSITION_NED and
-GLOBAL_POSITION_INT carry the secure position. A degraded estimate (the
+GLOBAL_POSITION_INT carry the secure position, and so does VISION_POSITION_ESTIMATE
+(x, y, and z in 3-D) when it travels to the vehicle on a stage that sits on the uplink. A degraded estimate (the
 estimator's alarm, confirmed by the readings) is not to be trusted: every
 reading of the group is marked invalid, LOCAL_POSITION_NED carries NaN
 (MAVLink's "unknown") and GLOBAL_POSITION_INT keeps the last position that was
@@ -22,7 +23,7 @@ import numpy as np
 from mavframe.layout import DISTANCE_SENSOR, GLOBAL_POSITION_INT, LOCAL_POSITION_NED
 from mitm_proxy.stages.secure.collect import NO_TARGET_QUALITY, no_target
 from mitm_proxy.stages.secure.geodesy import HomeTracker, position_ned
-from mitm_proxy.stages.secure.layout import Layout
+from mitm_proxy.stages.secure.layout import VISION_POSITION_ESTIMATE, Layout
 from mitm_proxy.stages.secure.peers import PeerBoard
 from mitm_proxy.stages.secure.report import Counters
 from mitm_proxy.stages.secure.worker import StepResult
@@ -96,6 +97,19 @@ class Substitution:
             if layout.position_dims == 3:
                 # A home altitude from a garbled HOME_POSITION can be absurd; the field stays encodable.
                 changed |= _set(fields, "alt", alt) | _set(fields, "relative_alt", relative_alt)
+            return changed
+        if msgid == VISION_POSITION_ESTIMATE and layout.position_dims:
+            # External vision on its way to the autopilot: its position becomes the anchors' secure one. When
+            # degraded, the last position that was not, so the autopilot holds rather than follows a bad fix.
+            source = self.last_valid if degraded else res
+            if source is None:
+                return False
+            pos = position_ned(layout, source)
+            if not all(math.isfinite(c) for c in pos[: layout.position_dims]):
+                return False
+            changed = _set(fields, "x", pos[0]) | _set(fields, "y", pos[1])
+            if layout.position_dims == 3:
+                changed |= _set(fields, "z", pos[2])
             return changed
         return False
 
