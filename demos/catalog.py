@@ -12,7 +12,8 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from secuav_common.scenario import Scenario
 
-# the demos that fly secuav-sim; height-hold (ArduCopter SITL, a binary built outside the package) is not here
+# the closed-loop demos that fly secuav-sim; height-hold (ArduCopter SITL, a binary built outside the package) and
+# command-tamper (it scores a takeoff and a mission, not a hold) are not here
 SCENARIO_OF_DEMO = {"wall-hover": "wall_hover", "localise": "anchors8", "formation": "formation"}
 PROXY_OFFSET, API_OFFSET, GCS_OFFSET, MQTT_OFFSET = 0, 10, 20, 21
 PORT_SPAN = MQTT_OFFSET + 1

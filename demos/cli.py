@@ -1,7 +1,8 @@
-"""``secuav-demo wall-hover|localise|formation|height-hold``: fly a closed-loop demo and write a report.
+"""``secuav-demo wall-hover|localise|formation|height-hold|command-tamper``: fly a demo and write a report.
 
 wall-hover, localise and formation fly ``secuav-sim`` (``--autopilot flightsim``); height-hold flies
-ArduCopter SITL (``--autopilot ardupilot``), whose binary is built outside the package (docs/ardupilot.md).
+ArduCopter SITL (``--autopilot ardupilot``), whose binary is built outside the package (docs/ardupilot.md);
+command-tamper flies either.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from pathlib import Path
 from types import ModuleType
 
 from attack_profiles.resolve import parse_params
-from demos import formation, height_hold, localise, sitl, wall_hover
+from demos import command_tamper, formation, height_hold, localise, sitl, wall_hover
 from demos.flight import Case, Options
 from demos.report import plot, write_report
 from demos.stack import Ports
@@ -26,6 +27,7 @@ from secuav_common.logs import add_common_flags
 
 DEMOS: dict[str, ModuleType] = {
     "wall-hover": wall_hover, "localise": localise, "formation": formation, "height-hold": height_hold,
+    "command-tamper": command_tamper,
 }  # fmt: skip
 AUTOPILOTS = ("flightsim", "ardupilot")
 NO_SITL = 3  # exit code: the demo needs an ArduPilot SITL binary and none was found (docs/interfaces.md)
@@ -35,15 +37,17 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="secuav-demo", description=__doc__.splitlines()[0])
     p.add_argument("demo", choices=list(DEMOS),
                    help="wall-hover, localise, formation fly secuav-sim; height-hold flies the wall-hover "
-                   "problem on ArduCopter SITL, as height over ground on three downward rangefinders "
-                   "(docs/ardupilot.md)")  # fmt: skip
+                   "problem on ArduCopter SITL, as height over ground on three downward rangefinders; "
+                   "command-tamper rewrites a takeoff command and an uploaded mission on their way to the "
+                   "vehicle (flightsim or ardupilot) (docs/ardupilot.md)")  # fmt: skip
     p.add_argument("--autopilot", choices=AUTOPILOTS, default=None,
-                   help="the vehicle: flightsim (secuav-sim; wall-hover, localise, formation) or ardupilot "
-                   "(ArduCopter SITL; height-hold) (default: the demo's)")  # fmt: skip
+                   help="the vehicle: flightsim (secuav-sim; wall-hover, localise, formation, command-tamper) or "
+                   "ardupilot (ArduCopter SITL; height-hold, command-tamper) (default: the demo's)")  # fmt: skip
     p.add_argument("--attack", default=None,
                    help="library profile name or profile file; 'none' for no attack (default: the demo's)")  # fmt: skip
     p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
-                   help="parameter of a library attack profile (JSON value), repeatable")  # fmt: skip
+                   help="parameter of the attack profile, a library one or a file that declares it (JSON value), "
+                   "repeatable")  # fmt: skip
     p.add_argument("--secure", default=None, help="estimator of the secure stage, or 'off' (default: the demo's)")
     p.add_argument("--matrix", action="store_true", help="all four combinations of attack on/off and secure on/off "
                    "(the default when neither --attack nor --secure is given)")  # fmt: skip

@@ -33,7 +33,12 @@ PANELS: dict[str, list[tuple[str, str, float | None]]] = {
         ("truth", "true height above ground [m] (SITL)", 5.0),
         ("seen", "height the controller used [m]", 5.0),
     ],
+    "command-tamper": [  # docs/ardupilot.md: time from the takeoff command
+        ("height", "true height above home [m]", 5.0),
+        ("to_sent", "true distance to the waypoint sent [m]", 0.0),
+    ],
 }
+XLABEL = {"command-tamper": "time from the takeoff command [s]"}
 SURFACE = {"wall-hover": "wall", "height-hold": "ground"}  # the true-distance panel's zero line
 
 
@@ -56,7 +61,7 @@ def plot(out: Path, demo: str, results: list[dict[str, Any]]) -> Path:
         ax.grid(True, alpha=0.3)
     axes[0, 0].legend(fontsize=8, loc="best")
     axes[0, 0].set_title(f"SecUAV {demo}: attack and secure stage on/off")
-    axes[-1, 0].set_xlabel("time from attack onset (start of scoring) [s]")
+    axes[-1, 0].set_xlabel(XLABEL.get(demo, "time from attack onset (start of scoring) [s]"))
     fig.tight_layout()
     path = out / f"{demo.replace('-', '_')}.png"
     fig.savefig(path, dpi=110)
