@@ -17,7 +17,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
 
-from attack_profiles.resolve import parse_params
+from attack_profiles.resolve import parse_params, resolve_profile
 from demos import command_tamper, formation, height_hold, localise, sitl, wall_hover
 from demos.flight import Case, Options
 from demos.report import plot, write_report
@@ -129,6 +129,9 @@ async def _main(args: argparse.Namespace, sim: sitl.SitlOptions | None) -> int:
               f"instance {sim.instance} (tcp {sitl.tcp_port(sim.instance)}), speedup {sim.speedup:g}",
               flush=True)  # fmt: skip
     selected = cases(demo, args.attack, args.secure, matrix)
+    for case in selected:  # a bad --param or profile: one line before anything flies, not after the first case
+        if case.attack is not None:
+            resolve_profile(case.attack, params, flag="--attack")
     results = []
     for i, case in enumerate(selected, 1):
         print(f"[{i}/{len(selected)}] {args.demo} {case.slug} (attack {case.attack or 'none'}, secure {case.secure})",

@@ -59,6 +59,9 @@ COUNTED = {76: "COMMAND_LONG", 75: "COMMAND_INT", 73: "MISSION_ITEM_INT", 39: "M
 async def run_case(case: Case, opts: Options) -> dict[str, Any]:
     autopilot = "ardupilot" if opts.sitl is not None else "flightsim"
     scenario = SCENARIO[autopilot]
+    params = opts.attack_params or {}
+    payload = None if case.attack is None else attack_payload(case.attack, params)  # a bad --param: before SITL boots
+    values = attack_values(case.attack, params)
     out = opts.out / case.slug
     out.mkdir(parents=True, exist_ok=True)
     log = out / "ground_station.jsonl"
@@ -86,7 +89,7 @@ async def run_case(case: Case, opts: Options) -> dict[str, Any]:
         else:
             proxy += ["--link", f"udpin://127.0.0.1:{p.proxy_vehicle}", f"udpout://127.0.0.1:{p.api}"]
         await procs.start("proxy", proxy)
-        acks = await _apply(tap, case, opts, procs)  # before the ground station says anything
+        acks = await _apply(tap, payload, procs)  # before the ground station says anything
         if opts.sitl is not None:
             truth = Truth(tcp_port(opts.sitl.instance, serial=1), SYSID).start()
         else:
@@ -119,18 +122,17 @@ async def run_case(case: Case, opts: Options) -> dict[str, Any]:
     else:
         positions = flightsim_positions(sim_truth)
     dump_jsonl(out / f"truth{SYSID}.jsonl", [(t, {"pos_ned_m": list(ned)}) for t, ned in positions])
-    figures = score(events, positions, autopilot, attack_values(case.attack, opts.attack_params or {}))
+    figures = score(events, positions, autopilot, values)
     figures.update(proxy_counts(out / "record" / f"v{SYSID}" / "index.json", stats[-1] if stats else None))
     figures.update(case=case.slug, attack=case.attack, secure=case.secure, autopilot=autopilot,
                    attack_ack=acks, truth_samples=len(positions))  # fmt: skip
     return figures
 
 
-async def _apply(tap: Tap, case: Case, opts: Options, procs: Processes) -> dict[str, Any] | None:
+async def _apply(tap: Tap, payload: dict[str, Any] | None, procs: Processes) -> dict[str, Any] | None:
     """The case's attack over MQTT, retried until the proxy's control plane is up (a few seconds after start)."""
-    if case.attack is None:
+    if payload is None:
         return None
-    payload = attack_payload(case.attack, opts.attack_params)
     end = time.monotonic() + 30.0
     while True:
         procs.check_alive()
@@ -141,7 +143,8 @@ async def _apply(tap: Tap, case: Case, opts: Options, procs: Processes) -> dict[
                 raise
             continue
         if not ack.get("ok"):
-            raise RuntimeError(f"the proxy rejected attack {case.attack!r}: {ack.get('error')}")
+            name = payload.get("name") or payload.get("library")
+            raise RuntimeError(f"the proxy rejected attack {name!r}: {ack.get('error')}")
         return ack
 
 
@@ -222,8 +225,8 @@ def score(events: dict[str, Any], positions: list[tuple[float, tuple[float, floa
             "items_compared": max(0, len(sent) - first_compared(autopilot)),
             "read_back_equal": not diffs,
             "read_back_differences": diffs,
-            "waypoint_sent_ned_m": [round(wn, 2), round(we, 2)],
-            "waypoint_shifted_ned_m": [round(wn + north, 2), round(we + east, 2)],
+            "waypoint_sent_ned_m": [round(wn, 2) + 0.0, round(we, 2) + 0.0],  # + 0.0: no "-0.0" in the report
+            "waypoint_shifted_ned_m": [round(wn + north, 2) + 0.0, round(we + east, 2) + 0.0],
             "closest_to_sent_m": round(to_sent, 2),
             "closest_to_shifted_m": round(to_shifted, 2),
             "waypoint_reached_by_vehicle": "waypoint-reached" in events,
@@ -247,7 +250,7 @@ def _height_outcome(settled: float, asked: float, attacker: float) -> str:
 
 
 def _mission_outcome(to_sent: float, to_shifted: float) -> str:
-    if to_sent <= ON_WAYPOINT_M and to_sent < to_shifted:
+    if to_sent <= ON_WAYPOINT_M and to_sent <= to_shifted:  # equal: a profile that moves nothing
         return "flew to the waypoint sent"
     if to_shifted <= ON_WAYPOINT_M:
         return "flew to the shifted waypoint"

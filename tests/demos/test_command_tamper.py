@@ -100,3 +100,12 @@ def test_the_mission_and_its_comparison(autopilot: str, first: int) -> None:
     back[first + 1]["param4"] = math.nan
     assert f"seq {first + 1} param4: sent 0.0, read nan" in differences(items, back, first)
     assert differences(items, back[:-1], first)[0] == f"count: sent {len(items)}, read {len(items) - 1}"
+
+
+def test_a_parameter_the_profile_does_not_declare_is_refused_before_anything_flies(tmp_path: Path) -> None:
+    done = subprocess.run([str(DEMO), "command-tamper", "--param", "north=20", "--out", str(tmp_path / "out")],
+                          capture_output=True, text=True, timeout=60, check=False)  # fmt: skip
+    assert done.returncode == 1, done
+    (line,) = done.stderr.strip().splitlines()
+    assert "command-tamper.yaml: north: not a parameter of this profile" in line and "north_m" in line
+    assert not (tmp_path / "out").exists()
