@@ -20,7 +20,7 @@ from typing import Any
 
 import pytest
 
-from demos.command_tamper import PROFILE
+from demos.command_tamper import PROFILE, proxy_counts
 from demos.controllers.command_tamper import differences, mission
 from secuav_common.geo import EARTH_RADIUS_M
 from secuav_common.scenario import Home
@@ -109,3 +109,24 @@ def test_a_parameter_the_profile_does_not_declare_is_refused_before_anything_fli
     (line,) = done.stderr.strip().splitlines()
     assert "command-tamper.yaml: north: not a parameter of this profile" in line and "north_m" in line
     assert not (tmp_path / "out").exists()
+
+
+def test_frames_the_proxy_changed_are_counted_by_message_and_direction_even_from_an_open_index(
+    tmp_path: Path,
+) -> None:
+    """The recording's index.json is a JSON array closed when the proxy stops; a proxy killed leaves it open."""
+    entries = [
+        {"msgid": 76, "direction": "uplink", "changed": True, "injected": False},
+        {"msgid": 73, "direction": "uplink", "changed": True, "injected": False},
+        {"msgid": 73, "direction": "downlink", "changed": True, "injected": False},
+        {"msgid": 76, "direction": "uplink", "changed": False, "injected": True},  # a forged command: not a rewrite
+        {"msgid": 132, "direction": "downlink", "changed": True, "injected": False},  # DISTANCE_SENSOR: not counted
+    ]
+    index = tmp_path / "index.json"
+    index.write_text("[\n" + ",\n".join(json.dumps(e) for e in entries))  # no closing bracket
+    side = {"frames_in": 9, "rewritten": 2, "injected": 1, "dropped": 0, "bytes_in": 1}
+    got = proxy_counts(index, {"uplink": side, "downlink": side})
+    assert got["rewritten_frames"] == {"COMMAND_LONG uplink": 1, "MISSION_ITEM_INT downlink": 1,
+                                       "MISSION_ITEM_INT uplink": 1}  # fmt: skip
+    assert got["proxy_stats"]["uplink"] == {"frames_in": 9, "rewritten": 2, "injected": 1, "dropped": 0}
+    assert proxy_counts(tmp_path / "none.json", None) == {"rewritten_frames": {}, "proxy_stats": None}
