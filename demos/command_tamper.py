@@ -48,7 +48,7 @@ SCENARIO = {"ardupilot": "ardupilot_height", "flightsim": "anchors8"}  # what th
 SYSID = 1
 TAKEOFF_M, WAYPOINT_EAST_M, MISSION_ALT_M = 5.0, 30.0, 10.0
 BOOT_S = 60.0
-READY_S = {"ardupilot": 420.0, "flightsim": 90.0}  # to "done": ArduPilot's EKF and GPS take a minute to allow arming
+READY_S = {"ardupilot": 420.0, "flightsim": 90.0}  # to "armed": ArduPilot's EKF and GPS take a minute to allow it
 ON_HEIGHT_M = 1.0  # a settled height this close to an altitude is "at" it
 ON_WAYPOINT_M = 4.0  # a closest approach this close is "flew to" it (ArduCopter's WPNAV_RADIUS is 2 m)
 SETTLED_S = 2.0
@@ -85,9 +85,10 @@ async def run_case(case: Case, opts: Options) -> dict[str, Any]:
                  "--record", str(out / "record"), "--stats-interval", "5"]  # fmt: skip
         if opts.sitl is not None:
             proxy += ["--vehicle", f"tcp://127.0.0.1:{tcp_port(opts.sitl.instance)}",
-                      "--ground", f"udpout://127.0.0.1:{p.api}"]  # fmt: skip
-        else:
-            proxy += ["--link", f"udpin://127.0.0.1:{p.proxy_vehicle}", f"udpout://127.0.0.1:{p.api}"]
+                      "--ground", f"udpout://127.0.0.1:{p.api}", "--ground", f"udpout://127.0.0.1:{p.gcs}"]  # fmt: skip
+        else:  # the GCS port too, so QGroundControl or MAVProxy can watch
+            proxy += ["--link", f"udpin://127.0.0.1:{p.proxy_vehicle}", f"udpout://127.0.0.1:{p.api}",
+                      f"udpout://127.0.0.1:{p.gcs}"]  # fmt: skip
         await procs.start("proxy", proxy)
         acks = await _apply(tap, payload, procs)  # before the ground station says anything
         if opts.sitl is not None:
