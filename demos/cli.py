@@ -16,8 +16,9 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
+from typing import Any
 
-from attack_profiles.resolve import parse_params, resolve_profile
+from attack_profiles.resolve import is_file_ref, parse_params, resolve_profile
 from demos import command_tamper, formation, height_hold, localise, sitl, wall_hover
 from demos.flight import Case, Options
 from demos.report import plot, write_report
@@ -81,6 +82,20 @@ def cases(demo: ModuleType, attack: str | None, secure: str | None, matrix: bool
     return [Case(None, "off"), Case(hit, "off"), Case(None, on), Case(hit, on)]
 
 
+def attack_params(demo: ModuleType, attack: str | None, given: dict[str, Any]) -> dict[str, Any]:
+    """The parameters the attack flies with: for a library profile the demo's defaults that it declares, then
+    ``--param``; for a profile file ``--param`` alone (its own defaults stand: a study's cell writes its resolved
+    profile there). A bad profile or a ``--param`` it does not declare: ``InputError``, one line, before anything
+    flies."""
+    defaults: dict[str, Any] = getattr(demo, "DEFAULT_PARAMS", {})
+    if attack is None:
+        return {**defaults, **given}
+    declared = {} if is_file_ref(attack) else resolve_profile(attack, flag="--attack").parameters
+    params = {**{k: v for k, v in defaults.items() if k in declared}, **given}
+    resolve_profile(attack, params, flag="--attack")
+    return params
+
+
 def check_autopilot(args: argparse.Namespace) -> str | None:
     """Fill in ``args.autopilot``; the one-line reason the flags do not fit the demo, or None."""
     flies = DEMOS[args.demo].AUTOPILOTS
@@ -117,7 +132,8 @@ async def _main(args: argparse.Namespace, sim: sitl.SitlOptions | None) -> int:
     matrix = args.matrix or (args.attack is None and args.secure is None)
     base = args.base_port
     ports = Ports() if base is None else Ports.block(base)
-    params = {**getattr(demo, "DEFAULT_PARAMS", {}), **parse_params(args.param)}
+    selected = cases(demo, args.attack, args.secure, matrix)
+    params = attack_params(demo, next((c.attack for c in selected if c.attack), None), parse_params(args.param))
     opts = Options(out=out, seconds=args.seconds, settle_s=args.settle, seed=args.seed, ports=ports,
                    attack_params=params, progress=not args.no_progress and sys.stderr.isatty(), sitl=sim)  # fmt: skip
     settings: dict[str, object] = {"autopilot": args.autopilot}
@@ -128,10 +144,6 @@ async def _main(args: argparse.Namespace, sim: sitl.SitlOptions | None) -> int:
         print(f"ArduPilot SITL {built.get('version', '?')} built from {built.get('commit', '?')}: {sim.binary}, "
               f"instance {sim.instance} (tcp {sitl.tcp_port(sim.instance)}), speedup {sim.speedup:g}",
               flush=True)  # fmt: skip
-    selected = cases(demo, args.attack, args.secure, matrix)
-    for case in selected:  # a bad --param or profile: one line before anything flies, not after the first case
-        if case.attack is not None:
-            resolve_profile(case.attack, params, flag="--attack")
     results = []
     for i, case in enumerate(selected, 1):
         print(f"[{i}/{len(selected)}] {args.demo} {case.slug} (attack {case.attack or 'none'}, secure {case.secure})",

@@ -130,3 +130,16 @@ def test_frames_the_proxy_changed_are_counted_by_message_and_direction_even_from
                                        "MISSION_ITEM_INT uplink": 1}  # fmt: skip
     assert got["proxy_stats"]["uplink"] == {"frames_in": 9, "rewritten": 2, "injected": 1, "dropped": 0}
     assert proxy_counts(tmp_path / "none.json", None) == {"rewritten_frames": {}, "proxy_stats": None}
+
+
+def test_the_demo_defaults_go_only_to_a_library_profile_that_declares_them() -> None:
+    from demos import cli, command_tamper, formation
+    from secuav_common.loading import InputError
+
+    assert cli.attack_params(formation, "anchors-constant", {}) == {"links": [11, 14, 51]}  # formation's default
+    assert cli.attack_params(formation, "wall-spoof", {}) == {}  # declares no links: not sent, not refused
+    library_file = Path(__file__).resolve().parents[2] / "attack_profiles/library/anchors-constant.yaml"
+    assert cli.attack_params(formation, str(library_file), {}) == {}  # a file's own defaults stand
+    assert cli.attack_params(command_tamper, str(PROFILE), {"east_m": -5}) == {"east_m": -5}
+    with pytest.raises(InputError, match="north: not a parameter of this profile"):
+        cli.attack_params(command_tamper, str(PROFILE), {"north": 3})
