@@ -40,6 +40,7 @@ from secuav_common.geo import geodetic_to_ned
 from secuav_common.scenario import Home
 
 GROUND_STATION = "demos.controllers.command_tamper"
+GS = "controller1"  # its process name: demos.stack lets a "controller..." end on its own (the others must not)
 AUTOPILOTS = ("flightsim", "ardupilot")
 PROFILE = Path(__file__).resolve().parent / "profiles" / "command-tamper.yaml"
 DEFAULT_ATTACK = str(PROFILE)
@@ -64,7 +65,7 @@ async def run_case(case: Case, opts: Options) -> dict[str, Any]:
     values = attack_values(case.attack, params)
     out = opts.out / case.slug
     out.mkdir(parents=True, exist_ok=True)
-    log = out / "ground_station.jsonl"
+    log = out / f"{GS}.jsonl"
     log.unlink(missing_ok=True)
     p = opts.ports
     topics = [vehicle_topic(SYSID, "truth"), vehicle_topic(SYSID, "attack", "state"), vehicle_topic(SYSID, "stats")]
@@ -97,18 +98,18 @@ async def run_case(case: Case, opts: Options) -> dict[str, Any]:
             seed = [] if opts.seed is None else ["--seed", str(opts.seed)]
             sim = f"udpout://127.0.0.1:{p.proxy_vehicle}"
             await procs.start("sim", [tool("secuav-sim"), scenario, "--mavlink", sim, "--broker", p.broker_url, *seed])
-        await procs.start("ground_station", [
+        await procs.start(GS, [
             sys.executable, "-m", GROUND_STATION, "--url", f"udpin://127.0.0.1:{p.api}", "--autopilot", autopilot,
             "--log", str(log), "--takeoff", str(TAKEOFF_M), "--wp-east", str(WAYPOINT_EAST_M),
             "--mission-alt", str(MISSION_ALT_M),
         ])  # fmt: skip
         try:
             bar.phase("uploading the mission, waiting to arm" if truth else "uploading the mission, arming")
-            await wait_for_event(log, "armed", procs, "ground_station", READY_S[autopilot])
+            await wait_for_event(log, "armed", procs, GS, READY_S[autopilot])
             bar.phase("taking off")
-            await wait_for_event(log, "mission-start", procs, "ground_station", 120.0)
+            await wait_for_event(log, "mission-start", procs, GS, 120.0)
             bar.phase("flying the mission")
-            await wait_for_event(log, "done", procs, "ground_station", 180.0)
+            await wait_for_event(log, "done", procs, GS, 180.0)
         finally:
             if truth is not None:
                 truth.stop()
