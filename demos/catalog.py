@@ -12,8 +12,9 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from secuav_common.scenario import Scenario
 
-# the demos that fly secuav-sim; height-hold and rangefinder-feed (ArduCopter SITL by default, a binary built
-# outside the package) are not here
+# the closed-loop demos that fly secuav-sim; height-hold, rangefinder-feed (ArduCopter SITL by default, a binary
+# built outside the package), vision (PX4 SIH) and command-tamper (it scores a takeoff and a mission, not a hold)
+# are not here
 SCENARIO_OF_DEMO = {"wall-hover": "wall_hover", "localise": "anchors8", "formation": "formation"}
 PROXY_OFFSET, API_OFFSET, GCS_OFFSET, MQTT_OFFSET = 0, 10, 20, 21
 PORT_SPAN = MQTT_OFFSET + 1

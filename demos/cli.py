@@ -1,10 +1,11 @@
-"""``secuav-demo wall-hover|localise|formation|height-hold|rangefinder-feed|vision``: fly a closed-loop demo.
+"""``secuav-demo wall-hover|localise|formation|height-hold|rangefinder-feed|vision|command-tamper``: fly a demo.
 
 wall-hover, localise and formation fly ``secuav-sim`` (``--autopilot flightsim``); height-hold flies
 ArduCopter SITL (``--autopilot ardupilot``), whose binary is built outside the package (docs/ardupilot.md);
 rangefinder-feed flies either (ArduCopter SITL by default), holding altitude on the vehicle from a
 companion's rangefinders that the attack rewrites on their way to it (docs/ardupilot.md); vision flies
-PX4 SIH (``--autopilot px4``, docs/px4.md), built outside the package too.
+PX4 SIH (``--autopilot px4``, docs/px4.md), built outside the package too; command-tamper flies either
+flightsim or ArduCopter SITL, its takeoff and mission rewritten on their way to the vehicle.
 """
 
 from __future__ import annotations
@@ -19,9 +20,10 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
+from typing import Any
 
-from attack_profiles.resolve import parse_params
-from demos import formation, height_hold, localise, px4, rangefinder_feed, sitl, vision, wall_hover
+from attack_profiles.resolve import is_file_ref, parse_params, resolve_profile
+from demos import command_tamper, formation, height_hold, localise, px4, rangefinder_feed, sitl, vision, wall_hover
 from demos.flight import Case, Options
 from demos.report import plot, write_report
 from demos.stack import Ports
@@ -32,6 +34,7 @@ DEMOS: dict[str, ModuleType] = {
     "wall-hover": wall_hover, "localise": localise, "formation": formation, "height-hold": height_hold,
     "rangefinder-feed": rangefinder_feed,
     "vision": vision,
+    "command-tamper": command_tamper,
 }  # fmt: skip
 AUTOPILOTS = ("flightsim", "ardupilot", "px4")
 NO_SITL = 3  # exit code: the demo needs an ArduPilot or PX4 SITL binary and none was found (docs/interfaces.md)
@@ -44,15 +47,19 @@ def build_parser() -> argparse.ArgumentParser:
                    "problem on ArduCopter SITL, as height over ground on three downward rangefinders "
                    "(docs/ardupilot.md); rangefinder-feed holds altitude on the vehicle itself from three rangefinders "
                    "a companion feeds it through the proxy, lied to on their way (docs/ardupilot.md); vision flies "
-                   "PX4 SIH holding position on external vision fed through the proxy (docs/px4.md)")  # fmt: skip
+                   "PX4 SIH holding position on external vision fed through the proxy (docs/px4.md); "
+                   "command-tamper rewrites a takeoff command and an uploaded mission on their way to the "
+                   "vehicle (flightsim or ardupilot) (docs/ardupilot.md)")  # fmt: skip
     p.add_argument("--autopilot", choices=AUTOPILOTS, default=None,
-                   help="the vehicle: flightsim (secuav-sim; wall-hover, localise, formation), ardupilot "
-                   "(ArduCopter SITL; height-hold), px4 (PX4 SIH; vision); rangefinder-feed flies flightsim or "
-                   "ardupilot, ardupilot by default (default: the demo's)")  # fmt: skip
+                   help="the vehicle: flightsim (secuav-sim; wall-hover, localise, formation, command-tamper), "
+                   "ardupilot (ArduCopter SITL; height-hold, command-tamper), px4 (PX4 SIH; vision); "
+                   "rangefinder-feed flies flightsim or ardupilot, ardupilot by default "
+                   "(default: the demo's)")  # fmt: skip
     p.add_argument("--attack", default=None,
                    help="library profile name or profile file; 'none' for no attack (default: the demo's)")  # fmt: skip
     p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
-                   help="parameter of a library attack profile (JSON value), repeatable")  # fmt: skip
+                   help="parameter of the attack profile, a library one or a file that declares it (JSON value), "
+                   "repeatable")  # fmt: skip
     p.add_argument("--secure", default=None, help="estimator of the secure stage, or 'off' (default: the demo's)")
     p.add_argument("--matrix", action="store_true", help="all four combinations of attack on/off and secure on/off "
                    "(the default when neither --attack nor --secure is given)")  # fmt: skip
@@ -89,6 +96,20 @@ def cases(demo: ModuleType, attack: str | None, secure: str | None, matrix: bool
     on = secure if secure not in (None, "off") else demo.DEFAULT_SECURE
     hit = hit or demo.DEFAULT_ATTACK
     return [Case(None, "off"), Case(hit, "off"), Case(None, on), Case(hit, on)]
+
+
+def attack_params(demo: ModuleType, attack: str | None, given: dict[str, Any]) -> dict[str, Any]:
+    """The parameters the attack flies with: for a library profile the demo's defaults that it declares, then
+    ``--param``; for a profile file ``--param`` alone (its own defaults stand: a study's cell writes its resolved
+    profile there). A bad profile or a ``--param`` it does not declare: ``InputError``, one line, before anything
+    flies."""
+    defaults: dict[str, Any] = getattr(demo, "DEFAULT_PARAMS", {})
+    if attack is None:
+        return {**defaults, **given}
+    declared = {} if is_file_ref(attack) else resolve_profile(attack, flag="--attack").parameters
+    params = {**{k: v for k, v in defaults.items() if k in declared}, **given}
+    resolve_profile(attack, params, flag="--attack")
+    return params
 
 
 def check_autopilot(args: argparse.Namespace) -> str | None:
@@ -145,7 +166,8 @@ async def _main(args: argparse.Namespace, sim: sitl.SitlOptions | None, px4_opts
     out = args.out or Path("out") / args.demo
     matrix = args.matrix or (args.attack is None and args.secure is None)
     ports = ports_of(args)
-    params = {**getattr(demo, "DEFAULT_PARAMS", {}), **parse_params(args.param)}
+    selected = cases(demo, args.attack, args.secure, matrix)
+    params = attack_params(demo, next((c.attack for c in selected if c.attack), None), parse_params(args.param))
     opts = Options(out=out, seconds=args.seconds, settle_s=args.settle, seed=args.seed, ports=ports,
                    attack_params=params, progress=not args.no_progress and sys.stderr.isatty(), sitl=sim,
                    px4=px4_opts)  # fmt: skip
@@ -161,7 +183,6 @@ async def _main(args: argparse.Namespace, sim: sitl.SitlOptions | None, px4_opts
         built = px4.build_info(px4_opts.binary)
         settings.update(px4=built, px4_binary=str(px4_opts.binary), px4_instance=px4_opts.instance)
         print(f"PX4 SIH {built['commit']}: {px4_opts.binary}, instance {px4_opts.instance}", flush=True)
-    selected = cases(demo, args.attack, args.secure, matrix)
     results = []
     for i, case in enumerate(selected, 1):
         print(f"[{i}/{len(selected)}] {args.demo} {case.slug} (attack {case.attack or 'none'}, secure {case.secure})",

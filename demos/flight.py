@@ -73,9 +73,12 @@ def attack_payload(attack: str, params: dict[str, Any] | None) -> dict[str, Any]
     """What goes on ``secuav/v<sysid>/attack/set``: a library name, or the content of a profile file."""
     path = Path(attack)
     if path.suffix in (".yaml", ".yml", ".json") or path.exists():
-        import yaml
+        from attack_profiles.profile import load_profile
 
-        return dict(yaml.safe_load(path.read_text(encoding="utf-8")))
+        # Checked here (one line naming the file and a parameter it does not declare), then sent resolved:
+        # the document with its parameters' values in place of their defaults.
+        profile = load_profile(path, **(params or {}))
+        return profile.model_dump(mode="json", exclude_none=True)
     # The demo applies the profile when the scored window opens, so it starts at once.
     return {"library": attack, "parameters": {"start_s": 0.0, **(params or {})}}
 

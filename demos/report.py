@@ -42,7 +42,12 @@ PANELS: dict[str, list[tuple[str, str, float | None]]] = {
         ("drift", "true distance from the hold point [m] (SIH)", 0.0),
         ("estimate_error", "PX4's position estimate minus truth [m]", 0.0),
     ],
+    "command-tamper": [  # docs/ardupilot.md: time from the takeoff command
+        ("height", "true height above home [m]", 5.0),
+        ("to_sent", "true distance to the waypoint sent [m]", 0.0),
+    ],
 }
+XLABEL = {"command-tamper": "time from the takeoff command [s]"}
 # the true-distance panel's zero line
 SURFACE = {"wall-hover": "wall", "height-hold": "ground", "rangefinder-feed": "ground"}
 SURFACE_COLOUR = "firebrick"
@@ -97,7 +102,7 @@ def figure(demo: str, results: list[dict[str, Any]]) -> Figure:
         ax.grid(True, alpha=0.3)
     axes[0, 0].legend(fontsize=8, loc="best")
     axes[0, 0].set_title(f"SecUAV {demo}: attack and secure stage on/off")
-    axes[-1, 0].set_xlabel("time from attack onset (start of scoring) [s]")
+    axes[-1, 0].set_xlabel(XLABEL.get(demo, "time from attack onset (start of scoring) [s]"))
     if demo in CAPTION:
         fig.text(0.01, 0.005, CAPTION[demo], fontsize=7.5, wrap=True, va="bottom")
         fig.tight_layout(rect=(0, 0.07, 1, 1))

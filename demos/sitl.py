@@ -160,6 +160,7 @@ class Truth:
     def __init__(self, port: int, sysid: int = 1, rate_hz: float = 20.0) -> None:
         self.port, self.sysid, self.rate_hz = port, sysid, rate_hz
         self.samples: list[tuple[float, float]] = []  # (wall s, altitude AMSL m)
+        self.positions: list[tuple[float, float, float]] = []  # (wall s, latitude deg, longitude deg)
         self.error: str | None = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="sitl-truth", daemon=True)
@@ -201,7 +202,12 @@ class Truth:
                 asked = time.monotonic()
             msg = conn.recv_match(type="SIM_STATE", blocking=True, timeout=0.5)
             if msg is not None:
-                self.samples.append((time.time(), float(msg.alt)))
+                now = time.time()
+                self.samples.append((now, float(msg.alt)))
+                # lat_int/lon_int (degE7, MAVLink 2 extensions) when sent; lat/lon are float degrees
+                lat_e7, lon_e7 = getattr(msg, "lat_int", 0), getattr(msg, "lon_int", 0)
+                latlon = (lat_e7 * 1e-7, lon_e7 * 1e-7) if lat_e7 or lon_e7 else (float(msg.lat), float(msg.lon))
+                self.positions.append((now, *latlon))
         conn.close()
 
     def stop(self) -> None:
