@@ -1,9 +1,7 @@
 """What a user reads names no thesis and no figure numbers of one (issue 36): the CLIs' help (docs/cli.md is
-generated from it and kept current by test_docs_current), the docs, the console page, the bundled scenario and
-study files, and the titles of the demo and evaluation plots.
-
-docs/profile.md is left out: its library table is generated from attack_profiles/library/*.yaml, whose
-descriptions their owners reword.
+generated from it and kept current by test_docs_current), the docs, the console page, the bundled scenario,
+study and attack profile files (``secuav-attack list`` and docs/profile.md show the profiles' descriptions),
+and the titles of the demo and evaluation plots.
 """
 
 from __future__ import annotations
@@ -19,9 +17,10 @@ FIGURE = re.compile(r"\bFigs?\.\s*[A-Z0-9]")
 
 
 def _files() -> list[Path]:
-    docs = [p for p in (REPO / "docs").glob("*.md") if p.name != "profile.md"]
+    docs = list((REPO / "docs").glob("*.md"))
     page = sorted((REPO / "webconsole/static").glob("*.[hj]*"))
-    data = [*(REPO / "secuav_common/scenarios").glob("*.yaml"), *(REPO / "studies").glob("*.yaml")]
+    data = [*(REPO / "secuav_common/scenarios").glob("*.yaml"), *(REPO / "studies").glob("*.yaml"),
+            *(REPO / "attack_profiles/library").glob("*.yaml")]
     return [*docs, *page, *data, REPO / "README.md"]
 
 
