@@ -10,8 +10,11 @@ is safe to run beside any other when it shares nothing with it:
   ``tmp_path`` through its environment variable (``SECUAV_ARDUPILOT_CACHE``).
 - Environment, working directory, module state: change them through ``monkeypatch`` so they are undone; the
   logging set-up is undone by ``_logging_as_found`` below.
-- Only if two tests truly must not overlap (a machine-wide resource that cannot be made per test), mark both
-  ``@pytest.mark.xdist_group("name")``: loadgroup runs a group on one worker, one test after the other.
+- A test that takes more than about 20 s: mark it ``@pytest.mark.slow``; slow tests are handed out first.
+- Only if two tests truly must not overlap, mark both ``@pytest.mark.xdist_group("name")``: loadgroup runs a group
+  on one worker, one test after the other. Two groups exist for the machine's CPU (2 cores in CI), which their
+  members would otherwise take from each other's real-time parts: ``flight_stack`` (a test that flies a whole
+  demo stack: broker, simulator, proxy, MAVSDK controllers) and ``dask_study`` (a test that runs a Dask study).
 """
 
 from __future__ import annotations
@@ -29,8 +32,11 @@ import pytest
 # Ports are handed out from a band below the kernel's ephemeral range (32768-60999 on Linux), where no socket bound
 # to port 0 (an MQTT client's side of a connection, a udpout's source port, a test's own bind to 0) can take one
 # between our check and the test's bind; and below the band secuav-study draws its demo blocks from (20000-40000,
-# study/closed_loop.py). Each xdist worker draws from a slice of its own, so two workers never hand out one port.
+# study/closed_loop.py), leaving out the ports other MAVLink programs on the machine send to or bind (PX4 SITL's
+# 14540/14550/14560+i and 18570+i, MAVProxy's 14550/14551). Each xdist worker draws from a slice of its own, so two
+# workers never hand out one port.
 BAND = (10_000, 20_000)
+NOT_IN_BAND = (range(14_500, 14_700), range(18_500, 18_800))
 
 
 def _ephemeral_low() -> int:
@@ -48,8 +54,9 @@ class _Ports:
     def __init__(self) -> None:
         workers = max(1, int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")))
         index = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or 0) % workers
-        size = (BAND[1] - BAND[0]) // workers
-        self.lo, self.size = BAND[0] + index * size, size
+        band = [p for p in range(*BAND) if not any(p in r for r in NOT_IN_BAND)]
+        size = len(band) // workers
+        self.ports, self.size = band[index * size : (index + 1) * size], size
         self.next = random.randrange(size)
         self.lock = threading.Lock()
         # A machine whose ephemeral range starts inside the band: let the kernel choose (the old way).
@@ -61,10 +68,10 @@ class _Ports:
             for _ in range(self.size):
                 start = self.next if self.next + count <= self.size else 0  # a block never runs past the slice
                 self.next = (start + count) % self.size
-                base = self.lo + start
-                if all(_free(port) for port in range(base, base + count)):
+                base = self.ports[start]
+                if self.ports[start + count - 1] == base + count - 1 and all(map(_free, range(base, base + count))):
                     return base
-        raise RuntimeError(f"no {count} free consecutive loopback ports in {self.lo}-{self.lo + self.size - 1}")
+        raise RuntimeError(f"no {count} free consecutive loopback ports in {self.ports[0]}-{self.ports[-1]}")
 
 
 def _free(port: int) -> bool:
@@ -133,3 +140,10 @@ def _logging_as_found() -> Iterator[None]:
     for name, lg in logging.root.manager.loggerDict.items():
         if isinstance(lg, logging.Logger) and name in levels:
             lg.setLevel(levels[name])
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Tests marked ``slow`` first, in their order: xdist hands tests out in this order, so the long ones start at
+    once and the run ends on short tests instead of waiting for a long one that started last. The sort is stable
+    and the same on every worker (xdist checks that they all collect one order)."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)

@@ -97,6 +97,8 @@ attacks:
 """
 
 
+@pytest.mark.xdist_group("dask_study")
+@pytest.mark.slow
 def test_a_study_on_plain_dask_workers_tunes_the_plugin_alone(
     tmp_path: Path,
     dask_cluster: tuple[str, list[str]],  # noqa: F811
@@ -137,6 +139,8 @@ class Mine(Huber):
 '''
 
 
+@pytest.mark.xdist_group("dask_study")
+@pytest.mark.slow
 def test_changed_estimator_code_re_runs_exactly_its_rows(tmp_path: Path) -> None:
     pkg = tmp_path / "lib"
     pkg.mkdir()
@@ -238,6 +242,7 @@ def test_the_console_offers_the_plugin_profile_and_estimator() -> None:
     assert "huber" in estimators.names()  # what GET /api/estimators lists beside "off"
 
 
+@pytest.mark.xdist_group("flight_stack")
 @pytest.mark.slow
 def test_a_closed_loop_flight_with_the_plugin_estimator_and_primitive(tmp_path: Path) -> None:
     """secuav-demo starts its own secuav-proxy with --secure huber and the profile: that process finds both."""

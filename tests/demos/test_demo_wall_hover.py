@@ -19,7 +19,7 @@ import pytest
 from demos.catalog import PORT_SPAN
 from tests.conftest import free_port_block
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(400)]
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("flight_stack"), pytest.mark.timeout(400)]
 
 
 def _fly(attack: str, secure: str, out: Path) -> dict[str, Any]:

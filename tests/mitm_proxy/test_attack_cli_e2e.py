@@ -22,6 +22,7 @@ from attack_profiles import library
 from attack_profiles.profile import load_profile
 
 pytestmark = [
+    pytest.mark.slow,
     pytest.mark.timeout(120),
     pytest.mark.mosquitto,
     needs_mosquitto,
