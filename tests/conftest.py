@@ -142,8 +142,28 @@ def _logging_as_found() -> Iterator[None]:
             lg.setLevel(levels[name])
 
 
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Tests marked ``slow`` first, in their order: xdist hands tests out in this order, so the long ones start at
     once and the run ends on short tests instead of waiting for a long one that started last. The sort is stable
     and the same on every worker (xdist checks that they all collect one order)."""
     items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+    if getattr(config.option, "loadgroup", False):  # set on xdist's workers under --dist loadgroup
+        for item in items:
+            _name_the_group(item)
+
+
+def _name_the_group(item: pytest.Item) -> None:
+    """``--dist loadgroup`` keeps tests together whose node id ends in ``@group``. pytest-xdist 3.8 appends it by
+    setting ``item._nodeid``, which pytest 9.2 no longer reads (the id is ``item._id`` there), so every
+    ``xdist_group`` mark was silently ignored; this appends it where xdist's own step did not take."""
+    names = sorted({str(m.args[0] if m.args else m.kwargs.get("name", "default"))
+                    for m in item.iter_markers("xdist_group")})  # fmt: skip
+    if not names or "@" in item.nodeid.rsplit("]", 1)[-1]:
+        return
+    grouped = f"{item.nodeid}@{'_'.join(names)}"
+    if hasattr(item, "_id"):
+        from _pytest.nodeid import coerce_node_id  # pytest >= 9.2
+
+        item._id = coerce_node_id(grouped)
+    else:
+        item._nodeid = grouped
