@@ -191,11 +191,14 @@ def live_proxy(tmp_path: Path, udp_port: Callable[[], int]) -> Iterator[tuple[su
                              "--ground", f"udpout://127.0.0.1:{gcs}", "--record", str(rec), "--stats-interval", "1"],
                             stdout=log, stderr=subprocess.STDOUT)  # fmt: skip
     try:
-        for _ in range(100):
+        # Ready before the flight starts, however long the start-up takes on a loaded machine: after 10 s it used
+        # to fly anyway, into a proxy still importing, and recorded nothing (seen in a parallel run).
+        for _ in range(600):
             if "proxy.ready" in (tmp_path / "proxy.log").read_text():
                 break
             assert proc.poll() is None, (tmp_path / "proxy.log").read_text()
             asyncio.run(asyncio.sleep(0.1))
+        assert "proxy.ready" in (tmp_path / "proxy.log").read_text(), "secuav-proxy not ready within 60 s"
         yield proc, veh, rec
     finally:
         if proc.poll() is None:

@@ -110,6 +110,17 @@ class Stream:
         self.gcs.close()
 
 
+async def _until_rated(out: asyncio.StreamReader, row: str) -> str:
+    """What ``status --watch`` printed, up to the first ``row`` whose "down in/s" cell is a number."""
+    text = ""
+    while line := (await out.readline()).decode():
+        text += line
+        cells = line.split()
+        if line.startswith(row) and len(cells) > 5 and cells[5].replace(".", "", 1).isdigit():
+            break
+    return text
+
+
 async def test_routes_set_show_and_the_fleet_view_with_real_proxies(
     tmp_path: Path, udp_port: Callable[[], int]
 ) -> None:
@@ -182,10 +193,13 @@ async def test_routes_set_show_and_the_fleet_view_with_real_proxies(
                 sys.executable, "-m", "mitm_proxy.tools.attack_cli", "status", "--watch", "--interval", "0.5",
                 "--broker", broker, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
             )  # fmt: skip
-            await asyncio.sleep(4.0)
+            # Until v1's row shows a frame rate (it takes two stats messages, and the watcher's own start-up, which
+            # is seconds on a loaded machine): a fixed 4 s left it at "-" in one parallel run.
+            assert watch.stdout is not None
+            head = await asyncio.wait_for(_until_rated(watch.stdout, "v1 "), 30)
             watch.send_signal(signal.SIGINT)
             out_b, _ = await asyncio.wait_for(watch.communicate(), 20)
-            text = out_b.decode()
+            text = head + out_b.decode()
             assert watch.returncode == 0, text
             rows = [ln for ln in text.splitlines() if ln.startswith("v1 ")]
             assert rows and "Traceback" not in text, text
