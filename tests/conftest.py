@@ -10,6 +10,9 @@ is safe to run beside any other when it shares nothing with it:
   ``tmp_path`` through its environment variable (``SECUAV_ARDUPILOT_CACHE``).
 - Environment, working directory, module state: change them through ``monkeypatch`` so they are undone; the
   logging set-up is undone by ``_logging_as_found`` below.
+- Time: a worker shares 2 cores with the others, so a process may start or answer seconds late. Wait for an event
+  with a generous deadline (readiness, a reply, N frames arrived) instead of a fixed sleep, and judge rates and
+  durations by the simulator's clock (``time_boot_ms``) or by counts, never by frames per wall-clock second.
 - A test that takes more than about 20 s: mark it ``@pytest.mark.slow``; slow tests are handed out first.
 - Only if two tests truly must not overlap, mark both ``@pytest.mark.xdist_group("name")``: loadgroup runs a group
   on one worker, one test after the other. Two groups exist for the machine's CPU (2 cores in CI), which their
