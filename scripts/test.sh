@@ -15,4 +15,7 @@ if [ -n "$missing" ] && [ "$(id -u)" -eq 0 ] && command -v apt-get >/dev/null 2>
     || echo "test: could not install$missing; their tests will be skipped" >&2
 fi
 .venv/bin/ruff check .
-exec .venv/bin/python -m pytest -q --durations=25 "$@"
+# Side by side on pytest-xdist workers: most flight tests wait on the wall clock (1x), so more workers than the
+# 2 cores still pays (docs: README.md#development has the measured runs). loadgroup keeps tests marked
+# @pytest.mark.xdist_group(name) on one worker. SECUAV_TEST_WORKERS=0 runs serially; a later -n in "$@" wins.
+exec .venv/bin/python -m pytest -q --durations=25 -n "${SECUAV_TEST_WORKERS:-4}" --dist loadgroup "$@"

@@ -97,6 +97,8 @@ attacks:
 """
 
 
+@pytest.mark.xdist_group("dask_study")
+@pytest.mark.slow
 def test_a_study_on_plain_dask_workers_tunes_the_plugin_alone(
     tmp_path: Path,
     dask_cluster: tuple[str, list[str]],  # noqa: F811
@@ -137,6 +139,8 @@ class Mine(Huber):
 '''
 
 
+@pytest.mark.xdist_group("dask_study")
+@pytest.mark.slow
 def test_changed_estimator_code_re_runs_exactly_its_rows(tmp_path: Path) -> None:
     pkg = tmp_path / "lib"
     pkg.mkdir()
@@ -187,11 +191,14 @@ def live_proxy(tmp_path: Path, udp_port: Callable[[], int]) -> Iterator[tuple[su
                              "--ground", f"udpout://127.0.0.1:{gcs}", "--record", str(rec), "--stats-interval", "1"],
                             stdout=log, stderr=subprocess.STDOUT)  # fmt: skip
     try:
-        for _ in range(100):
+        # Ready before the flight starts, however long the start-up takes on a loaded machine: after 10 s it used
+        # to fly anyway, into a proxy still importing, and recorded nothing (seen in a parallel run).
+        for _ in range(600):
             if "proxy.ready" in (tmp_path / "proxy.log").read_text():
                 break
             assert proc.poll() is None, (tmp_path / "proxy.log").read_text()
             asyncio.run(asyncio.sleep(0.1))
+        assert "proxy.ready" in (tmp_path / "proxy.log").read_text(), "secuav-proxy not ready within 60 s"
         yield proc, veh, rec
     finally:
         if proc.poll() is None:
@@ -238,6 +245,7 @@ def test_the_console_offers_the_plugin_profile_and_estimator() -> None:
     assert "huber" in estimators.names()  # what GET /api/estimators lists beside "off"
 
 
+@pytest.mark.xdist_group("flight_stack")
 @pytest.mark.slow
 def test_a_closed_loop_flight_with_the_plugin_estimator_and_primitive(tmp_path: Path) -> None:
     """secuav-demo starts its own secuav-proxy with --secure huber and the profile: that process finds both."""

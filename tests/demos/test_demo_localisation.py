@@ -16,16 +16,17 @@ from typing import Any
 
 import pytest
 
-from study.closed_loop import free_port_block
+from demos.catalog import PORT_SPAN
+from tests.conftest import free_port_block
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("flight_stack"), pytest.mark.timeout(300)]
 
 
 def _fly(demo: str, secure: str, out: Path, seconds: int = 18) -> dict[str, Any]:
     cmd = [
         sys.executable, "-m", "demos", demo, "--attack", "anchors-ramp", "--param", "rate_per_s=0.3",
         "--secure", secure, "--seconds", str(seconds), "--settle", "3", "--out", str(out),
-        "--base-port", str(free_port_block()),
+        "--base-port", str(free_port_block(PORT_SPAN)),
     ]  # fmt: skip
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=280)
     assert done.returncode == 0, done.stdout + done.stderr

@@ -16,15 +16,16 @@ from typing import Any
 
 import pytest
 
-from study.closed_loop import free_port_block
+from demos.catalog import PORT_SPAN
+from tests.conftest import free_port_block
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(400)]
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("flight_stack"), pytest.mark.timeout(400)]
 
 
 def _fly(attack: str, secure: str, out: Path) -> dict[str, Any]:
     cmd = [
         sys.executable, "-m", "demos", "wall-hover", "--attack", attack, "--secure", secure, "--seconds", "12",
-        "--settle", "3", "--param", "rate_per_s=0.4", "--out", str(out), "--base-port", str(free_port_block()),
+        "--settle", "3", "--param", "rate_per_s=0.4", "--out", str(out), "--base-port", str(free_port_block(PORT_SPAN)),
     ]  # fmt: skip
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stdout + done.stderr

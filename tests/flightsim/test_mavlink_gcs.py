@@ -217,6 +217,7 @@ def _flight(runner: SimRunner, gcs: Gcs) -> None:
     gcs.recv("EXTENDED_SYS_STATE", 2.0, lambda m: m.landed_state == mav.MAV_LANDED_STATE_ON_GROUND)
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(90)
 async def test_gcs_modes_commands_streams_garbage_reposition_and_rtl(udp_port: Callable[[], int]) -> None:
     await _run(udp_port(), "anchors8", _flight)

@@ -162,6 +162,7 @@ async def until_async(check: Callable[[], Awaitable[bool]], timeout_s: float, wh
         await asyncio.sleep(0.2)
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 async def test_mavsdk_flies_both_formation_vehicles_at_once(udp_port: Callable[[], int]) -> None:
     flights = [Flight(1, udp_port(), []), Flight(2, udp_port(), [])]

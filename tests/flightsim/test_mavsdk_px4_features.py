@@ -37,6 +37,7 @@ async def _near(v: Vehicle, target: tuple[float, float, float], tol_m: float, ti
     await until(lambda: math.dist(v.truth.pos_ned_m, target) < tol_m, timeout_s, what)
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(90)
 async def test_mavsdk_params_rates_offboard_goto_and_rtl(udp_port: Callable[[], int]) -> None:
     port = udp_port()

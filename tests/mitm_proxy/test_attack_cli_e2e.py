@@ -24,6 +24,7 @@ from attack_profiles.profile import load_profile
 from tests.mavframe.frames_support import mavlink, pack
 
 pytestmark = [
+    pytest.mark.slow,
     pytest.mark.timeout(120),
     pytest.mark.mosquitto,
     needs_mosquitto,

@@ -27,6 +27,7 @@ from test_control_support import Mosquitto, attack_cli, needs_mosquitto
 from secuav_common.broker import admits
 
 pytestmark = [
+    pytest.mark.slow,
     pytest.mark.timeout(120),
     pytest.mark.mosquitto,
     needs_mosquitto,

@@ -49,8 +49,13 @@ async def _request(
     client: aiomqtt.Client, topic: str, payload: bytes, state: str, want: Callable[[dict], bool]
 ) -> dict:
     await client.subscribe(state)
-    await client.publish(topic, payload, qos=1)
     async with asyncio.timeout(20):
+        # The proxy publishes its (retained) states only after it has subscribed to the requests: wait for one,
+        # or a request sent while the proxy is still subscribing is lost (seen on a loaded machine).
+        async for message in client.messages:
+            if str(message.topic) == state:
+                break
+        await client.publish(topic, payload, qos=1)
         async for message in client.messages:
             if str(message.topic) == state:
                 body = json.loads(message.payload)

@@ -108,7 +108,9 @@ def test_slow_estimator_drops_steps_but_frames_keep_flowing(anchors8: Scenario, 
     med = float(np.median(durations))
     # Frames went through far faster than one step of the estimator: they never waited for it.
     assert med < step_s / 5, (med, step_s)
-    assert fed_s < sets * step_s, "feeding did not wait for the estimator"
+    # Time spent inside process() (where a wait for the estimator would be), not the whole loop's: the loop's own
+    # parsing is slowed by a loaded machine and the estimator thread's GIL, and says nothing about waiting.
+    assert sum(durations) < sets * step_s, ("feeding did not wait for the estimator", sum(durations), fed_s)
 
 
 def _datagrams(

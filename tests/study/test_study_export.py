@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import pandas as pd
+import pytest
 
 STUDY = Path(sys.executable).parent / "secuav-study"
 
@@ -37,6 +38,8 @@ def _run(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([str(STUDY), *args], capture_output=True, text=True, timeout=300, check=False)
 
 
+@pytest.mark.xdist_group("dask_study")
+@pytest.mark.slow
 def test_an_exported_bundle_reproduces_the_rows_row_for_row(tmp_path: Path) -> None:
     src = tmp_path / "src"
     src.mkdir()

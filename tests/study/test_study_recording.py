@@ -58,6 +58,8 @@ attacks:
 """
 
 
+@pytest.mark.xdist_group("dask_study")
+@pytest.mark.slow
 def test_a_study_on_recorded_ranges(tmp_path: Path) -> None:
     _recording(tmp_path)
     study = tmp_path / "study.yaml"

@@ -47,6 +47,8 @@ def _summary(done: subprocess.CompletedProcess[str]) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.xdist_group("dask_study")
+@pytest.mark.slow
 def test_small_study_on_a_local_cluster_writes_rows_report_and_figures(tmp_path: Path) -> None:
     out = tmp_path / "out"
     done = _run("run", str(_study(tmp_path, SMALL)), "--out", str(out), "--workers", "2", "--no-progress")
@@ -72,6 +74,8 @@ def test_small_study_on_a_local_cluster_writes_rows_report_and_figures(tmp_path:
     assert len(pd.read_parquet(out / "results.parquet")) == 12
 
 
+@pytest.mark.xdist_group("dask_study")
+@pytest.mark.slow
 def test_a_run_killed_half_way_resumes_without_duplicates_or_gaps(tmp_path: Path) -> None:
     text = SMALL.replace("seeds: 2", "seeds: 20").replace("offset_m: 1.5", "offset_m: [0.5, 1.5]")
     path = _study(tmp_path, text)
@@ -129,6 +133,8 @@ def dask_cluster(tmp_path: Path) -> Iterator[tuple[str, list[str]]]:
                 proc.wait()
 
 
+@pytest.mark.xdist_group("dask_study")
+@pytest.mark.slow
 def test_a_real_scheduler_and_workers_run_the_cells_and_are_named_in_the_rows(
     tmp_path: Path, dask_cluster: tuple[str, list[str]]
 ) -> None:
@@ -151,6 +157,7 @@ def test_an_unreachable_scheduler_is_one_clear_line(tmp_path: Path) -> None:
     assert f"127.0.0.1:{port}" in done.stderr.strip().splitlines()[-1]
 
 
+@pytest.mark.xdist_group("flight_stack")
 @pytest.mark.slow
 def test_one_closed_loop_cell_flies_the_demo_through_the_proxy(tmp_path: Path) -> None:
     text = """

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import pandas as pd
+import pytest
 
 from study.suite import run as suite
 
@@ -40,6 +41,8 @@ def test_expected_bands_name_built_ins_of_the_quick_suite_only() -> None:
             assert "[" not in name and ":" not in name and 0 <= lo <= hi  # built-ins at their defaults
 
 
+@pytest.mark.xdist_group("dask_study")
+@pytest.mark.slow
 def test_a_quick_suite_study_with_a_plugin_added_and_its_leaderboard(tmp_path: Path) -> None:
     out = tmp_path / "suite"
     done = _run("suite", "run", "--quick", "--out", str(out), "--only", "beyond-tolerance", "--add", "huber",
