@@ -31,6 +31,12 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
+
+# No per-example deadline: a worker shares 2 cores with the others, and a property test judges values, never time
+# (speed belongs in benchmarks/). Hypothesis's default 200 ms deadline failed examples that merely waited for a core.
+settings.register_profile("secuav", deadline=None)
+settings.load_profile("secuav")
 
 # Ports are handed out from a band below the kernel's ephemeral range (32768-60999 on Linux), where no socket bound
 # to port 0 (an MQTT client's side of a connection, a udpout's source port, a test's own bind to 0) can take one

@@ -40,6 +40,7 @@ def _fly(attack: str, out: Path) -> dict[str, Any]:
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("flight_stack")  # a whole demo stack (tests/conftest.py)
 @pytest.mark.timeout(300)
 def test_the_vehicle_climbs_and_flies_where_the_attacker_says_while_the_read_back_matches(tmp_path: Path) -> None:
     with ThreadPoolExecutor(max_workers=2) as pool:

@@ -39,6 +39,7 @@ def _fly(secure: str, out: Path) -> dict[str, Any]:
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("flight_stack")  # a whole demo stack (tests/conftest.py)
 @pytest.mark.timeout(300)
 def test_the_autopilot_follows_the_fed_lie_and_the_uplink_secure_stage_holds_it(tmp_path: Path) -> None:
     with ThreadPoolExecutor(max_workers=2) as pool:
