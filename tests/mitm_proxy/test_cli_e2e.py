@@ -88,6 +88,11 @@ def test_pymavlink_param_round_trip_through_the_cli(running: tuple[subprocess.Po
         assert value == pytest.approx(4.25)
     finally:
         gcs.close()
+    # The exchange can finish inside the first --stats-interval (0.5 s) on a quiet machine: wait for a stats line,
+    # an event, rather than for a time.
+    deadline = time.monotonic() + 10
+    while "proxy.stats sysid=1" not in (tmp / "proxy.log").read_text() and time.monotonic() < deadline:
+        time.sleep(0.1)
     code, took = stop(proxy, signal.SIGINT)
     assert code == 0 and took < 1.0, (code, took, (tmp / "proxy.log").read_text()[-2000:])
     log = (tmp / "proxy.log").read_text()
