@@ -77,12 +77,29 @@ class CappedReader(ReaderAdapter):
         self._inner.feed_eof()
 
 
+class SnapshotDict(dict[str, Any]):
+    """A dict whose iteration walks a copy of its keys (items), so a loop that awaits inside it survives
+    another task adding or removing a key meanwhile.
+
+    amqtt 0.12 loops over its subscription table with awaits in the body (publishing retained messages to a
+    new session, broadcasting); a client subscribing to a new topic during that loop raised "dictionary
+    changed size during iteration" and ended the other client's session (seen once in a parallel test run)."""
+
+    def __iter__(self):  # type: ignore[no-untyped-def]
+        return iter(list(super().keys()))
+
+    def items(self):  # type: ignore[no-untyped-def, override]
+        return list(super().items())
+
+
 class CappedBroker(Broker):
-    """amqtt's broker, each TCP connection read through :class:`CappedReader`."""
+    """amqtt's broker, each TCP connection read through :class:`CappedReader`; its subscription table is a
+    :class:`SnapshotDict`."""
 
     def __init__(self, config: dict[str, Any], limit: int = MAX_PACKET_BYTES) -> None:
         super().__init__(config)
         self.packet_limit = limit
+        self._subscriptions = SnapshotDict(self._subscriptions)
 
     async def stream_connected(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter,
                                listener_name: str) -> None:  # fmt: skip

@@ -13,6 +13,7 @@ import logging
 import os
 import re
 import subprocess
+import warnings
 from pathlib import Path
 
 import aiomqtt
@@ -133,3 +134,28 @@ async def test_the_compose_broker_caps_packets_and_the_viewer_publishes_nothing(
         assert await _publish(port, "secuav/console/op/online", b'{"online": true}', **operator)
         assert await watcher == [("secuav/console/op/online", 16)]
         assert set(await _heard(port, "secuav/console/+/online", 0.5, **viewer)) == {("secuav/console/op/online", 16)}
+
+
+async def test_the_subscription_table_survives_a_subscribe_during_a_loop_that_awaits() -> None:
+    """amqtt walks its subscription table with awaits inside the loop; a new topic arriving meanwhile raised
+    "dictionary changed size during iteration" in a plain dict. The embedded broker's table walks a copy."""
+    from secuav_common.broker_cap import CappedBroker, SnapshotDict
+
+    plain: dict[str, list[object]] = {"a": [], "b": []}
+    with pytest.raises(RuntimeError, match="changed size"):
+        for _topic in plain:
+            await asyncio.sleep(0)
+            plain["c"] = []
+    table = SnapshotDict({"a": [], "b": []})
+    walked = []
+    for topic in table:
+        await asyncio.sleep(0)
+        table[f"new-{topic}"] = []
+        walked.append(topic)
+    for topic, _subs in table.items():
+        table.pop(topic)
+    assert walked == ["a", "b"] and table == {}
+    with warnings.catch_warnings():  # amqtt's own DeprecationWarning about psutil, not ours
+        warnings.simplefilter("ignore", DeprecationWarning)
+        broker = CappedBroker({"listeners": {"default": {"type": "tcp", "bind": "127.0.0.1:0"}}})
+    assert isinstance(broker._subscriptions, SnapshotDict)
