@@ -22,7 +22,6 @@ It believes what the vehicle tells it, as any ground station does; the truth is 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import math
 import time
 from dataclasses import dataclass, field
@@ -31,7 +30,7 @@ from typing import Any
 from pymavlink import mavutil
 
 from demos.controllers.height_hold import GUIDED, Link, pymavlink_url
-from demos.controllers.ranging import Log
+from demos.controllers.ranging import Log, run_logged
 from secuav_common.geo import ned_to_geodetic
 from secuav_common.scenario import Home
 
@@ -265,14 +264,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--dwell", type=float, default=2.0, help="seconds flown after the waypoint before 'done'")
     p.add_argument("--connect-timeout", type=float, default=60.0)
     p.add_argument("--log", help="write JSON lines (events) to this file")
-    args = p.parse_args(argv)
-    out = open(args.log, "w", encoding="utf-8") if args.log else None  # noqa: SIM115 - closed below
-    try:
-        with contextlib.suppress(KeyboardInterrupt):
-            fly(args, Log(out))
-    finally:
-        if out is not None:
-            out.close()
+    run_logged(fly, p.parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -25,7 +25,6 @@ what reaches the ground side, so an attack on the wire fools this controller, no
 from __future__ import annotations
 
 import argparse
-import contextlib
 import math
 import time
 from collections.abc import Callable
@@ -34,7 +33,7 @@ from typing import Any
 
 from pymavlink import mavutil
 
-from demos.controllers.ranging import Log, Ranges, clip
+from demos.controllers.ranging import Log, Ranges, clip, run_logged
 
 RATE_HZ = 10.0  # ArduPilot streams each rangefinder at 10 Hz (demos/ardupilot/rangefinders.parm)
 MAX_SPEED_M_S = 1.0
@@ -199,6 +198,16 @@ def hold(link: Link, rule: Hold, group: set[int], seconds: float, log: Log) -> N
         time.sleep(1.0 / RATE_HZ)
 
 
+def land(link: Link, log: Log) -> None:
+    """LAND, then wait for the autopilot to disarm; what it refused and how it ended go into ``log``."""
+    log.write("event", event="landing")
+    mode = link.set_mode(LAND)
+    if mode != _M.MAV_RESULT_ACCEPTED:
+        log.write("event", event="land-refused", reason=f"MAV_CMD_DO_SET_MODE LAND: result {mode}")
+    link.wait(lambda: not link.armed, LAND_TIMEOUT_S)
+    log.write("event", event="done", disarmed=not link.armed)
+
+
 def fly(args: argparse.Namespace, log: Log) -> None:
     conn = mavutil.mavlink_connection(pymavlink_url(args.url), source_system=255, source_component=190,
                                       dialect="ardupilotmega")  # fmt: skip
@@ -210,12 +219,7 @@ def fly(args: argparse.Namespace, log: Log) -> None:
         link.wait(lambda: link.relative_alt_m >= args.altitude - 0.3, CLIMB_TIMEOUT_S)
         group = {int(i) for i in args.sensors.split(",")}
         hold(link, Hold(args.target, args.gain), group, args.seconds, log)
-        log.write("event", event="landing")
-        mode = link.set_mode(LAND)
-        if mode != _M.MAV_RESULT_ACCEPTED:
-            log.write("event", event="land-refused", reason=f"MAV_CMD_DO_SET_MODE LAND: result {mode}")
-        link.wait(lambda: not link.armed, LAND_TIMEOUT_S)
-        log.write("event", event="done", disarmed=not link.armed)
+        land(link, log)
     finally:
         conn.close()
 
@@ -230,14 +234,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--gain", type=float, default=0.8, help="metres per second per metre of error")
     p.add_argument("--connect-timeout", type=float, default=60.0)
     p.add_argument("--log", help="write JSON lines (events and control steps) to this file")
-    args = p.parse_args(argv)
-    out = open(args.log, "w", encoding="utf-8") if args.log else None  # noqa: SIM115 - closed below
-    try:
-        with contextlib.suppress(KeyboardInterrupt):
-            fly(args, Log(out))
-    finally:
-        if out is not None:
-            out.close()
+    run_logged(fly, p.parse_args(argv))
 
 
 if __name__ == "__main__":

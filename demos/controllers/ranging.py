@@ -9,9 +9,12 @@ and the pymavlink one that flies ArduPilot
 
 from __future__ import annotations
 
+import argparse
+import contextlib
 import json
 import math
 import time
+from collections.abc import Callable
 from typing import IO, Any
 
 INVALID_QUALITY = 1  # DISTANCE_SENSOR.signal_quality 1 = invalid (what secuav-proxy --secure sets on attacked sensors)
@@ -31,6 +34,17 @@ class Log:
         stamp = {"t_s": round(time.monotonic() - self.t0, 3), "wall_s": round(time.time(), 3)}
         self.out.write(json.dumps({**stamp, "kind": kind, **data}) + "\n")
         self.out.flush()
+
+
+def run_logged(fly: Callable[[argparse.Namespace, Log], None], args: argparse.Namespace) -> None:
+    """Fly with ``args.log`` (a path, or None for no log) open as the JSON-lines :class:`Log`; Ctrl-C ends quietly."""
+    out = open(args.log, "w", encoding="utf-8") if args.log else None  # noqa: SIM115 - closed below
+    try:
+        with contextlib.suppress(KeyboardInterrupt):
+            fly(args, Log(out))
+    finally:
+        if out is not None:
+            out.close()
 
 
 class Ranges:

@@ -15,16 +15,14 @@ of hold, "done" once it disarms.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import math
 import time
 
 from pymavlink import mavutil
 
-from demos.controllers.height_hold import LAND, LAND_TIMEOUT_S, Link, pymavlink_url, take_off
-from demos.controllers.ranging import Log
+from demos.controllers.height_hold import Link, land, pymavlink_url, take_off
+from demos.controllers.ranging import Log, run_logged
 
-_M = mavutil.mavlink
 LOG_HZ = 10.0
 REACHED_M = 0.3  # the climb is over once the autopilot's altitude is this close to the target...
 CLIMB_MAX_S = 30.0  # ...or after this long
@@ -54,12 +52,7 @@ def fly(args: argparse.Namespace, log: Log) -> None:
         reached = link.wait(lambda: abs(link.relative_alt_m - args.altitude) <= REACHED_M, CLIMB_MAX_S)
         log.write("event", event="holding", on_target=reached)
         watch(link, args.seconds, log, group)
-        log.write("event", event="landing")
-        mode = link.set_mode(LAND)
-        if mode != _M.MAV_RESULT_ACCEPTED:
-            log.write("event", event="land-refused", reason=f"MAV_CMD_DO_SET_MODE LAND: result {mode}")
-        link.wait(lambda: not link.armed, LAND_TIMEOUT_S)
-        log.write("event", event="done", disarmed=not link.armed)
+        land(link, log)
     finally:
         conn.close()
 
@@ -72,14 +65,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--sensors", default="0,1,2", help="ids of the rangefinder echoes to log")
     p.add_argument("--connect-timeout", type=float, default=60.0)
     p.add_argument("--log", help="write JSON lines (events and steps) to this file")
-    args = p.parse_args(argv)
-    out = open(args.log, "w", encoding="utf-8") if args.log else None  # noqa: SIM115 - closed below
-    try:
-        with contextlib.suppress(KeyboardInterrupt):
-            fly(args, Log(out))
-    finally:
-        if out is not None:
-            out.close()
+    run_logged(fly, p.parse_args(argv))
 
 
 if __name__ == "__main__":
