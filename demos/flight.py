@@ -168,6 +168,25 @@ async def apply_attack(tap: Tap, case: Case, opts: Options, sysids: list[int]) -
     return acks
 
 
+async def hold_and_attack(bar: FlightProgress, tap: Tap, procs: Processes, log: Path, case: Case, opts: Options,
+                          sysid: int, armed_timeout_s: float, arming: str = "waiting to arm, taking off",
+                          ) -> tuple[float, float, float, dict[int, dict[str, Any]]]:  # fmt: skip
+    """One vehicle whose controller (``controller1``) logs ``holding``, ``landing`` and ``done``: wait for the hold,
+    settle, push the attack, wait for the landing. Returns (hold, scored from, landing, acks), wall-clock seconds."""
+    bar.phase(arming)
+    hold_s = await wait_for_event(log, "holding", procs, "controller1", armed_timeout_s)
+    bar.holding_since(hold_s)
+    bar.phase("settling")
+    await asyncio.sleep(opts.settle_s)
+    bar.phase("holding, attack on" if case.attack is not None else "holding")
+    t_scored = time.time()
+    acks = await apply_attack(tap, case, opts, [sysid])
+    landing = await wait_for_event(log, "landing", procs, "controller1", opts.seconds + 60.0)
+    bar.phase("landing")
+    await wait_for_event(log, "done", procs, "controller1", 120.0)
+    return hold_s, t_scored, landing, acks
+
+
 def dump_jsonl(path: Path, rows: list[tuple[float, dict[str, Any]]]) -> None:
     path.write_text("".join(json.dumps({"wall_s": t, **d}) + "\n" for t, d in rows), encoding="utf-8")
 

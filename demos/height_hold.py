@@ -16,12 +16,10 @@ altitude it had on the ground before arming.
 
 from __future__ import annotations
 
-import asyncio
 import sys
-import time
 from typing import Any
 
-from demos.flight import Case, FlightProgress, Options, apply_attack, dump_jsonl, read_jsonl, wait_for_event
+from demos.flight import Case, FlightProgress, Options, dump_jsonl, hold_and_attack, read_jsonl
 from demos.mqtt_tap import Tap
 from demos.scoring import Window, height_metrics, held_summary
 from demos.sitl import Sitl, Truth, tcp_port
@@ -73,17 +71,8 @@ async def run_case(case: Case, opts: Options) -> dict[str, Any]:
             "--log", str(log), "--altitude", str(target_m), "--target", str(target_m),
         ])  # fmt: skip
         try:
-            bar.phase("waiting for ArduPilot to arm, taking off")
-            hold_s = await wait_for_event(log, "holding", procs, "controller1", ARMED_S)
-            bar.holding_since(hold_s)
-            bar.phase("settling")
-            await asyncio.sleep(opts.settle_s)
-            bar.phase("holding, attack on" if case.attack is not None else "holding")
-            t_scored = time.time()
-            acks = await apply_attack(tap, case, opts, [SYSID])
-            landing = await wait_for_event(log, "landing", procs, "controller1", opts.seconds + 60.0)
-            bar.phase("landing")
-            await wait_for_event(log, "done", procs, "controller1", 120.0)
+            hold_s, t_scored, landing, acks = await hold_and_attack(
+                bar, tap, procs, log, case, opts, SYSID, ARMED_S, arming="waiting for ArduPilot to arm, taking off")
         finally:
             truth.stop()
         estimates = [(x.wall_s, x.payload) for x in tap.on(vehicle_topic(SYSID, "estimate"))]

@@ -26,15 +26,13 @@ far the autopilot's own altitude (what it reports) sits from the truth (``own_mi
 
 from __future__ import annotations
 
-import asyncio
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from demos.flight import Case, FlightProgress, Options, apply_attack, dump_jsonl, read_jsonl, wait_for_event
+from demos.flight import Case, FlightProgress, Options, dump_jsonl, hold_and_attack, read_jsonl
 from demos.mqtt_tap import Tap
 from demos.scoring import Window, _in, _rms_max, height_metrics, held_summary
 from demos.sitl import Sitl, Truth, tcp_port
@@ -68,26 +66,6 @@ def _proxy_flags(case: Case, scenario: str, ports: Ports, out: Path) -> list[str
             "--stats-interval", "5"]  # fmt: skip
 
 
-Acks = dict[int, dict[str, Any]]
-
-
-async def _hold_and_attack(bar: FlightProgress, tap: Tap, procs: Processes, log: Path, case: Case, opts: Options,
-                           armed_timeout_s: float) -> tuple[float, float, float, Acks]:  # fmt: skip
-    """Wait for the hold, settle, push the attack, wait for the landing: (hold, scored from, landing, acks)."""
-    bar.phase("waiting to arm, taking off")
-    hold_s = await wait_for_event(log, "holding", procs, "controller1", armed_timeout_s)
-    bar.holding_since(hold_s)
-    bar.phase("settling")
-    await asyncio.sleep(opts.settle_s)
-    bar.phase("holding, attack on" if case.attack is not None else "holding")
-    t_scored = time.time()
-    acks = await apply_attack(tap, case, opts, [SYSID])
-    landing = await wait_for_event(log, "landing", procs, "controller1", opts.seconds + 60.0)
-    bar.phase("landing")
-    await wait_for_event(log, "done", procs, "controller1", 120.0)
-    return hold_s, t_scored, landing, acks
-
-
 async def _fly_ardupilot(case: Case, opts: Options, out: Path, log: Path, target_m: float) -> dict[str, Any]:
     assert opts.sitl is not None
     p, so = opts.ports, opts.sitl
@@ -117,7 +95,7 @@ async def _fly_ardupilot(case: Case, opts: Options, out: Path, log: Path, target
             "--seconds", str(opts.seconds), "--log", str(log), "--altitude", str(target_m),
         ])  # fmt: skip
         try:
-            hold_s, t_scored, landing, acks = await _hold_and_attack(bar, tap, procs, log, case, opts, ARMED_S)
+            hold_s, t_scored, landing, acks = await hold_and_attack(bar, tap, procs, log, case, opts, SYSID, ARMED_S)
         finally:
             truth.stop()
         estimates = [(x.wall_s, x.payload) for x in tap.on(vehicle_topic(SYSID, "estimate"))]
@@ -149,7 +127,7 @@ async def _fly_flightsim(case: Case, opts: Options, out: Path, log: Path, target
             "--seconds", str(opts.seconds), "--log", str(log), "--altitude", str(target_m),
             "--connect-timeout", str(CONNECT_S),
         ])  # fmt: skip
-        hold_s, t_scored, landing, acks = await _hold_and_attack(bar, tap, procs, log, case, opts, TAKEOFF_S)
+        hold_s, t_scored, landing, acks = await hold_and_attack(bar, tap, procs, log, case, opts, SYSID, TAKEOFF_S)
         truth = [(x.wall_s, x.payload) for x in tap.on(vehicle_topic(SYSID, "truth"))]
         estimates = [(x.wall_s, x.payload) for x in tap.on(vehicle_topic(SYSID, "estimate"))]
     heights = [(t, -float(d["pos_ned_m"][2])) for t, d in truth]  # above flightsim's ground (z = 0 at home)
