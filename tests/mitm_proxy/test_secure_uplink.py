@@ -19,21 +19,16 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from uplink_bench import Run, UplinkBench
 
-from attack_profiles.profile import parse_profile
 from mavframe.frames import split
 from mavframe.packet import Direction
-from mitm_proxy.core.pipeline import Pipeline
-from mitm_proxy.core.stats import LinkStats
-from mitm_proxy.stages.attack import AttackStage
-from mitm_proxy.stages.attack_slot import AttackSlot
 from mitm_proxy.stages.secure.config import SecureConfig, config_from_payload
-from mitm_proxy.stages.secure.stage import FLAGGED_QUALITY, SecureStage
+from mitm_proxy.stages.secure.stage import FLAGGED_QUALITY
 from secuav_common.loading import InputError
 from secuav_common.scenario import Scenario, load_scenario
 
@@ -48,39 +43,13 @@ def height() -> Scenario:
     return load_scenario("ardupilot_height")  # three downward rangefinders, ids 0-2
 
 
-@dataclass
-class Run:
-    up_in: list[bytes] = field(default_factory=list)  # frames the companion sent toward the vehicle
-    up_out: list[bytes] = field(default_factory=list)  # frames the autopilot received
-    down_in: list[bytes] = field(default_factory=list)
-    down_out: list[bytes] = field(default_factory=list)
-
-
 def fly(height: Scenario, secure: SecureConfig | None, seconds: float = 12.0, fed: tuple[int, ...] = (0, 1, 2)) -> Run:
     """A companion (sysid 1, compid 197) sends the ``fed`` ids at 10 Hz toward the vehicle, each its own datagram;
     the vehicle sends ATTITUDE, LOCAL_POSITION_NED, its own echo of the fed ones (ArduPilot re-reports a
     MAVLink rangefinder) and its own reading of the others toward the ground."""
-    slot = AttackSlot(1, height)
-    assert slot.offer(parse_profile(FEED, "feed.yaml")).ok
-    stages: list = [AttackStage(slot)]
-    if secure is not None:
-        stages.append(SecureStage(secure, height, 1))
-    pipe = Pipeline(0, stages, stats=LinkStats(1))
-    companion = mavlink.MAVLink(None, srcSystem=1, srcComponent=197)
-    vehicle = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    bench = UplinkBench(height, FEED, "feed.yaml", secure)
+    companion, vehicle, send, run = bench.companion, bench.vehicle, bench.send, bench.run
     rng = random.Random(7)
-    run = Run()
-
-    def send(mav: mavlink.MAVLink, msg: mavlink.MAVLink_message, direction: Direction, t_s: float) -> None:
-        raw = bytes(msg.pack(mav))
-        outs = pipe.feed(raw, direction, t_s)
-        got = [r for o in outs for _h, r in split(o.data).frames]
-        if direction is Direction.UPLINK:
-            run.up_in.append(raw)
-            run.up_out += got
-        else:
-            run.down_in.append(raw)
-            run.down_out += got
 
     start_s = time.monotonic()  # the profile's activation clock started at install
     for k in range(int(seconds * 10)):

@@ -12,21 +12,14 @@ from __future__ import annotations
 import math
 import random
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from uplink_bench import Run, UplinkBench
 
-from attack_profiles.profile import parse_profile
-from mavframe.frames import split
 from mavframe.packet import Direction
-from mitm_proxy.core.pipeline import Pipeline
-from mitm_proxy.core.stats import LinkStats
-from mitm_proxy.stages.attack import AttackStage
-from mitm_proxy.stages.attack_slot import AttackSlot
 from mitm_proxy.stages.secure.config import SecureConfig
-from mitm_proxy.stages.secure.stage import SecureStage
 from secuav_common.scenario import Scenario, load_scenario
 
 TRUE = (1.0, -2.0, -5.0)  # where the vehicle really is (NED, m)
@@ -42,38 +35,13 @@ def scenario() -> Scenario:
     return load_scenario("px4_vision")
 
 
-@dataclass
-class Run:
-    up_in: list[bytes] = field(default_factory=list)
-    up_out: list[bytes] = field(default_factory=list)
-    down_in: list[bytes] = field(default_factory=list)
-    down_out: list[bytes] = field(default_factory=list)
-
-
 def fly(scenario: Scenario, secure: SecureConfig | None, seconds: float = 20.0, profile: dict | None = None) -> Run:
     """The companion (sysid 1, compid 197) sends vision at 30 Hz and the eight anchor ranges at 10 Hz toward the
     vehicle; the vehicle sends LOCAL_POSITION_NED and ATTITUDE toward the ground."""
-    slot = AttackSlot(1, scenario)
-    assert slot.offer(parse_profile(profile or RAMP, "ramp.yaml")).ok
-    stages: list = [AttackStage(slot)]
-    if secure is not None:
-        stages.append(SecureStage(secure, scenario, 1))
-    pipe = Pipeline(0, stages, stats=LinkStats(1))
-    companion = mavlink.MAVLink(None, srcSystem=1, srcComponent=197)
-    vehicle = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    bench = UplinkBench(scenario, profile or RAMP, "ramp.yaml", secure)
+    companion, vehicle, send, run = bench.companion, bench.vehicle, bench.send, bench.run
     anchors = scenario.anchor_positions([a.id for a in scenario.world.anchors])
     rng = random.Random(5)
-    run = Run()
-
-    def send(mav: mavlink.MAVLink, msg: mavlink.MAVLink_message, direction: Direction, t_s: float) -> None:
-        raw = bytes(msg.pack(mav))
-        got = [r for o in pipe.feed(raw, direction, t_s) for _h, r in split(o.data).frames]
-        if direction is Direction.UPLINK:
-            run.up_in.append(raw)
-            run.up_out += got
-        else:
-            run.down_in.append(raw)
-            run.down_out += got
 
     start_s = time.monotonic()  # the profile's activation clock started at install
     for k in range(int(seconds * 30)):
