@@ -51,7 +51,7 @@ def cap_incoming(client: aiomqtt.Client, limit: int, said: RateLimitedLog | None
     client's own paho instance (aiomqtt builds one per client). An OSError from it is what paho does with a
     failed read: the connection is lost, and :meth:`Session.run` reconnects with backoff; ``said`` logs
     ``mqtt.packet_too_large`` (once per 10 s, with the count: a retained one comes back at each reconnect).
-    tests/test_common_broker_limits.py checks the hook still holds with the paho that is installed.
+    tests/secuav_common/test_common_broker_limits.py checks the hook still holds with the paho that is installed.
     """
     paho = client._client
     recv = paho._sock_recv

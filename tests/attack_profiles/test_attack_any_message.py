@@ -7,7 +7,6 @@ import subprocess
 import sys
 
 import pytest
-from attack_helpers import distance, make_profile, rule, send, started
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -16,6 +15,7 @@ from attack_profiles import Direction, parse_profile
 from attack_profiles import dialect as derived
 from attack_profiles.units import MESSAGES, FieldSpec
 from secuav_common.loading import InputError
+from tests.support.attack_helpers import distance, make_profile, rule, send, started
 
 ALL_MESSAGES = sorted(cls.msgname for cls in mavlink.mavlink_map.values())
 TYPED = [

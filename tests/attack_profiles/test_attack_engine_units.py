@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from attack_helpers import (
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from attack_profiles import FORWARD, Direction, Engine
+from attack_profiles.units import MESSAGES
+from tests.support.attack_helpers import (
     GLOBAL_POSITION_INT,
     GPS_RAW_INT,
     LOCAL_POSITION_NED,
@@ -15,10 +19,6 @@ from attack_helpers import (
     send,
     started,
 )
-from pymavlink.dialects.v20 import ardupilotmega as mavlink
-
-from attack_profiles import FORWARD, Direction, Engine
-from attack_profiles.units import MESSAGES
 
 
 @pytest.mark.parametrize("message", sorted(MESSAGES))

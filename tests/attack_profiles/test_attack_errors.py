@@ -6,11 +6,11 @@ import json
 from pathlib import Path
 
 import pytest
-from attack_helpers import make_profile, rule
 
 from attack_profiles import Engine, load_profile, parse_profile
 from secuav_common.loading import InputError
 from secuav_common.scenario import load_scenario
+from tests.support.attack_helpers import make_profile, rule
 
 GOOD = {"target": {"message": "DISTANCE_SENSOR", "sensor_id": 0}, "kind": "bias", "offset": 1.0}
 

@@ -5,13 +5,13 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from attack_helpers import distance
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from attack_profiles import Direction, Engine, Profile, parse_profile
 from attack_profiles.units import MESSAGES
 from secuav_common.loading import InputError
+from tests.support.attack_helpers import distance
 
 FAST = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

@@ -6,12 +6,12 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
-from attack_helpers import DISTANCE_SENSOR, GPS_RAW_INT, make_profile, rule, send, started
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from attack_profiles import Direction, Engine, parse_profile
 from secuav_common.loading import InputError
+from tests.support.attack_helpers import DISTANCE_SENSOR, GPS_RAW_INT, make_profile, rule, send, started
 
 RANGEFINDER = 173
 FAST = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -6,9 +6,9 @@ import math
 
 import numpy as np
 import pytest
-from attack_helpers import attacked_cm, distance, make_profile, rule, send, started
 
 from attack_profiles import FORWARD
+from tests.support.attack_helpers import attacked_cm, distance, make_profile, rule, send, started
 
 
 def test_bias_adds_offset_in_metres_inside_window_only() -> None:

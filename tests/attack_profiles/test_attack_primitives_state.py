@@ -7,10 +7,10 @@ import statistics
 
 import numpy as np
 import pytest
-from attack_helpers import LOCAL_POSITION_NED, attacked_cm, distance, make_profile, rule, send, started
 
 from attack_profiles import Engine
 from secuav_common.scenario import load_scenario
+from tests.support.attack_helpers import LOCAL_POSITION_NED, attacked_cm, distance, make_profile, rule, send, started
 
 
 def test_freeze_holds_last_value_before_window_per_sensor() -> None:

@@ -10,7 +10,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-from attack_helpers import DISTANCE_SENSOR, GLOBAL_POSITION_INT, LOCAL_POSITION_NED, make_profile, rule, send, started
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
@@ -18,6 +17,15 @@ from attack_profiles import library, parse_profile
 from attack_profiles.quantities import CARRIERS, M_PER_DEG, NOT_COVERED, mapping_table, true_copies
 from attack_profiles.units import MESSAGES
 from secuav_common.loading import InputError
+from tests.support.attack_helpers import (
+    DISTANCE_SENSOR,
+    GLOBAL_POSITION_INT,
+    LOCAL_POSITION_NED,
+    make_profile,
+    rule,
+    send,
+    started,
+)
 
 RANGEFINDER = 173
 FAST = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -6,7 +6,6 @@ import struct
 from typing import Any
 
 import pytest
-from attack_helpers import make_profile, started
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -15,6 +14,7 @@ from attack_profiles import Action, Direction, Engine, library, parse_profile
 from mavframe import codec
 from mavframe.packet import Packet
 from secuav_common.loading import InputError
+from tests.support.attack_helpers import make_profile, started
 
 UP = Direction.UPLINK
 TAKEOFF = mavlink.MAV_CMD_NAV_TAKEOFF

@@ -22,7 +22,7 @@ from mavframe.frames import split
 from mavframe.packet import Direction, Packet
 from secuav_common.geo import EARTH_RADIUS_M
 from secuav_common.loading import InputError
-from tests.mavframe.frames_support import heartbeat, mav, pack, parse_all
+from tests.support.frames_support import heartbeat, mav, pack, parse_all
 
 UP, DOWN = Direction.UPLINK, Direction.DOWNLINK
 T0 = 1000.0  # the monotonic time the profile is activated at

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import pytest
-from est_helpers import ANCHORS8_NED_M, SIGMA_M
 
 from estimators.models import AnchorRanges2D, ScalarGroup
+from tests.support.est_helpers import ANCHORS8_NED_M, SIGMA_M
 
 
 @pytest.fixture

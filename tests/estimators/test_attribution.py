@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from est_helpers import ANCHORS8_NED_M, HOVER_XY_M, SECURE, SIGMA_M, run_stream
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -12,6 +11,7 @@ import estimators
 from estimators.attribution import sidak_gate
 from estimators.bounds import l0_error_bound
 from estimators.models import AnchorRanges2D, AnchorRangesHeight, LinearModel
+from tests.support.est_helpers import ANCHORS8_NED_M, HOVER_XY_M, SECURE, SIGMA_M, run_stream
 
 CLEAN_STEPS = 1500
 

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
-from est_helpers import ANCHORS8_NED_M, HOVER_XY_M, SIGMA_M
 
 import estimators
 from estimators.models import AnchorRanges2D, AnchorRanges3D, ScalarGroup
+from tests.support.est_helpers import ANCHORS8_NED_M, HOVER_XY_M, SIGMA_M
 
 
 def _run(name: str, model, truth: np.ndarray, steps: int, bias: np.ndarray | None = None, seed: int = 0):

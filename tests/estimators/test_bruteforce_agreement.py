@@ -14,7 +14,6 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
-from est_helpers import ANCHORS8_NED_M, SECURE
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import least_squares
@@ -22,6 +21,7 @@ from scipy.stats import chi2
 
 import estimators
 from estimators.models import AnchorRanges2D, ScalarGroup
+from tests.support.est_helpers import ANCHORS8_NED_M, SECURE
 
 ALPHA = 0.01
 

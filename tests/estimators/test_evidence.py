@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from est_helpers import HOVER_XY_M, SIGMA_M, run_stream
 
 from estimators.models import AnchorRanges2D
 from estimators.subsets import Evidence
+from tests.support.est_helpers import HOVER_XY_M, SIGMA_M, run_stream
 
 STEPS = 400  # 40 s at 10 Hz
 

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from est_helpers import HOVER_XY_M, SIGMA_M
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import estimators
 from estimators.marzullo import fusion_interval
 from estimators.models import AnchorRanges2D, ScalarGroup
+from tests.support.est_helpers import HOVER_XY_M, SIGMA_M
 
 
 def _stream(model: AnchorRanges2D, biased: list[int], offset_m: float, steps: int, seed: int) -> list[np.ndarray]:

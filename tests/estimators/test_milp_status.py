@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
-from est_helpers import ANCHORS8_NED_M, SIGMA_M
 
 import estimators
 from estimators.models import AnchorRanges2D
+from tests.support.est_helpers import ANCHORS8_NED_M, SIGMA_M
 
 
 def _perimeter(p: int) -> np.ndarray:

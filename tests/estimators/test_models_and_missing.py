@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from est_helpers import ANCHORS8_NED_M, HOVER_XY_M, SECURE, SIGMA_M, run_stream
 from hypothesis import given
 from hypothesis import strategies as st
 
 import estimators
 from estimators.models import AnchorRanges2D, AnchorRanges3D, LinearModel, ScalarGroup, TwoVehicleRanges
+from tests.support.est_helpers import ANCHORS8_NED_M, HOVER_XY_M, SECURE, SIGMA_M, run_stream
 
 ALL = tuple(estimators.names(AnchorRanges2D.build(ANCHORS8_NED_M)))
 

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from est_helpers import ANCHORS8_NED_M, SIGMA_M
 
 import estimators
 from estimators.bank import EkfBank
 from estimators.models import AnchorRanges2D
+from tests.support.est_helpers import ANCHORS8_NED_M, SIGMA_M
 
 
 def test_the_velocity_update_is_the_textbook_kalman_update() -> None:

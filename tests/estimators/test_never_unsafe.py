@@ -7,13 +7,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from est_helpers import ANCHORS8_NED_M, SIGMA_M
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import estimators
 from estimators.envelope import MAX_SPEED_MPS, SLACK_M
 from estimators.models import AnchorRanges2D, AnchorRangesHeight
+from tests.support.est_helpers import ANCHORS8_NED_M, SIGMA_M
 
 BUILT_INS = ("ls", "ekf", "l1", "secekf", "secopt", "recap", "rarse", "poly", "l0", "milp")
 STEPS = 80

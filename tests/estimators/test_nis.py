@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from est_helpers import HOVER_XY_M
 
 import estimators
 from estimators.models import AnchorRanges2D
+from tests.support.est_helpers import HOVER_XY_M
 
 STEPS = 600
 

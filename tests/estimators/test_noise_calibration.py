@@ -7,11 +7,11 @@ import math
 
 import numpy as np
 import pytest
-from est_helpers import ANCHORS8_NED_M, HOVER_XY_M
 from scipy.stats import t as student_t
 
 from estimators import noise
 from estimators.models import AnchorRanges2D
+from tests.support.est_helpers import ANCHORS8_NED_M, HOVER_XY_M
 
 RATE_HZ = 10.0
 SIGMA = 0.07

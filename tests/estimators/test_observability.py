@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.linalg
-from est_helpers import ANCHORS8_NED_M, SIGMA_M
 
 import estimators
 from estimators.models import AnchorRanges2D, AnchorRanges3D, AnchorRangesHeight, LinearModel, TwoVehicleRanges
 from estimators.observability import linear_correctable
+from tests.support.est_helpers import ANCHORS8_NED_M, SIGMA_M
 
 # Four anchors on the line north = 2.5 m across the middle, four at the corners (issue 26's layout).
 COLLINEAR_NED_M = np.array(

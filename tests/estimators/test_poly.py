@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import numpy as np
-from est_helpers import HOVER_XY_M, SIGMA_M, run_stream
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import estimators
 from estimators.models import AnchorRanges2D
 from estimators.poly import Polyhedral
+from tests.support.est_helpers import HOVER_XY_M, SIGMA_M, run_stream
 
 ONSET, STEPS = 10, 100
 

@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from est_helpers import HOVER_XY_M, SECURE, SIGMA_M, run_stream
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from estimators.models import AnchorRanges2D
+from tests.support.est_helpers import HOVER_XY_M, SECURE, SIGMA_M, run_stream
 
 ONSET = 20  # attack starts at this step (2 s of clean hover first)
 SETTLE = 12  # steps after onset before judging (longer than the default windows)

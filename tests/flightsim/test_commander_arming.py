@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import math
 
-from flight_helpers import airborne, fly_offboard, texts
-
 from flightsim.api import FlightMode, LandedState, NavCommand, NavItem, OffboardSetpoint, Result
 from flightsim.simulation import Simulation
 from secuav_common.scenario import load_scenario
+from tests.support.flight_helpers import airborne, fly_offboard, texts
 
 
 def test_initial_state_is_disarmed_manual_on_ground() -> None:

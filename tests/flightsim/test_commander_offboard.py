@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import math
 
-from flight_helpers import airborne, fly_offboard, texts
-
 from flightsim.api import FlightMode, LandedState, OffboardSetpoint, Result
 from flightsim.simulation import Simulation
 from secuav_common.scenario import load_scenario
+from tests.support.flight_helpers import airborne, fly_offboard, texts
 
 
 def test_offboard_refused_without_a_setpoint_stream() -> None:

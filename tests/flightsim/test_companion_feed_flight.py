@@ -28,7 +28,6 @@ from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 
 import pytest
-from gcs import Gcs
 from pymavlink.dialects.v20 import common as mav
 
 from flightsim.companion.cli import FeedConfig, serve
@@ -38,6 +37,7 @@ from mitm_proxy.config import LinkConfig, ProxyConfig
 from secuav_common.broker import EmbeddedBroker
 from secuav_common.scenario import load_scenario
 from secuav_common.urls import Endpoint
+from tests.support.gcs import Gcs
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(120)]
 

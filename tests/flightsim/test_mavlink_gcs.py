@@ -15,13 +15,13 @@ import time
 from collections.abc import Callable
 
 import pytest
-from gcs import Gcs
-from live_sim import live_sim
 from pymavlink import mavutil
 
 from flightsim.mavlink.parameters import int_to_wire, wire_to_int
 from flightsim.runner import SimRunner
 from flightsim.vehicle import Vehicle
+from tests.support.gcs import Gcs
+from tests.support.live_sim import live_sim
 
 mav = mavutil.mavlink
 ACCEPTED, TEMP_REJECTED, DENIED, UNSUPPORTED = 0, 1, 2, 3

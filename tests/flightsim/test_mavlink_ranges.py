@@ -14,11 +14,11 @@ import time
 from collections.abc import Callable
 
 import pytest
-from gcs import Gcs
-from live_sim import live_sim
 from pymavlink import mavutil
 
 from secuav_common.scenario import load_scenario
+from tests.support.gcs import Gcs
+from tests.support.live_sim import live_sim
 
 mav = mavutil.mavlink
 CUSTOM = 100  # MAV_SENSOR_ROTATION_CUSTOM

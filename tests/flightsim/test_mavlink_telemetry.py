@@ -14,12 +14,12 @@ from collections import defaultdict
 from collections.abc import Callable
 
 import pytest
-from gcs import Gcs
-from live_sim import live_sim
 from pymavlink import mavutil
 
 from secuav_common.geo import geodetic_to_ned
 from secuav_common.scenario import load_scenario
+from tests.support.gcs import Gcs
+from tests.support.live_sim import live_sim
 
 mav = mavutil.mavlink
 WATCH_S = 2.5

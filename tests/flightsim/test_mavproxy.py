@@ -13,7 +13,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from live_sim import live_sim
+
+from tests.support.live_sim import live_sim
 
 pytest.importorskip("MAVProxy", reason="MAVProxy comes with the project's test extras")
 

@@ -13,7 +13,6 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 
 import pytest
-from live_sim import live_sim, until
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk, System
 from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.mission import MissionAsync
@@ -26,6 +25,7 @@ from mavsdk.plugins.telemetry import FlightMode
 from flightsim.runner import SimRunner
 from flightsim.vehicle import Vehicle
 from secuav_common.geo import ned_to_geodetic
+from tests.support.live_sim import live_sim, until
 
 TAKEOFF_ALT_M = 2.5
 LEG_SPEED_M_S = 1.0

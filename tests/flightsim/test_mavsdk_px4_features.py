@@ -13,7 +13,6 @@ import math
 from collections.abc import Callable
 
 import pytest
-from live_sim import live_sim, until
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.offboard import OffboardAsync
@@ -25,6 +24,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from flightsim.vehicle import Vehicle
 from secuav_common.geo import ned_to_geodetic
+from tests.support.live_sim import live_sim, until
 
 
 async def _mode(tel: TelemetryAsync, wanted: FlightMode) -> None:

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import math
 
-from flight_helpers import airborne
-
 from flightsim.api import FlightMode, NavCommand, NavItem
 from flightsim.simulation import Simulation
+from tests.support.flight_helpers import airborne
 
 MID_N = 4.5  # the legs run between north 2.5 and 6.5
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 import logging
 import math
 
-from flight_helpers import airborne
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mavlink
@@ -18,6 +17,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from flightsim.mavlink import Px4Personality
 from flightsim.mavlink.commands import HANDLERS
 from flightsim.vehicle import Vehicle
+from tests.support.flight_helpers import airborne
 
 floats32 = st.floats(width=32, allow_nan=True, allow_infinity=True)
 command_ids = st.one_of(st.sampled_from(sorted(HANDLERS)), st.integers(0, 65535))

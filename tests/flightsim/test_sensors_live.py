@@ -6,12 +6,11 @@ import itertools
 import math
 import statistics
 
-from flight_helpers import airborne
-
 from flightsim.api import OffboardSetpoint, State
 from flightsim.simulation import Simulation
 from secuav_common.geo import geodetic_to_ned
 from secuav_common.scenario import load_scenario, parse_scenario
+from tests.support.flight_helpers import airborne
 
 
 def test_wall_group_reads_the_distance_to_the_wall_within_noise_even_while_tilting() -> None:

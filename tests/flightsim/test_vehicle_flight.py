@@ -5,11 +5,10 @@ from __future__ import annotations
 import math
 import statistics
 
-from flight_helpers import airborne, fly_offboard, texts
-
 from flightsim.api import FlightMode, LandedState, NavCommand, NavItem, OffboardSetpoint
 from flightsim.simulation import Simulation
 from secuav_common.scenario import load_scenario
+from tests.support.flight_helpers import airborne, fly_offboard, texts
 
 
 def test_takeoff_reaches_mis_takeoff_alt_within_20cm_and_hovers_still() -> None:

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-from flight_helpers import airborne, fly_offboard, texts
-
 from flightsim.api import FlightMode, OffboardSetpoint, Result
 from flightsim.simulation import Simulation
 from secuav_common.scenario import load_scenario
+from tests.support.flight_helpers import airborne, fly_offboard, texts
 
 
 def test_flying_into_the_wall_is_a_crash_with_a_status_text() -> None:

@@ -13,7 +13,7 @@ from mavframe import codec
 from mavframe.frames import CRC_EXTRA, crc_of, split
 from mavframe.packet import Direction, Packet
 from mavframe.signing import Signer
-from tests.mavframe.frames_support import (
+from tests.support.frames_support import (
     TEST_KEY,
     distance,
     frames,

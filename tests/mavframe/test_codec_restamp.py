@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 
 from mavframe import codec
 from mavframe.frames import crc_of, split
-from tests.mavframe.frames_support import distance, heartbeat, mav, pack, parse_all, signed_mav
+from tests.support.frames_support import distance, heartbeat, mav, pack, parse_all, signed_mav
 
 
 @given(st.integers(0, 255), st.integers(0, 255), st.booleans())

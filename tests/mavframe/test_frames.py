@@ -20,7 +20,7 @@ from mavframe.frames import (
     split,
     tiles,
 )
-from tests.mavframe.frames_support import (
+from tests.support.frames_support import (
     DISTANCE_SENSOR,
     distance,
     frames,

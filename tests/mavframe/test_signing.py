@@ -13,8 +13,8 @@ from mavframe.frames import split
 from mavframe.packet import Direction, Packet
 from mavframe.signing import EPOCH_2015_S, Signer, parse_key, timestamp_now
 from secuav_common.loading import InputError
-from tests.mavframe.frames_support import TEST_KEY, distance, heartbeat, pack, signed_mav
-from tests.mavframe.frames_support import mavlink as dialect
+from tests.support.frames_support import TEST_KEY, distance, heartbeat, pack, signed_mav
+from tests.support.frames_support import mavlink as dialect
 
 DOWN = Direction.DOWNLINK
 

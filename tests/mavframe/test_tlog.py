@@ -10,7 +10,7 @@ from pymavlink import mavutil
 
 from mavframe import tlog
 from mavframe.frames import split
-from tests.mavframe.frames_support import distance, heartbeat, local_position, pack, unknown_frame
+from tests.support.frames_support import distance, heartbeat, local_position, pack, unknown_frame
 
 
 def _log(frames: list[bytes], t0: float = 1_700_000_000.0) -> bytes:

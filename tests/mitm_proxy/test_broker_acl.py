@@ -22,9 +22,9 @@ from pathlib import Path
 import aiomqtt
 import pytest
 from pymavlink import mavutil
-from test_control_support import Mosquitto, attack_cli, needs_mosquitto
 
 from secuav_common.broker import admits
+from tests.support.brokers import Mosquitto, attack_cli, needs_mosquitto
 
 pytestmark = [
     pytest.mark.slow,

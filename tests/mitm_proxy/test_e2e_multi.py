@@ -15,13 +15,13 @@ from pathlib import Path
 
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
-from test_link import Peer
 
 from flightsim.runner import RunConfig, SimRunner
 from mitm_proxy.app import Proxy
 from mitm_proxy.cli import build_parser, config_from_args
 from secuav_common.scenario import load_scenario
 from secuav_common.urls import Endpoint
+from tests.support.udp_peers import Peer
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(60)]
 REPO = Path(__file__).resolve().parents[2]

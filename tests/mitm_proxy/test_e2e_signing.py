@@ -21,12 +21,12 @@ from pathlib import Path
 import aiomqtt
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
-from test_link import Peer
 
 from mitm_proxy.app import Proxy, stats_line
 from mitm_proxy.config import LinkConfig, ProxyConfig
 from secuav_common.broker import EmbeddedBroker
 from secuav_common.controlplane.payloads import request_bytes
+from tests.support.udp_peers import Peer
 
 pytestmark = pytest.mark.timeout(30)
 KEY = os.urandom(32)

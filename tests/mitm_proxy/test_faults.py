@@ -13,12 +13,12 @@ import threading
 from collections.abc import AsyncIterator, Callable
 
 import pytest
-from test_link import Peer, command, heartbeat, packer
 
 from mavframe.frames import split
 from mitm_proxy.app import Proxy
 from mitm_proxy.config import LinkConfig, ProxyConfig
 from secuav_common.broker import EmbeddedBroker
+from tests.support.udp_peers import Peer, command, heartbeat, packer
 
 pytestmark = pytest.mark.timeout(40)
 

@@ -14,10 +14,10 @@ import sys
 from pathlib import Path
 
 import pytest
-from test_console_browser import BAD_PROFILE, _spawn, _stop, _until, browser  # noqa: F401  (the fixture)
 
 from secuav_common.broker import EmbeddedBroker
 from tests.conftest import free_tcp_port
+from tests.webconsole.test_console_browser import BAD_PROFILE, _spawn, _stop, _until, browser  # noqa: F401  (the fixture)
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
 
