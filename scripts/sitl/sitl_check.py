@@ -579,163 +579,260 @@ def stop(p: subprocess.Popen[bytes] | None) -> None:
         p.wait()
 
 
+# --- the checks: each judges what a run measured and returns the rows it prints -----------------
+
+
+@dataclass(frozen=True)
+class Row:
+    """One printed line of a run, and whether the figure on it held (a line that only informs holds)."""
+
+    text: str
+    ok: bool = True
+
+
+def judged(text: str, good: bool) -> Row:
+    """A row that, failing, says so at its end."""
+    return Row(text if good else f"{text}  FAIL", good)
+
+
+def shown(rows: list[Row]) -> list[Row]:
+    for row in rows:
+        print(row.text)
+    return rows
+
+
+def check_parameters(fetched: dict[int, tuple[int, int, float]]) -> list[Row]:
+    """Each vehicle's full parameter list through the proxy: sysid -> (received, count, seconds)."""
+    return [judged(f"parameters, sysid {s}, through the proxy: {got} of {count} in {secs:.1f} s", got == count > 0)
+            for s, (got, count, secs) in fetched.items()]  # fmt: skip
+
+
+def check_mission(sent: int, equal: int, ack: str) -> list[Row]:
+    """A mission uploaded to vehicle 1 through the proxy and read back."""
+    return [judged(f"mission, sysid 1, through the proxy: {sent} waypoints uploaded ({ack}), "
+                   f"{equal} of {sent} read back equal", equal == sent and ack == "MAV_MISSION_ACCEPTED")]
+
+
+def check_flight(flight: dict[int, dict[str, Any]], flight_name: str) -> list[Row]:
+    """What :func:`fly` saw of each vehicle: a take-off that reached its height, a landing that ended disarmed."""
+    rows = []
+    for s, f in flight.items():
+        good = f.get("reached_m") is not None and f.get("landed_disarmed_s") is not None
+        rows.append(judged(f"{flight_name} flight, sysid {s}: mode {f.get('mode')}, armed and take-off "
+                           f"{f.get('takeoff')} {f.get('takeoff_after_s')} s after {flight_name}, reached "
+                           f"{f.get('reached_m')} m {f.get('climb_s')} s later, land {f.get('land')}, landed and "
+                           f"disarmed {f.get('landed_disarmed_s')} s after it", good))
+    return rows
+
+
+def check_rates(through: dict[str, float], direct: dict[str, float], seconds: float) -> list[Row]:
+    """Message types and rates of vehicle 1 through the proxy against the direct link, over the same seconds
+    (said, not judged: the two links are not asked for the same streams)."""
+    only_proxy = sorted(set(through) - set(direct))
+    only_direct = sorted(set(direct) - set(through))
+    rows = [Row(f"message types, sysid 1, {seconds:.0f} s: {len(through)} through the proxy, {len(direct)} direct"
+                f" (only through the proxy: {only_proxy or 'none'}; only direct: {only_direct or 'none'})"),
+            Row("  type                       proxy Hz  direct Hz")]  # fmt: skip
+    for t in sorted(set(through) | set(direct)):
+        rows.append(Row(f"  {t:<26} {through.get(t, 0):8.2f}  {direct.get(t, 0):9.2f}"))
+    return rows
+
+
+def check_ground_frames(bad: int) -> list[Row]:
+    """Every frame the ground station got parses (pymavlink's CRC and framing)."""
+    return [Row(f"ground station: {bad} frames pymavlink rejected (bad CRC or framing)", bad == 0)]
+
+
+def check_forwarding(s: int, c: dict[str, Any]) -> list[Row]:
+    """Every downlink frame no rule targets arrived byte for byte and in order (:func:`compare`'s ``c``); the
+    proxy may have read a few as it was stopped (at most 20), and frames lost on the way are judged by
+    :func:`check_losses`."""
+    o: InOrder = c["order"]
+    exact = o.unmatched == 0 and o.tail <= 20
+    fail = "" if exact else f"  FAIL, {o.unmatched} altered or out of order, the first at {o.first_unmatched}"
+    return [Row(f"forwarding, sysid {s}: {o.matched} of {c['untargeted_got']} downlink frames no rule targets "
+                f"arrived byte for byte and in order ({c['untargeted_orig']} received by the proxy, {o.tail} of "
+                f"them as it was stopped, {o.missing} lost on the way){fail};"
+                f" {c['downlink_frames']} downlink frames in all, {c['unmatched']} received without an original",
+                exact)]  # fmt: skip
+
+
+def check_attack(c: dict[str, Any], offsets_m: tuple[float, ...]) -> list[Row]:
+    """Every reading of each attacked rangefinder rewritten, in every message that carries it."""
+    rows = []
+    twin = False
+    for i, off in enumerate(offsets_m):
+        for (mtype, idx), row in sorted(c["per"].items()):
+            if idx != i:
+                continue
+            d = row["delta_m"]
+            mean = sum(d) / len(d) if d else 0.0
+            verdict = "rewritten" if row["changed"] == row["frames"] else (
+                "TRUE VALUE LEFT ON THE WIRE" if row["changed"] == 0 else "partly rewritten")
+            twin |= row["changed"] < row["frames"]
+            rows.append(Row(f"  attack rangefinder {i} (+{off:g} m): {mtype:<16} {row['changed']:5d} of "
+                            f"{row['frames']:5d} readings changed, mean change {mean:+.2f} m: {verdict} "
+                            f"({row['no_reading']} frames with no reading left as they were)",
+                            row["changed"] == row["frames"] > 0))
+    if c["twin_example"]:
+        lie, truth = c["twin_example"]
+        rows.append(Row(f"  the ground station saw DISTANCE_SENSOR id 0 = {lie:.2f} m beside RANGEFINDER = "
+                        f"{truth:.2f} m"))
+    rows.append(Row(f"  every message carrying an attacked distance changed: {'yes' if not twin else 'NO'}"))
+    return rows
+
+
+def check_clearance(s: int, c: dict[str, Any], proxy_log: list[str]) -> list[Row]:
+    """ALTITUDE.bottom_clearance is no rule's carrier (docs/profile.md): where it reveals the true distance, the
+    proxy must have said so (``attack.true_copy``) when it applied the profile."""
+    if not c["clearance"]:
+        return []
+    bc = c["clearance"]
+    to_truth = statistics.median(abs(b - t) for b, t, _ in bc)
+    to_lie = statistics.median(abs(b - lie) for b, _, lie in bc)
+    rows = [Row(f"  ALTITUDE.bottom_clearance (the autopilot's fused height above ground, not rewritten): "
+                f"{len(bc)} frames, median distance to rangefinder 0's true reading {to_truth:.2f} m, to the "
+                f"attacked one {to_lie:.2f} m: "
+                f"{'REVEALS THE TRUE DISTANCE' if to_truth < to_lie else 'follows the attacked reading'}")]
+    if to_truth < to_lie:
+        said = [ln for ln in proxy_log
+                if " attack.true_copy " in ln and f"sysid={s} " in ln and "ALTITUDE.bottom_clearance" in ln]
+        rows.append(Row("  the proxy said so when it applied the profile (attack.true_copy naming "
+                        f"ALTITUDE.bottom_clearance): {'yes' if said else 'NO  FAIL'}", bool(said)))
+    return rows
+
+
+def check_no_reading(c: dict[str, Any]) -> list[Row]:
+    """A frame with no reading (outside its sensor's min..max) must not be made to look valid by the bias."""
+    nr = c["no_reading"]
+    return [Row(f"  frames with no reading (outside min..max, e.g. on the ground): {nr['frames']}; "
+                f"made to look valid by the bias: {nr['made_valid']}", nr["made_valid"] == 0)]
+
+
+def check_losses(lost: int, drops: int | None, ground_kind: str) -> list[Row]:
+    """UDP may lose frames; the proxy must not: every frame lost on the way must be one the ground station's own
+    socket dropped (the kernel counts those; ``drops`` is None on a TCP or serial ground side, which lose none)."""
+    if not (lost or drops):
+        return []
+    accounted = drops is not None and lost <= drops
+    what = (f"{drops} datagrams dropped by the kernel (/proc/net/udp)" if drops is not None
+            else f"a {ground_kind} link (nothing may be lost)")  # fmt: skip
+    return [Row(f"ground station's side: {what}, {lost} frames lost on the way: "
+                f"{'all accounted for' if accounted else 'NOT ACCOUNTED FOR  FAIL'}", accounted)]
+
+
+def proxy_stats(proxy_log: list[str], sysids: list[int]) -> list[Row]:
+    """The proxy's last stats line of each vehicle (said, not judged)."""
+    rows = []
+    for s in sysids:
+        stats = [ln for ln in proxy_log if "proxy.stats" in ln and f"sysid={s} " in ln]
+        if not stats:
+            continue
+        rows.append(Row(f"proxy's last stats line, sysid {s}: {stats[-1].split(' ', 1)[-1][:300]}"))
+        bad = stats[-1].split(" bad=")[1].split()[0] if " bad=" in stats[-1] else "0"
+        if bad != "0":
+            rows.append(Row(f"  bad={bad} on a healthy link"))
+    return rows
+
+
+# --- the launcher and the run ------------------------------------------------------------------
+
+
+class Stack:
+    """The launcher of one run: the autopilot's ``n`` vehicles, this tree's ``secuav-proxy`` dialling each of them
+    (recording, the bias profile in force), a ground station on the proxy's ground port and a direct link to
+    vehicle 1 around the proxy. Leaving it (as a context manager) stops the proxy first (SIGTERM: it closes its
+    recording), then the autopilot, and reads the ground socket's kernel drop count before closing it."""
+
+    def __init__(self, n: int, work: Path, ap: Autopilot, ground_kind: str) -> None:
+        self.n, self.work, self.ap = n, work, ap
+        self.sysids = list(range(1, n + 1))
+        self.ground = Ground(ground_kind, work)
+        self.proxy_log = work / "proxy.log"
+        self.sitl: subprocess.Popen[bytes] | None = None
+        self.proxy: subprocess.Popen[bytes] | None = None
+        self.gcs: Link | None = None
+        self.direct: Link | None = None
+        self.t_direct = self.t_end = 0.0  # the direct link joined; the run's measuring ended
+        self.drops: int | None = None
+
+    def start(self) -> list[Row]:
+        """Launch everything and wait for every vehicle's HEARTBEAT through the proxy: the autopilot's version
+        row, or a failing row that says what did not come up."""
+        ap, n = self.ap, self.n
+        self.sitl = ap.launch(n, self.work / "sitl-run.log")
+        failed = ap.wait_ready(n)
+        if failed:
+            return [Row(f"FAIL: {failed}", False)]
+        if self.ground.kind != "tcpin":
+            self.gcs = Link("gcs", self.ground.connect()).start()
+        cmd = [str(BIN / "secuav-proxy"), "--vehicles", str(n), "--ground", self.ground.proxy_url(),
+               "--broker", "none", "--record", str(self.work / "record"),
+               "--profile", str(profile_file(self.work, ap)), "--stats-interval", "5"]
+        for url in ap.vehicle_urls(n):
+            cmd += ["--vehicle", url]
+        self.proxy = subprocess.Popen(cmd, stdout=self.proxy_log.open("wb"), stderr=subprocess.STDOUT,
+                                      start_new_session=True)
+        if self.gcs is None:
+            self.gcs = Link("gcs", self.ground.connect()).start()  # tcpin: the proxy listens first
+        for s in self.sysids:
+            if self.gcs.wait(is_("HEARTBEAT", s), 60) is None:
+                return [Row(f"FAIL: no HEARTBEAT from sysid {s} through the proxy; see {self.proxy_log}", False)]
+        version = Row(f"{ap.name}: {ap.firmware}{autopilot_version(self.gcs, 1)}; {ap.build_text()}")
+        self.direct = Link("direct", mavutil.mavlink_connection(ap.direct_url(), source_system=254,
+                                                                dialect="ardupilotmega")).start()
+        self.t_direct = time.time()
+        return [version]
+
+    def __enter__(self) -> Stack:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.t_end = time.time()
+        time.sleep(1)
+        if self.direct is not None:
+            self.direct.close()
+        stop(self.proxy)  # SIGTERM: the proxy closes its recording
+        time.sleep(1.0)
+        stop(self.sitl)
+        if self.gcs is not None:
+            self.drops = self.ground.drops()
+            self.gcs.close()
+        self.ground.close()
+
+
 def run(n: int, work: Path, ap: Autopilot, ground_kind: str = "udp") -> tuple[bool, Path]:
-    ok = True
+    """One run: launch the stack and measure through it, stop it, then judge what it recorded; every check's rows
+    printed as they come. True when every row held."""
     work.mkdir(parents=True, exist_ok=True)
     side = "" if ground_kind == "udp" else f", ground side {ground_kind}"
     print(f"\n=== {n} vehicle{'s' if n > 1 else ''}{side} ===")
-    ground = Ground(ground_kind, work)
-    sitl_log = work / "sitl-run.log"
-    sitl = proxy = None
-    gcs = direct = None
-    drops: int | None = None
-    try:
-        sitl = ap.launch(n, sitl_log)
-        failed = ap.wait_ready(n)
-        if failed:
-            print(f"FAIL: {failed}")
+    rows: list[Row] = []
+    with Stack(n, work, ap, ground_kind) as stack:
+        rows += shown(stack.start())
+        if not all(r.ok for r in rows):
             return False, work
-        if ground.kind != "tcpin":
-            gcs = Link("gcs", ground.connect()).start()
-        record = work / "record"
-        cmd = [str(BIN / "secuav-proxy"), "--vehicles", str(n), "--ground", ground.proxy_url(),
-               "--broker", "none", "--record", str(record), "--profile", str(profile_file(work, ap)),
-               "--stats-interval", "5"]
-        for url in ap.vehicle_urls(n):
-            cmd += ["--vehicle", url]
-        proxy_log = work / "proxy.log"
-        proxy = subprocess.Popen(cmd, stdout=proxy_log.open("wb"), stderr=subprocess.STDOUT, start_new_session=True)
-        if gcs is None:
-            gcs = Link("gcs", ground.connect()).start()  # tcpin: the proxy listens first
-        sysids = list(range(1, n + 1))
-        for s in sysids:
-            if gcs.wait(is_("HEARTBEAT", s), 60) is None:
-                print(f"FAIL: no HEARTBEAT from sysid {s} through the proxy; see {proxy_log}")
-                return False, work
-        print(f"{ap.name}: {ap.firmware}{autopilot_version(gcs, 1)}; {ap.build_text()}")
-        direct = Link("direct", mavutil.mavlink_connection(ap.direct_url(), source_system=254,
-                                                           dialect="ardupilotmega")).start()
-        t_direct = time.time()
-
-        for s in sysids:
-            got, count, secs = fetch_params(gcs, s)
-            good = got == count and count > 0
-            ok &= good
-            print(f"parameters, sysid {s}, through the proxy: {got} of {count} in {secs:.1f} s"
-                  f"{'' if good else '  FAIL'}")
+        gcs = stack.gcs
+        assert gcs is not None and stack.direct is not None  # start() holds both when it held
+        rows += shown(check_parameters({s: fetch_params(gcs, s) for s in stack.sysids}))
         home = gcs.wait(is_("GLOBAL_POSITION_INT", 1), 10)
         lat, lon = (home.lat / 1e7, home.lon / 1e7) if home else (-35.363261, 149.165230)
-        sent, equal, ack = mission_roundtrip(gcs, 1, (lat, lon), ap.home_item)
-        good = equal == sent and ack == "MAV_MISSION_ACCEPTED"
-        ok &= good
-        print(f"mission, sysid 1, through the proxy: {sent} waypoints uploaded ({ack}), "
-              f"{equal} of {sent} read back equal{'' if good else '  FAIL'}")
-        flight = fly(gcs, sysids, ap)
-        for s in sysids:
-            f = flight[s]
-            good = f.get("reached_m") is not None and f.get("landed_disarmed_s") is not None
-            ok &= good
-            print(f"{ap.flight_name} flight, sysid {s}: mode {f.get('mode')}, armed and take-off {f.get('takeoff')} "
-                  f"{f.get('takeoff_after_s')} s after {ap.flight_name}, reached {f.get('reached_m')} m "
-                  f"{f.get('climb_s')} s later, land {f.get('land')}, landed and disarmed "
-                  f"{f.get('landed_disarmed_s')} s after it{'' if good else '  FAIL'}")
-        t_end = time.time()
-        time.sleep(1)
-    finally:
-        if direct is not None:
-            direct.close()
-        stop(proxy)  # SIGTERM: the proxy closes its recording
-        time.sleep(1.0)
-        stop(sitl)
-        if gcs is not None:
-            drops = ground.drops()
-            gcs.close()
-        ground.close()
-
-    # rates: the same seconds on both links (the direct link joined after boot)
-    t0, t1 = t_direct + 2, t_end
-    r_proxy, r_direct = rates(gcs.msgs, 1, t0, t1), rates(direct.msgs, 1, t0, t1)
-    types = sorted(set(r_proxy) | set(r_direct))
-    only_proxy = sorted(set(r_proxy) - set(r_direct))
-    only_direct = sorted(set(r_direct) - set(r_proxy))
-    print(f"message types, sysid 1, {t1 - t0:.0f} s: {len(r_proxy)} through the proxy, {len(r_direct)} direct"
-          f" (only through the proxy: {only_proxy or 'none'}; only direct: {only_direct or 'none'})")
-    print("  type                       proxy Hz  direct Hz")
-    for t in types:
-        print(f"  {t:<26} {r_proxy.get(t, 0):8.2f}  {r_direct.get(t, 0):9.2f}")
-    print(f"ground station: {gcs.bad} frames pymavlink rejected (bad CRC or framing)")
-    ok &= gcs.bad == 0
-
+        rows += shown(check_mission(*mission_roundtrip(gcs, 1, (lat, lon), ap.home_item)))
+        rows += shown(check_flight(fly(gcs, stack.sysids, ap), ap.flight_name))
+    t0, t1 = stack.t_direct + 2, stack.t_end  # the same seconds on both links (the direct link joined after boot)
+    rows += shown(check_rates(rates(gcs.msgs, 1, t0, t1), rates(stack.direct.msgs, 1, t0, t1), t1 - t0))
+    rows += shown(check_ground_frames(gcs.bad))
+    proxy_log = stack.proxy_log.read_text(errors="replace").splitlines()
     lost = 0
-    for s in sysids:
-        rec = work / "record" / f"v{s}"
-        original = read_tlog(rec / "original.tlog")
-        c = compare(original, gcs.msgs, s, ap.carriers)
-        o = c["order"]
-        exact = o.unmatched == 0 and o.tail <= 20
-        ok &= exact
-        lost += o.missing
-        print(f"forwarding, sysid {s}: {o.matched} of {c['untargeted_got']} downlink frames no rule targets "
-              f"arrived byte for byte and in order ({c['untargeted_orig']} received by the proxy, {o.tail} of "
-              f"them as it was stopped, {o.missing} lost on the way)"
-              f"{'' if exact else f'  FAIL, {o.unmatched} altered or out of order, the first at {o.first_unmatched}'};"
-              f" {c['downlink_frames']} downlink frames in all, {c['unmatched']} received without an original")
-        twin = False
-        for i, off in enumerate(ap.offsets_m):
-            for (mtype, idx), row in sorted(c["per"].items()):
-                if idx != i:
-                    continue
-                d = row["delta_m"]
-                mean = sum(d) / len(d) if d else 0.0
-                verdict = "rewritten" if row["changed"] == row["frames"] else (
-                    "TRUE VALUE LEFT ON THE WIRE" if row["changed"] == 0 else "partly rewritten")
-                twin |= row["changed"] < row["frames"]
-                ok &= row["changed"] == row["frames"] > 0  # every reading rewritten, in every carrier
-                print(f"  attack rangefinder {i} (+{off:g} m): {mtype:<16} {row['changed']:5d} of {row['frames']:5d} "
-                      f"readings changed, mean change {mean:+.2f} m: {verdict} ({row['no_reading']} frames with "
-                      "no reading left as they were)")
-        if c["twin_example"]:
-            lie, truth = c["twin_example"]
-            print(f"  the ground station saw DISTANCE_SENSOR id 0 = {lie:.2f} m beside RANGEFINDER = {truth:.2f} m")
-        print(f"  every message carrying an attacked distance changed: {'yes' if not twin else 'NO'}")
-        if c["clearance"]:
-            bc = c["clearance"]
-            to_truth = statistics.median(abs(b - t) for b, t, _ in bc)
-            to_lie = statistics.median(abs(b - lie) for b, _, lie in bc)
-            print(f"  ALTITUDE.bottom_clearance (the autopilot's fused height above ground, not rewritten): "
-                  f"{len(bc)} frames, median distance to rangefinder 0's true reading {to_truth:.2f} m, to the "
-                  f"attacked one {to_lie:.2f} m: "
-                  f"{'REVEALS THE TRUE DISTANCE' if to_truth < to_lie else 'follows the attacked reading'}")
-            if to_truth < to_lie:
-                # not rewritten by design (docs/profile.md); then the proxy must say so when it applies the profile
-                said = [ln for ln in (work / "proxy.log").read_text(errors="replace").splitlines()
-                        if " attack.true_copy " in ln and f"sysid={s} " in ln and "ALTITUDE.bottom_clearance" in ln]
-                ok &= bool(said)
-                print("  the proxy said so when it applied the profile (attack.true_copy naming "
-                      f"ALTITUDE.bottom_clearance): {'yes' if said else 'NO  FAIL'}")
-        nr = c["no_reading"]
-        ok &= nr["made_valid"] == 0
-        print(f"  frames with no reading (outside min..max, e.g. on the ground): {nr['frames']}; "
-              f"made to look valid by the bias: {nr['made_valid']}")
-    if lost or drops:
-        # UDP may lose frames; the proxy must not: every frame lost on the way must be one the
-        # ground station's own socket dropped (the kernel counts those). TCP and a serial pty lose none.
-        accounted = drops is not None and lost <= drops
-        ok &= accounted
-        what = (f"{drops} datagrams dropped by the kernel (/proc/net/udp)" if drops is not None
-                else f"a {ground.kind} link (nothing may be lost)")  # fmt: skip
-        print(f"ground station's side: {what}, {lost} frames lost on the way: "
-              f"{'all accounted for' if accounted else 'NOT ACCOUNTED FOR  FAIL'}")
-    lines = (work / "proxy.log").read_text(errors="replace").splitlines()
-    for s in sysids:
-        stats = [ln for ln in lines if "proxy.stats" in ln and f"sysid={s} " in ln]
-        if not stats:
-            continue
-        print(f"proxy's last stats line, sysid {s}:", stats[-1].split(" ", 1)[-1][:300])
-        bad = stats[-1].split(" bad=")[1].split()[0] if " bad=" in stats[-1] else "0"
-        if bad != "0":
-            print(f"  bad={bad} on a healthy link")
-    return ok, work
+    for s in stack.sysids:
+        c = compare(read_tlog(work / "record" / f"v{s}" / "original.tlog"), gcs.msgs, s, ap.carriers)
+        lost += c["order"].missing
+        for check in (check_forwarding(s, c), check_attack(c, ap.offsets_m), check_clearance(s, c, proxy_log),
+                      check_no_reading(c)):
+            rows += shown(check)
+    rows += shown(check_losses(lost, stack.drops, ground_kind))
+    rows += shown(proxy_stats(proxy_log, stack.sysids))
+    return all(r.ok for r in rows), work
 
 
 def secure_probe(work: Path, ap: Autopilot, seconds: float = 30.0) -> None:

@@ -169,3 +169,93 @@ def test_each_autopilot_names_the_messages_that_carry_its_rangefinders() -> None
     assert [px4.carriers(ds[i]) for i in range(2)] == [[(0, 12.34)], []]
     assert px4.carriers(rf) == []
     assert len(ardupilot.offsets_m) == 3 and len(px4.offsets_m) == 1
+
+
+# --- the checks of a run: each judges what the run measured and returns the rows it prints --------------------
+
+
+def _compare(**over: Any) -> dict[str, Any]:
+    """A :func:`sitl_check.compare` result of a run where everything held; ``over`` changes parts of it."""
+    base: dict[str, Any] = {
+        "downlink_frames": 120, "received": 118, "unmatched": 0, "untargeted_orig": 100, "untargeted_got": 98,
+        "order": sitl_check.InOrder(98, 0, 0, 2, None), "twin_example": None, "clearance": [],
+        "per": {("DISTANCE_SENSOR", 0): {"frames": 20, "changed": 20, "delta_m": [5.0] * 20, "no_reading": 3}},
+        "no_reading": {"frames": 3, "made_valid": 0},
+    }
+    return base | over
+
+
+def test_a_vehicle_that_never_reached_its_height_fails_its_flight_row() -> None:
+    flown = {"mode": "MAV_RESULT_ACCEPTED", "takeoff": "MAV_RESULT_ACCEPTED", "takeoff_after_s": 4.1,
+             "reached_m": 9.6, "climb_s": 8.0, "land": "MAV_RESULT_ACCEPTED", "landed_disarmed_s": 14.2}
+    rows = sitl_check.check_flight({1: flown, 2: flown | {"reached_m": None}}, "GUIDED")
+    assert [r.ok for r in rows] == [True, False]
+    assert rows[0].text.startswith("GUIDED flight, sysid 1: ") and not rows[0].text.endswith("FAIL")
+    assert rows[1].text.endswith("  FAIL")
+
+
+def test_an_empty_parameter_list_and_a_short_one_fail() -> None:
+    rows = sitl_check.check_parameters({1: (1200, 1200, 3.2), 2: (0, 0, 1.0), 3: (1199, 1200, 9.9)})
+    assert [r.ok for r in rows] == [True, False, False]
+    assert rows[0].text == "parameters, sysid 1, through the proxy: 1200 of 1200 in 3.2 s"
+
+
+def test_a_mission_holds_only_when_accepted_and_read_back_whole() -> None:
+    assert sitl_check.check_mission(3, 3, "MAV_MISSION_ACCEPTED")[0].ok
+    assert not sitl_check.check_mission(3, 2, "MAV_MISSION_ACCEPTED")[0].ok
+    assert not sitl_check.check_mission(3, 3, "MAV_MISSION_ERROR")[0].ok
+
+
+def test_forwarding_fails_on_an_altered_frame_or_a_long_tail_not_on_a_lost_one() -> None:
+    assert sitl_check.check_forwarding(1, _compare())[0].ok
+    lost = sitl_check.check_forwarding(1, _compare(order=sitl_check.InOrder(95, 0, 3, 2, None)))[0]
+    assert lost.ok and "3 lost on the way" in lost.text  # judged against the kernel's drops by check_losses
+    altered = sitl_check.check_forwarding(1, _compare(order=sitl_check.InOrder(97, 1, 0, 2, 40)))[0]
+    assert not altered.ok and "FAIL, 1 altered or out of order, the first at 40" in altered.text
+    assert not sitl_check.check_forwarding(1, _compare(order=sitl_check.InOrder(78, 0, 0, 22, None)))[0].ok
+
+
+def test_a_reading_left_as_it_was_fails_the_attack_and_is_named() -> None:
+    rows = sitl_check.check_attack(_compare(), (5.0,))
+    assert all(r.ok for r in rows) and rows[-1].text.endswith("changed: yes")
+    per = {("DISTANCE_SENSOR", 0): {"frames": 20, "changed": 20, "delta_m": [5.0] * 20, "no_reading": 0},
+           ("RANGEFINDER", 0): {"frames": 20, "changed": 0, "delta_m": [], "no_reading": 0}}
+    rows = sitl_check.check_attack(_compare(per=per, twin_example=(17.5, 12.5)), (5.0,))
+    assert [r.ok for r in rows] == [True, False, True, True]
+    assert "TRUE VALUE LEFT ON THE WIRE" in rows[1].text
+    assert rows[2].text.endswith("DISTANCE_SENSOR id 0 = 17.50 m beside RANGEFINDER = 12.50 m")
+    assert rows[3].text.endswith("changed: NO")
+
+
+def test_a_clearance_that_reveals_the_truth_holds_only_if_the_proxy_said_so() -> None:
+    revealing = _compare(clearance=[(12.4, 12.5, 17.5)] * 5)  # (bottom_clearance, true, attacked)
+    said = "2026-11-27 WARNING attack.true_copy sysid=1 carriers=ALTITUDE.bottom_clearance"
+    silent = sitl_check.check_clearance(1, revealing, ["proxy.stats sysid=1 bad=0"])
+    assert "REVEALS THE TRUE DISTANCE" in silent[0].text and [r.ok for r in silent] == [True, False]
+    assert [r.ok for r in sitl_check.check_clearance(1, revealing, [said])] == [True, True]
+    following = sitl_check.check_clearance(1, _compare(clearance=[(17.4, 12.5, 17.5)] * 5), [])
+    assert len(following) == 1 and following[0].ok
+    assert sitl_check.check_clearance(1, _compare(), []) == []
+
+
+def test_a_no_reading_made_valid_by_the_bias_fails() -> None:
+    assert sitl_check.check_no_reading(_compare())[0].ok
+    assert not sitl_check.check_no_reading(_compare(no_reading={"frames": 3, "made_valid": 1}))[0].ok
+
+
+def test_frames_lost_are_accounted_for_only_by_the_kernels_drops() -> None:
+    assert sitl_check.check_losses(0, 0, "udp") == []
+    assert sitl_check.check_losses(4, 6, "udp")[0].ok
+    assert not sitl_check.check_losses(7, 6, "udp")[0].ok
+    tcp = sitl_check.check_losses(1, None, "tcpin")[0]  # TCP loses nothing, so one lost frame is the proxy's
+    assert not tcp.ok and "a tcpin link (nothing may be lost)" in tcp.text
+
+
+def test_the_rates_table_and_the_stats_lines_inform_without_judging() -> None:
+    rows = sitl_check.check_rates({"ATTITUDE": 10.0, "RANGEFINDER": 5.0}, {"ATTITUDE": 10.0, "SIMSTATE": 2.0}, 30)
+    assert all(r.ok for r in rows) and len(rows) == 5
+    assert "only through the proxy: ['RANGEFINDER']; only direct: ['SIMSTATE']" in rows[0].text
+    log = ["... INFO proxy.stats sysid=1 frames=10 bad=2", "... INFO proxy.stats sysid=2 frames=9 bad=0"]
+    stats = sitl_check.proxy_stats(log, [1, 2, 3])
+    assert all(r.ok for r in stats) and [r.text for r in stats][1] == "  bad=2 on a healthy link" and len(stats) == 3
+    assert not sitl_check.check_ground_frames(1)[0].ok and sitl_check.check_ground_frames(0)[0].ok
