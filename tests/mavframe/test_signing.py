@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import base64
 from pathlib import Path
-from typing import Any
 
 import pytest
 
@@ -13,31 +12,9 @@ from mavframe.frames import split
 from mavframe.packet import Direction, Packet
 from mavframe.signing import EPOCH_2015_S, Signer, parse_key, timestamp_now
 from secuav_common.loading import InputError
-from tests.support.frames_support import TEST_KEY, distance, heartbeat, pack, signed_mav
-from tests.support.frames_support import mavlink as dialect
+from tests.support.frames_support import TEST_KEY, distance, heartbeat, pack, read_strict, signed_mav
 
 DOWN = Direction.DOWNLINK
-
-
-def strict_reader(key: bytes = TEST_KEY) -> dialect.MAVLink:
-    """pymavlink configured like a vehicle with signing on: unsigned or badly signed frames are refused."""
-    m = dialect.MAVLink(None)
-    m.signing.secret_key = key
-    m.signing.allow_unsigned_callback = lambda _mav, _msgid: False
-    return m
-
-
-def read_strict(data: bytes, key: bytes = TEST_KEY) -> list[Any]:
-    m = strict_reader(key)
-    out = []
-    for b in data:
-        try:
-            msg = m.parse_char(bytes([b]))
-        except dialect.MAVError:  # "Invalid signature": the frame is refused
-            continue
-        if msg is not None and msg.get_type() != "BAD_DATA":
-            out.append(msg)
-    return out
 
 
 # -- key files -----------------------------------------------------------------------------------------

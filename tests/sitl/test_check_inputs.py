@@ -13,9 +13,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
-from tests.sitl.test_sitl_check import _load
+from tests.support.sitl_scripts import load_script
 
-check_inputs = _load("check_inputs")
+check_inputs = load_script("check_inputs")
 ROOT = Path(__file__).resolve().parents[2]
 
 

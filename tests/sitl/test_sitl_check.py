@@ -5,9 +5,6 @@ SITL binaries and are not run here (docs/ardupilot.md, docs/px4.md)."""
 
 from __future__ import annotations
 
-import importlib.util
-import os
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -17,30 +14,11 @@ from pymavlink.dialects.v10 import ardupilotmega as mav1
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 from pymavlink.dialects.v20 import development
 
-ROOT = Path(__file__).resolve().parents[2]
-SCRIPTS = ROOT / "scripts" / "sitl"
+from tests.support.sitl_scripts import load_script
 
-
-def _load(name: str) -> Any:
-    # the scripts set MAVLINK20 and MAVLINK_DIALECT for their own process; keep them out of the test run's
-    saved = dict(os.environ)
-    sys.path.insert(0, str(SCRIPTS))
-    try:
-        spec = importlib.util.spec_from_file_location(name, SCRIPTS / f"{name}.py")
-        assert spec is not None and spec.loader is not None
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod
-        spec.loader.exec_module(mod)
-        return mod
-    finally:
-        sys.path.remove(str(SCRIPTS))
-        os.environ.clear()
-        os.environ.update(saved)
-
-
-sitl_check = _load("sitl_check")
-check_ardupilot = _load("check_ardupilot")
-check_px4 = _load("check_px4")
+sitl_check = load_script("sitl_check")
+check_ardupilot = load_script("check_ardupilot")
+check_px4 = load_script("check_px4")
 
 
 class _Out:

@@ -125,3 +125,24 @@ def frames(draw: st.DrawFn) -> bytes:
 
 
 garbage = st.binary(min_size=0, max_size=40)
+
+
+def strict_reader(key: bytes = TEST_KEY) -> mavlink.MAVLink:
+    """pymavlink configured like a vehicle with signing on: unsigned or badly signed frames are refused."""
+    m = mavlink.MAVLink(None)
+    m.signing.secret_key = key
+    m.signing.allow_unsigned_callback = lambda _mav, _msgid: False
+    return m
+
+
+def read_strict(data: bytes, key: bytes = TEST_KEY) -> list[Any]:
+    m = strict_reader(key)
+    out = []
+    for b in data:
+        try:
+            msg = m.parse_char(bytes([b]))
+        except mavlink.MAVError:  # "Invalid signature": the frame is refused
+            continue
+        if msg is not None and msg.get_type() != "BAD_DATA":
+            out.append(msg)
+    return out

@@ -25,6 +25,7 @@ from attack_profiles.engine import Engine
 from flightsim.control.rotation import quat_from_euler, rotate
 from mavframe import codec
 from mavframe.packet import Direction, Header, Packet
+from mitm_proxy.stages.secure.stage import SecureStage
 from secuav_common.geo import ned_to_geodetic
 from secuav_common.scenario import KeepRangeTarget, Scenario, WallDistanceTarget
 from secuav_common.sensor_ids import MOUNT_BODY, ORIENTATION, SENSOR_TYPE
@@ -240,3 +241,23 @@ class StreamMaker:
             ms, round(lo * 100), round(hi * 100), cm, kind, sid, orient, cov, signal_quality=100
         )
 
+
+@dataclass
+class Out:
+    frame: Frame
+    msgid: int
+    fields: dict[str, Any]  # as the ground side decodes them
+    changed: bool
+    raw_out: bytes
+
+
+def run(stage: SecureStage, maker: StreamMaker, duration_s: float) -> list[Out]:
+    """The maker's frames through the stage as the pipeline hands them over; what the ground side decodes."""
+    outs = []
+    for fr in maker.frames(duration_s):
+        pkt = packet_of(fr.raw, fr.t_s)
+        if stage.active and pkt.header.msgid in stage.message_ids:
+            res = stage.process(pkt, fr.t_s)
+            assert len(res) == 1 and res[0] is pkt
+        outs.append(Out(fr, pkt.header.msgid, wire_fields(pkt), pkt.changed, fr.raw if not pkt.changed else b""))
+    return outs

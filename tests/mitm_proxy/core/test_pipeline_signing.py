@@ -19,8 +19,7 @@ from mitm_proxy.core.pipeline import Pipeline
 from mitm_proxy.core.stats import LinkStats
 from mitm_proxy.stages.attack import AttackStage
 from mitm_proxy.stages.attack_slot import AttackSlot
-from tests.mavframe.test_signing import read_strict
-from tests.support.frames_support import TEST_KEY, distance, heartbeat, mav, mavlink, pack, signed_mav
+from tests.support.frames_support import TEST_KEY, distance, heartbeat, mav, mavlink, pack, read_strict, signed_mav
 
 DOWN = Direction.DOWNLINK
 

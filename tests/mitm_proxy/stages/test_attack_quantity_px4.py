@@ -11,7 +11,7 @@ from pathlib import Path
 from attack_profiles.profile import parse_profile
 from attack_profiles.quantities import true_copies
 from mavframe import tlog
-from tests.mitm_proxy.stages.test_attack_quantity_streams import recorded_through_stage
+from tests.support.quantity_streams import recorded_through_stage
 
 PX4_TLOG = Path(__file__).resolve().parents[2] / "data" / "px4-sih-takeoff-land.tlog"
 

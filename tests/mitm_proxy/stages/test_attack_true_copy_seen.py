@@ -22,7 +22,7 @@ from mitm_proxy.core.pipeline import Pipeline
 from mitm_proxy.core.stats import LinkStats
 from mitm_proxy.stages.attack import AttackStage
 from mitm_proxy.stages.attack_slot import AttackSlot
-from tests.mitm_proxy.stages.test_attack_quantity_streams import ARDUPILOT_TLOG, _flightsim_frames
+from tests.support.quantity_streams import ARDUPILOT_TLOG, flightsim_frames
 
 RANGEFINDER = 173
 
@@ -56,7 +56,7 @@ def ardupilot() -> list[bytes]:
 
 @pytest.mark.timeout(60)
 def test_on_the_benchs_own_simulator_nothing_is_said_about_rangefinder(caplog: pytest.LogCaptureFixture) -> None:
-    frames = _flightsim_frames(4.0)
+    frames = flightsim_frames(4.0)
     caplog.set_level(logging.INFO)
     for target in ({}, {"sensor_id": 0}):
         slot = slot_for(target)

@@ -10,7 +10,6 @@ of the set before it, deterministically; the thread executor has its own tests.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -23,7 +22,7 @@ from mavframe.packet import Direction
 from mitm_proxy.stages.secure.stage import FLAGGED_QUALITY, PeerBoard, SecureConfig, SecureStage
 from secuav_common.geo import geodetic_to_ned
 from secuav_common.scenario import Scenario, load_scenario
-from tests.support.secure_streams import Frame, StreamMaker, packet_of, wire_fields
+from tests.support.secure_streams import Out, StreamMaker, packet_of, run, wire_fields
 
 DS, LPN, GPI, HOME, ATTITUDE = 132, 32, 33, 242, 30
 
@@ -36,26 +35,6 @@ def wall() -> Scenario:
 @pytest.fixture(scope="module")
 def anchors8() -> Scenario:
     return load_scenario("anchors8")
-
-
-@dataclass
-class Out:
-    frame: Frame
-    msgid: int
-    fields: dict[str, Any]  # as the ground side decodes them
-    changed: bool
-    raw_out: bytes
-
-
-def run(stage: SecureStage, maker: StreamMaker, duration_s: float) -> list[Out]:
-    outs = []
-    for fr in maker.frames(duration_s):
-        pkt = packet_of(fr.raw, fr.t_s)
-        if stage.active and pkt.header.msgid in stage.message_ids:
-            res = stage.process(pkt, fr.t_s)
-            assert len(res) == 1 and res[0] is pkt
-        outs.append(Out(fr, pkt.header.msgid, wire_fields(pkt), pkt.changed, fr.raw if not pkt.changed else b""))
-    return outs
 
 
 def _engine(name: str, scenario: Scenario, **params: Any) -> Engine:

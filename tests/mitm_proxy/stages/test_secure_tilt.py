@@ -21,8 +21,7 @@ from mitm_proxy.stages.secure.stage import FLAGGED_QUALITY, SecureConfig, Secure
 from mitm_proxy.stages.secure.tilt import MIN_FACTOR, Geometry
 from secuav_common.scenario import Scenario, load_scenario
 from secuav_common.sensor_ids import MOUNT_BODY, ORIENTATION
-from tests.mitm_proxy.stages.test_secure_stage import run
-from tests.support.secure_streams import StreamMaker
+from tests.support.secure_streams import StreamMaker, run
 
 DS = 132
 ANGLE = st.floats(-0.8, 0.8)  # rad, about 46 degrees
