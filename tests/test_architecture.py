@@ -335,10 +335,11 @@ def test_the_page_draws_the_floors_and_tables_of_today() -> None:
 def test_every_package_and_proxy_room_is_on_a_floor() -> None:
     on_floors = {p for floor in FLOORS for p in floor}
     packages = {p.parent.name for p in ROOT.glob("*/__init__.py")} - {"tests"}
-    assert packages == on_floors
+    assert packages == on_floors, f"put each package on a floor of FLOORS and of {PAGE.name}: {packages ^ on_floors}"
     rooms = {module_name(p, ROOT).split(".")[1] for p in (ROOT / PROXY).glob("*") if p.name != "__init__.py"
              and (p.suffix == ".py" or (p / "__init__.py").is_file())}  # fmt: skip
-    assert rooms == {r for floor in PROXY_FLOORS for r in floor}
+    drawn = {r for floor in PROXY_FLOORS for r in floor}
+    assert rooms == drawn, f"put each room of {PROXY} on a floor of PROXY_FLOORS and of {PAGE.name}: {rooms ^ drawn}"
 
 
 # --- the reader itself, on a small tree of its own --------------------------------------------------------------
