@@ -109,9 +109,16 @@ class Namer:
         self.resid = np.zeros((int(window), model.p))
         self.seen = np.zeros((int(window), model.p), dtype=bool)
         self.k = 0
+        # This step's residuals (NaN: no reading), for estimators.offsets to follow each link's offset from.
+        self.last_resid: np.ndarray | None = None
         # How much larger the window mean's variance is than 1/n of a step's: 1 for errors independent from
         # step to step; estimators.noise sets it from the errors' measured autocorrelation.
         self.window_vif = 1.0
+        # Readings in a row a jump must fail before it names the link: 1 on the bench's white noise; estimators.noise
+        # sets 2 for real ranges, whose heavy-tailed single spikes (NLOS, multipath) were most of the honest links
+        # named once the offsets were followed (estimators/offsets.py).
+        self.confirm_steps = 1
+        self.jumped = np.zeros(model.p, dtype=int)  # consecutive readings of each link that failed the step test
 
     def name(
         self, z: np.ndarray, used: np.ndarray, start: np.ndarray, cov_pos: np.ndarray, known: Known
@@ -135,6 +142,7 @@ class Namer:
             resid = z - hx
         hcov = np.einsum("pd,de,pe->p", jac, cov, jac)
         seen = ~np.isnan(resid)
+        self.last_resid = resid
         slot = self.k % self.resid.shape[0]
         self.k += 1
         self.resid[slot] = np.where(seen, resid, 0.0)
@@ -145,7 +153,9 @@ class Namer:
         leaning = np.where(seen, resid * mean > 0.0, False)
         persistent = (n >= 3) & leaning & (mean * mean > self.gate * self.window_vif * (sig2 + hcov) / np.maximum(n, 1))
         jump = np.where(seen, resid * resid > self.gate * (sig2 + hcov), False)
-        named = ~used & seen & (jump | persistent)
+        # A missing reading neither confirms nor clears a link's run of failed steps.
+        self.jumped = np.where(seen, np.where(jump, self.jumped + 1, 0), self.jumped)
+        named = ~used & seen & ((jump & (self.jumped >= self.confirm_steps)) | persistent)
         return (named, ref, cov) if agreed else (named, None, None)
 
 
