@@ -16,7 +16,9 @@ runs at the Sidak level ``a1 = 1 - (1 - alpha / 2)^(1 / p)``, which keeps the
 chance that any honest reading is named by it at one step at ``alpha / 2``. Two
 tests share the budget:
 - the step's own normalised residual ``r_i^2 / (sigma_i^2 + H_i C H_i^T) >
-  chi2.ppf(1 - a1, 1)`` (a jump), C the fit's covariance;
+  chi2.ppf(1 - a1, 1)`` (a jump), C the fit's covariance; behind a calibration on real ranges
+  (``estimators.noise``) it must fail on ``confirm_steps`` (2) readings of the link in a row, since heavy-tailed
+  single spikes are most of what names an honest link there;
 - the window test: the mean residual m of the last T steps against its
   variance, ``m^2 > chi2.ppf(1 - a1, 1) (sigma_i^2 + H_i C H_i^T) / n``, the
   current residual leaning the same way (a bias of a few sigma that hides
