@@ -130,3 +130,27 @@ def test_a_ramp_under_the_rate_bound_is_named_at_the_drift_bound() -> None:
     named, _ = _run(z)
     at = _first_named_at_m(named, 3, rate)
     assert at < BOUND_M + 0.3
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    steps=st.lists(
+        st.tuples(
+            st.floats(0.0, 2.0),  # time since the previous step
+            st.lists(st.one_of(st.floats(-1e6, 1e6), st.just(math.nan)), min_size=3, max_size=3),
+            st.lists(st.booleans(), min_size=3, max_size=3),
+        ),
+        max_size=40,
+    )
+)
+def test_no_residuals_move_an_offset_faster_than_its_rate_or_past_its_bound(steps) -> None:
+    tr = OffsetTracker(3, tau_s=2.0, rate_mps=0.05, bound_m=0.3)
+    t = 0.0
+    for dt, resid, trusted in steps:
+        before = tr.delta.copy()
+        t += dt
+        tr.update(t, np.array(resid), np.array(trusted))
+        moved = np.abs(tr.delta - before)
+        assert np.all(moved <= 0.05 * dt + 1e-12)
+        assert np.all(np.abs(tr.delta) <= 0.3 + 1e-12)
+        assert np.all(moved[~np.array(trusted)] == 0.0)  # an untrusted link is frozen
