@@ -30,7 +30,8 @@ link's count and what it needs) and the estimator goes on uncalibrated with :met
 After the window (``calibration_track``, default on, secure estimators only) the offsets keep following the
 room within a drift bound a slow ramp cannot hide under (:mod:`estimators.offsets`), and a jump names a link
 only when ``CONFIRM_STEPS`` readings in a row fail it (:class:`estimators.attribution.Namer`): on the LIAS
-recordings those two together took the honest links named from about half of the clean steps to 0-2 %.
+recordings those two together took the honest links named from 49-58 % of the clean steps of the mid run to
+0-1.6 % on the tags the bounds were chosen on and 4-8 % on the held-out tag (estimators/README.md, "Real noise").
 
 What it cannot do: an offset pattern that a shift of the position explains (its projection on
 the span of the range Jacobian at the window's positions) stays in the position, as it would with
