@@ -16,7 +16,9 @@ runs at the Sidak level ``a1 = 1 - (1 - alpha / 2)^(1 / p)``, which keeps the
 chance that any honest reading is named by it at one step at ``alpha / 2``. Two
 tests share the budget:
 - the step's own normalised residual ``r_i^2 / (sigma_i^2 + H_i C H_i^T) >
-  chi2.ppf(1 - a1, 1)`` (a jump), C the fit's covariance;
+  chi2.ppf(1 - a1, 1)`` (a jump), C the fit's covariance; behind a calibration on real ranges
+  (``estimators.noise``) it must fail on ``confirm_steps`` (2) readings of the link in a row, since heavy-tailed
+  single spikes are most of what names an honest link there;
 - the window test: the mean residual m of the last T steps against its
   variance, ``m^2 > chi2.ppf(1 - a1, 1) (sigma_i^2 + H_i C H_i^T) / n``, the
   current residual leaning the same way (a bias of a few sigma that hides
@@ -109,9 +111,16 @@ class Namer:
         self.resid = np.zeros((int(window), model.p))
         self.seen = np.zeros((int(window), model.p), dtype=bool)
         self.k = 0
+        # This step's residuals (NaN: no reading), for estimators.offsets to follow each link's offset from.
+        self.last_resid: np.ndarray | None = None
         # How much larger the window mean's variance is than 1/n of a step's: 1 for errors independent from
         # step to step; estimators.noise sets it from the errors' measured autocorrelation.
         self.window_vif = 1.0
+        # Readings in a row a jump must fail before it names the link: 1 on the bench's white noise; estimators.noise
+        # sets 2 for real ranges, whose heavy-tailed single spikes (NLOS, multipath) were most of the honest links
+        # named once the offsets were followed (estimators/offsets.py).
+        self.confirm_steps = 1
+        self.jumped = np.zeros(model.p, dtype=int)  # consecutive readings of each link that failed the step test
 
     def name(
         self, z: np.ndarray, used: np.ndarray, start: np.ndarray, cov_pos: np.ndarray, known: Known
@@ -135,6 +144,7 @@ class Namer:
             resid = z - hx
         hcov = np.einsum("pd,de,pe->p", jac, cov, jac)
         seen = ~np.isnan(resid)
+        self.last_resid = resid
         slot = self.k % self.resid.shape[0]
         self.k += 1
         self.resid[slot] = np.where(seen, resid, 0.0)
@@ -145,7 +155,9 @@ class Namer:
         leaning = np.where(seen, resid * mean > 0.0, False)
         persistent = (n >= 3) & leaning & (mean * mean > self.gate * self.window_vif * (sig2 + hcov) / np.maximum(n, 1))
         jump = np.where(seen, resid * resid > self.gate * (sig2 + hcov), False)
-        named = ~used & seen & (jump | persistent)
+        # A missing reading neither confirms nor clears a link's run of failed steps.
+        self.jumped = np.where(seen, np.where(jump, self.jumped + 1, 0), self.jumped)
+        named = ~used & seen & ((jump & (self.jumped >= self.confirm_steps)) | persistent)
         return (named, ref, cov) if agreed else (named, None, None)
 
 

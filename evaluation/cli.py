@@ -43,7 +43,7 @@ from attack_profiles import Engine
 from attack_profiles.profile import Profile
 from attack_profiles.resolve import parse_params, resolve_profile
 from estimators.models import MeasurementModel
-from estimators.noise import CALIBRATION_PARAM, TAIL_PARAM
+from estimators.noise import CALIBRATION_PARAM, TAIL_PARAM, TRACK_PARAM
 from estimators.scenario_models import anchor_model, two_vehicle_model, wall_group_model
 from evaluation.recorded import load_recording
 from evaluation.report import BASELINES, compare_with_ls, plot, summarise, table, write_results
@@ -128,6 +128,12 @@ def build_parser() -> argparse.ArgumentParser:
         "(docs/datasets.md), instead of fitting the tail on the window",
     )
     p.add_argument(
+        "--fixed-offsets",
+        action="store_true",
+        help="with --calibrate: keep the window's per-link offsets for the whole run and name a link on one failed "
+        "reading (default: the offsets follow the room within a drift bound, estimators.offsets)",
+    )
+    p.add_argument(
         "--score-from",
         type=float,
         default=None,
@@ -189,7 +195,8 @@ def _params(args: argparse.Namespace) -> dict[str, Any]:
     if args.calibrate is None:
         return {}
     tail = {} if args.tail_dof is None else {TAIL_PARAM: args.tail_dof}
-    return {CALIBRATION_PARAM: args.calibrate, **tail}
+    fixed = {TRACK_PARAM: False} if args.fixed_offsets else {}
+    return {CALIBRATION_PARAM: args.calibrate, **tail, **fixed}
 
 
 def _terminate(signum: int, frame: object) -> None:
@@ -221,6 +228,8 @@ def main(argv: list[str] | None = None) -> int:
             raise InputError("--calibrate", "", args.calibrate, "must lie in (0, 3600] seconds")
         if args.tail_dof is not None and (args.calibrate is None or not 2 < args.tail_dof <= 1000):
             raise InputError("--tail-dof", "", args.tail_dof, "needs --calibrate and must lie in (2, 1000]")
+        if args.fixed_offsets and args.calibrate is None:
+            raise InputError("--fixed-offsets", "", True, "needs --calibrate (it keeps that window's offsets)")
         if args.score_from is not None and not 0 <= args.score_from <= 36000:
             raise InputError("--score-from", "", args.score_from, "must lie in 0..36000 seconds")
         if args.trials < 1 or args.jobs < 1:
@@ -264,6 +273,7 @@ def main(argv: list[str] | None = None) -> int:
         "dims": args.dims,
         "calibration_s": args.calibrate,
         "calibration_tail_dof": args.tail_dof,
+        "calibration_track": None if args.calibrate is None else not args.fixed_offsets,
         "score_from_s": trials[0].score_from_s,
         "rate_hz": RATE_HZ,
         "test_case": "wall" if is_wall(scenario) else 2 if is_formation(scenario) else 1,
@@ -324,6 +334,7 @@ def _main_tlog(
         "seed": args.seed,
         "calibration_s": args.calibrate,
         "calibration_tail_dof": args.tail_dof,
+        "calibration_track": None if args.calibrate is None else not args.fixed_offsets,
         "score_from_s": trial.score_from_s,
         "rate_hz": round(rate, 6),
         # Which estimators took every reading at its own time (--async) and which read the frames.
