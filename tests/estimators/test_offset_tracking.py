@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from est_helpers import ANCHORS8_NED_M, HOVER_XY_M
+from tests.support.est_helpers import ANCHORS8_NED_M, HOVER_XY_M
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
