@@ -26,7 +26,8 @@ from mitm_proxy.config import LinkConfig, ProxyConfig
 sys.path.insert(0, str(Path(__file__).parents[1] / "flightsim"))
 from live_sim import live_sim, until
 
-pytestmark = pytest.mark.timeout(60)
+# Each test runs on the compiled fast path and on the pure-Python one (proxy_path, tests/conftest.py).
+pytestmark = [pytest.mark.timeout(60), pytest.mark.usefixtures("proxy_path")]
 
 
 def _proxy(vehicle: str, *ground: str) -> Proxy:

@@ -21,7 +21,8 @@ from mavframe.layout import target_system
 from mitm_proxy.app import Proxy
 from mitm_proxy.config import LinkConfig, ProxyConfig
 
-pytestmark = pytest.mark.timeout(30)
+# Each test runs on the compiled fast path and on the pure-Python one (proxy_path, tests/conftest.py).
+pytestmark = [pytest.mark.timeout(30), pytest.mark.usefixtures("proxy_path")]
 
 
 def packer(sysid: int, compid: int = 1) -> mavlink2.MAVLink:

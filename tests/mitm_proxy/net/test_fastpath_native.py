@@ -179,3 +179,38 @@ async def test_rewritten_frames_keep_their_place_among_forwarded_ones(
     finally:
         vehicle.close()
         gcs.sock.close()
+
+
+@pytest.mark.usefixtures("proxy_path")
+async def test_hostile_input_is_counted_and_over_budget_while_valid_frames_pass(udp_port: Callable[[], int]) -> None:
+    """More garbage than the per-second budget (pipeline.HOSTILE_BYTES_PER_S) between valid datagrams: the
+    garbage is counted and, once over budget, dropped unsplit; every valid datagram still leaves as it came."""
+    gcs, port = _Gcs(), udp_port()
+    vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    vehicle.bind(("127.0.0.1", 0))
+    m = mav()
+    junk = b"\x00\x13" * 1000  # 2000 bytes, no magic byte: cheap for the Python splitter too
+    valid: list[bytes] = []
+    plan: list[bytes] = []
+    for i in range(200):  # 400 kB of garbage in all, well over the 256 kB budget
+        good = pack(heartbeat(), m) + pack(distance(cm=i), m)
+        valid.append(good)
+        plan += [good, junk, good[:12] + junk[:50]]  # a whole datagram, garbage, a frame cut short
+    link = LinkConfig(sysid=1, vehicle=f"udpin://127.0.0.1:{port}", ground=[f"udpout://127.0.0.1:{gcs.port}"])
+    try:
+        async with Proxy(ProxyConfig(links=[link], broker="none", attack="bypass")) as proxy:
+            for start in range(0, len(plan), 30):  # in steps the proxy has taken, so no kernel buffer overflows
+                for d in plan[start : start + 30]:
+                    vehicle.sendto(d, ("127.0.0.1", port))
+                for _ in range(500):
+                    if proxy.stats_snapshot()[1]["downlink"]["datagrams_in"] >= min(start + 30, len(plan)):
+                        break
+                    await asyncio.sleep(0.005)
+            got = await gcs.datagrams(len(valid))
+            assert got == valid
+            down = proxy.stats_snapshot()[1]["downlink"]
+            assert down["datagrams_in"] == len(plan) and down["frames_out"] == 2 * len(valid)
+            assert down["bad"].get("over_budget", 0) > 0 and down["bad"].get("garbage", 0) > 0
+    finally:
+        vehicle.close()
+        gcs.sock.close()
