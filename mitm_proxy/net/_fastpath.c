@@ -22,6 +22,7 @@
 #include <math.h>
 #include <netinet/in.h>
 #include <stdint.h>
+#include <stdlib.h>
 #include <string.h>
 #include <sys/socket.h>
 #include <time.h>
@@ -56,7 +57,8 @@ typedef struct {
     struct iovec iov[BATCH];
     struct sockaddr_storage addrs[BATCH];
     struct mmsghdr out[BATCH];
-    uint8_t bufs[BATCH][BUF_LEN];
+    /* calloc'd apart from the object: only the pages datagrams were written to count in the RSS */
+    uint8_t (*bufs)[BUF_LEN];
 } Route;
 
 static inline uint16_t crc_acc(uint16_t crc, uint8_t b) {
@@ -196,6 +198,13 @@ static PyObject *addr_tuple(const struct sockaddr_storage *a) {
 static int Route_init(Route *self, PyObject *args, PyObject *kw) {
     if (!PyArg_ParseTuple(args, "i", &self->fd))
         return -1;
+    if (self->bufs == NULL) {
+        self->bufs = calloc(BATCH, BUF_LEN);
+        if (self->bufs == NULL) {
+            PyErr_NoMemory();
+            return -1;
+        }
+    }
     self->all_up = 1;
     self->has_peer = 0;
     self->n_targets = 0;
@@ -259,8 +268,9 @@ static int lat_bin(double s, Py_ssize_t nbins) {
     return 1 + (int)(log10(s / 1e-6) * 120);
 }
 
-/* Send bufs[lo:hi] to every target, in order. sent[t] counts what each took; err[t] is the last errno. */
-static void send_run(Route *r, int lo, int hi, long *sent, int *err, long *overflow) {
+/* Send bufs[lo:hi] to every target, in order. sent[t] counts what each took; err[t] is the last errno;
+ * unsent[t] is where the kernel stopped taking datagrams (a full send buffer), else hi. */
+static void send_run(Route *r, int lo, int hi, long *sent, int *err, int *unsent) {
     int cnt = hi - lo;
     for (int t = 0; t < r->n_targets; t++) {
         for (int k = 0; k < cnt; k++) {
@@ -272,6 +282,7 @@ static void send_run(Route *r, int lo, int hi, long *sent, int *err, long *overf
             h->msg_iovlen = 1;
         }
         int done = 0;
+        unsent[t] = hi;
         while (done < cnt) {
 #ifdef __linux__
             int rc = sendmmsg(r->tfd[t], r->out + done, (unsigned)(cnt - done), 0);
@@ -282,8 +293,7 @@ static void send_run(Route *r, int lo, int hi, long *sent, int *err, long *overf
                 if (errno == EINTR)
                     continue;
                 if (errno == EAGAIN || errno == EWOULDBLOCK || errno == ENOBUFS) {
-                    overflow[t] += cnt - done;  /* the kernel will not take more now: dropped, counted */
-                    err[t] = errno;
+                    unsent[t] = lo + done;  /* the kernel takes no more now: Python queues the rest */
                     break;
                 }
                 err[t] = errno;  /* e.g. ECONNREFUSED: an ICMP error reported on this send; it is consumed */
@@ -297,15 +307,17 @@ static void send_run(Route *r, int lo, int hi, long *sent, int *err, long *overf
 }
 
 /* drain(latency_counts) -> None (nothing to read), an int errno (the socket reported an error), or
- * (datagrams, frames, bytes, signed, rx_s, latency_s, sent, errors, overflow, up, more):
+ * (datagrams, frames, bytes, signed, rx_s, latency_s, sent, errors, unsent, up, more):
  *   the fast datagrams sent (their frames, bytes, signed frames), when the batch was received, how long
- *   they were in the proxy, per target
- *   the datagrams it took, its errno (0: none) and what it dropped for a full buffer; up: None or
+ *   they were in the proxy, per target the datagrams it took, its errno (0: none) and None or the list of
+ *   datagrams its full send buffer did not take (to be queued, in order); up: None or
  *   (data or None when longer than MAX_DATAGRAM, addr, rx_s, size), the datagram Python must handle next;
  *   more: datagrams of this batch still wait, call again. latency_counts: the link's latency histogram
  *   (array 'q'), where each fast datagram's time in the proxy is counted. */
 static PyObject *Route_drain(Route *self, PyObject *args) {
     Py_buffer hist;
+    if (self->bufs == NULL)
+        return PyErr_Format(PyExc_RuntimeError, "Route not initialised");
     if (!PyArg_ParseTuple(args, "w*", &hist))
         return NULL;
     Py_ssize_t nbins = hist.len / (Py_ssize_t)sizeof(long long);
@@ -344,8 +356,8 @@ static PyObject *Route_drain(Route *self, PyObject *args) {
         self->rx_s = monotonic_s();
     }
     long dgrams = 0, frames = 0, bytes = 0, sgn = 0;
-    long sent[MAX_TARGETS] = {0}, overflow[MAX_TARGETS] = {0};
-    int err[MAX_TARGETS] = {0};
+    long sent[MAX_TARGETS] = {0};
+    int err[MAX_TARGETS] = {0}, unsent[MAX_TARGETS];
     int lo = self->next, i = lo;
     PyObject *up = NULL;
     for (; i < self->n; i++) {
@@ -385,8 +397,42 @@ static PyObject *Route_drain(Route *self, PyObject *args) {
         sgn += s;
     }
     double lat = 0.0;
+    for (int t = 0; t < self->n_targets; t++)
+        unsent[t] = i;
+    if (i > lo)
+        send_run(self, lo, i, sent, err, unsent);
+    /* What a target's full send buffer did not take, as bytes for Python's queue (asyncio's transports queue too). */
+    PyObject *tover = PyTuple_New(self->n_targets);
+    if (tover == NULL) {
+        Py_XDECREF(up);
+        PyBuffer_Release(&hist);
+        return NULL;
+    }
+    for (int t = 0; t < self->n_targets; t++) {
+        PyObject *rest = Py_None;
+        if (unsent[t] < i) {
+            rest = PyList_New(0);
+            for (int k = unsent[t]; rest != NULL && k < i; k++) {
+                PyObject *b = PyBytes_FromStringAndSize((const char *)self->bufs[k], (Py_ssize_t)self->iov[k].iov_len);
+                if (b == NULL || PyList_Append(rest, b) < 0) {
+                    Py_XDECREF(b);
+                    Py_CLEAR(rest);
+                    break;
+                }
+                Py_DECREF(b);
+            }
+            if (rest == NULL) {
+                Py_DECREF(tover);
+                Py_XDECREF(up);
+                PyBuffer_Release(&hist);
+                return NULL;
+            }
+        } else {
+            Py_INCREF(rest);
+        }
+        PyTuple_SET_ITEM(tover, t, rest);
+    }
     if (i > lo) {
-        send_run(self, lo, i, sent, err, overflow);
         for (int k = lo; k < i; k++)
             self->iov[k].iov_len = BUF_LEN;
         lat = monotonic_s() - self->rx_s;
@@ -395,9 +441,8 @@ static PyObject *Route_drain(Route *self, PyObject *args) {
     }
     self->next = up != NULL ? i + 1 : i;
     PyBuffer_Release(&hist);
-    PyObject *tsent = PyTuple_New(self->n_targets), *terr = PyTuple_New(self->n_targets),
-             *tover = PyTuple_New(self->n_targets);
-    if (tsent == NULL || terr == NULL || tover == NULL) {
+    PyObject *tsent = PyTuple_New(self->n_targets), *terr = PyTuple_New(self->n_targets);
+    if (tsent == NULL || terr == NULL) {
         Py_XDECREF(tsent);
         Py_XDECREF(terr);
         Py_XDECREF(tover);
@@ -407,7 +452,6 @@ static PyObject *Route_drain(Route *self, PyObject *args) {
     for (int t = 0; t < self->n_targets; t++) {
         PyTuple_SET_ITEM(tsent, t, PyLong_FromLong(sent[t]));
         PyTuple_SET_ITEM(terr, t, PyLong_FromLong(err[t]));
-        PyTuple_SET_ITEM(tover, t, PyLong_FromLong(overflow[t]));
     }
     if (up == NULL) {
         up = Py_None;
@@ -454,6 +498,11 @@ static PyObject *fp_set_dialect(PyObject *mod, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+static void Route_dealloc(Route *self) {
+    free(self->bufs);
+    Py_TYPE(self)->tp_free((PyObject *)self);
+}
+
 static PyMethodDef Route_methods[] = {
     {"configure", (PyCFunction)Route_configure, METH_VARARGS, "Set the peer, the targets and the wanted ids."},
     {"drain", (PyCFunction)Route_drain, METH_VARARGS, "Receive, forward what nobody wants, return the next up."},
@@ -468,6 +517,7 @@ static PyTypeObject RouteType = {
     .tp_doc = "One receiving socket's fast path.",
     .tp_new = PyType_GenericNew,
     .tp_init = (initproc)Route_init,
+    .tp_dealloc = (destructor)Route_dealloc,
     .tp_methods = Route_methods,
 };
 

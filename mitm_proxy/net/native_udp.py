@@ -19,17 +19,17 @@ endpoints (:func:`enabled`).
 from __future__ import annotations
 
 import asyncio
-import errno
 import os
 import socket
 from array import array
+from collections import deque
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
 from mavframe.codec import MAVLINK_MAP
 from mavframe.frames import CRC_EXTRA
 from mavframe.packet import Direction
-from mitm_proxy.net.endpoints import BaseEndpoint, UdpEndpoint
+from mitm_proxy.net.endpoints import MAX_PENDING_SEND_BYTES, BaseEndpoint, UdpEndpoint
 
 if TYPE_CHECKING:
     from mitm_proxy.net.link import Link
@@ -43,7 +43,6 @@ __all__ = ["FORCE_PYTHON_ENV", "NativeUdpEndpoint", "available", "enabled", "id_
 
 FORCE_PYTHON_ENV = "SECUAV_PROXY_PYTHON"
 _IDS = 65536  # the route's id bitmap; higher ids are never forwarded by it (none is in the dialect)
-_OVERFLOW = {errno.EAGAIN, errno.EWOULDBLOCK, errno.ENOBUFS}
 
 
 def available() -> bool:
@@ -111,6 +110,11 @@ class NativeUdpEndpoint(UdpEndpoint):
         self._state: Any = ()  # what the route was last configured with (never equal to a real state)
         self._targets: tuple[NativeUdpEndpoint, ...] = ()
         self.fast_datagrams = 0  # received datagrams the route forwarded without Python
+        # Datagrams the kernel would not take at once, sent when the socket is writable again (as asyncio's
+        # transport does): up to MAX_PENDING_SEND_BYTES, beyond that dropped and counted (send_overflow).
+        self._backlog: deque[bytes] = deque()
+        self._backlog_bytes = 0
+        self.queued = 0  # datagrams that waited in that queue
 
     async def _start(self, loop: asyncio.AbstractEventLoop, sock: socket.socket, family: int) -> None:
         self._sock, self._fd, self._family, self._loop = sock, sock.fileno(), family, loop
@@ -122,6 +126,10 @@ class NativeUdpEndpoint(UdpEndpoint):
             return
         if self._loop is not None and not self._loop.is_closed():
             self._loop.remove_reader(self._fd)
+            if self._backlog:
+                self._loop.remove_writer(self._fd)
+        self._backlog.clear()
+        self._backlog_bytes = 0
         self._sock.close()
         self._sock = self._route = None
 
@@ -134,16 +142,17 @@ class NativeUdpEndpoint(UdpEndpoint):
 
     # -- sending (the Python path's datagrams) -------------------------------------------------------
     def _write(self, data: bytes) -> bool:
-        """Send one datagram to the peer now; what the kernel will not take at once is dropped and counted."""
+        """Send one datagram to the peer (queued behind others the kernel has not taken yet)."""
         sock = self._sock
         if sock is None or self.peer is None:
             self._fault("no_peer", "nobody has sent to this udpin endpoint yet; dropping until someone does")
             return False
+        if self._backlog:
+            return self._queue((data,))
         try:
             sock.sendto(data, self.peer)
         except BlockingIOError:
-            self._fault("send_overflow", "the socket's send buffer is full; datagram dropped")
-            return False
+            return self._queue((data,))
         except OSError as exc:  # an ICMP error reported on this send (IP_RECVERR), or the like
             self.error_received(exc)
             return False
@@ -151,6 +160,37 @@ class NativeUdpEndpoint(UdpEndpoint):
         if self._reported:
             self._reported.discard("no_peer")
         return True
+
+    def _queue(self, datagrams: Sequence[bytes]) -> bool:
+        """Keep what the kernel would not take, in order, until the socket is writable; False if over the bound."""
+        queued = False
+        for data in datagrams:
+            if self._backlog_bytes > MAX_PENDING_SEND_BYTES:
+                self._fault("send_overflow", f"more than {MAX_PENDING_SEND_BYTES} bytes waiting to be sent")
+                continue
+            if not self._backlog and self._loop is not None:
+                self._loop.add_writer(self._fd, self._flush)
+            self._backlog.append(data)
+            self._backlog_bytes += len(data)
+            self.queued += 1
+            self.tx += 1
+            queued = True
+        return queued
+
+    def _flush(self) -> None:
+        sock, backlog = self._sock, self._backlog
+        while backlog and sock is not None and self.peer is not None:
+            try:
+                sock.sendto(backlog[0], self.peer)
+            except BlockingIOError:
+                return
+            except OSError as exc:
+                self.error_received(exc)
+            self._backlog_bytes -= len(backlog.popleft())
+        backlog.clear()
+        self._backlog_bytes = 0
+        if self._loop is not None and not self._loop.is_closed():
+            self._loop.remove_writer(self._fd)
 
     # -- receiving -------------------------------------------------------------------------------------
     def _fast_state(self) -> tuple[Any, ...] | None:
@@ -164,6 +204,8 @@ class NativeUdpEndpoint(UdpEndpoint):
         targets = []
         for ep in b.targets:
             if not isinstance(ep, NativeUdpEndpoint) or ep._sock is None or ep.peer is None or ep._gated_out:
+                return None
+            if ep._backlog:  # its queue goes first: Python sends behind it until it is empty
                 return None
             targets.append((ep, ep.peer))
         return self.peer, ids, tuple(targets)
@@ -191,16 +233,16 @@ class NativeUdpEndpoint(UdpEndpoint):
         if b is not None:
             hist = b.link.stats.latency_hist
         counts = hist._counts if hist is not None else array("q")
-        while True:
+        while self._route is route:  # handling a datagram may close the endpoint
             res = route.drain(counts)
             if res is None:  # nothing left to read
                 return
             if isinstance(res, int):  # the socket reported an error (an ICMP error, with IP_RECVERR)
                 self.error_received(OSError(res, os.strerror(res)))
                 return
-            dgrams, frames, nbytes, signed, rx_s, lat_s, sent, errs, over, up, more = res
+            dgrams, frames, nbytes, signed, rx_s, lat_s, sent, errs, unsent, up, more = res
             if dgrams:
-                self._account(dgrams, frames, nbytes, signed, rx_s, lat_s, sent, errs, over)
+                self._account(dgrams, frames, nbytes, signed, rx_s, lat_s, sent, errs, unsent)
             if up is not None:
                 self._arrived(*up)
                 if more:  # handling it may have changed what is wanted (a stage, a peer): ask again
@@ -209,7 +251,8 @@ class NativeUdpEndpoint(UdpEndpoint):
                 return
 
     def _account(self, dgrams: int, frames: int, nbytes: int, signed: int, rx_s: float, lat_s: float,
-                 sent: tuple[int, ...], errs: tuple[int, ...], over: tuple[int, ...]) -> None:  # fmt: skip
+                 sent: tuple[int, ...], errs: tuple[int, ...],
+                 unsent: tuple[list[bytes] | None, ...]) -> None:  # fmt: skip
         """Count what the route forwarded as the Python path counts it (pipeline, link and endpoints)."""
         b = self._binding
         assert b is not None
@@ -230,12 +273,13 @@ class NativeUdpEndpoint(UdpEndpoint):
         self._peer_heard_s = rx_s
         if self._reported:
             self._reported.discard("unreachable")
-        for ep, n, err, lost in zip(self._targets, sent, errs, over, strict=True):
+        for ep, n, err, rest in zip(self._targets, sent, errs, unsent, strict=True):
             ep.tx += n
             if n and ep._reported:
                 ep._reported.discard("no_peer")
-            if err in _OVERFLOW:
-                ep.faults["send_overflow"] += lost - 1
-                ep._fault("send_overflow", "the socket's send buffer is full; datagrams dropped")
-            elif err:
+            if err:
                 ep.error_received(OSError(err, os.strerror(err)))
+            if rest:
+                ep._queue(rest)
+        if any(unsent):
+            self._configure()  # a target has a queue now: the rest of the batch goes through Python, behind it

@@ -214,3 +214,25 @@ async def test_hostile_input_is_counted_and_over_budget_while_valid_frames_pass(
     finally:
         vehicle.close()
         gcs.sock.close()
+
+
+@needs_native
+async def test_what_the_kernel_would_not_take_leaves_in_order_before_anything_newer(
+    udp_port: Callable[[], int],
+) -> None:
+    """The send queue of a fast-path endpoint (a full send buffer is rare on loopback, so it is filled here
+    directly): what waits goes first and a datagram written meanwhile goes behind it."""
+    from secuav_common.urls import parse_endpoint
+
+    gcs = _Gcs()
+    ep = native_udp.NativeUdpEndpoint(parse_endpoint(f"udpout://127.0.0.1:{gcs.port}"), "ground")
+    await ep.open()
+    try:
+        m = mav()
+        a, b, c = pack(heartbeat(), m), pack(distance(cm=1), m), pack(distance(cm=2), m)
+        assert ep._queue([a, b]) and ep._write(c)
+        assert await gcs.datagrams(3) == [a, b, c]
+        assert ep.queued == 3 and ep.tx == 3 and not ep._backlog
+    finally:
+        ep.close()
+        gcs.sock.close()
