@@ -46,6 +46,20 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
+def _kernel_drops(port: int) -> int | None:
+    """Datagrams the kernel dropped for a full receive buffer on the loopback UDP socket bound to ``port``
+    (Linux ``/proc/net/udp``), or None where that is not known: it says which side lost what."""
+    try:
+        lines = Path("/proc/net/udp").read_text().splitlines()[1:]
+    except OSError:
+        return None
+    for line in lines:
+        fields = line.split()
+        if int(fields[1].split(":")[1], 16) == port:
+            return int(fields[-1])
+    return None
+
+
 def _valid(mav: mavlink.MAVLink, k: int) -> bytes:
     return mav.distance_sensor_encode(k & 0xFFFFFFFF, 10, 4000, 250, 0, 0, 0, 0).pack(mav)
 
@@ -125,6 +139,7 @@ def main() -> None:
     time.sleep(2.0)
     stop.set()
     reader.join()
+    drops = (_kernel_drops(veh), _kernel_drops(gcs))
     alive = proxy.poll() is None
     proxy.send_signal(signal.SIGINT)
     _, err = proxy.communicate(timeout=20)
@@ -138,6 +153,9 @@ def main() -> None:
         f"other frames out: {len(received) - len(out_valid)} (unknown-id frames found in the noise, which a MAVLink "
         "router forwards, and any CRC-valid look-alikes)"
     )
+    if drops[0] is not None:
+        print(f"dropped by the kernel for a full receive buffer: {drops[0]} at the proxy's vehicle socket (the proxy "
+              f"fell behind), {drops[1]} at this script's ground socket (its reader fell behind)")  # fmt: skip
     print(f"proxy alive at the end: {alive}; exit code after SIGINT: {proxy.returncode}")
     tail = err.decode(errors="replace").strip().splitlines()[-3:]
     if tail:

@@ -15,7 +15,9 @@
      deployments use), when built (``bash benchmarks/build_mavlink_router.sh``, or ``MAVLINK_ROUTERD``);
    - ``secuav-bypass-*``: ``secuav-proxy --attack bypass`` (asyncio, uvloop);
    - ``secuav-rewrite-*``: ``secuav-proxy`` with a bias on the DISTANCE_SENSOR
-     ids that make up about 10 % of the stream.
+     ids that make up about 10 % of the stream;
+   - ``secuav-*-python``: the same on uvloop with ``SECUAV_PROXY_PYTHON=1``, the pure-Python path (the
+     others take the compiled fast path when it is built: mitm_proxy/README.md, "The fast path").
 
    Sustained rate: a ladder of offered rates (``--rates``), ``--step-s`` each;
    the figure is the highest rate with no frame lost. Latency: at 2 k frames/s,
@@ -196,10 +198,14 @@ class Target:
     argv: list[str] | None  # None: direct (no relay)
     pid: int | None = None
     notes: list[str] = field(default_factory=list)
+    env: dict[str, str] = field(default_factory=dict)
 
 
 ROUTERD = Path(os.environ.get("MAVLINK_ROUTERD")
                or Path(__file__).resolve().parents[1] / "build/mavlink-router/build/src/mavlink-routerd")
+
+
+PYTHON_PATH = {"SECUAV_PROXY_PYTHON": "1"}  # mitm_proxy/README.md, "The fast path"
 
 
 def targets(profile: Path, names: list[str] | None) -> list[Target]:
@@ -217,6 +223,9 @@ def targets(profile: Path, names: list[str] | None) -> list[Target]:
         Target("secuav-bypass-uvloop", [*proxy, "--attack", "bypass", "--loop", "uvloop"]),
         Target("secuav-rewrite-asyncio", [*proxy, "--profile", str(profile), "--loop", "asyncio"]),
         Target("secuav-rewrite-uvloop", [*proxy, "--profile", str(profile), "--loop", "uvloop"]),
+        # The same two with the compiled fast path turned off: the pure-Python path, before and after in one run.
+        Target("secuav-bypass-python", [*proxy, "--attack", "bypass", "--loop", "uvloop"], env=PYTHON_PATH),
+        Target("secuav-rewrite-python", [*proxy, "--profile", str(profile), "--loop", "uvloop"], env=PYTHON_PATH),
     ]
     return [t for t in all_targets if names is None or t.name in names]
 
@@ -228,7 +237,7 @@ def started(target: Target, inp: int, out: int, workdir: Path) -> Iterator[subpr
         return
     argv = [a.format(inp=inp, out=out) for a in target.argv]
     proc = subprocess.Popen(argv, cwd=workdir, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            env={**os.environ, "PYTHONPATH": str(ROOT)})  # fmt: skip
+                            env={**os.environ, "PYTHONPATH": str(ROOT), **target.env})  # fmt: skip
     target.pid = proc.pid
     try:
         yield proc

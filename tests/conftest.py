@@ -176,3 +176,20 @@ def _name_the_group(item: pytest.Item) -> None:
         item._id = coerce_node_id(grouped)
     else:
         item._nodeid = grouped
+
+
+@pytest.fixture(params=["native", "python"])
+def proxy_path(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
+    """Run a proxy test on both forwarding paths: the compiled fast path and the pure-Python one
+    (mitm_proxy/README.md, "The fast path"). Proxies started in-process or as a subprocess after this fixture
+    (``secuav-proxy`` inherits the environment) take the path asked for. Use it on a whole module with
+    ``pytestmark = pytest.mark.usefixtures("proxy_path")``."""
+    from mitm_proxy.net import native_udp
+
+    if request.param == "native":
+        if not native_udp.available():
+            pytest.skip("the compiled fast path is not built here (no C compiler when the project was installed)")
+        monkeypatch.delenv(native_udp.FORCE_PYTHON_ENV, raising=False)
+    else:
+        monkeypatch.setenv(native_udp.FORCE_PYTHON_ENV, "1")
+    return str(request.param)

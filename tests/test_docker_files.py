@@ -174,6 +174,11 @@ def test_image_installs_the_project_like_the_readme_setup() -> None:
     assert SpecifierSet(requires).contains("3.11.0"), f"bookworm's python3 (3.11) fails requires-python {requires}"
     ignore = (DOCKER / "Dockerfile.dockerignore").read_text().split()
     assert ".venv" in ignore and ".git" in ignore
+    # The proxy's compiled fast path is built in the build stage (a compiler there) and checked to import;
+    # a module built on the host for another Python never enters the context.
+    build_stage = text.split("FROM ${BASE}\n")[0]
+    assert "gcc" in build_stage and "native_udp.available()" in build_stage
+    assert "**/*.so" in ignore
 
 
 def _third_party_imports(package_dirs: list[Path]) -> dict[str, str]:

@@ -185,6 +185,15 @@ class Pipeline:
             self._union = frozenset().union(*sets)
         return active, self._union
 
+    def fast_ids(self, direction: Direction) -> frozenset[int] | None:
+        """For the compiled fast path (:mod:`mitm_proxy.net.native_udp`): the message ids whose frames must come
+        through :meth:`feed` on ``direction``, or None when every frame must (an observer is attached, the link
+        has a signing key, or the direction's sequence numbers are watched). Frames of other ids in datagrams
+        of nothing but valid frames are what :meth:`feed` would pass as they came, only counted."""
+        if self.observers or self.signer is not None or direction in self._seqs:
+            return None
+        return self._wanted()[1]
+
     def _log_once(self, key: str, event: str, **extra: object) -> None:
         """Faults are counted per frame but logged once per kind, so a flood cannot flood the log."""
         if key not in self._logged:

@@ -207,14 +207,17 @@ class UdpEndpoint(BaseEndpoint, asyncio.DatagramProtocol):
             except OSError as exc:
                 raise EndpointError(exc.errno, f"{self.name} {ep}: cannot bind {_fmt(local)}: {exc.strerror}") from exc
             sock.setblocking(False)
-            transport, _ = await loop.create_datagram_endpoint(lambda: self, sock=sock)
+            await self._start(loop, sock, family)
         except BaseException:
             sock.close()
             raise
-        self._transport = transport
         self.local = sock.getsockname()[:2]
         log.debug("endpoint.open", extra={"endpoint": self.name, "url": str(ep), "local": _fmt(self.local)})
         return self
+
+    async def _start(self, loop: asyncio.AbstractEventLoop, sock: socket.socket, family: int) -> None:
+        """Serve the bound socket: an asyncio transport here; the fast path's endpoint reads it itself."""
+        self._transport, _ = await loop.create_datagram_endpoint(lambda: self, sock=sock)
 
     def close(self) -> None:
         if self._transport is not None:
@@ -223,10 +226,13 @@ class UdpEndpoint(BaseEndpoint, asyncio.DatagramProtocol):
 
     # -- receiving ---------------------------------------------------------------
     def datagram_received(self, data: bytes, addr: tuple[str, int] | Any) -> None:
-        rx_s = time.monotonic()
+        self._arrived(data, addr, time.monotonic(), len(data))
+
+    def _arrived(self, data: bytes | None, addr: tuple[str, int] | Any, rx_s: float, size: int) -> None:
+        """One datagram of ``size`` bytes from ``addr`` (``data`` None: longer than the fast path reads)."""
         self.rx += 1
-        if len(data) > MAX_DATAGRAM_BYTES:  # before anything else: it can neither be split nor become the peer
-            self._fault("oversize", f"{len(data)}-byte datagram from {_fmt(addr)} dropped unread "
+        if data is None or size > MAX_DATAGRAM_BYTES:  # first: it can neither be split nor become the peer
+            self._fault("oversize", f"{size}-byte datagram from {_fmt(addr)} dropped unread "
                                     f"(more than {MAX_DATAGRAM_BYTES} bytes is not MAVLink)")  # fmt: skip
             return
         if addr == self.peer:  # the common case, both modes: the peer we know

@@ -73,6 +73,9 @@ class Link:
         self._tick_at: float | None = None  # monotonic time the armed tick is for
         self.tick_errors = 0
         vehicle.receiver = self.from_vehicle
+        bind = getattr(vehicle, "bind_fast", None)  # the compiled fast path (net/native_udp.py) forwards for us
+        if bind is not None:
+            bind(vehicle.receiver, self, Direction.DOWNLINK, self.grounds)
         for stage in pipeline.stages:
             if hasattr(stage, "on_schedule"):
                 stage.on_schedule = self.wake  # type: ignore[attr-defined]
@@ -171,6 +174,9 @@ class GroundRouter:
         self.links = list(links)
         self._by_sysid = {ln.sysid: ln for ln in self.links}
         endpoint.receiver = self.links[0].from_ground if len(self.links) == 1 else self.route
+        bind = getattr(endpoint, "bind_fast", None)
+        if bind is not None and len(self.links) == 1:  # a shared endpoint routes frame by frame: Python's job
+            bind(endpoint.receiver, self.links[0], Direction.UPLINK, (self.links[0].vehicle,))
 
     def route(self, data: bytes, rx_s: float) -> None:
         split = frames.split(data)

@@ -24,7 +24,8 @@ from secuav_common.broker import EmbeddedBroker
 from secuav_common.scenario import load_scenario
 from secuav_common.urls import Endpoint
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(60)]
+# Each test runs on the compiled fast path and on the pure-Python one (proxy_path, tests/conftest.py).
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(60), pytest.mark.usefixtures("proxy_path")]
 REPO = Path(__file__).resolve().parents[2]
 
 

@@ -28,7 +28,8 @@ from secuav_common.broker import EmbeddedBroker
 from secuav_common.controlplane.payloads import request_bytes
 from tests.support.udp_peers import Peer
 
-pytestmark = pytest.mark.timeout(30)
+# Each test runs on the compiled fast path and on the pure-Python one (proxy_path, tests/conftest.py).
+pytestmark = [pytest.mark.timeout(30), pytest.mark.usefixtures("proxy_path")]
 KEY = os.urandom(32)
 PROFILE = ("name: sixty\nrules:\n  - target: {message: DISTANCE_SENSOR, field: current_distance}\n"
            "    kind: set\n    value: 0.6\n")  # fmt: skip

@@ -21,7 +21,8 @@ from mitm_proxy.config import LinkConfig, ProxyConfig
 from secuav_common.broker import EmbeddedBroker
 from tests.support.udp_peers import Peer, distance, heartbeat, packer
 
-pytestmark = pytest.mark.timeout(40)
+# Each test runs on the compiled fast path and on the pure-Python one (proxy_path, tests/conftest.py).
+pytestmark = [pytest.mark.timeout(40), pytest.mark.usefixtures("proxy_path")]
 
 
 def cm_of(frame: bytes) -> int:

@@ -27,7 +27,8 @@ from secuav_common.broker import EmbeddedBroker
 from tests.conftest import free_tcp_port
 from tests.support.brokers import attack_cli
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(120)]
+# Each test runs on the compiled fast path and on the pure-Python one (proxy_path, tests/conftest.py).
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(120), pytest.mark.usefixtures("proxy_path")]
 TRUE_CM = 250
 BIAS = {"name": "bias", "rules": [{"target": {"message": "DISTANCE_SENSOR", "sensor_id": 0},
                                    "kind": "bias", "offset": 1.0}]}  # fmt: skip

@@ -29,7 +29,8 @@ from secuav_common.broker import EmbeddedBroker
 from tests.conftest import free_tcp_port
 from tests.support.brokers import attack_cli
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
+# Each test runs on the compiled fast path and on the pure-Python one (proxy_path, tests/conftest.py).
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(180), pytest.mark.usefixtures("proxy_path")]
 
 
 def _proxy(broker: str, instance: str, vehicle: int, ground: int, log: Path, sysid: int) -> subprocess.Popen[bytes]:

@@ -8,10 +8,14 @@ import socket
 from collections.abc import Callable
 from pathlib import Path
 
+import pytest
+
 from attack_profiles.profile import parse_profile
 from mitm_proxy.app import Proxy
 from mitm_proxy.config import LinkConfig, ProxyConfig
 from tests.support.frames_support import heartbeat, pack
+
+pytestmark = pytest.mark.usefixtures("proxy_path")  # each test on the fast path and the Python one (tests/conftest.py)
 
 UPLINK = {"name": "feed-lie", "rules": [{"target": {"message": "DISTANCE_SENSOR", "direction": "uplink"},
                                          "kind": "bias", "offset": 5.0}]}  # fmt: skip

@@ -24,7 +24,8 @@ from mitm_proxy.config import LinkConfig, ProxyConfig
 from tests.support.live_sim import live_sim, until
 from tests.support.udp_peers import Peer, distance, heartbeat, packer
 
-pytestmark = pytest.mark.timeout(60)
+# Each test runs on the compiled fast path and on the pure-Python one (proxy_path, tests/conftest.py).
+pytestmark = [pytest.mark.timeout(60), pytest.mark.usefixtures("proxy_path")]
 
 
 def _proxy(vehicle: str, *ground: str) -> Proxy:

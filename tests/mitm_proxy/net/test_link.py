@@ -21,7 +21,8 @@ from mitm_proxy.app import Proxy
 from mitm_proxy.config import LinkConfig, ProxyConfig
 from tests.support.udp_peers import Peer, command, distance, heartbeat, packer
 
-pytestmark = pytest.mark.timeout(30)
+# Each test runs on the compiled fast path and on the pure-Python one (proxy_path, tests/conftest.py).
+pytestmark = [pytest.mark.timeout(30), pytest.mark.usefixtures("proxy_path")]
 
 
 @contextlib.asynccontextmanager

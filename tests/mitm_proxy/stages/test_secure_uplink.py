@@ -134,6 +134,7 @@ def test_the_direction_is_checked_like_every_other_field() -> None:
 
 
 @pytest.mark.timeout(90)
+@pytest.mark.usefixtures("proxy_path")  # on the fast path and the Python one (tests/conftest.py)
 def test_the_real_proxy_substitutes_toward_the_vehicle(tmp_path: Path, udp_port: Callable[[], int]) -> None:
     """``secuav-proxy --secure secekf --secure-direction uplink`` as a process: a companion on a ground endpoint
     feeds three rangefinders over UDP, one biased by ``--profile``; the vehicle's socket receives the secure

@@ -1,0 +1,238 @@
+"""The compiled fast path (mitm_proxy/net/_fastpath.c, native_udp.py) against the Python splitter and pipeline.
+
+The verdict on one datagram is checked against :func:`mavframe.frames.split` on frames pymavlink packs
+(v1, v2, signed) with garbage, bit flips and cuts: the fast path may only forward a datagram the Python
+path would also forward untouched. Then whole proxies on loopback, on both paths: a real ArduPilot
+recording goes through byte for byte and in order, and a rewrite profile's frames go up to Python between
+frames that do not, and a runtime swap takes effect from the next datagram on.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from mavframe import tlog
+from mavframe.frames import CRC_EXTRA, split
+from mitm_proxy.app import Proxy
+from mitm_proxy.config import LinkConfig, ProxyConfig
+from mitm_proxy.net import native_udp
+from tests.mavframe.frames_support import distance, frames, garbage, heartbeat, mav, pack, unknown_frame
+
+pytestmark = pytest.mark.timeout(60)
+TLOG = Path(__file__).resolve().parents[2] / "data" / "ardupilot-copter-guided.tlog"
+NOBODY = native_udp.id_bits(frozenset())
+needs_native = pytest.mark.skipif(not native_udp.available(), reason="the compiled fast path is not built here")
+
+
+def _python_verdict(data: bytes, wanted: frozenset[int]) -> int:
+    """Frames the Python pipeline would forward as they came with nothing to do, or -1."""
+    res = split(data)
+    if res.bad or res.unknown or not res.frames or any(h.msgid in wanted for h, _ in res.frames):
+        return -1
+    return len(res.frames)
+
+
+@needs_native
+@given(st.lists(st.one_of(frames(), garbage), min_size=1, max_size=6), st.data())
+def test_fast_verdict_never_forwards_what_python_would_not(parts: list[bytes], data: st.DataObject) -> None:
+    from mitm_proxy.net import _fastpath  # type: ignore[attr-defined]
+
+    datagram = b"".join(parts)
+    cut = data.draw(st.sampled_from(["none", "flip", "truncate"]))
+    if cut == "flip" and datagram:
+        i = data.draw(st.integers(0, len(datagram) - 1))
+        datagram = datagram[:i] + bytes([datagram[i] ^ (1 << data.draw(st.integers(0, 7)))]) + datagram[i + 1 :]
+    elif cut == "truncate" and len(datagram) > 1:
+        datagram = datagram[: data.draw(st.integers(1, len(datagram) - 1))]
+    wanted = frozenset(data.draw(st.sets(st.sampled_from([0, 30, 32, 33, 132, 253]), max_size=2)))
+    fast = _fastpath.check(datagram, native_udp.id_bits(wanted))
+    python = _python_verdict(datagram, wanted)
+    assert fast == -1 or fast == python, (datagram.hex(), fast, python)
+
+
+@needs_native
+@given(st.lists(frames(), min_size=1, max_size=5))
+def test_fast_verdict_forwards_clean_frames_of_ids_nobody_wants(parts: list[bytes]) -> None:
+    """The fast path is not merely safe: valid v1/v2/signed frames nobody wants stay in C (a signature that
+    happens to hold a magic byte is left to Python, which looks for a frame starting inside it)."""
+    from mitm_proxy.net import _fastpath  # type: ignore[attr-defined]
+
+    datagram = b"".join(parts)
+    want = len(parts)
+    for h, raw in split(datagram).frames:
+        if h.signed and (b"\xfd" in raw[-13:] or b"\xfe" in raw[-13:]):
+            want = -1
+    assert _fastpath.check(datagram, NOBODY) == want
+
+
+@needs_native
+def test_fast_verdict_leaves_unknown_ids_and_wanted_ids_to_python() -> None:
+    from mitm_proxy.net import _fastpath  # type: ignore[attr-defined]
+
+    hb, ds = pack(heartbeat()), pack(distance())
+    assert _fastpath.check(hb + ds, NOBODY) == 2
+    assert _fastpath.check(hb + ds, native_udp.id_bits(frozenset({132}))) == -1
+    assert _fastpath.check(hb + unknown_frame(), NOBODY) == -1
+    assert _fastpath.check(b"", NOBODY) == -1
+    assert _fastpath.check(pack(heartbeat(), mav(v1=True), v1=True), NOBODY) == 1
+    assert max(CRC_EXTRA) < 65536  # the route's id bitmap covers the whole dialect
+
+
+# -- whole proxies on loopback, both paths ------------------------------------------------------------------
+
+
+class _Gcs:
+    def __init__(self) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 * 1024 * 1024)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.setblocking(False)
+        self.port = self.sock.getsockname()[1]
+
+    async def datagrams(self, count: int, timeout_s: float = 10.0) -> list[bytes]:
+        loop = asyncio.get_running_loop()
+        out: list[bytes] = []
+        while len(out) < count:
+            out.append(await asyncio.wait_for(loop.sock_recv(self.sock, 65535), timeout_s))
+        return out
+
+
+def _vehicle_frames() -> list[bytes]:
+    entries = list(tlog.TlogReader(TLOG.read_bytes()))
+    return [e.raw for e in entries if e.header.sysid == 1]
+
+
+async def _send_paced(sock: socket.socket, datagrams: list[bytes], port: int) -> None:
+    for i, d in enumerate(datagrams):
+        sock.sendto(d, ("127.0.0.1", port))
+        if i % 50 == 49:
+            await asyncio.sleep(0.002)  # the kernel's buffers, not the proxy, would otherwise be the test
+
+
+@pytest.mark.usefixtures("proxy_path")
+async def test_recording_goes_through_byte_for_byte_in_order(udp_port: Callable[[], int], proxy_path: str) -> None:
+    recorded = _vehicle_frames()[:3000]
+    datagrams = recorded[:1500] + [b"".join(recorded[i : i + 3]) for i in range(1500, len(recorded), 3)]
+    gcs, port = _Gcs(), udp_port()
+    vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    vehicle.bind(("127.0.0.1", 0))
+    link = LinkConfig(sysid=1, vehicle=f"udpin://127.0.0.1:{port}", ground=[f"udpout://127.0.0.1:{gcs.port}"])
+    try:
+        async with Proxy(ProxyConfig(links=[link], broker="none", attack="bypass")) as proxy:
+            ep = proxy.links[0].vehicle
+            assert isinstance(ep, native_udp.NativeUdpEndpoint) == (proxy_path == "native")
+            await _send_paced(vehicle, datagrams, port)
+            got = await gcs.datagrams(len(datagrams))
+            assert got == datagrams  # the same datagrams, the same bytes, the same order
+            down = proxy.stats_snapshot()[1]["downlink"]
+            assert (down["datagrams_in"], down["frames_in"], down["frames_out"]) == (
+                len(datagrams),
+                len(recorded),
+                len(recorded),
+            )
+            assert down["bytes_out"] == down["bytes_in"] == sum(map(len, datagrams))
+            assert proxy.stats_snapshot()[1]["latency_ms"]["count"] == len(datagrams)
+            assert ep.rx == len(datagrams) and proxy.links[0].grounds[0].tx == len(datagrams)
+            if proxy_path == "native":  # all but the first (it pins the vehicle's address) stayed in C
+                assert ep.fast_datagrams == len(datagrams) - 1
+    finally:
+        vehicle.close()
+        gcs.sock.close()
+
+
+@pytest.mark.usefixtures("proxy_path")
+async def test_rewritten_frames_keep_their_place_among_forwarded_ones(
+    udp_port: Callable[[], int], tmp_path: Path
+) -> None:
+    """A rewrite profile's frames go up to Python; the ones around them are not overtaken."""
+    profile = tmp_path / "bias.yaml"
+    profile.write_text("name: b\nrules:\n  - target: {message: DISTANCE_SENSOR, field: current_distance}\n"
+                       "    kind: bias\n    offset_m: 1.0\n")  # fmt: skip
+    gcs, port = _Gcs(), udp_port()
+    vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    vehicle.bind(("127.0.0.1", 0))
+    m = mav()
+    sent = [pack(distance(cm=100 + i), m) if i % 4 == 0 else pack(heartbeat(), m) for i in range(400)]
+    link = LinkConfig(sysid=1, vehicle=f"udpin://127.0.0.1:{port}", ground=[f"udpout://127.0.0.1:{gcs.port}"])
+    try:
+        async with Proxy(ProxyConfig(links=[link], broker="none", profile=profile)) as proxy:
+            for d in sent:  # all at once: batches mix frames for Python and frames for the fast path
+                vehicle.sendto(d, ("127.0.0.1", port))
+            got = await gcs.datagrams(len(sent))
+            for i, (before, after) in enumerate(zip(sent, got, strict=True)):
+                if i % 4:
+                    assert after == before
+                else:
+                    h, _raw = split(after).frames[0]
+                    assert h.msgid == 132 and h.seq == split(before).frames[0][0].seq and after != before
+            assert proxy.stats_snapshot()[1]["downlink"]["rewritten"] == 100
+            ep = proxy.links[0].vehicle
+            if isinstance(ep, native_udp.NativeUdpEndpoint):
+                assert ep.fast_datagrams >= 290  # the heartbeats (but the first)
+    finally:
+        vehicle.close()
+        gcs.sock.close()
+
+
+@pytest.mark.usefixtures("proxy_path")
+async def test_hostile_input_is_counted_and_over_budget_while_valid_frames_pass(udp_port: Callable[[], int]) -> None:
+    """More garbage than the per-second budget (pipeline.HOSTILE_BYTES_PER_S) between valid datagrams: the
+    garbage is counted and, once over budget, dropped unsplit; every valid datagram still leaves as it came."""
+    gcs, port = _Gcs(), udp_port()
+    vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    vehicle.bind(("127.0.0.1", 0))
+    m = mav()
+    junk = b"\x00\x13" * 1000  # 2000 bytes, no magic byte: cheap for the Python splitter too
+    valid: list[bytes] = []
+    plan: list[bytes] = []
+    for i in range(200):  # 400 kB of garbage in all, well over the 256 kB budget
+        good = pack(heartbeat(), m) + pack(distance(cm=i), m)
+        valid.append(good)
+        plan += [good, junk, good[:12] + junk[:50]]  # a whole datagram, garbage, a frame cut short
+    link = LinkConfig(sysid=1, vehicle=f"udpin://127.0.0.1:{port}", ground=[f"udpout://127.0.0.1:{gcs.port}"])
+    try:
+        async with Proxy(ProxyConfig(links=[link], broker="none", attack="bypass")) as proxy:
+            for start in range(0, len(plan), 30):  # in steps the proxy has taken, so no kernel buffer overflows
+                for d in plan[start : start + 30]:
+                    vehicle.sendto(d, ("127.0.0.1", port))
+                for _ in range(500):
+                    if proxy.stats_snapshot()[1]["downlink"]["datagrams_in"] >= min(start + 30, len(plan)):
+                        break
+                    await asyncio.sleep(0.005)
+            got = await gcs.datagrams(len(valid))
+            assert got == valid
+            down = proxy.stats_snapshot()[1]["downlink"]
+            assert down["datagrams_in"] == len(plan) and down["frames_out"] == 2 * len(valid)
+            assert down["bad"].get("over_budget", 0) > 0 and down["bad"].get("garbage", 0) > 0
+    finally:
+        vehicle.close()
+        gcs.sock.close()
+
+
+@needs_native
+async def test_what_the_kernel_would_not_take_leaves_in_order_before_anything_newer(
+    udp_port: Callable[[], int],
+) -> None:
+    """The send queue of a fast-path endpoint (a full send buffer is rare on loopback, so it is filled here
+    directly): what waits goes first and a datagram written meanwhile goes behind it."""
+    from secuav_common.urls import parse_endpoint
+
+    gcs = _Gcs()
+    ep = native_udp.NativeUdpEndpoint(parse_endpoint(f"udpout://127.0.0.1:{gcs.port}"), "ground")
+    await ep.open()
+    try:
+        m = mav()
+        a, b, c = pack(heartbeat(), m), pack(distance(cm=1), m), pack(distance(cm=2), m)
+        assert ep._queue([a, b]) and ep._write(c)
+        assert await gcs.datagrams(3) == [a, b, c]
+        assert ep.queued == 3 and ep.tx == 3 and not ep._backlog
+    finally:
+        ep.close()
+        gcs.sock.close()
