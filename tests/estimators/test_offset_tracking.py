@@ -7,13 +7,13 @@ import math
 
 import numpy as np
 import pytest
-from tests.support.est_helpers import ANCHORS8_NED_M, HOVER_XY_M
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from estimators import noise
 from estimators.models import AnchorRanges2D
 from estimators.offsets import BOUND_M, RATE_MPS, OffsetTracker
+from tests.support.est_helpers import ANCHORS8_NED_M, HOVER_XY_M
 
 RATE_HZ = 10.0
 SIGMA = 0.06  # what the window will fit: LIAS's links scatter by 0.05-0.09 m

@@ -23,7 +23,7 @@ from mavframe.frames import CRC_EXTRA, split
 from mitm_proxy.app import Proxy
 from mitm_proxy.config import LinkConfig, ProxyConfig
 from mitm_proxy.net import native_udp
-from tests.mavframe.frames_support import distance, frames, garbage, heartbeat, mav, pack, unknown_frame
+from tests.support.frames_support import distance, frames, garbage, heartbeat, mav, pack, unknown_frame
 
 pytestmark = pytest.mark.timeout(60)
 TLOG = Path(__file__).resolve().parents[2] / "data" / "ardupilot-copter-guided.tlog"
