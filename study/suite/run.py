@@ -75,7 +75,7 @@ def list_text(version: str = LATEST) -> str:
 def _with_added(doc: dict[str, Any], added: list[Any], budget: int) -> tuple[dict[str, Any], list[str]]:
     """The study with the methods under test appended where they run; and the names left out (with why)."""
     import estimators
-    from evaluation.cli import model_for
+    from estimators.scenario_models import model_for
     from secuav_common.scenario import load_scenario, resolve_scenario_path
 
     doc = {**doc, "tuning_budget": budget}
