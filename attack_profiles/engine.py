@@ -61,7 +61,7 @@ from typing import Any
 
 import numpy as np
 
-from attack_profiles import readings
+from attack_profiles import validity
 from attack_profiles.action import FORWARD, Action
 from attack_profiles.frame_ops import FrameOps, is_frame_rule, value_warnings
 from attack_profiles.primitives import PRIMITIVES, Context, Primitive, Sample, primitive
@@ -143,7 +143,7 @@ class _State:
     vehicle_time_s: dict[int, float] = field(default_factory=dict)  # sysid -> last time_boot seen
     positions: dict[int, Vec3] = field(default_factory=dict)  # sysid -> last LOCAL_POSITION_NED
     # sysid -> DISTANCE_SENSOR id -> (min m, max m, invalid, downward), for RANGEFINDER (ArduPilot's primary)
-    rangefinders: readings.Rangefinders = field(default_factory=dict)
+    rangefinders: validity.Rangefinders = field(default_factory=dict)
     chains: dict[tuple[int, int, int, Direction], tuple[_Compiled, ...]] = field(default_factory=dict)
     sample: Sample = field(default_factory=Sample)
 
@@ -237,12 +237,12 @@ class Engine:
         self._extend_specs()
         self._tracks_position = any(r.needs_position for r in profile.rules)
         # RANGEFINDER follows ArduPilot's primary downward rangefinder: learnt from DISTANCE_SENSOR.
-        self._tracks_rangefinders = readings.RANGEFINDER_ID in self._msg_by_id
+        self._tracks_rangefinders = validity.RANGEFINDER_ID in self._msg_by_id
         ids = set(self._msg_by_id)
         if self._tracks_position:
             ids.add(LOCAL_POSITION_NED_ID)
         if self._tracks_rangefinders:
-            ids.add(readings.DISTANCE_SENSOR_ID)
+            ids.add(validity.DISTANCE_SENSOR_ID)
         self.warnings: tuple[str, ...] = tuple(value_warnings(profile, true_copies))
         if self.frame_ops is not None:
             ids |= self.frame_ops.message_ids
@@ -346,8 +346,8 @@ class Engine:
             x, y, z = fields.get("x"), fields.get("y"), fields.get("z")
             if x is not None and y is not None and z is not None:
                 st.positions[sysid] = (x, y, z)
-        if self._tracks_rangefinders and msgid == readings.DISTANCE_SENSOR_ID and direction is Direction.DOWNLINK:
-            readings.track_rangefinder(st.rangefinders, sysid, fields)
+        if self._tracks_rangefinders and msgid == validity.DISTANCE_SENSOR_ID and direction is Direction.DOWNLINK:
+            validity.track_rangefinder(st.rangefinders, sysid, fields)
         msg = self._msg_by_id.get(msgid)
         if msg is None:  # watched only for the position
             return FORWARD
@@ -359,8 +359,8 @@ class Engine:
         t = self._clock(st, now_s, msg, fields, sysid)  # first: it also tracks the vehicle's clock
         if t is None:
             return FORWARD
-        if msgid == readings.RANGEFINDER_ID:
-            sid = readings.primary(st.rangefinders, sysid)
+        if msgid == validity.RANGEFINDER_ID:
+            sid = validity.primary(st.rangefinders, sysid)
         else:
             sid = fields.get(msg.id_field, -1) if msg.id_field is not None else -1
         rules = self._chain(st, msgid, sysid, sid, direction)
@@ -370,8 +370,8 @@ class Engine:
         s.t_s, s.key, s.fields = t, (sysid, sid), fields
         s.drop, s.delay_s, s.offline = False, 0.0, False
         s.position_ned_m = st.positions.get(sysid)
-        limits = readings.limits(st.rangefinders, msgid, fields, sysid, sid) if msgid in readings.RANGED else None
-        s.unread = readings.unread(msgid, fields, limits) if msgid in readings.MAY_BE_UNREAD else readings.NOTHING
+        limits = validity.limits(st.rangefinders, msgid, fields, sysid, sid) if msgid in validity.RANGED else None
+        s.unread = validity.unread(msgid, fields, limits) if msgid in validity.MAY_BE_UNREAD else validity.NOTHING
         if s.free:
             s.free.clear()
         working: dict[str, float] = {}

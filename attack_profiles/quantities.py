@@ -69,11 +69,6 @@ DATUM_QUANTITIES = frozenset({"altitude", "position"})
 EARTH_RADIUS_M = 6378137.0  # WGS-84 equatorial radius
 M_PER_DEG = EARTH_RADIUS_M * math.pi / 180.0
 
-# DISTANCE_SENSOR.orientation of a downward sensor (MAV_SENSOR_ROTATION_PITCH_270).
-ORIENTATION_DOWN = 25
-# DISTANCE_SENSOR.signal_quality 1: "invalid signal" (0 is "unknown", 100 "perfect").
-QUALITY_INVALID = 1
-
 
 @dataclass(frozen=True, slots=True)
 class Carrier:

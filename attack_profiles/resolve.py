@@ -4,31 +4,20 @@ One reading for all of them (secuav-attack, secuav-proxy, secuav-eval,
 secuav-record, secuav-demo, secuav-study): ``REF`` is a profile file when that
 path exists or ends in .yaml/.yml/.json, otherwise the name of a library
 profile; a ``--param`` value is YAML (so JSON too): ``links=[11,14]``,
-``offset_m=2``, ``label=text``.
+``offset_m=2``, ``label=text`` (``secuav_common.loading.parse_params``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 from attack_profiles import library
 from attack_profiles.profile import Profile, load_profile
-from secuav_common.loading import InputError, parse_document
+from secuav_common.loading import InputError
+from secuav_common.loading import parse_params as parse_params  # its home; kept here for older importers
 
 PROFILE_SUFFIXES = (".yaml", ".yml", ".json")
-
-
-def parse_params(pairs: Iterable[str], flag: str = "--param") -> dict[str, Any]:
-    """``["links=[11,14]", "offset_m=2"]`` -> ``{"links": [11, 14], "offset_m": 2}``; ``NAME=`` is null."""
-    out: dict[str, Any] = {}
-    for pair in pairs:
-        name, sep, raw = pair.partition("=")
-        if not sep or not name:
-            raise InputError(flag, "", pair, "expected NAME=VALUE")
-        out[name] = parse_document(raw, f"{flag} {name}") if raw else None
-    return out
 
 
 def is_file_ref(ref: str | Path) -> bool:

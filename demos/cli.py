@@ -22,12 +22,13 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
-from attack_profiles.resolve import is_file_ref, parse_params, resolve_profile
+from attack_profiles.resolve import is_file_ref, resolve_profile
 from demos import command_tamper, formation, height_hold, localise, px4, rangefinder_feed, sitl, vision, wall_hover
 from demos.flight import Case, Options
 from demos.report import plot, write_report
 from demos.stack import Ports
 from secuav_common.extras import require
+from secuav_common.loading import parse_params
 from secuav_common.logs import add_common_flags
 
 DEMOS: dict[str, ModuleType] = {

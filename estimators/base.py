@@ -19,7 +19,6 @@ from estimators.attribution import Namer, Trail, agreeing, explain, sidak_gate
 from estimators.bank import Chi2Table, EkfBank, cv_matrices, gauss_newton, inv_small
 from estimators.envelope import MAX_SPEED_MPS, SLACK_M, Envelope
 from estimators.models import Known, MeasurementModel
-from estimators.observability import mirrors
 
 EVIDENCE_STEPS = 10  # the evidence window: the last second at 10 Hz
 EVIDENCE_MIN = 3  # a reading counts as accused when named on at least this many of its steps
@@ -55,7 +54,7 @@ class Estimate:
     a consistent filter averages 1 per degree of freedom. None for snapshot estimators and steps without
     an update. ``ambiguous`` (then ``valid`` is False too): a tie, two explanations with no more liars than the
     one output that put the vehicle in different places: the mirror image of the output across a line or plane
-    of anchors (``observability.mirrors``; the layout check refuses an ``s`` that allows it inside the flight
+    of anchors (``MeasurementModel.mirrors``; the layout check refuses an ``s`` that allows it inside the flight
     region, so it fires outside it), or fewest-liars explanations that disagree beyond tolerance.
     """
 
@@ -151,7 +150,7 @@ class Estimator:
         self.n_iter = n_iter
         self.t_s: float | None = None
         # Lines and planes of anchors on which p - 2s readings could sit: where a tie is possible at all.
-        self.mirrors = mirrors(model, model.p - 2 * self.s) if self.secure and self.s > 0 else []
+        self.mirrors = model.mirrors(model.p - 2 * self.s) if self.secure and self.s > 0 else []
         self.reset()
 
     @classmethod

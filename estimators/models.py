@@ -15,7 +15,8 @@ gives none.
 state can still be recovered from one snapshot (2s-sparse observability):
 deleting any 2s sensors must leave readings that pin the position down. For
 anchor ranges that is decided from the geometry over the flight region
-(``region_m``; ``estimators.observability``), not only by counting sensors.
+(``region_m``): each model's ``support()`` hands its anchors and boxes to the geometry of
+``estimators.observability``, not only by counting sensors.
 
 ``honest_subsets(s)`` lists the hypotheses the subset estimators weigh ("these
 readings are honest"): every way of leaving ``s`` readings out, or, for a model
@@ -31,6 +32,9 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
+
+from estimators import observability as geometry
+from estimators.observability import Box, Mirror, Support
 
 Known = float | np.ndarray | None
 
@@ -76,7 +80,7 @@ class MeasurementModel:
     sensor_ids: tuple[int, ...] = ()
     bounds_m: tuple[np.ndarray, np.ndarray] | None = None
     # Where the vehicle flies (a box in the model's coordinates), for the observability check; None: see
-    # observability.flight_region.
+    # each anchor model's flight_region().
     region_m: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
@@ -97,15 +101,27 @@ class MeasurementModel:
         """The largest s the layout supports over its flight region (``observability.support``)."""
         return self.support().s_max
 
-    def support(self):  # -> observability.Support (imported late: observability imports the models)
-        """Why ``max_correctable`` is what it is: the count bound and the geometry (cached: the layout is fixed)."""
-        cached = self.__dict__.get("_support")
-        if cached is None:
-            from estimators.observability import support
+    @property
+    def count_bound(self) -> int:
+        """What counting sensors alone allows: ``(p - min_sensors) // 2``."""
+        return max(0, (self.p - self.min_sensors) // 2)
 
-            cached = support(self)
-            object.__setattr__(self, "_support", cached)
+    def support(self) -> Support:
+        """Why ``max_correctable`` is what it is: the count bound and the geometry (cached: the layout is fixed)."""
+        cached = self.__dict__.get("_support_cache")
+        if cached is None:
+            cached = self._support()
+            object.__setattr__(self, "_support_cache", cached)
         return cached
+
+    def _support(self) -> Support:
+        """The layout's answer (:meth:`support` caches it); a model without geometry has its count bound."""
+        return geometry.count_only(self.count_bound)
+
+    def mirrors(self, min_size: int, tol_m: float | None = None) -> list[Mirror]:
+        """Every line or plane of the layout holding at least ``min_size`` readings, wherever its mirror falls
+        (``observability.mirrors``). None for a model that is not single-vehicle anchor ranges."""
+        return []
 
     @property
     def default_known(self) -> Known:
@@ -290,6 +306,23 @@ class AnchorRanges2D(MeasurementModel):
     def initial_pos(self) -> np.ndarray:
         return self.anchors_ned_m[:, :2].mean(axis=0)
 
+    def flight_region(self) -> Box:
+        """Where the vehicle flies, for the layout check: ``region_m``, else the anchors' horizontal box."""
+        return geometry.plane_region(self.anchors_ned_m) if self.region_m is None else geometry.as_box(self.region_m)
+
+    def _support(self) -> Support:
+        """The plane case (``observability``): anchors on one line whose mirror reaches the box."""
+        if self.bounds_m is None:
+            return super()._support()
+        tol, sep = geometry.tolerances(self.sigma_m)
+        sets = geometry.degenerate(self.anchors_ned_m[:, :2], self.flight_region(), geometry.as_box(self.bounds_m),
+                                   tol, sep)  # fmt: skip
+        return geometry.largest(self.p, self.count_bound, sets, self.ids())
+
+    def mirrors(self, min_size: int, tol_m: float | None = None) -> list[Mirror]:
+        tol = geometry.tolerances(self.sigma_m, tol_m)[0]
+        return geometry.mirrors(self.anchors_ned_m[:, :2], tol, min_size, (0, 1), self.p)
+
 
 @dataclass(frozen=True, eq=False)
 class AnchorRanges3D(MeasurementModel):
@@ -353,6 +386,25 @@ class AnchorRanges3D(MeasurementModel):
     def initial_pos(self) -> np.ndarray:
         c = self.anchors_ned_m.mean(axis=0)
         return c - np.array([0.0, 0.0, self.start_above_m])
+
+    def flight_region(self) -> Box:
+        """Where the vehicle flies, for the layout check: ``region_m``, else over the anchors from the box's top
+        down to ``start_above_m`` above the highest anchor (``observability.space_region``)."""
+        if self.region_m is not None:
+            return geometry.as_box(self.region_m)
+        return geometry.space_region(self.anchors_ned_m, self.bounds_m, self.start_above_m)
+
+    def _support(self) -> Support:
+        """The space case (``observability``): anchors on one plane whose mirror reaches the box, or on one line."""
+        if self.bounds_m is None:
+            return super()._support()
+        tol, sep = geometry.tolerances(self.sigma_m)
+        sets = geometry.degenerate(self.anchors_ned_m, self.flight_region(), geometry.as_box(self.bounds_m), tol, sep)
+        return geometry.largest(self.p, self.count_bound, sets, self.ids())
+
+    def mirrors(self, min_size: int, tol_m: float | None = None) -> list[Mirror]:
+        tol = geometry.tolerances(self.sigma_m, tol_m)[0]
+        return geometry.mirrors(self.anchors_ned_m, tol, min_size, (0, 1, 2), self.p)
 
 
 @dataclass(frozen=True, eq=False)
@@ -429,6 +481,26 @@ class AnchorRangesHeight(AnchorRanges3D):
         """Horizontal ``q_mps2``; vertical at least ``vertical_q_mps2`` (the filters must follow a take-off, or
         they leave the laser out while the ranges, blind to height at the anchor plane, pick the wrong side)."""
         return (float(q_mps2), float(q_mps2), max(float(q_mps2), self.vertical_q_mps2))
+
+    def _support(self) -> Support:
+        """Without the laser the space case; with it, the plane case on the anchors seen from above."""
+        if self.bounds_m is None:
+            return geometry.count_only(self.count_bound)
+        tol, sep = geometry.tolerances(self.sigma_m)
+        region, box = self.flight_region(), geometry.as_box(self.bounds_m)
+        sets = geometry.degenerate(self.anchors_ned_m, region, box, tol, sep)
+        flat = geometry.degenerate(self.anchors_ned_m[:, :2], geometry.horizontal(region), geometry.horizontal(box),
+                                   tol, sep)  # fmt: skip
+        for members, why in flat:
+            above = why.replace("on one line", "on one line seen from above")
+            sets.append(((*members, self.n_anchors), "the laser and " + above))
+        return geometry.largest(self.p, self.count_bound, sets, self.ids())
+
+    def mirrors(self, min_size: int, tol_m: float | None = None) -> list[Mirror]:
+        """The anchors' planes, then their lines seen from above with the laser (which fixes the height)."""
+        tol = geometry.tolerances(self.sigma_m, tol_m)[0]
+        level = geometry.mirrors(self.anchors_ned_m[:, :2], tol, min_size, (0, 1), self.p, extra=(self.n_anchors,))
+        return [*super().mirrors(min_size, tol_m), *level]
 
     def h(self, pos: np.ndarray, known: Known = None) -> np.ndarray:
         ranges = super().h(pos, known)
@@ -519,16 +591,10 @@ class LinearModel(MeasurementModel):
     def min_sensors(self) -> int:
         return self._min_sensors
 
-    @property
-    def max_correctable(self) -> int:
-        return self.support().s_max
-
-    def support(self):  # -> observability.Support
+    def _support(self) -> Support:
         """Exact sparse-observability index (``observability.linear_correctable``): the largest s with full column
         rank after removing any 2s rows."""
-        from estimators.observability import Support, linear_correctable
-
-        best, failing = linear_correctable(self.C)
+        best, failing = geometry.linear_correctable(self.C)
         count = max(0, (self.p - self.d) // 2)
         reason = f"rows {', '.join(map(str, failing))} alone do not have full column rank" if failing else ""
         return Support(best, count, (failing,) if failing else (), reason)
@@ -638,3 +704,18 @@ class TwoVehicleRanges(MeasurementModel):
 
     def initial_pos(self) -> np.ndarray:
         return np.tile(self.anchors_ned_m[:, :2].mean(axis=0), 2)
+
+    def flight_region(self) -> Box:
+        """Where the vehicles fly, for the layout check: ``region_m``, else the anchors' horizontal box."""
+        return geometry.plane_region(self.anchors_ned_m) if self.region_m is None else geometry.as_box(self.region_m)
+
+    def _support(self) -> Support:
+        """Per vehicle (its own tolerance group): the plane case on its anchors, judged on its half of the box (the
+        inter-vehicle range is not counted: conservative)."""
+        if self.bounds_m is None:
+            return super()._support()
+        tol, sep = geometry.tolerances(self.sigma_m)
+        q = self.n_anchors
+        region, box = geometry.horizontal(self.flight_region()), geometry.horizontal(geometry.as_box(self.bounds_m))
+        sets = geometry.degenerate(self.anchors_ned_m[:, :2], region, box, tol, sep)
+        return geometry.largest(q, max(0, (q - 3) // 2), sets, self.ids()[:q])

@@ -74,7 +74,7 @@ class Calibration:
     tail_factor: float  # k: the Gaussian-matching inflation of the robust scale
     steps: int  # steps of the window that gave a fix
     window_vif: float = 1.0  # variance inflation of a WINDOW-step mean from the residuals' autocorrelation
-    readings: np.ndarray | None = None  # (p,) readings of each link the fit used (in steps with a fix)
+    reading_counts: np.ndarray | None = None  # (p,) how many readings of each link the fit used (steps with a fix)
 
 
 @dataclass(frozen=True)
@@ -85,12 +85,12 @@ class WindowCount:
     span_s: float  # the time the window's steps cover (less than window_s: the readings ended first)
     steps: int
     fixes: int  # steps with at least min_sensors readings (a least-squares fix exists)
-    readings: tuple[int, ...]  # per link: readings in steps with a fix (what the fit can use)
+    reading_counts: tuple[int, ...]  # per link: how many readings in steps with a fix (what the fit can use)
 
     def refusal(self, ids: Sequence[int]) -> str | None:
         """None if the window can be calibrated on; else one line naming each link's count and what it needs."""
-        per_link = ", ".join(f"{sid}: {n}" for sid, n in zip(ids, self.readings, strict=True))
-        short = [str(sid) for sid, n in zip(ids, self.readings, strict=True) if n < MIN_LINK_READINGS]
+        per_link = ", ".join(f"{sid}: {n}" for sid, n in zip(ids, self.reading_counts, strict=True))
+        short = [str(sid) for sid, n in zip(ids, self.reading_counts, strict=True) if n < MIN_LINK_READINGS]
         if self.span_s < self.window_s:
             return (f"calibration window {self.window_s:g} s: the readings end after {self.span_s:.1f} s "
                     f"({self.steps} steps); give a shorter window or a longer recording")  # fmt: skip
@@ -119,8 +119,8 @@ def count_window(model: MeasurementModel, t_s: np.ndarray, z: np.ndarray, window
     win = np.isfinite(np.asarray(z, dtype=float)[:n])
     fix = win.sum(axis=1) >= model.min_sensors
     span = float(t_s[n - 1] - t_s[0]) if n else 0.0
-    readings = tuple(int(v) for v in win[fix].sum(axis=0))
-    return WindowCount(float(window_s), span, n, int(fix.sum()), readings)
+    counts = tuple(int(v) for v in win[fix].sum(axis=0))
+    return WindowCount(float(window_s), span, n, int(fix.sum()), counts)
 
 
 def _fix(model: MeasurementModel, z: np.ndarray, known: Known, start: np.ndarray, n_iter: int = 8) -> np.ndarray | None:
@@ -183,7 +183,7 @@ def calibrate(
         factor = max(1.0, float(_t_ratio(np.array([float(tail_dof)]), 1.0 - test_level)[0]))
     vif = window_vif(centred, EVIDENCE_STEPS)
     return Calibration(offsets_m=offsets, sigma_m=robust * factor, tail_factor=factor, steps=steps, window_vif=vif,
-                       readings=used)  # fmt: skip
+                       reading_counts=used)  # fmt: skip
 
 
 _DOFS = np.geomspace(2.2, 300.0, 120)
@@ -353,9 +353,9 @@ class Calibrated:
         out.update(steps=count.steps, steps_with_fix=count.fixes)
         cal = self.calibration
         if cal is None:
-            links = {str(sid): {"readings": n} for sid, n in zip(ids, count.readings, strict=True)}
+            links = {str(sid): {"readings": n} for sid, n in zip(ids, count.reading_counts, strict=True)}
             return {**out, "status": "refused", "reason": self.refused, "links": links}
-        used = cal.readings if cal.readings is not None else np.array(count.readings)
+        used = cal.reading_counts if cal.reading_counts is not None else np.array(count.reading_counts)
         links = {
             str(sid): {"readings": int(n), "offset_m": round(float(b), 4), "sigma_m": round(float(sg), 4),
                        "stated_sigma_m": round(float(s0), 4)}

@@ -34,6 +34,10 @@ counts only mirrors more than ``sep_m`` (default four noise stds) from their
 original, strictly inside B. The two-vehicle model applies the plane case to
 each vehicle's anchors (the inter-vehicle range is not counted: conservative).
 
+This module is geometry over arrays (anchor positions, boxes, noise stds) and knows no model: each
+measurement model's ``support()`` and ``mirrors()`` (``estimators.models``) hand it their anchors, boxes
+and reading indices.
+
 ``LinearModel`` keeps its exact combinatorial test: :func:`linear_correctable`
 (every set of ``p - 2s`` sensors must observe the state; with dynamics ``A``,
 sensor i contributes its observability block ``c_i, c_i A, ..., c_i A^(n-1)``, as
@@ -69,6 +73,43 @@ class Support:
 Box = tuple[np.ndarray, np.ndarray]
 
 
+def count_only(count_bound: int) -> Support:
+    """What counting sensors alone allows (a model whose geometry adds nothing)."""
+    return Support(count_bound, count_bound, (), "")
+
+
+def tolerances(sigma_m: np.ndarray, tol_m: float | None = None, sep_m: float | None = None) -> tuple[float, float]:
+    """``(tol_m, sep_m)``: "on a line" within half the smallest noise std, a mirror counted beyond four of the
+    largest (module docstring), unless given."""
+    tol = 0.5 * float(np.min(sigma_m)) if tol_m is None else float(tol_m)
+    sep = 4.0 * float(np.max(sigma_m)) if sep_m is None else float(sep_m)
+    return tol, sep
+
+
+def as_box(box: Box) -> Box:
+    return np.asarray(box[0], float), np.asarray(box[1], float)
+
+
+def horizontal(box: Box) -> Box:
+    """The (north, east) part of a box."""
+    return box[0][:2], box[1][:2]
+
+
+def plane_region(anchors_ned_m: np.ndarray) -> Box:
+    """The anchors' horizontal box: where a vehicle of a plane model flies unless told otherwise."""
+    return anchors_ned_m[:, :2].min(axis=0), anchors_ned_m[:, :2].max(axis=0)
+
+
+def space_region(anchors_ned_m: np.ndarray, bounds_m: Box | None, start_above_m: float) -> Box:
+    """The anchors' horizontal box and the admissible heights down to ``start_above_m`` above the highest anchor
+    (where vehicles hover; lower, during take-off and landing, coplanar anchors leave a mirror the box cannot
+    exclude)."""
+    lo_xy, hi_xy = plane_region(anchors_ned_m)
+    top = float(bounds_m[0][2]) if bounds_m is not None else float(anchors_ned_m[:, 2].min()) - 30.0
+    low = float(anchors_ned_m[:, 2].min()) - float(start_above_m)
+    return np.array([lo_xy[0], lo_xy[1], top]), np.array([hi_xy[0], hi_xy[1], max(top, low)])
+
+
 def _grid(region: Box) -> np.ndarray:
     lo, hi = region
     axes = [np.linspace(lo[i], hi[i], GRID) if hi[i] > lo[i] else np.array([lo[i]]) for i in range(lo.shape[0])]
@@ -89,7 +130,7 @@ def _mirror_reaches(
     return bool(np.any((np.abs(2.0 * off) > sep_m) & _inside(mirrored, box, margin)))
 
 
-def _flats(pts: np.ndarray, tol_m: float) -> list[tuple[tuple[int, ...], np.ndarray, np.ndarray | None]]:
+def flats(pts: np.ndarray, tol_m: float) -> list[tuple[tuple[int, ...], np.ndarray, np.ndarray | None]]:
     """Maximal sets of points within ``tol_m`` of a hyperplane through d of them (a line in 2-D, a plane in 3-D):
     (indices, origin, unit normal); in 3-D also the sets on one line (normal None: a circle of solutions)."""
     n, d = pts.shape
@@ -119,13 +160,13 @@ def _flats(pts: np.ndarray, tol_m: float) -> list[tuple[tuple[int, ...], np.ndar
     return [(k, v[0], v[1]) for k, v in out.items()]
 
 
-def _degenerate(
+def degenerate(
     pts: np.ndarray, region: Box, box: Box, tol_m: float, sep_m: float
 ) -> list[tuple[tuple[int, ...], str]]:
     """Degenerate anchor sets of a plane or space layout, with what makes each one ambiguous."""
     samples = _grid(region)
     found = []
-    for members, origin, normal in _flats(pts, tol_m):
+    for members, origin, normal in flats(pts, tol_m):
         if normal is None:
             found.append((members, "anchors on one line (a circle of positions fits their ranges)"))
         elif _mirror_reaches(samples, origin, normal, box, sep_m, tol_m):
@@ -135,7 +176,8 @@ def _degenerate(
     return found
 
 
-def _largest(p: int, count_bound: int, sets: list[tuple[tuple[int, ...], str]], ids: tuple[int, ...]) -> Support:
+def largest(p: int, count_bound: int, sets: list[tuple[tuple[int, ...], str]], ids: tuple[int, ...]) -> Support:
+    """The largest ``s`` within ``count_bound`` for which ``p - 2s`` readings exceed every degenerate set."""
     biggest = max(sets, key=lambda item: len(item[0]), default=((), ""))
     s_max = count_bound
     while s_max > 0 and p - 2 * s_max <= len(biggest[0]):
@@ -177,59 +219,6 @@ def linear_correctable(
     return best, failing
 
 
-def support(model, region: Box | None = None, tol_m: float | None = None, sep_m: float | None = None) -> Support:
-    """The largest number of attacked readings ``model`` can correct over ``region`` (module docstring).
-
-    ``region`` is a box in the model's coordinates (default ``flight_region(model)``).
-    Models that are not anchor ranges get their count bound (``LinearModel`` its exact one).
-    """
-    from estimators.models import AnchorRanges2D, AnchorRanges3D, AnchorRangesHeight, TwoVehicleRanges
-
-    count = max(0, (model.p - model.min_sensors) // 2)
-    if not isinstance(model, (AnchorRanges2D, AnchorRanges3D, TwoVehicleRanges)) or model.bounds_m is None:
-        return Support(count, count, (), "")
-    sig = float(np.min(model.sigma_m))
-    tol = 0.5 * sig if tol_m is None else float(tol_m)
-    sep = 4.0 * float(np.max(model.sigma_m)) if sep_m is None else float(sep_m)
-    reg = flight_region(model) if region is None else (np.asarray(region[0], float), np.asarray(region[1], float))
-    box = (np.asarray(model.bounds_m[0], float), np.asarray(model.bounds_m[1], float))
-    ids = model.ids()
-    anchors = model.anchors_ned_m
-    if isinstance(model, TwoVehicleRanges):
-        # Per vehicle (its own tolerance group): the plane case on its anchors, judged on its half of the box.
-        q = model.n_anchors
-        sets = _degenerate(anchors[:, :2], (reg[0][:2], reg[1][:2]), (box[0][:2], box[1][:2]), tol, sep)
-        return _largest(q, max(0, (q - 3) // 2), sets, ids[:q])
-    if isinstance(model, AnchorRanges2D):
-        return _largest(model.p, count, _degenerate(anchors[:, :2], reg, box, tol, sep), ids)
-    if isinstance(model, AnchorRangesHeight):
-        n = model.n_anchors
-        sets = _degenerate(anchors, reg, box, tol, sep)  # without the laser: the space case
-        flat = _degenerate(anchors[:, :2], (reg[0][:2], reg[1][:2]), (box[0][:2], box[1][:2]), tol, sep)
-        sets += [((*members, n), "the laser and " + why.replace("on one line", "on one line seen from above"))
-                 for members, why in flat]  # fmt: skip
-        return _largest(model.p, count, sets, ids)
-    return _largest(model.p, count, _degenerate(anchors, reg, box, tol, sep), ids)
-
-
-def flight_region(model) -> Box:
-    """Where the vehicle flies, for the check: ``model.region_m`` when set, else the anchors' horizontal box and, in
-    space, the admissible heights down to ``start_above_m`` above the highest anchor (where vehicles hover; lower,
-    during take-off and landing, coplanar anchors leave a mirror the box cannot exclude)."""
-    region = getattr(model, "region_m", None)
-    if region is not None:
-        return np.asarray(region[0], float), np.asarray(region[1], float)
-    anchors = model.anchors_ned_m
-    lo_xy, hi_xy = anchors[:, :2].min(axis=0), anchors[:, :2].max(axis=0)
-    from estimators.models import TwoVehicleRanges
-
-    if isinstance(model, TwoVehicleRanges) or model.d == 2:
-        return lo_xy, hi_xy
-    top = float(model.bounds_m[0][2]) if model.bounds_m is not None else float(anchors[:, 2].min()) - 30.0
-    low = float(anchors[:, 2].min()) - float(getattr(model, "start_above_m", 1.5))
-    return np.array([lo_xy[0], lo_xy[1], top]), np.array([hi_xy[0], hi_xy[1], max(top, low)])
-
-
 @dataclass(frozen=True)
 class Mirror:
     """A degenerate set and the reflection that keeps its readings: the other place a tie can put the vehicle."""
@@ -246,32 +235,16 @@ class Mirror:
         return out
 
 
-def mirrors(model, min_size: int, tol_m: float | None = None) -> list[Mirror]:
-    """Every line or plane of ``model``'s layout holding at least ``min_size`` readings, wherever its mirror falls
-    (the run-time tie check: :meth:`estimators.base.Estimator._tie`). Empty for models that are not single-vehicle
-    anchor ranges."""
-    from estimators.models import AnchorRanges2D, AnchorRanges3D, AnchorRangesHeight
-
-    if not isinstance(model, (AnchorRanges2D, AnchorRanges3D)):
-        return []
-    tol = 0.5 * float(np.min(model.sigma_m)) if tol_m is None else float(tol_m)
-    anchors, p = model.anchors_ned_m, model.p
+def mirrors(pts: np.ndarray, tol_m: float, min_size: int, axes: tuple[int, ...],
+            p: int, extra: tuple[int, ...] = ()) -> list[Mirror]:  # fmt: skip
+    """Every line (2-D points) or plane (3-D) of the anchors ``pts`` holding at least ``min_size`` of the ``p``
+    readings (its anchors' plus ``extra``, the laser), wherever its mirror falls (the run-time tie check:
+    :meth:`estimators.base.Estimator._tie`). ``axes``: which position coordinates the points stand for."""
     found: list[Mirror] = []
-
-    def add(members: tuple[int, ...], origin: np.ndarray, normal: np.ndarray, axes: tuple[int, ...]) -> None:
-        if len(members) >= min_size:
+    for members, origin, normal in flats(pts, tol_m):
+        held = (*members, *extra)
+        if normal is not None and len(held) >= min_size:
             mask = np.zeros(p, dtype=bool)
-            mask[list(members)] = True
+            mask[list(held)] = True
             found.append(Mirror(mask, origin, normal, axes))
-
-    if isinstance(model, AnchorRanges2D):
-        for members, origin, normal in _flats(anchors[:, :2], tol):
-            add(members, origin, normal, (0, 1))
-        return found
-    for members, origin, normal in _flats(anchors, tol):
-        if normal is not None:
-            add(members, origin, normal, (0, 1, 2))
-    if isinstance(model, AnchorRangesHeight):
-        for members, origin, normal in _flats(anchors[:, :2], tol):
-            add((*members, model.n_anchors), origin, normal, (0, 1))
     return found

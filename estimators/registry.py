@@ -26,8 +26,7 @@ from typing import Any
 from estimators.base import Estimator
 from estimators.models import MeasurementModel
 from secuav_common import plugins
-
-_REGISTRY: dict[str, type[Estimator]] = {}
+from secuav_common.registry import Registry
 
 # Ranges of the parameters every estimator shares (estimators.base.Estimator).
 SHARED_RANGES: dict[str, tuple[float, float]] = {
@@ -39,36 +38,24 @@ SHARED_RANGES: dict[str, tuple[float, float]] = {
 }
 
 
-def register(cls: type[Estimator]) -> type[Estimator]:
-    if not cls.name or cls.name in _REGISTRY:
-        raise ValueError(f"estimator name {cls.name!r} missing or taken")
-    _REGISTRY[cls.name] = cls
-    return cls
-
-
-def _plugin(name: str) -> type[Estimator] | None:
-    obj = plugins.load(plugins.ESTIMATORS, name)
-    if obj is None:
-        return None
+def _checked(obj: object, where: str) -> type[Estimator]:
     if not (isinstance(obj, type) and issubclass(obj, Estimator)):
-        plugins.reject(plugins.ESTIMATORS, name, f"{obj!r} is not an estimators.base.Estimator subclass")
-        return None
+        subject = where if plugins.is_ref(where) else repr(obj)
+        raise plugins.PluginError(f"{subject} is not an estimators.base.Estimator subclass")
     return obj
+
+
+# The built-ins only: a plugin is looked up when asked for, never entered (listings tell them apart by this).
+REGISTRY: Registry[type[Estimator]] = Registry("estimator", plugins.ESTIMATORS, _checked)
+
+
+def register(cls: type[Estimator]) -> type[Estimator]:
+    return REGISTRY.register(cls.name, cls)
 
 
 def lookup(name: str) -> type[Estimator] | None:
     """The class ``name`` stands for (built-in, plugin or ``module:Class``), or None; imports only that one."""
-    cls = _REGISTRY.get(name)
-    if cls is not None:
-        return cls
-    if name in plugins.found(plugins.ESTIMATORS):
-        return _plugin(name)
-    if plugins.is_ref(name):
-        obj = plugins.load_ref(name)  # PluginError says why it cannot be imported
-        if not (isinstance(obj, type) and issubclass(obj, Estimator)):
-            raise plugins.PluginError(f"{name} is not an estimators.base.Estimator subclass")
-        return obj
-    return None
+    return REGISTRY.lookup(name)  # PluginError says why a module:Class cannot be used
 
 
 def get(name: str) -> type[Estimator]:
@@ -92,7 +79,7 @@ def known(name: str) -> bool:
 
 def builtin_names() -> list[str]:
     """The built-in estimators' names, baselines first (no plugin is looked at)."""
-    return list(_REGISTRY)
+    return REGISTRY.builtin_names()
 
 
 def names(model: MeasurementModel | None = None) -> list[str]:
@@ -100,9 +87,7 @@ def names(model: MeasurementModel | None = None) -> list[str]:
 
     A listing: it imports every plugin estimator (one that fails is reported and left out).
     """
-    out = list(_REGISTRY)
-    out += [n for n in plugins.found(plugins.ESTIMATORS) if n not in _REGISTRY and _plugin(n) is not None]
-    return [n for n in out if model is None or get(n).applies_to(model)]
+    return [n for n, cls in REGISTRY.load_all().items() if model is None or cls.applies_to(model)]
 
 
 def create(name: str, model: MeasurementModel, **params: Any) -> Estimator:
@@ -178,10 +163,8 @@ def describe(name: str) -> dict[str, Any]:
 
 def origin(name: str) -> tuple[str, str]:
     """(distribution, version) providing estimator ``name`` ("secuav" and its version for the built-ins)."""
-    entry = plugins.found(plugins.ESTIMATORS).get(name)
-    if name not in _REGISTRY and entry is not None:
-        return entry.dist, entry.version
-    return plugins.origin(get(name))
+    get(name)  # a ValueError for a name that stands for nothing
+    return REGISTRY.origin(name)
 
 
 def code_hash(name: str) -> str:

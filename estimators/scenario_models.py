@@ -9,7 +9,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimators.models import AnchorRanges2D, AnchorRanges3D, AnchorRangesHeight, ScalarGroup, TwoVehicleRanges
+from estimators.models import (
+    AnchorRanges2D,
+    AnchorRanges3D,
+    AnchorRangesHeight,
+    MeasurementModel,
+    ScalarGroup,
+    TwoVehicleRanges,
+)
 from secuav_common.scenario import Rangefinder, Scenario, Vehicle, WallDistanceTarget
 from secuav_common.sensor_ids import anchor_sensor_id, peer_sensor_id
 
@@ -25,7 +32,18 @@ def _uwb_anchor_ids(scenario: Scenario, vehicle: Vehicle) -> list[int]:
 # 1.5 % at 10 deg), a bias with the tilt. The model treats 1 % of the hold height as extra noise on top of the
 # laser's own.
 LASER_TILT_FRACTION = 0.01
-HOVER_BAND_M = 0.5  # the flight region's half height around the hold height (observability.flight_region)
+HOVER_BAND_M = 0.5  # the flight region's half height around the hold height (the model's flight_region)
+
+
+def model_for(scenario: Scenario, dims: int = 3) -> MeasurementModel:
+    """The measurement model the estimators run on for this scenario, by what it is (``Scenario.kind``): the wall
+    group, both vehicles' ranges, or the first vehicle's anchor ranges (``dims`` as in :func:`anchor_model`)."""
+    first = scenario.vehicles[0]
+    if scenario.kind == "wall":
+        return wall_group_model(scenario, first.sysid)
+    if scenario.kind == "formation":
+        return two_vehicle_model(scenario, first.sysid, scenario.vehicles[1].sysid)
+    return anchor_model(scenario, first.sysid, dims)
 
 
 def anchor_model(

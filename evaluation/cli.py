@@ -41,10 +41,9 @@ from tqdm import tqdm
 import estimators
 from attack_profiles import Engine
 from attack_profiles.profile import Profile
-from attack_profiles.resolve import parse_params, resolve_profile
-from estimators.models import MeasurementModel
+from attack_profiles.resolve import resolve_profile
 from estimators.noise import CALIBRATION_PARAM, TAIL_PARAM, TRACK_PARAM
-from estimators.scenario_models import anchor_model, two_vehicle_model, wall_group_model
+from estimators.scenario_models import model_for
 from evaluation.recorded import load_recording
 from evaluation.report import BASELINES, compare_with_ls, plot, summarise, table, write_results
 from evaluation.trial import (
@@ -53,11 +52,9 @@ from evaluation.trial import (
     SparseReadings,
     TrialResult,
     evaluate,
-    is_formation,
-    is_wall,
     run_trial,
 )
-from secuav_common.loading import InputError
+from secuav_common.loading import InputError, parse_params
 from secuav_common.logs import add_common_flags
 from secuav_common.scenario import Scenario, load_scenario, resolve_scenario_path
 
@@ -145,6 +142,10 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+# meta.json's "test_case": the seed's numbering (1 anchors, 2 formation) and "wall"
+TEST_CASE: dict[str, str | int] = {"wall": "wall", "formation": 2, "anchors": 1}
+
+
 def resolve_attack(spec: str, params: dict[str, Any]) -> Profile | None:
     """``--attack``: ``none``, a profile file, or a library name."""
     return None if spec == "none" else resolve_profile(spec, params, "--attack")
@@ -152,12 +153,12 @@ def resolve_attack(spec: str, params: dict[str, Any]) -> Profile | None:
 
 def _check_scenario(scenario: Scenario, source: str) -> None:
     first = scenario.vehicles[0]
-    if is_wall(scenario):
+    if scenario.kind == "wall":
         return
     if first.sensors.uwb is None:
         reason = "the evaluation needs UWB anchor ranging (or a wall_distance target)"
         raise InputError(source, "vehicles[0].sensors.uwb", None, reason)
-    if is_formation(scenario) and scenario.vehicles[1].sensors.uwb.anchors != first.sensors.uwb.anchors:
+    if scenario.kind == "formation" and scenario.vehicles[1].sensors.uwb.anchors != first.sensors.uwb.anchors:
         reason = "both vehicles must range to the same anchors"
         raise InputError(source, "vehicles[1].sensors.uwb.anchors", None, reason)
 
@@ -216,7 +217,7 @@ def main(argv: list[str] | None = None) -> int:
             raise InputError("--attack", "", None, "required (a profile file, a library name, or 'none')")
         if not recorded and (args.truth is not None or args.rate is not None or args.asynchronous):
             raise InputError("--truth/--rate/--async", "", None, "only with --tlog or --ranges")
-        if args.asynchronous and (is_formation(scenario) or is_wall(scenario)):
+        if args.asynchronous and scenario.kind != "anchors":
             raise InputError("--async", "", None, "needs one vehicle ranging to anchors (test case 1)")
         if args.rate is not None and not 0.1 <= args.rate <= 1000.0:
             raise InputError("--rate", "", args.rate, "must lie in 0.1..1000 Hz")
@@ -276,7 +277,7 @@ def main(argv: list[str] | None = None) -> int:
         "calibration_track": None if args.calibrate is None else not args.fixed_offsets,
         "score_from_s": trials[0].score_from_s,
         "rate_hz": RATE_HZ,
-        "test_case": "wall" if is_wall(scenario) else 2 if is_formation(scenario) else 1,
+        "test_case": TEST_CASE[scenario.kind],
         "note": "errors: the first vehicle's horizontal position (wall case: the wall distance); "
         "step times are measured, so they vary by machine",
     }
@@ -348,7 +349,7 @@ def _main_tlog(
             "invalid_readings": info.invalid_readings,
             "rows_skipped": skipped,
         },
-        "test_case": "wall" if is_wall(scenario) else 2 if is_formation(scenario) else 1,
+        "test_case": TEST_CASE[scenario.kind],
         "errors_scored": trial.scored_errors,
         "detection_scored": trial.scored_detection,
         "note": "errors against the truth CSV joined on the vehicle boot clock; with truth, a reading counts as "
@@ -360,16 +361,6 @@ def _main_tlog(
     }
     _write(args.out, meta, summary, trial)
     return 0
-
-
-def model_for(scenario: Scenario, dims: int = 3) -> MeasurementModel:
-    """The measurement model the evaluation runs the estimators on (see evaluation.trial)."""
-    first = scenario.vehicles[0]
-    if is_wall(scenario):
-        return wall_group_model(scenario, first.sysid)
-    if is_formation(scenario):
-        return two_vehicle_model(scenario, first.sysid, scenario.vehicles[1].sysid)
-    return anchor_model(scenario, first.sysid, dims)
 
 
 if __name__ == "__main__":

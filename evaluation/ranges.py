@@ -21,8 +21,9 @@ import csv
 import math
 from pathlib import Path
 
-from evaluation.tlog import ORIENTATION_DOWN, LogSummary, VehicleLog
+from evaluation.tlog import LogSummary, VehicleLog
 from secuav_common.loading import InputError
+from secuav_common.sensor_ids import ORIENTATION_DOWN
 
 COLUMNS = ("t_s", "sensor_id", "range_m")
 

@@ -13,7 +13,7 @@ from estimators.scenario_models import anchor_model, wall_group_model
 from evaluation.ranges import read_ranges_csv
 from evaluation.streams import VehicleStream
 from evaluation.tlog import LogSummary, frame_rate_hz, log_streams, read_tlog, read_truth_csv
-from evaluation.trial import RATE_HZ, is_formation, is_wall
+from evaluation.trial import RATE_HZ
 from secuav_common.loading import InputError
 from secuav_common.scenario import Scenario
 
@@ -29,7 +29,7 @@ class Recorded:
 
 def model_ids(scenario: Scenario) -> tuple[int, ...]:
     first = scenario.vehicles[0]
-    if is_wall(scenario):
+    if scenario.kind == "wall":
         return wall_group_model(scenario, first.sysid).ids()
     return anchor_model(scenario, first.sysid).ids()
 
@@ -47,7 +47,7 @@ def load_recording(
     if source is None:
         raise InputError("recording", "", None, "give a .tlog or a ranges CSV")
     skipped = 0
-    needed = [v.sysid for v in scenario.vehicles[: 2 if is_formation(scenario) else 1]]
+    needed = [v.sysid for v in scenario.vehicles[: 2 if scenario.kind == "formation" else 1]]
     down = {
         s: next((r.id for r in scenario.vehicle(s).sensors.rangefinders if r.orientation == "down"), None)
         for s in needed

@@ -35,10 +35,8 @@ from mavframe import codec
 from mavframe import tlog as mavframe_tlog
 from mavframe.packet import Direction, Packet
 from secuav_common.loading import InputError
-from secuav_common.sensor_ids import ANCHOR_BASE
+from secuav_common.sensor_ids import ANCHOR_BASE, ORIENTATION_DOWN, QUALITY_INVALID
 
-ORIENTATION_DOWN = 25  # MAV_SENSOR_ROTATION_PITCH_270
-QUALITY_INVALID = 1  # DISTANCE_SENSOR.signal_quality: 1 = invalid signal
 TRUTH_COLUMNS = ("t_s", "sysid", "north_m", "east_m", "down_m")
 _DISTANCE_SENSOR, _LOCAL_POSITION_NED = codec.message_id("DISTANCE_SENSOR"), codec.message_id("LOCAL_POSITION_NED")
 

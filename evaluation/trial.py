@@ -105,16 +105,6 @@ def score_from(params: dict[str, Any] | None) -> float:
     return WARMUP_S if window is None else float(window) + WARMUP_S
 
 
-def is_wall(scenario: Scenario) -> bool:
-    first = scenario.vehicles[0]
-    return first.sensors.uwb is None and isinstance(first.target, WallDistanceTarget)
-
-
-def is_formation(scenario: Scenario) -> bool:
-    v = scenario.vehicles
-    return len(v) >= 2 and all(x.sensors.uwb is not None and x.sensors.inter_vehicle is not None for x in v[:2])
-
-
 def _matrix(stream: VehicleStream, ids: list[int]) -> np.ndarray:
     n = stream.t_s.shape[0]
     return np.column_stack([stream.readings.get(i, np.full(n, np.nan)) for i in ids])
@@ -191,7 +181,7 @@ def evaluate(
     attack added here (``engine``) is known, and errors cannot be scored at all.
     """
     first = scenario.vehicles[0].sysid
-    if is_wall(scenario):
+    if scenario.kind == "wall":
         s1 = _attacked_height(engine, streams[first])
         check_readings(scenario, streams, dims, params, variants, from_log=from_log)
         return _wall_trial(scenario, s1, engine, names, from_log, params or {}, variants)
@@ -249,7 +239,7 @@ def _inputs(scenario: Scenario, streams: dict[int, VehicleStream], engine: Engin
     clean_laser = streams[first].laser_down_m
     streams = {sysid: _attacked_height(engine, st) for sysid, st in streams.items()}
     s1 = streams[first]
-    if is_formation(scenario):
+    if scenario.kind == "formation":
         second = scenario.vehicles[1].sysid
         model: MeasurementModel = two_vehicle_model(scenario, first, second)
         anchor_ids = [k - 10 for k in model.sensor_ids[: model.n_anchors]]
@@ -360,7 +350,7 @@ def check_readings(
     """Refuse (``SparseReadings``, one line naming the link and the numbers) streams too sparse for the asked
     calibration window or framing rate, before any estimator runs (``secuav-eval``, a study's validation)."""
     first = scenario.vehicles[0].sysid
-    if is_wall(scenario):
+    if scenario.kind == "wall":
         s1 = streams[first]
         model: MeasurementModel = wall_group_model(scenario, s1.sysid)
         target = scenario.vehicles[0].target

@@ -57,7 +57,6 @@ class _Source:
     pending: float | Vec3 | None = None  # a reading not yet fused
     value: float | Vec3 | None = None  # the filter's state; None until first used or after a drop-out
     in_use: bool = False
-    readings: int = 0
 
 
 @dataclass(slots=True)

@@ -9,6 +9,7 @@ traceback.
 from __future__ import annotations
 
 import json
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -113,6 +114,18 @@ def parse_document(text: str | bytes, source: str, *, trusted: bool = True) -> A
         where = f"line {mark.line + 1} column {mark.column + 1}" if mark else "document"
         problem = getattr(exc, "problem", None) or "invalid YAML/JSON"
         raise InputError(source, "", _MISSING, f"{problem} at {where}") from None
+
+
+def parse_params(pairs: Iterable[str], flag: str = "--param") -> dict[str, Any]:
+    """``--param NAME=VALUE`` as every command reads it, the value YAML (so JSON too):
+    ``["links=[11,14]", "offset_m=2"]`` -> ``{"links": [11, 14], "offset_m": 2}``; ``NAME=`` is null."""
+    out: dict[str, Any] = {}
+    for pair in pairs:
+        name, sep, raw = pair.partition("=")
+        if not sep or not name:
+            raise InputError(flag, "", pair, "expected NAME=VALUE")
+        out[name] = parse_document(raw, f"{flag} {name}") if raw else None
+    return out
 
 
 def validate(model: type[M], data: Any, source: str) -> M:

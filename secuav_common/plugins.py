@@ -31,10 +31,11 @@ import importlib
 import inspect
 import re
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 ESTIMATORS = "secuav.estimators"
 PRIMITIVES = "secuav.primitives"
@@ -44,6 +45,7 @@ GROUPS = (ESTIMATORS, PRIMITIVES, PROFILES, SCENARIOS)
 
 _DOTTED = r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*"
 _REF = re.compile(rf"^{_DOTTED}:{_DOTTED}$")
+T = TypeVar("T")
 
 
 @dataclass(frozen=True, slots=True)
@@ -128,6 +130,28 @@ def load_all(group: str) -> dict[str, Any]:
         if obj is not None:
             out[name] = obj
     return out
+
+
+def lookup(group: str, name: str, check: Callable[[Any, str], T]) -> T | None:
+    """The one plugin lookup every registry uses (:class:`secuav_common.registry.Registry`).
+
+    The entry point ``name`` of ``group``, imported now: one that fails to import or to pass ``check`` is
+    reported once and left out (None). Else a ``package.module:Attribute`` reference: one that cannot be
+    imported or fails ``check`` raises ``PluginError``. Else None. ``check(obj, where)`` returns the part or
+    raises ``PluginError``; ``where`` is ``"entry point NAME"`` or the reference.
+    """
+    if name in found(group):
+        obj = load(group, name)
+        if obj is None:
+            return None
+        try:
+            return check(obj, f"entry point {name}")
+        except PluginError as exc:
+            reject(group, name, str(exc))
+            return None
+    if is_ref(name):
+        return check(load_ref(name), name)
+    return None
 
 
 def is_ref(text: str) -> bool:

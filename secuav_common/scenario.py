@@ -329,6 +329,9 @@ class Vehicle(_Strict):
         return self.sensors.uwb or (self.external.uwb if self.external else None)
 
 
+ScenarioKind = Literal["wall", "formation", "anchors"]
+
+
 class Scenario(_Strict):
     name: str
     description: str = ""
@@ -382,6 +385,20 @@ class Scenario(_Strict):
         """Anchor id -> NED position, for the ids given (or all)."""
         table = {a.id: a.pos_ned_m for a in self.world.anchors}
         return table if ids == "all" else {k: table[k] for k in ids}
+
+    @property
+    def kind(self) -> ScenarioKind:
+        """What the scenario is, for whoever picks its measurement model or its test case (one answer for the
+        evaluation, the studies and the demos): ``"wall"``, the first vehicle holds a distance from a wall by a
+        rangefinder group and has no UWB; ``"formation"``, the first two vehicles range to anchors and to each
+        other (seed test case 2); else ``"anchors"``, the first vehicle's anchor ranges (seed test case 1)."""
+        first = self.vehicles[0]
+        if first.sensors.uwb is None and isinstance(first.target, WallDistanceTarget):
+            return "wall"
+        pair = self.vehicles[:2]
+        if len(pair) == 2 and all(v.sensors.uwb is not None and v.sensors.inter_vehicle is not None for v in pair):
+            return "formation"
+        return "anchors"
 
     def wall(self, name: str) -> Wall:
         for wall in self.world.walls:

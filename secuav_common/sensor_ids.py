@@ -57,6 +57,11 @@ MOUNT_BODY: dict[str, tuple[float, float, float]] = {
     "down": (0.0, 0.0, 1.0),
 }
 ORIENTATION_CUSTOM = 100
+ORIENTATION_DOWN = ORIENTATION["down"]  # MAV_SENSOR_ROTATION_PITCH_270: a height sensor
+# DISTANCE_SENSOR.signal_quality: 0 "unknown" (sent with "no target" too), 1 "invalid signal" (what
+# secuav-proxy --secure sets on a reading it judges attacked), 100 "perfect".
+QUALITY_UNKNOWN = 0
+QUALITY_INVALID = 1
 # MAV_DISTANCE_SENSOR values.
 SENSOR_TYPE = {"laser": 0, "ultrasound": 1, "infrared": 2, "radar": 3}
 SENSOR_TYPE_UNKNOWN = 4

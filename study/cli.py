@@ -24,12 +24,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import signal
-import socket
 import sys
 from pathlib import Path
-from typing import Any
 
 from secuav_common.extras import require
 from secuav_common.loading import InputError
@@ -83,75 +79,11 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _load(path: Path) -> tuple[Any, list[Any]]:
-    from study.spec import expand, load_study
-
-    study = load_study(path)
-    return study, expand(study, str(path))
-
-
-def _check_scheduler(url: str) -> None:
-    """A tcp:// scheduler that refuses connections is named at once (Dask itself retries until its timeout)."""
-    from urllib.parse import urlsplit
-
-    parts = urlsplit(url)
-    if parts.scheme not in ("tcp", "tls") or not parts.hostname or parts.port is None:
-        raise InputError("--scheduler", "", url, "expected tcp://HOST:PORT")
-    try:
-        socket.create_connection((parts.hostname, parts.port), timeout=10).close()
-    except OSError as exc:
-        raise InputError("--scheduler", "", url, f"cannot reach the scheduler: {exc.strerror or exc}") from None
-
-
-def _terminate(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt
-
-
 def _run(args: argparse.Namespace) -> int:
-    from study import runner, store
-    from study.report import write_report
+    from study.launch import run_study
 
-    try:
-        study, cells = _load(args.study)
-        if args.workers is not None and not 1 <= args.workers <= 1024:
-            raise InputError("--workers", "", args.workers, "must lie in 1..1024")
-        if args.scheduler is not None:
-            _check_scheduler(args.scheduler)
-        definition = study.model_dump(mode="json")
-        held = store.saved_study(args.out)
-        if held is not None and held.get("name") != study.name:
-            raise InputError(str(args.out), "study.json: name", held.get("name"),
-                             f"this directory holds another study; use a new --out for {study.name!r}")  # fmt: skip
-    except InputError as err:
-        print(f"secuav-study: {err}", file=sys.stderr)
-        return 2
-    store.save_study(args.out, definition)
-    from study.bundle import save_inputs
-
-    save_inputs(args.out, study, args.study)
-    done = store.done(args.out, retry_failed=args.retry_failed)
-    signal.signal(signal.SIGTERM, _terminate)
-    summary = runner.Summary(cells=len(cells))
-    try:
-        with runner.dask_client(args.workers, args.scheduler) as client:
-            summary = runner.run(cells, study.variants(), args.out, client, done, label=study.name,
-                                 progress=not args.no_progress)  # fmt: skip
-    except KeyboardInterrupt:
-        summary.interrupted = True
-    except OSError as exc:  # the scheduler cannot be reached
-        print(f"secuav-study: --scheduler {args.scheduler}: {exc}", file=sys.stderr)
-        return 2
-    summary.failed = runner.failed_cells(args.out)
-    if summary.interrupted:
-        kept = f"{summary.ran} cells done this run are kept in {args.out}"
-        print(f"secuav-study: interrupted; {kept}; run again to go on", file=sys.stderr)
-    else:
-        report = write_report(args.out)
-        print(f"report: {report}", file=sys.stderr)
-    print(json.dumps(summary.as_dict(args.out)), flush=True)
-    if summary.interrupted:
-        return 130
-    return 1 if summary.failed else 0
+    return run_study(args.study, args.out, workers=args.workers, scheduler=args.scheduler,
+                     retry_failed=args.retry_failed, progress=not args.no_progress)  # fmt: skip
 
 
 def _suite(args: argparse.Namespace) -> int:
@@ -168,11 +100,9 @@ def _suite(args: argparse.Namespace) -> int:
                 print(suite.record_bands(args.out, args.version))
             return suite.check(args.out, args.version)
         added = [yaml.safe_load(text) for text in args.add]
-        extra = [*(["--workers", str(args.workers)] if args.workers else []),
-                 *(["--scheduler", args.scheduler] if args.scheduler else []),
-                 *(["--no-progress"] if args.no_progress else [])]  # fmt: skip
-        return suite.run(args.out, quick=args.quick, version=args.version, added=added, runner_args=extra,
-                         only=args.only)  # fmt: skip
+        return suite.run(args.out, quick=args.quick, version=args.version, added=added, only=args.only,
+                         workers=args.workers or None, scheduler=args.scheduler or None,
+                         progress=not args.no_progress)  # fmt: skip
     except (InputError, ValueError) as err:
         print(f"secuav-study: {err}", file=sys.stderr)
         return 2
@@ -187,8 +117,10 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(Study.model_json_schema(), indent=2))
         return 0
     if args.command == "validate":
+        from study.launch import load
+
         try:
-            study, cells = _load(args.study)
+            study, cells = load(args.study)
         except InputError as err:
             print(f"secuav-study: {err}", file=sys.stderr)
             return 2
@@ -214,7 +146,6 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         print(write_report(args.out))
         return 0
-    os.environ.setdefault("PYTHONWARNINGS", "ignore::DeprecationWarning")  # quiet workers
     return _run(args)
 
 

@@ -29,8 +29,8 @@ from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, field_validato
 import estimators
 from attack_profiles import library
 from attack_profiles.profile import Profile
+from attack_profiles.resolve import resolve_profile
 from estimators import noise
-from evaluation.cli import resolve_attack
 from secuav_common.loading import InputError, dump_json, load_model, parse_document, validate
 from secuav_common.scenario import HoldTarget, Scenario, load_scenario, resolve_scenario_path
 
@@ -317,7 +317,7 @@ def expand(study: Study, source: str) -> list[Cell]:
             demo_for(scenario)
         except ValueError as exc:
             raise InputError(source, "scenario", study.scenario, str(exc)) from None
-    from evaluation.cli import model_for
+    from estimators.scenario_models import model_for
 
     if study.mode == "offline":
         model = model_for(scenario, study.dims)
@@ -347,7 +347,7 @@ def expand(study: Study, source: str) -> list[Cell]:
             raise InputError(source, f"attacks[{i}].params", entry.params, str(exc)) from None
         for values in grid:
             try:
-                profile = resolve_attack(ref, values)
+                profile = resolve_profile(ref, values, "--attack")
             except InputError as err:
                 raise InputError(source, f"attacks[{i}]", {"profile": entry.profile, **values}, str(err)) from None
             attacks.append((profile.name, ref, values, profile))
@@ -423,7 +423,7 @@ def _check_sparse(study: Study, tunings: list[dict[str, Any]], scenario: Scenari
 
 def _check_tunings(study: Study, tunings: list[dict[str, Any]], scenario: Scenario, source: str) -> None:
     """Build every estimator with every grid point once, so a bad parameter fails the study file, not each cell."""
-    from evaluation.cli import model_for
+    from estimators.scenario_models import model_for
     from evaluation.trial import shared_params
 
     model = model_for(scenario, study.dims)

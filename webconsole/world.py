@@ -11,8 +11,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from secuav_common.scenario import Scenario, Vehicle
-
-ANCHOR_BASE, PEER_BASE = 10, 50  # DISTANCE_SENSOR ids: wall sensors 0-9, anchor k at 10+k, peer n at 50+n
+from secuav_common.sensor_ids import ANCHOR_BASE, PEER_BASE  # wall sensors 0-9, anchor k at 10+k, peer n at 50+n
 
 
 def world_json(scenario: Scenario) -> dict[str, Any]:

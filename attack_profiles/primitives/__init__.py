@@ -30,32 +30,7 @@ from attack_profiles.primitives.set import Set
 from attack_profiles.primitives.sinusoid import Sinusoid
 from attack_profiles.rule import RuleBase
 from secuav_common import plugins
-
-PRIMITIVES: dict[str, type[Primitive]] = {
-    cls.kind: cls
-    for cls in (
-        Bias,
-        Ramp,
-        Sinusoid,
-        Noise,
-        Scale,
-        Set,
-        Freeze,
-        Replay,
-        Delay,
-        Drop,
-        Intermittent,
-        Garbage,
-        CoordinatedSpoof,
-        # Frame operations (attack_profiles/frame_ops.py runs them, not the value engine):
-        Inject,
-        Duplicate,
-        FrameReplay,
-        MissionShift,
-    )
-}
-
-BUILTIN_KINDS = frozenset(PRIMITIVES)
+from secuav_common.registry import Registry
 
 
 def _checked(cls: object, where: str) -> type[Primitive]:
@@ -73,46 +48,39 @@ def _checked(cls: object, where: str) -> type[Primitive]:
     return cls
 
 
+# A plugin, once found, joins the table under its kind: the profile model, its schema and the engine read it.
+REGISTRY: Registry[type[Primitive]] = Registry("primitive", plugins.PRIMITIVES, _checked, key=lambda cls: cls.kind,
+                                               key_label="kind")  # fmt: skip
+for _cls in (
+    Bias, Ramp, Sinusoid, Noise, Scale, Set, Freeze, Replay, Delay, Drop, Intermittent, Garbage, CoordinatedSpoof,
+    # Frame operations (attack_profiles/frame_ops.py runs them, not the value engine):
+    Inject, Duplicate, FrameReplay, MissionShift,
+):  # fmt: skip
+    REGISTRY.register(_cls.kind, _cls)
+PRIMITIVES: dict[str, type[Primitive]] = REGISTRY.table  # kind -> class; plugins are entered as they are found
+BUILTIN_KINDS = frozenset(REGISTRY.builtin_names())
+
+
 def primitive(kind: str) -> type[Primitive] | None:
     """The primitive of ``kind`` (built-in, plugin entry point, or ``package.module:Class``), or None.
 
     Imports only that one plugin; a plugin is entered in :data:`PRIMITIVES` under its kind.
     Raises ``PluginError`` for a ``module:Class`` reference that cannot be used.
     """
-    cls = PRIMITIVES.get(kind)
-    if cls is not None:
-        return cls
-    if kind in plugins.found(plugins.PRIMITIVES):
-        obj = plugins.load(plugins.PRIMITIVES, kind)
-        if obj is None:
-            return None
-        try:
-            cls = _checked(obj, f"entry point {kind}")
-        except plugins.PluginError as exc:
-            plugins.reject(plugins.PRIMITIVES, kind, str(exc))
-            return None
-        if cls.kind != kind:
-            plugins.reject(plugins.PRIMITIVES, kind, f"the entry point is named {kind!r} but the class's kind is "
-                           f"{cls.kind!r}")  # fmt: skip
-            return None
-    elif plugins.is_ref(kind):
-        cls = _checked(plugins.load_ref(kind), kind)
-    else:
-        return None
-    PRIMITIVES[cls.kind] = cls
-    return cls
+    return REGISTRY.lookup(kind)
 
 
 def kinds() -> list[str]:
     """Every kind a profile may name: the built-ins, then the plugins' (metadata only, nothing imported)."""
-    return [*PRIMITIVES, *(k for k in plugins.found(plugins.PRIMITIVES) if k not in PRIMITIVES)]
+    return REGISTRY.names()
 
 
 def load_all() -> dict[str, type[Primitive]]:
     """Every primitive, plugins imported (a listing, a schema); those that fail are reported and left out."""
-    for kind in plugins.found(plugins.PRIMITIVES):
-        primitive(kind)
+    REGISTRY.load_all()
     return dict(PRIMITIVES)
 
 
-__all__ = ["BUILTIN_KINDS", "PRIMITIVES", "Context", "Primitive", "Sample", "kinds", "load_all", "primitive"]
+__all__ = [
+    "BUILTIN_KINDS", "PRIMITIVES", "REGISTRY", "Context", "Primitive", "Sample", "kinds", "load_all", "primitive",
+]  # fmt: skip

@@ -21,9 +21,9 @@ from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync
 from mavsdk.asyncio.plugins.offboard import OffboardAsync, OffboardError
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
-from demos.controllers.ranging import INVALID_QUALITY, STALE_S, Log, Ranges, clip
+from demos.controllers.ranging import STALE_S, Log, Ranges, clip
 
-__all__ = ["INVALID_QUALITY", "LAND_TIMEOUT_S", "RATE_HZ", "STALE_S", "Log", "Ranges", "Vehicle", "arguments",
+__all__ = ["LAND_TIMEOUT_S", "RATE_HZ", "STALE_S", "Log", "Ranges", "Vehicle", "arguments",
            "clip", "run"]  # fmt: skip
 
 RATE_HZ = 20.0

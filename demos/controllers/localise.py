@@ -28,8 +28,8 @@ from mavsdk.asyncio.plugins.offboard import VelocityNedYaw
 
 from demos.controllers.common import RATE_HZ, Log, Vehicle, arguments, clip, run
 from secuav_common.scenario import load_scenario
+from secuav_common.sensor_ids import ANCHOR_BASE
 
-ANCHOR_BASE = 10
 MAX_SPEED_M_S = 1.0
 
 

@@ -17,7 +17,8 @@ import time
 from collections.abc import Callable
 from typing import IO, Any
 
-INVALID_QUALITY = 1  # DISTANCE_SENSOR.signal_quality 1 = invalid (what secuav-proxy --secure sets on attacked sensors)
+from secuav_common.sensor_ids import QUALITY_INVALID
+
 STALE_S = 0.5
 
 
@@ -57,7 +58,7 @@ class Ranges:
         cm = int(fields["current_distance"])
         if cm <= int(fields["min_distance"]) or cm >= int(fields["max_distance"]):
             return  # out of range: the sensor sees nothing
-        self.by_id[int(fields["id"])] = (now, cm / 100.0, int(fields["signal_quality"]) == INVALID_QUALITY)
+        self.by_id[int(fields["id"])] = (now, cm / 100.0, int(fields["signal_quality"]) == QUALITY_INVALID)
 
     def fresh(self, now: float, ids: range | set[int]) -> tuple[dict[int, float], list[int]]:
         """Readings of ``ids`` under STALE_S old and not marked invalid; and the ids marked invalid."""

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 from mavframe.layout import DISTANCE_SENSOR, LOCAL_POSITION_NED, offset, payload
 from mavframe.packet import Direction, Header, Packet
+from secuav_common.sensor_ids import QUALITY_INVALID
 
 _DIST_AT = offset(DISTANCE_SENSOR, "current_distance")  # uint16 cm
 _ID_AT = offset(DISTANCE_SENSOR, "id")  # uint8
@@ -38,7 +39,7 @@ def distance(frame: bytes) -> tuple[int, float, bool]:
     """(sensor id, distance in metres, flagged invalid) of a DISTANCE_SENSOR frame."""
     body = payload(frame, _DIST_NEED)
     (cm,) = _CM.unpack_from(body, _DIST_AT)
-    return body[_ID_AT], cm / 100.0, body[QUALITY_AT] == 1
+    return body[_ID_AT], cm / 100.0, body[QUALITY_AT] == QUALITY_INVALID
 
 
 def position(frame: bytes) -> tuple[float, float, float]:

@@ -51,7 +51,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from attack_profiles import Engine
 from attack_profiles.directions import UPLINK, directions_of, rule_directions
 from attack_profiles.profile import Profile
-from attack_profiles.resolve import parse_params, resolve_profile
+from attack_profiles.resolve import resolve_profile
 from mavframe import codec, tlog
 from mavframe.frames import split
 from mavframe.packet import Direction, Header, Packet
@@ -59,7 +59,7 @@ from mitm_proxy.core.pipeline import Pipeline
 from mitm_proxy.core.stats import LinkStats
 from mitm_proxy.stages.attack import AttackStage
 from mitm_proxy.stages.attack_slot import AttackSlot
-from secuav_common.loading import InputError
+from secuav_common.loading import InputError, parse_params
 from secuav_common.logs import add_common_flags, setup_logging
 from secuav_common.scenario import load_scenario, resolve_scenario_path
 from secuav_common.urls import Endpoint, parse_endpoint

@@ -75,7 +75,7 @@ def list_text(version: str = LATEST) -> str:
 def _with_added(doc: dict[str, Any], added: list[Any], budget: int) -> tuple[dict[str, Any], list[str]]:
     """The study with the methods under test appended where they run; and the names left out (with why)."""
     import estimators
-    from evaluation.cli import model_for
+    from estimators.scenario_models import model_for
     from secuav_common.scenario import load_scenario, resolve_scenario_path
 
     doc = {**doc, "tuning_budget": budget}
@@ -92,10 +92,13 @@ def _with_added(doc: dict[str, Any], added: list[Any], budget: int) -> tuple[dic
     return {**doc, "estimators": keep}, skipped
 
 
-def run(out: Path, *, quick: bool, version: str, added: list[Any], runner_args: list[str],
-        only: list[str] | None = None) -> int:  # fmt: skip
-    """Run every study of the suite (or those in ``only``) into ``out/<study>``; the worst exit code."""
-    from study.cli import main as study_main
+def run(out: Path, *, quick: bool, version: str, added: list[Any], only: list[str] | None = None,
+        workers: int | None = None, scheduler: str | None = None, progress: bool = True) -> int:  # fmt: skip
+    """Run every study of the suite (or those in ``only``) into ``out/<study>``; the worst exit code.
+
+    Each study runs as ``secuav-study run`` runs it (:func:`study.launch.run_study`), with these workers,
+    scheduler and progress bars."""
+    from study.launch import run_study
 
     head, entries = manifest(version)
     stems = [Path(e.file).stem for e in entries]
@@ -125,7 +128,7 @@ def run(out: Path, *, quick: bool, version: str, added: list[Any], runner_args: 
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
         print(f"suite: {stem}", flush=True)
-        code = study_main(["run", str(path), "--out", str(out / stem), *runner_args])
+        code = run_study(path, out / stem, workers=workers, scheduler=scheduler, progress=progress)
         if code == 130:  # interrupted: stop here; run again to go on (done cells are skipped)
             return code
         worst = max(worst, code)

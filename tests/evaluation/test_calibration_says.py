@@ -59,7 +59,7 @@ def test_window_count_names_every_link_and_what_it_needs() -> None:
     z = np.full((t.size, model.p), 3.0)
     z[::2, 0] = np.nan  # link 10 read every other second
     count = noise.count_window(model, t, z, 20.0)
-    assert (count.steps, count.fixes) == (21, 21) and count.readings[0] == 10 and count.readings[1] == 21
+    assert (count.steps, count.fixes) == (21, 21) and count.reading_counts[0] == 10 and count.reading_counts[1] == 21
     line = count.refusal(model.ids())
     assert line is not None and "\n" not in line
     assert "21 of 21 steps have a fix (needs 20)" in line and "10: 10, 11: 21" in line and "17: 21" in line

@@ -38,8 +38,9 @@ from mitm_proxy.stages.secure import tilt
 from mitm_proxy.stages.secure.config import SecureConfig
 from mitm_proxy.stages.secure.layout import Layout
 from mitm_proxy.stages.secure.worker import Job
+from secuav_common.sensor_ids import QUALITY_UNKNOWN
 
-NO_TARGET_QUALITY = 0  # DISTANCE_SENSOR.signal_quality: 0 = unknown (sent with "no target" too)
+NO_TARGET_QUALITY = QUALITY_UNKNOWN  # sent with "no target" too
 HEIGHT_MAX_AGE_S = 2.0  # a known height older than this is not used (the model's hold height is)
 VELOCITY_MAX_AGE_S = 0.5  # an older velocity is not the motion input (the filter then predicts without it)
 ATTITUDE_MAX_AGE_S = 0.25  # an older attitude does not project the readings (they go in as measured)

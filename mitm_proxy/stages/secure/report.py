@@ -20,7 +20,7 @@ class Counters:
     frames_seen: int = 0
     substituted_frames: int = 0
     flagged_frames: int = 0
-    readings: int = 0
+    readings_taken: int = 0  # DISTANCE_SENSOR readings of the group put into the vector
     sets_complete: int = 0
     sets_timed_out: int = 0
     decode_errors: int = 0
@@ -84,7 +84,7 @@ def stage_stats(active: bool, estimator: str | None, executor: str, layout: Layo
         "last_step_time_s": None if res is None else res.estimate.step_time_s,
         "sets_complete": c.sets_complete,
         "sets_timed_out": c.sets_timed_out,
-        "readings": c.readings,
+        "readings": c.readings_taken,
         "frames_seen": c.frames_seen,
         "substituted_frames": c.substituted_frames,
         "flagged_frames": c.flagged_frames,

@@ -227,7 +227,7 @@ class SecureStage:
             if not (downlink and sid in self._fed):  # on both, the autopilot's echo of a fed id is not a reading
                 self._check_layout(fields, now_s)
                 if readings.take_range(layout, fields, now_s):
-                    self.counters.readings += 1
+                    self.counters.readings_taken += 1
         elif msgid == LOCAL_POSITION_NED and layout.height_sensor_id is None:
             z = fields.get("z")
             if isinstance(z, float) and math.isfinite(z):

@@ -27,8 +27,9 @@ from mitm_proxy.stages.secure.layout import VISION_POSITION_ESTIMATE, Layout
 from mitm_proxy.stages.secure.peers import PeerBoard
 from mitm_proxy.stages.secure.report import Counters
 from mitm_proxy.stages.secure.worker import StepResult
+from secuav_common.sensor_ids import QUALITY_INVALID
 
-FLAGGED_QUALITY = 1  # DISTANCE_SENSOR.signal_quality: 1 = "invalid" (0 = unknown/no target, 100 = best)
+FLAGGED_QUALITY = QUALITY_INVALID  # what a reading judged attacked is sent with
 UINT16_TOP = 65534  # 65535 means "unknown" in several MAVLink fields
 
 

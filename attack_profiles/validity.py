@@ -1,4 +1,4 @@
-"""What a frame says about its own readings: which carry none, and the sensor's limits.
+"""Whether a frame's fields carry a reading at all, and the limits an attacked distance must stay in.
 
 The engine asks here, per targeted frame, which of its fields carry no reading
 (a range outside the sensor's limits or flagged invalid, a position before a
@@ -14,8 +14,8 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from attack_profiles.quantities import ORIENTATION_DOWN, QUALITY_INVALID
 from attack_profiles.units import MESSAGES
+from secuav_common.sensor_ids import ORIENTATION_DOWN, QUALITY_INVALID
 
 # sysid -> DISTANCE_SENSOR id -> (min m, max m, invalid, downward)
 Rangefinders = dict[int, dict[int, tuple[float, float, bool, bool]]]

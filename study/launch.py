@@ -1,0 +1,95 @@
+"""Run one study file into a directory: check it, save its inputs, run its cells on Dask, write the report.
+
+``secuav-study run`` and ``secuav-study suite run`` (once per study of the suite) both call
+:func:`run_study`, so a study run from the suite is the same run as one from the command line: the same
+progress, stderr lines, closing JSON line and exit code (docs/interfaces.md).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import sys
+from pathlib import Path
+from typing import Any
+
+from secuav_common.loading import InputError
+
+
+def load(path: Path) -> tuple[Any, list[Any]]:
+    """The study in ``path`` and its cells; ``InputError`` names the field at fault."""
+    from study.spec import expand, load_study
+
+    study = load_study(path)
+    return study, expand(study, str(path))
+
+
+def check_scheduler(url: str) -> None:
+    """A tcp:// scheduler that refuses connections is named at once (Dask itself retries until its timeout)."""
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(url)
+    if parts.scheme not in ("tcp", "tls") or not parts.hostname or parts.port is None:
+        raise InputError("--scheduler", "", url, "expected tcp://HOST:PORT")
+    try:
+        socket.create_connection((parts.hostname, parts.port), timeout=10).close()
+    except OSError as exc:
+        raise InputError("--scheduler", "", url, f"cannot reach the scheduler: {exc.strerror or exc}") from None
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def run_study(path: Path, out: Path, *, workers: int | None = None, scheduler: str | None = None,
+              retry_failed: bool = False, progress: bool = True) -> int:  # fmt: skip
+    """Run the cells of the study in ``path`` not yet in ``out``, then write the report; the exit code.
+
+    0 when no cell failed, 1 when some did (they are in the results), 2 on bad input (one line on stderr),
+    130 when interrupted (what finished is kept). Last on stdout, one JSON line (:class:`study.runner.Summary`).
+    """
+    from study import runner, store
+    from study.bundle import save_inputs
+    from study.report import write_report
+
+    os.environ.setdefault("PYTHONWARNINGS", "ignore::DeprecationWarning")  # quiet workers
+    try:
+        study, cells = load(path)
+        if workers is not None and not 1 <= workers <= 1024:
+            raise InputError("--workers", "", workers, "must lie in 1..1024")
+        if scheduler is not None:
+            check_scheduler(scheduler)
+        definition = study.model_dump(mode="json")
+        held = store.saved_study(out)
+        if held is not None and held.get("name") != study.name:
+            raise InputError(str(out), "study.json: name", held.get("name"),
+                             f"this directory holds another study; use a new --out for {study.name!r}")  # fmt: skip
+    except InputError as err:
+        print(f"secuav-study: {err}", file=sys.stderr)
+        return 2
+    store.save_study(out, definition)
+    save_inputs(out, study, path)
+    done = store.done(out, retry_failed=retry_failed)
+    signal.signal(signal.SIGTERM, _terminate)
+    summary = runner.Summary(cells=len(cells))
+    try:
+        with runner.dask_client(workers, scheduler) as client:
+            summary = runner.run(cells, study.variants(), out, client, done, label=study.name, progress=progress)
+    except KeyboardInterrupt:
+        summary.interrupted = True
+    except OSError as exc:  # the scheduler cannot be reached
+        print(f"secuav-study: --scheduler {scheduler}: {exc}", file=sys.stderr)
+        return 2
+    summary.failed = runner.failed_cells(out)
+    if summary.interrupted:
+        kept = f"{summary.ran} cells done this run are kept in {out}"
+        print(f"secuav-study: interrupted; {kept}; run again to go on", file=sys.stderr)
+    else:
+        report = write_report(out)
+        print(f"report: {report}", file=sys.stderr)
+    print(json.dumps(summary.as_dict(out)), flush=True)
+    if summary.interrupted:
+        return 130
+    return 1 if summary.failed else 0
