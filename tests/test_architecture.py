@@ -60,11 +60,9 @@ NOT_PURE = ("asyncio", "socket", "selectors", "threading", "subprocess", "multip
 KNOWN: frozenset[str] = frozenset({
     "loop: attack_profiles.dialect, attack_profiles.units",
     "loop: attack_profiles.quantities, attack_profiles.true_copy",
-    "loop: estimators.models, estimators.observability",
     "loop: mitm_proxy.control.switches, secuav_common.controlplane.switches.mode, "
     "secuav_common.controlplane.switches.routes, secuav_common.controlplane.switches.secure",
     "loop: mitm_proxy.stages.attack_slot, secuav_common.controlplane.switches.attack",
-    "loop: study.cli, study.suite.run",
     "mitm_proxy.stages.attack_slot -> mitm_proxy.control.switch",
     "mitm_proxy.stages.secure.stage -> mitm_proxy.control.switch",
     "secuav_common.controlplane.switches.attack -> attack_profiles.resolve",
