@@ -105,6 +105,7 @@ def summarise(frame: pd.DataFrame) -> pd.DataFrame:
         row["worst_error_m"] = float(worst.max()) if len(worst) else None
         row["estimate_fraction"] = _mean_or_none(g["estimate_fraction"])
         row["valid_fraction"] = _mean_or_none(g["valid_fraction"])
+        row["alarm_fraction"] = _mean_or_none(g["alarm_fraction"])
         row["step_time_us_median"] = _mean_or_none(g["step_time_us_median"], median=True)
         row["collided"] = _mean_or_none(g["collided"].astype(float))
         out.append(row)
@@ -193,12 +194,13 @@ def _across(summary: pd.DataFrame, recordings: list[str], secure: dict[str, bool
     per-recording RMSE / LS."""
     lines = [f"## Across {len(recordings)} recordings: {', '.join(recordings)}", "",
              "Each recording weighted the same: the mean over recordings of each recording's mean over seeds. "
-             "RMSE / LS: the mean of the per-recording ratios, with their lowest and highest; recall and false "
-             "alarms likewise averaged over the recordings that have them. \"recordings\" counts those with rows.",
+             "RMSE / LS: the mean of the per-recording ratios, with their lowest and highest; recall (attacked "
+             "runs only), false alarms and alarms per step (the share of scored steps with an alarm) likewise "
+             "averaged over the recordings that have them. \"recordings\" counts those with rows.",
              "",
              "| attack | magnitude | estimator | recordings | RMSE [m] | worst [m] | RMSE / LS mean (min-max) "
-             "| recall (all attacked readings) | false alarms |",
-             "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+             "| recall (all attacked readings) | false alarms | alarms / step |",
+             "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     s = summary[summary["recording"].notna()]
     for (attack, params, est), g in s.groupby(["attack", "params", "estimator"], dropna=False, sort=False):
         ratios = g["vs_ls"].dropna()
@@ -209,8 +211,9 @@ def _across(summary: pd.DataFrame, recordings: list[str], secure: dict[str, bool
         cells = [str(attack), "" if _missing(params) else str(params), str(est),
                  f"{g['recording'].nunique()}/{len(recordings)}", _fmt(_mean_or_none(g["rmse_m"])),
                  _fmt(g["worst_error_m"].astype(float).max(skipna=True)), ratio,
-                 _fmt(_mean_or_none(g["recall_all"].astype(float))),
-                 _fmt(_mean_or_none(g["false_alarm_rate"].astype(float)))]  # fmt: skip
+                 "-" if attack == "none" else _fmt(_mean_or_none(g["recall_all"].astype(float))),
+                 _fmt(_mean_or_none(g["false_alarm_rate"].astype(float))),
+                 _fmt(_mean_or_none(g["alarm_fraction"].astype(float)))]  # fmt: skip
         lines.append("| " + " | ".join(cells) + " |")
     return [*lines, ""]
 
@@ -313,10 +316,14 @@ def labelled(frame: pd.DataFrame) -> pd.DataFrame:
 def write_report(out: Path) -> Path:
     """(Re)write ``report.md`` and the figures from what ``results.parquet`` holds now."""
     frame = labelled(load(out))
-    recordings = list(dict.fromkeys(frame["recording"].dropna()))
+    study = saved_study(out) or {}
+    listed = [r.get("name") for r in study.get("recordings") or [] if isinstance(r, dict)]
+    recordings = [r for r in dict.fromkeys([*listed, *frame["recording"].dropna()]) if r in set(frame["recording"])]
     if len(recordings) < 2:  # one recording (or flights): its tables read as before, with no recording to name
         frame = frame.assign(recording=None)
-    study = saved_study(out) or {}
+    else:  # tables in the study file's order of recordings, not the order their cells finished in
+        rank = {r: i for i, r in enumerate(recordings)}
+        frame = frame.sort_values("recording", key=lambda c: c.map(rank), kind="stable").reset_index(drop=True)
     ok = frame[frame["status"] == "ok"]
     failed = frame[frame["status"] != "ok"]
     closed_loop = study.get("mode") == "closed-loop"

@@ -125,7 +125,8 @@ def test_a_study_over_two_real_recordings(converted: Path, tmp_path: Path) -> No
         assert f"| secekf | recording {name} | 1 | 0.000 | {clean.loc['secekf', 'rmse_m']:.3f} | {ratio:.2f}" in report
         assert f"recording {name}:" in report  # the attack section's block
     # ... and across them, each recording weighted the same.
-    assert "## Across 2 recordings: hy-los-4, hy-nlos-3" in report
+    assert "## Across 2 recordings: hy-los-4, hy-nlos-3" in report  # the study file's order
+    assert report.index("recording hy-los-4:") < report.index("recording hy-nlos-3:")
     attacked = rows[rows["attack"] == "anchors-constant"].pivot(index="recording", columns="estimator", values="rmse_m")
     ratios = attacked["secekf"] / attacked["ls"]
     line = next(x for x in report.splitlines() if x.startswith("| anchors-constant |") and "| secekf | 2/2 |" in x)
@@ -133,3 +134,5 @@ def test_a_study_over_two_real_recordings(converted: Path, tmp_path: Path) -> No
     assert f"| {ratios.mean():.2f} ({ratios.min():.2f}-{ratios.max():.2f}) |" in line
     worst = rows.loc[(rows["attack"] == "anchors-constant") & (rows["estimator"] == "secekf"), "max_error_m"].max()
     assert re.search(rf"\| {worst:.3f} \|", line)
+    alarms = rows[(rows["attack"] == "anchors-constant") & (rows["estimator"] == "secekf")]["alarm_fraction"].mean()
+    assert line.endswith(f"| {alarms:.3f} |")
