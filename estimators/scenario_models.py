@@ -7,6 +7,8 @@ the shared scenario schema, never a service.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from estimators.models import (
@@ -57,6 +59,19 @@ def anchor_model(
     ``dims=2``: (north, east) with the height a known input (the seed's split;
     the hold altitude is its default), which leaves the laser outside every test.
     """
+    model = _anchor_model(scenario, sysid, dims)
+    area = scenario.world.area
+    if area is None or model.bounds_m is None:
+        return model
+    # The scenario's area replaces the anchors' box horizontally (north, east); the height bounds stay.
+    lo, hi = (np.array(b, dtype=float) for b in model.bounds_m)
+    lo[:2], hi[:2] = area.min_ne_m, area.max_ne_m
+    return dataclasses.replace(model, bounds_m=(lo, hi))
+
+
+def _anchor_model(
+    scenario: Scenario, sysid: int, dims: int
+) -> AnchorRanges2D | AnchorRanges3D | AnchorRangesHeight:
     vehicle = scenario.vehicle(sysid)
     ids = _uwb_anchor_ids(scenario, vehicle)
     table = scenario.anchor_positions(ids)

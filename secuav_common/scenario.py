@@ -62,10 +62,26 @@ class Anchor(_Strict):
     pos_ned_m: Vec3
 
 
+class Area(_Strict):
+    """Where the vehicles may be, horizontally (north, east metres): the box estimators clip a fix to."""
+
+    min_ne_m: tuple[float, float]
+    max_ne_m: tuple[float, float]
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Area:
+        if not all(lo < hi for lo, hi in zip(self.min_ne_m, self.max_ne_m, strict=True)):
+            raise ValueError(f"area: min_ne_m {list(self.min_ne_m)} must lie below max_ne_m {list(self.max_ne_m)}")
+        return self
+
+
 class World(_Strict):
     home: Home = Field(default_factory=Home)
     walls: list[Wall] = []
     anchors: list[Anchor] = []
+    # None: the anchors' box plus 20 % (estimators.models). A site where vehicles range far outside the anchors
+    # (a recorded outdoor run, docs/recorded-ranges.md) states its own.
+    area: Area | None = None
 
     @model_validator(mode="after")
     def _unique(self) -> World:

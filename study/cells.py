@@ -37,6 +37,7 @@ def base_row(cell: Cell, variant: Variant | str) -> dict[str, Any]:
         "leg": cell.leg,
         "position": as_json(None if cell.position is None else list(cell.position)),
         "noise_scale": cell.noise_scale,
+        "recording": cell.recording_name,
         "attack": cell.attack,
         "attack_hash": None if cell.profile is None else cell.profile.content_hash()[:16],
         "params": as_json(cell.params),

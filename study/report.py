@@ -25,7 +25,8 @@ from study.store import load, saved_study
 
 CI_LEVEL = 0.95
 RESAMPLES = 2000
-GROUP = ["attack", "params", "leg", "position", "noise_scale", "estimator"]
+GROUP = ["attack", "params", "leg", "position", "noise_scale", "recording", "estimator"]
+PLACE = ["leg", "position", "noise_scale", "recording"]  # where a table's rows were measured
 
 
 def mean_ci(values: Any) -> tuple[float | None, float | None, float | None, int]:
@@ -66,13 +67,21 @@ def _magnitude_axis(frame: pd.DataFrame) -> str | None:
     return None
 
 
-def _where(leg: str, position: str | None, noise_scale: float = 1.0) -> str:
+def _where(leg: str, position: str | None, noise_scale: float = 1.0, recording: str | None = None) -> str:
+    if isinstance(recording, str):  # a recording fixes the path: no leg or position to name
+        return f"recording {recording}"
     noise = "" if noise_scale == 1.0 else f", range noise {noise_scale:g}x what the estimators are told"
     return f"leg {leg}" + (f", position {position}" if position else "") + noise
 
 
 def _row_where(r: pd.Series) -> str:
-    return _where(r["leg"], r["position"] if isinstance(r["position"], str) else None, r["noise_scale"])
+    return _where(*_place(r))
+
+
+def _place(r: Any) -> tuple[Any, ...]:
+    """(leg, position, noise scale, recording) of a row or a group key, with missing values as None."""
+    values = [r[c] for c in PLACE] if isinstance(r, pd.Series) else list(r)
+    return tuple(None if _missing(v) else v for v in values)
 
 
 def _mean_or_none(values: pd.Series, *, median: bool = False) -> float | None:
@@ -83,7 +92,7 @@ def _mean_or_none(values: pd.Series, *, median: bool = False) -> float | None:
 
 
 def summarise(frame: pd.DataFrame) -> pd.DataFrame:
-    """One row per (attack, params, leg, position, noise scale, estimator) of the successful rows."""
+    """One row per (attack, params, leg, position, noise scale, recording, estimator) of the successful rows."""
     out = []
     for key, g in frame.groupby(GROUP, dropna=False, sort=False):
         row = dict(zip(GROUP, key, strict=True))
@@ -96,6 +105,7 @@ def summarise(frame: pd.DataFrame) -> pd.DataFrame:
         row["worst_error_m"] = float(worst.max()) if len(worst) else None
         row["estimate_fraction"] = _mean_or_none(g["estimate_fraction"])
         row["valid_fraction"] = _mean_or_none(g["valid_fraction"])
+        row["alarm_fraction"] = _mean_or_none(g["alarm_fraction"])
         row["step_time_us_median"] = _mean_or_none(g["step_time_us_median"], median=True)
         row["collided"] = _mean_or_none(g["collided"].astype(float))
         out.append(row)
@@ -122,7 +132,7 @@ def secure_names(frame: pd.DataFrame) -> dict[str, bool]:
 def _vs_ls(summary: pd.DataFrame, ls_of: dict[str, str]) -> pd.Series:
     """Each group's mean RMSE over the least-squares baseline's in the same place and at the same grid point of
     ``estimator_params`` (``ls_of``: label -> that baseline's label); NaN where it has none."""
-    where = ["attack", "params", "leg", "position", "noise_scale"]
+    where = ["attack", "params", *PLACE]
 
     def place(r: pd.Series) -> tuple[Any, ...]:
         return tuple(None if _missing(r[c]) else r[c] for c in where)  # NaN != NaN: a missing position or params
@@ -151,8 +161,8 @@ def _attack_section(name: str, s: pd.DataFrame, closed_loop: bool) -> list[str]:
     offline = ["recall (all attacked readings)", "precision (readings named)", "detection delay [s] (detected/n)",
                "false alarms", "claimed valid", "RMSE when claimed valid [m]"]  # fmt: skip
     head += ["collided"] if closed_loop else offline
-    for (leg, pos, noise), block in s.groupby(["leg", "position", "noise_scale"], dropna=False, sort=False):
-        lines += [f"{_where(leg, pos if isinstance(pos, str) else None, noise)}:", ""]
+    for place, block in s.groupby(PLACE, dropna=False, sort=False):
+        lines += [f"{_where(*_place(place))}:", ""]
         lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         block = block.assign(_x=[_x_value(p, axis) for p in block["params"]]).sort_values(["_x", "estimator"])
         for _, r in block.iterrows():
@@ -178,6 +188,36 @@ def _attack_section(name: str, s: pd.DataFrame, closed_loop: bool) -> list[str]:
     return lines
 
 
+def _across(summary: pd.DataFrame, recordings: list[str], secure: dict[str, bool]) -> list[str]:
+    """Per attack, magnitude and estimator: the recordings' own means averaged with each recording weighted
+    the same (a long recording does not outvote a short one), the worst error of any, and the spread of the
+    per-recording RMSE / LS."""
+    lines = [f"## Across {len(recordings)} recordings: {', '.join(recordings)}", "",
+             "Each recording weighted the same: the mean over recordings of each recording's mean over seeds. "
+             "RMSE / LS: the mean of the per-recording ratios, with their lowest and highest; recall (attacked "
+             "runs only), false alarms and alarms per step (the share of scored steps with an alarm) likewise "
+             "averaged over the recordings that have them. \"recordings\" counts those with rows.",
+             "",
+             "| attack | magnitude | estimator | recordings | RMSE [m] | worst [m] | RMSE / LS mean (min-max) "
+             "| recall (all attacked readings) | false alarms | alarms / step |",
+             "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    s = summary[summary["recording"].notna()]
+    for (attack, params, est), g in s.groupby(["attack", "params", "estimator"], dropna=False, sort=False):
+        ratios = g["vs_ls"].dropna()
+        ratio = "n/a" if not len(ratios) else (
+            f"{ratios.mean():.2f} ({ratios.min():.2f}-{ratios.max():.2f})"
+            + (" **worse than LS**" if attack == "none" and secure.get(est, False) and ratios.mean() > 1.0 else "")
+        )  # fmt: skip
+        cells = [str(attack), "" if _missing(params) else str(params), str(est),
+                 f"{g['recording'].nunique()}/{len(recordings)}", _fmt(_mean_or_none(g["rmse_m"])),
+                 _fmt(g["worst_error_m"].astype(float).max(skipna=True)), ratio,
+                 "-" if attack == "none" else _fmt(_mean_or_none(g["recall_all"].astype(float))),
+                 _fmt(_mean_or_none(g["false_alarm_rate"].astype(float))),
+                 _fmt(_mean_or_none(g["alarm_fraction"].astype(float)))]  # fmt: skip
+        lines.append("| " + " | ".join(cells) + " |")
+    return [*lines, ""]
+
+
 def _x_value(params: str | None, axis: str | None) -> float:
     if axis is None or not params:
         return 0.0
@@ -187,7 +227,7 @@ def _x_value(params: str | None, axis: str | None) -> float:
 
 def _table51(frame: pd.DataFrame, closed_loop: bool = False) -> list[str]:
     lines = ["## Summary: error and time per step, per attack and estimator", "",
-             "Pooled over magnitudes, positions, legs, noise scales and seeds (successful rows only)"
+             "Pooled over magnitudes, positions, legs, noise scales, recordings and seeds (successful rows only)"
              + ("." if closed_loop else "; RMSE / LS: the mean RMSE over the undefended least-squares fix's."), "",
              "| attack | estimator | mean abs. error [m] | max abs. error [m] | time per step [ms] |"
              + ("" if closed_loop else " RMSE / LS |"),
@@ -224,10 +264,10 @@ def _figures(out: Path, summary: pd.DataFrame) -> list[Path]:
         axis = _magnitude_axis(s)
         if axis is None:
             continue
-        places = list(s.groupby(["leg", "position", "noise_scale"], dropna=False, sort=False))
+        places = list(s.groupby(PLACE, dropna=False, sort=False))
         width = max(6.5, 4.6 * len(places))
         fig, axes = plt.subplots(2, len(places), figsize=(width, 7), squeeze=False, sharex=True)
-        for col, ((leg, pos, noise), block) in enumerate(places):
+        for col, (place, block) in enumerate(places):
             for est, e in block.groupby("estimator", sort=False):
                 e = e.assign(_x=[_x_value(p, axis) for p in e["params"]]).sort_values("_x")
                 for row, metric in enumerate(("rmse_m", "detection_delay_s")):
@@ -236,7 +276,7 @@ def _figures(out: Path, summary: pd.DataFrame) -> list[Path]:
                     line = ax.plot(e["_x"], y, marker="o", ms=3, lw=1.2, label=est)[0]
                     lo, hi = e[f"{metric}_lo"].astype(float), e[f"{metric}_hi"].astype(float)
                     ax.fill_between(e["_x"], lo, hi, color=line.get_color(), alpha=0.15, lw=0)
-            axes[0, col].set_title(_where(leg, pos if isinstance(pos, str) else None, noise), fontsize=9)
+            axes[0, col].set_title(_where(*_place(place)), fontsize=9)
             axes[0, col].set_ylabel("RMSE [m] (mean, 95% CI)")
             axes[1, col].set_ylabel("detection delay [s]")
             axes[1, col].set_xlabel(axis)
@@ -277,6 +317,13 @@ def write_report(out: Path) -> Path:
     """(Re)write ``report.md`` and the figures from what ``results.parquet`` holds now."""
     frame = labelled(load(out))
     study = saved_study(out) or {}
+    listed = [r.get("name") for r in study.get("recordings") or [] if isinstance(r, dict)]
+    recordings = [r for r in dict.fromkeys([*listed, *frame["recording"].dropna()]) if r in set(frame["recording"])]
+    if len(recordings) < 2:  # one recording (or flights): its tables read as before, with no recording to name
+        frame = frame.assign(recording=None)
+    else:  # tables in the study file's order of recordings, not the order their cells finished in
+        rank = {r: i for i, r in enumerate(recordings)}
+        frame = frame.sort_values("recording", key=lambda c: c.map(rank), kind="stable").reset_index(drop=True)
     ok = frame[frame["status"] == "ok"]
     failed = frame[frame["status"] != "ok"]
     closed_loop = study.get("mode") == "closed-loop"
@@ -343,6 +390,8 @@ def write_report(out: Path) -> Path:
         attacked = summary if closed_loop else summary[summary["attack"] != "none"]
         for attack, s in attacked.groupby("attack", sort=False):
             lines += _attack_section(str(attack), s, closed_loop)
+        if len(recordings) > 1:
+            lines += _across(summary, recordings, secure)
         lines += _table51(ok, closed_loop)
         figures = _figures(out, summary)
         if figures:

@@ -57,6 +57,14 @@ class RecordingSpec(_Strict):
     ranges: str = Field(description="recorded-ranges CSV (t_s, sysid, sensor_id, range_m), relative to the study")
     truth: str | None = Field(None, description="truth CSV (t_s, sysid, north_m, east_m, down_m); None: unscored")
     rate_hz: PositiveFloat | None = Field(None, description="framing rate (default: the ranges' own)")
+    name: str | None = Field(
+        None, pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]*$",
+        description="what the rows' and the report's recording column call it (default: the ranges file as "
+        "written); required in recordings",
+    )  # fmt: skip
+    scenario: str | None = Field(
+        None, description="its own scenario (anchor layout), bundled name or file; default the study's scenario"
+    )
 
 
 AttackEntry = Annotated[Literal["none"] | AttackSpec, Field(description="'none' (clean runs) or a profile")]
@@ -130,6 +138,11 @@ class Study(_Strict):
     recording: RecordingSpec | None = Field(
         None, description="offline: recorded ranges instead of flights (legs, positions, duration_s unused)"
     )
+    recordings: list[RecordingSpec] | None = Field(
+        None, min_length=1,
+        description="offline: several recordings, each {name, ranges, truth, rate_hz, scenario}; every cell runs "
+        "on each, and the report gives each recording's tables and one across them (instead of recording)",
+    )  # fmt: skip
 
     @field_validator("estimators", mode="before")
     @classmethod
@@ -174,14 +187,27 @@ class Study(_Strict):
             raise ValueError("an explicit seed list must be non-empty and without repeats")
         return seeds
 
+    def recording_specs(self) -> list[RecordingSpec]:
+        """The recordings the study runs on (``recording`` or ``recordings``); empty for flights."""
+        return [self.recording] if self.recording is not None else list(self.recordings or [])
+
     @model_validator(mode="after")
     def _recording_rules(self) -> Study:
-        if self.recording is not None:
+        if self.recording is not None and self.recordings is not None:
+            raise ValueError("recording, recordings: give one recording or a list of them, not both")
+        field = "recording" if self.recording is not None else "recordings"
+        if self.recording_specs():
             if self.mode != "offline":
-                raise ValueError("recording: only offline studies read recorded ranges")
+                raise ValueError(f"{field}: only offline studies read recorded ranges")
             if self.legs != ["hover"] or self.positions is not None:
-                raise ValueError("recording: the recording fixes the path, so leave legs and positions out")
-        if self.noise_scales != [1.0] and (self.recording is not None or self.mode != "offline"):
+                raise ValueError(f"{field}: the recording fixes the path, so leave legs and positions out")
+        names = [r.name for r in self.recordings or []]
+        if None in names:
+            raise ValueError(f"recordings[{names.index(None)}].name: each recording needs a name (the report's "
+                             "recording column)")  # fmt: skip
+        if len(set(names)) != len(names):
+            raise ValueError(f"recordings: a name is given twice ({sorted(names)})")
+        if self.noise_scales != [1.0] and (self.recording_specs() or self.mode != "offline"):
             raise ValueError("noise_scales: only offline flights can be made noisier than their scenario says")
         if len(set(self.noise_scales)) != len(self.noise_scales):
             raise ValueError("noise_scales: without repeats")
@@ -241,6 +267,20 @@ class Cell:
     dims: int = 3  # test case 1's model (evaluation.trial.run_trial)
     recording: Any = None  # evaluation.recorded.Recorded: framed recorded streams instead of a flight
     noise_scale: float = 1.0  # the flight's range noise over what the estimators are told (Study.noise_scales)
+    recording_name: str | None = None  # the rows' recording column (Study.recordings); None for flights
+
+
+@dataclass(frozen=True, slots=True)
+class _Source:
+    """Where a cell's streams come from: flights of the study's scenario, or one recording with its scenario."""
+
+    scenario: Scenario
+    recording: Any = None  # evaluation.recorded.Recorded
+    recording_hash: str | None = None
+    name: str | None = None  # the recording column
+    keyed_name: str | None = None  # a name the study gave (part of the key: renaming makes new rows)
+    field: str = "recording"  # the study field errors name
+    file: str | None = None  # the ranges file as written
 
 
 def load_study(path: str | Path) -> Study:
@@ -302,14 +342,28 @@ def cell_key(**definition: Any) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+def _load_scenario(ref: str, base: Path, source: str, field: str) -> Scenario:
+    try:
+        return load_scenario(resolve_scenario_path(_resolve_near(ref, base)))
+    except InputError as err:
+        raise InputError(source, field, ref, str(err)) from None
+
+
+def _check_applies(study: Study, scenario: Scenario, source: str, where: str) -> None:
+    from estimators.scenario_models import model_for
+
+    model = model_for(scenario, study.dims)
+    for i, name in enumerate(study.estimator_names()):
+        if not estimators.registry.get(name).applies_to(model):
+            these = ", ".join(estimators.names(model))
+            reason = f"does not run on scenario {scenario.name!r}{where} (these do: {these})"
+            raise InputError(source, f"estimators[{i}]", name, reason)
+
+
 def expand(study: Study, source: str) -> list[Cell]:
     """Every cell of the study, in a stable order; ``InputError`` names the study field at fault."""
     base = Path(source).resolve().parent
-    try:
-        scenario_path = resolve_scenario_path(_resolve_near(study.scenario, base))
-        scenario = load_scenario(scenario_path)
-    except InputError as err:
-        raise InputError(source, "scenario", study.scenario, str(err)) from None
+    scenario = _load_scenario(study.scenario, base, source, "scenario")
     if study.mode == "closed-loop":
         from demos.catalog import demo_for
 
@@ -317,16 +371,11 @@ def expand(study: Study, source: str) -> list[Cell]:
             demo_for(scenario)
         except ValueError as exc:
             raise InputError(source, "scenario", study.scenario, str(exc)) from None
-    from estimators.scenario_models import model_for
-
+    sources = _sources(study, scenario, base, source)
     if study.mode == "offline":
-        model = model_for(scenario, study.dims)
-        for i, name in enumerate(study.estimator_names()):
-            if not estimators.registry.get(name).applies_to(model):
-                reason = f"does not run on scenario {scenario.name!r} (these do: {', '.join(estimators.names(model))})"
-                raise InputError(source, f"estimators[{i}]", name, reason)
+        for src in sources:
+            _check_applies(study, src.scenario, source, f" ({src.field}: {src.name})" if src.name else "")
     duration = study.duration_s or scenario.duration_s
-    recording, recording_hash = _recording(study, scenario, base, source)
     positions: list[tuple[float, float] | None] = list(study.positions) if study.positions else [None]
     variants: list[tuple[tuple[float, float] | None, Scenario]] = []
     for i, pos in enumerate(positions):
@@ -361,64 +410,83 @@ def expand(study: Study, source: str) -> list[Cell]:
         except ValueError as exc:
             raise InputError(source, f"estimators[{i}].params", getattr(entry, "params", None), str(exc)) from None
     if study.mode == "offline":
-        _check_tunings(study, tunings, scenario, source)
-    if recording is not None:
-        _check_sparse(study, tunings, scenario, recording, source)
+        for scen in {dump_json(src.scenario): src.scenario for src in sources}.values():  # each layout once
+            _check_tunings(study, tunings, scen, source)
+    for src in sources:
+        if src.recording is not None:
+            _check_sparse(study, tunings, src, source)
     cells: list[Cell] = []
     seen: set[str] = set()
-    scenario_hash = hashlib.sha256(dump_json(scenario).encode()).hexdigest()[:16]
-    for (name, ref, values, profile), tuning, leg, (pos, scen), noise_scale, seed in itertools.product(
-        attacks, tunings, study.legs, variants, study.noise_scales, study.seed_list()
-    ):
-        key = cell_key(
-            mode=study.mode, scenario=scenario_hash, duration_s=duration, leg=leg, position=pos,
-            attack=None if profile is None else profile.content_hash(), seed=seed,
-            settle_s=study.settle_s if study.mode == "closed-loop" else None,
-            # dims always: the default model changed from 2-D to 3-D (the laser a reading), so a directory of
-            # older rows must not pass for this model's. estimator_params only when set.
-            dims=study.dims, **({"estimator_params": tuning} if tuning else {}),
-            **({"recording": recording_hash} if recording_hash else {}),
-            **({"noise_scale": noise_scale} if noise_scale != 1.0 else {}),  # only when set: old keys stay
-        )  # fmt: skip
-        if key in seen:  # two attack entries that resolve to the same profile: one cell
-            continue
-        seen.add(key)
-        cells.append(Cell(key, study.name, study.mode, scen, duration, leg, pos, name, ref, values, profile, seed,
-                          study.settle_s, tuning, study.dims, recording, noise_scale))  # fmt: skip
+    for src in sources:
+        scenario_hash = hashlib.sha256(dump_json(src.scenario).encode()).hexdigest()[:16]
+        places = variants if src.recording is None else [(None, src.scenario)]
+        for (name, ref, values, profile), tuning, leg, (pos, scen), noise_scale, seed in itertools.product(
+            attacks, tunings, study.legs, places, study.noise_scales, study.seed_list()
+        ):
+            key = cell_key(
+                mode=study.mode, scenario=scenario_hash, duration_s=duration, leg=leg, position=pos,
+                attack=None if profile is None else profile.content_hash(), seed=seed,
+                settle_s=study.settle_s if study.mode == "closed-loop" else None,
+                # dims always: the default model changed from 2-D to 3-D (the laser a reading), so a directory of
+                # older rows must not pass for this model's. estimator_params only when set.
+                dims=study.dims, **({"estimator_params": tuning} if tuning else {}),
+                **({"recording": src.recording_hash} if src.recording_hash else {}),
+                **({"recording_name": src.keyed_name} if src.keyed_name else {}),  # only when named: old keys stay
+                **({"noise_scale": noise_scale} if noise_scale != 1.0 else {}),  # only when set: old keys stay
+            )  # fmt: skip
+            if key in seen:  # two attack entries that resolve to the same profile: one cell
+                continue
+            seen.add(key)
+            cells.append(Cell(key, study.name, study.mode, scen, duration, leg, pos, name, ref, values, profile, seed,
+                              study.settle_s, tuning, study.dims, src.recording, noise_scale, src.name))  # fmt: skip
     return cells
 
 
-def _recording(study: Study, scenario: Scenario, base: Path, source: str) -> tuple[Any, str | None]:
-    """The study's recording framed once (cells carry it: workers share no disk) and its content hash."""
-    spec = study.recording
-    if spec is None:
-        return None, None
+def _sources(study: Study, scenario: Scenario, base: Path, source: str) -> list[_Source]:
+    """Flights of the study's scenario, or each recording framed once (cells carry it: workers share no disk)
+    with its scenario and content hash."""
+    specs = study.recording_specs()
+    if not specs:
+        return [_Source(scenario)]
     from evaluation.recorded import load_recording
 
-    ranges = Path(_resolve_near(spec.ranges, base))
-    truth = None if spec.truth is None else Path(_resolve_near(spec.truth, base))
-    try:
-        rec = load_recording(scenario, ranges=ranges, truth=truth, rate_hz=spec.rate_hz)
-    except InputError as err:
-        raise InputError(source, "recording", spec.ranges, str(err)) from None
-    digest = hashlib.sha256(ranges.read_bytes())
-    if truth is not None:
-        digest.update(truth.read_bytes())
-    return rec, f"{digest.hexdigest()[:16]}@{rec.rate_hz:.6g}"
+    out = []
+    for i, spec in enumerate(specs):
+        name = spec.name or spec.ranges
+        field = "recording" if study.recording is not None else f"recordings[{i}] ({name})"
+        scen = scenario if spec.scenario is None else _load_scenario(spec.scenario, base, source, f"{field}.scenario")
+        ranges = Path(_resolve_near(spec.ranges, base))
+        truth = None if spec.truth is None else Path(_resolve_near(spec.truth, base))
+        try:
+            rec = load_recording(scen, ranges=ranges, truth=truth, rate_hz=spec.rate_hz)
+        except InputError as err:
+            raise InputError(source, field, spec.ranges, str(err)) from None
+        digest = hashlib.sha256(ranges.read_bytes())
+        if truth is not None:
+            digest.update(truth.read_bytes())
+        out.append(_Source(scen, rec, f"{digest.hexdigest()[:16]}@{rec.rate_hz:.6g}", name, spec.name, field,
+                           spec.ranges))  # fmt: skip
+    return out
 
 
-def _check_sparse(study: Study, tunings: list[dict[str, Any]], scenario: Scenario, recording: Any, source: str) -> None:
+def _check_sparse(study: Study, tunings: list[dict[str, Any]], src: _Source, source: str) -> None:
     """A recording too sparse for a calibration window or the framing rate fails the study file with one line
-    naming the link and the numbers (evaluation.trial.check_readings), not every cell."""
+    naming the recording, its file, the link and the numbers (evaluation.trial.check_readings), not every cell."""
     from evaluation.trial import SparseReadings, check_readings
 
     own = {v.label: (v.name, v.params) for v in study.variants()}
     for tuning in tunings:
         try:
-            check_readings(scenario, recording.streams, study.dims, tuning, own)
+            check_readings(src.scenario, src.recording.streams, study.dims, tuning, own)
         except SparseReadings as err:
-            field = "recording.rate_hz" if err.option == "rate_hz" else f"estimator_params.{err.option}"
-            raise InputError(source, field, err.value, err.reason) from None
+            if err.option == "rate_hz":
+                field = f"{src.field}.rate_hz"
+            else:
+                field = f"estimator_params.{err.option}"
+                if study.recordings is not None:  # which recording was too sparse for the study-wide option
+                    field = f"{src.field}, {field}"
+            reason = err.reason if study.recordings is None else f"{err.reason} (file {src.file})"
+            raise InputError(source, field, err.value, reason) from None
 
 
 def _check_tunings(study: Study, tunings: list[dict[str, Any]], scenario: Scenario, source: str) -> None:

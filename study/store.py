@@ -30,6 +30,7 @@ SCHEMA = pa.schema([
     ("study", _S), ("cell", _S), ("scenario", _S), ("mode", _S), ("leg", _S),
     ("position", _S),  # JSON [north, east] in metres, or null for the scenario's own target
     ("noise_scale", _F),  # the flight's range noise over the stated (Study.noise_scales); null in older rows: 1
+    ("recording", _S),  # the recording's name (Study.recording/recordings); null for flights and older rows
     ("attack", _S), ("attack_hash", _S), ("params", _S),  # params: JSON of this cell's parameter values
     ("seed", _I), ("estimator", _S),
     ("estimator_params", _S),  # JSON of the study's estimator_params grid point (null: the defaults)

@@ -39,3 +39,22 @@ def test_formation_model() -> None:
     model = two_vehicle_model(load_scenario("formation"))
     assert model.p == 17 and model.sensor_ids[-1] == 52
     assert model.vehicle_z_ned_m == (-2.5, -2.5)
+
+
+def test_a_stated_area_replaces_the_anchor_box() -> None:
+    # A site where the vehicle ranges far outside its anchors (a recorded outdoor run) states the area the fixes
+    # may lie in; without it they are clipped to the anchors' box plus 20 %.
+    import pytest
+    from pydantic import ValidationError
+
+    base = load_scenario("anchors8")
+    area = {"min_ne_m": (-10.0, -20.0), "max_ne_m": (40.0, 30.0)}
+    wide = base.model_copy(update={"world": base.world.model_validate({**base.world.model_dump(), "area": area})})
+    for dims in (2, 3):
+        boxed, model = anchor_model(base, dims=dims), anchor_model(wide, dims=dims)
+        assert np.allclose(model.bounds_m[0][:2], [-10.0, -20.0]) and np.allclose(model.bounds_m[1][:2], [40.0, 30.0])
+        assert np.allclose(model.bounds_m[0][2:], boxed.bounds_m[0][2:])  # the height bounds stay
+        assert np.allclose(model.clip(np.array([35.0, 25.0, -2.5][:dims])), [35.0, 25.0, -2.5][:dims])
+        assert not np.allclose(boxed.clip(np.array([35.0, 25.0, -2.5][:dims])), [35.0, 25.0, -2.5][:dims])
+    with pytest.raises(ValidationError, match="must lie below"):
+        base.world.model_validate({**base.world.model_dump(), "area": {"min_ne_m": (5, 0), "max_ne_m": (5, 10)}})

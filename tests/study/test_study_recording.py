@@ -77,6 +77,7 @@ def test_a_study_on_recorded_ranges(tmp_path: Path) -> None:
     attacked = rows[rows["attack"] != "none"].set_index("estimator")
     assert attacked.loc["secekf", "rmse_m"] < attacked.loc["ekf", "rmse_m"]
     assert rows.loc[rows["attack"] == "none", "estimator_params"].notna().all()  # calibration_s went along
+    assert set(rows["recording"]) == {"ranges.csv"}  # an unnamed single recording: its ranges file as written
     report = (out / "report.md").read_text()
     assert "| RMSE / LS |" in report and "| none | ls calibration_s=15.0 | " in report  # clean table, Table 5.1
     assert re.search(r"\| ls calibration_s=15.0 \| leg hover \| 1 \| [0-9.]+ \| [0-9.]+ \| 1\.00 \|", report)
