@@ -81,7 +81,7 @@ class VehicleView:
 def vehicle_switches() -> list[str]:
     """The kind of every declared vehicle switch (``attack``, ``attack/mode``, ``secure``, and any other
     module in secuav_common/controlplane/switches/), in the registry's order."""
-    return [spec.kind for spec in switches.specs() if spec.scope == "vehicle"]
+    return [spec.kind for spec in switches.contracts() if spec.scope == "vehicle"]
 
 
 def leaves() -> list[str]:

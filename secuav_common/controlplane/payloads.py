@@ -19,7 +19,7 @@ import json
 import math
 import re
 from functools import cache
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
@@ -80,11 +80,15 @@ class AttackState(_Payload):
     error: str | None = None  # why it was rejected
 
 
+Mode = Literal["on", "bypass"]  # the attack stage's two modes, spelled here only
+MODES: tuple[str, ...] = get_args(Mode)
+
+
 class ModeState(_Payload):
     """``secuav/v<N>/attack/mode/state`` (retained)."""
 
     sysid: int
-    mode: Literal["on", "bypass"]
+    mode: Mode
     since: float | None = None
     request_id: str | None = None
     ok: bool = True
@@ -206,7 +210,7 @@ class ReadingsMessage(_Payload):
 
 
 # (scope, leaf, verb) -> what the message holds; a leaf not listed here is not checked. A switch's state
-# (and request, where it has a model) is the switch's own: secuav_common/controlplane/switches/.
+# and request are the switch's own contract: secuav_common/controlplane/switches/.
 MODELS: dict[tuple[str, str, str | None], Any] = {
     ("vehicle", "stats", None): LinkStatsMessage,
     ("vehicle", "estimate", None): EstimateMessage,
@@ -227,7 +231,7 @@ def model_for(topic: Topic) -> Any | None:
     if topic.scope == "proxy" and topic.leaf == "online" and topic.key is None:
         return bool
     if topic.verb is not None:
-        from secuav_common.controlplane.switches import find  # the switches import the models above
+        from secuav_common.controlplane.switches import find  # the switches' contracts import the models above
 
         spec = find(topic.scope, topic.leaf)
         if spec is not None:
@@ -246,10 +250,20 @@ def validate(topic: str | Topic, body: Any) -> Any:
     try:
         return _adapter(kind).validate_python(body)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        where = ".".join(str(p) for p in err["loc"]) or "(payload)"
-        value = json.dumps(err.get("input"), default=str)[:60]
-        raise PayloadError(f"{name}: {where}: {err['msg']} (got {value})") from None
+        raise PayloadError(f"{name}: {error_text(exc)}") from None
+
+
+def error_text(exc: ValidationError, prefix: str = "", model: type[BaseModel] | None = None) -> str:
+    """The first error of ``exc`` as one line, ``<field>: <why> (got <value>)``, the field after ``prefix``:
+    how every refused message or request on the plane says what was wrong (a field ``model`` does not know
+    is named with the ones it does)."""
+    err = exc.errors()[0]
+    where = ".".join(str(p) for p in err["loc"])
+    where = prefix + where if where else prefix.rstrip(".") or "(payload)"
+    if err["type"] == "extra_forbidden" and model is not None and len(err["loc"]) == 1:
+        return f"{where}: unknown field (known: {', '.join(model.model_fields)})"
+    value = json.dumps(err.get("input"), default=str)[:60]
+    return f"{where}: {err['msg']} (got {value})"
 
 
 def decode(topic: str | Topic, raw: bytes | bytearray) -> Any:
