@@ -8,7 +8,7 @@ and sends it resolved; ``clear`` sends ``null``.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from attack_profiles.engine import Engine
 from attack_profiles.profile import Profile
@@ -17,9 +17,6 @@ from mitm_proxy.stages.attack_slot import AttackSlot
 from secuav_common.controlplane.payloads import AttackState
 from secuav_common.controlplane.switches.attack import CONTRACT, AttackRequest
 from secuav_common.controlplane.topics import vehicle_topic
-
-if TYPE_CHECKING:
-    from mitm_proxy.control.link import SwitchHost
 
 __all__ = ["AttackSwitch"]
 
@@ -38,11 +35,6 @@ class AttackSwitch(Switch[AttackState]):
         super().__init__()
         self.slot = slot
         self.sysid = slot.sysid
-
-    @classmethod
-    def build(cls, host: SwitchHost, sysid: int | None) -> AttackSwitch | None:
-        """The link's: the proxy made it with the stage."""
-        return None if sysid is None else host.links[sysid].attack
 
     @property
     def engine(self) -> Engine | None:

@@ -3,15 +3,12 @@
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from mitm_proxy.control.switch import Switch
 from mitm_proxy.stages.attack import AttackStage
 from secuav_common.controlplane.payloads import ModeState
 from secuav_common.controlplane.switches.mode import CONTRACT, ModeRequest
-
-if TYPE_CHECKING:
-    from mitm_proxy.control.link import SwitchHost
 
 __all__ = ["ModeSwitch"]
 
@@ -30,11 +27,6 @@ class ModeSwitch(Switch[ModeState]):
         self.sysid = sysid
         self.stage = stage
         self._since = time.time()
-
-    @classmethod
-    def build(cls, host: SwitchHost, sysid: int | None) -> ModeSwitch | None:
-        """The link's: the proxy made it with the stage."""
-        return None if sysid is None else host.links[sysid].mode
 
     def set(self, on: bool, request_id: str | None = None, source: str = "<app>") -> ModeState:
         return self.handle("on" if on else "bypass", request_id, source)

@@ -11,7 +11,6 @@ from secuav_common.controlplane.payloads import SecureState
 from secuav_common.controlplane.switches.secure import CONTRACT
 
 if TYPE_CHECKING:
-    from mitm_proxy.control.link import SwitchHost
     from mitm_proxy.stages.secure.stage import SecureStage  # numpy/scipy: the proxy imports it only with a scenario
 
 __all__ = ["NoSecure", "SecureSwitch"]
@@ -27,14 +26,6 @@ class SecureSwitch(Switch[SecureState]):
         self.stage = stage
         self.sysid = stage.sysid
         self._since = time.time()
-
-    @classmethod
-    def build(cls, host: SwitchHost, sysid: int | None) -> Switch[SecureState] | None:
-        """The link's (made with the link when there is a scenario), else :class:`NoSecure`."""
-        if sysid is None:
-            return None
-        switch = host.links[sysid].secure
-        return switch if switch is not None else NoSecure(sysid)
 
     def current(self) -> dict[str, Any]:
         cfg = self.stage.config

@@ -4,9 +4,10 @@ A :class:`Switch` is the proxy's side of one switch: its class names the wire
 contract (``contract = CONTRACT``, from ``secuav_common/controlplane/switches/<kind>.py``),
 from which ``kind`` (``secuav/v<N>/<kind>/set`` and ``.../state``), ``scope``,
 ``state_model`` and ``bare_words`` follow, and it wraps the stage (or the
-endpoints) it switches. :meth:`Switch.build` makes or finds the switch of one
-link (or, for a proxy-wide switch, of the process) from what the proxy holds
-(:class:`~mitm_proxy.control.link.SwitchHost`). Every change, whichever door it
+endpoints) it switches; a link holds its own switches
+(:class:`~mitm_proxy.control.link.LinkParts`), and a switch no link holds is
+built by its class from what the process holds (``build(host, sysid)``,
+:mod:`mitm_proxy.control.switches`). Every change, whichever door it
 came through (MQTT, the ``--profile`` file reload, a flag at start,
 ``secuav-record``), goes through :meth:`Switch.handle`, so the verdict is kept in
 one place and the published state always says what is in force.
@@ -25,7 +26,7 @@ from __future__ import annotations
 
 import logging
 from abc import ABC, abstractmethod
-from typing import TYPE_CHECKING, Any, ClassVar, Generic, TypeVar
+from typing import Any, ClassVar, Generic, TypeVar
 
 from pydantic import BaseModel, ValidationError
 
@@ -33,9 +34,6 @@ from secuav_common.controlplane.contract import SwitchContract
 from secuav_common.controlplane.payloads import RequestError, Verdict, error_text
 from secuav_common.controlplane.topics import Scope
 from secuav_common.loading import InputError
-
-if TYPE_CHECKING:
-    from mitm_proxy.control.link import SwitchHost
 
 log = logging.getLogger(__name__)
 
@@ -66,12 +64,6 @@ class Switch(ABC, Generic[StateT]):
 
     def __init__(self) -> None:
         self.verdict = Verdict()
-
-    @classmethod
-    def build(cls, host: SwitchHost, sysid: int | None) -> Switch[Any] | None:
-        """This switch of link ``sysid`` (None: of the process, for a proxy-wide switch), made or found in
-        what the proxy holds; None leaves it out there."""
-        return None
 
     def prepare(self, payload: Any, source: str) -> Any:
         """The costly, pure part of checking a request (parsing a profile), run off the event loop by the

@@ -25,9 +25,9 @@ proxy-wide switch on ``secuav/proxy/<instance>/<kind>/state``) with its contract
 state model.
 
 :data:`BUILT_IN` lists the classes; :func:`register` adds one more by an explicit call.
-:func:`build_controls` fills the registry (:class:`Controls`): each class's
-``build`` for every link (or once, for a proxy-wide switch) with what the proxy holds
-(:class:`~mitm_proxy.control.link.SwitchHost`). The MQTT session
+:func:`build_controls` fills the registry (:class:`Controls`): each link's own
+switches (:meth:`~mitm_proxy.control.link.LinkParts.switches`), then each class no
+link holds, built from what the proxy holds (:class:`~mitm_proxy.control.link.SwitchHost`). The MQTT session
 (:mod:`mitm_proxy.control.plane`) dispatches into the registry; it is sans-I/O,
 so tests drive it directly.
 """
@@ -40,7 +40,7 @@ import re
 import socket
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 from mitm_proxy.control.attack import AttackSwitch
 from mitm_proxy.control.link import LinkParts, SwitchHost
@@ -54,6 +54,7 @@ from secuav_common.controlplane.topics import (
     ANY,
     INSTANCE_RE,
     PREFIX,
+    Scope,
     parse,
     parse_vehicle_key,
     proxy_topic,
@@ -145,13 +146,26 @@ class Controls:
         return None if control is None else Target(control, parsed.with_verb("state"))
 
 
+class Built(Protocol):
+    """A switch class no link holds: it builds its switch from what the process holds (None leaves it out).
+    ``sysid`` is a link's for a vehicle switch, None for a proxy-wide one."""
+
+    kind: str
+    scope: Scope
+
+    def build(self, host: SwitchHost, sysid: int | None) -> Switch[Any] | None: ...
+
+
+# Every built-in kind, one class each: the first three are held by each link (LinkParts.switches; NoSecure
+# stands in for SecureSwitch on a link without a scenario), routes is built from the endpoints.
 BUILT_IN: tuple[type[Switch[Any]], ...] = (AttackSwitch, ModeSwitch, SecureSwitch, RoutesSwitch)
-_ADDED: dict[str, type[Switch[Any]]] = {}
+_BUILT: tuple[Built, ...] = (RoutesSwitch,)
+_ADDED: dict[str, Built] = {}
 
 
-def register(switch: type[Switch[Any]]) -> type[Switch[Any]]:
+def register(switch: Built) -> Built:
     """Serve one more switch class (its contract registered in secuav_common too); a kind twice is a bug."""
-    if any(c.kind == switch.kind and c is not switch for c in classes()):
+    if any(c.kind == switch.kind and c is not switch for c in (*BUILT_IN, *_ADDED.values())):
         raise ValueError(f"switch {switch.kind!r} is registered twice")
     _ADDED[switch.kind] = switch
     return switch
@@ -162,25 +176,18 @@ def unregister(kind: str) -> None:
     _ADDED.pop(kind, None)
 
 
-def classes() -> list[type[Switch[Any]]]:
-    """Every switch class this proxy serves, the built-in ones first."""
-    return [*BUILT_IN, *_ADDED.values()]
-
-
 def build_controls(host: SwitchHost) -> Controls:
-    """The registry of every switch: each class's ``build``, for every link (in sysid order) or, for a
-    proxy-wide switch, once."""
+    """The registry of every switch: each link's own (in sysid order), then each class no link holds, built
+    for every link or, for a proxy-wide switch, once."""
     controls = Controls(host.instance)
-    for cls in classes():
-        if cls.scope == "proxy":
-            switch = cls.build(host, None)
-            if switch is not None:
-                controls.add(switch)
-            continue
-        for sysid in sorted(host.links):
-            switch = cls.build(host, sysid)
-            if switch is not None:
-                controls.add(switch, sysid)
+    for sysid, link in sorted(host.links.items()):
+        for switch in link.switches():
+            controls.add(switch, sysid)
+    for cls in (*_BUILT, *_ADDED.values()):
+        for sysid in [None] if cls.scope == "proxy" else sorted(host.links):
+            built = cls.build(host, sysid)
+            if built is not None:
+                controls.add(built, sysid)
     return controls
 
 

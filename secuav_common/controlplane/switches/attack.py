@@ -8,7 +8,7 @@ from pydantic import RootModel, model_validator
 from pydantic_core import PydanticCustomError
 
 from secuav_common.controlplane.contract import SwitchContract
-from secuav_common.controlplane.payloads import AttackState
+from secuav_common.controlplane.states import AttackState
 
 
 class AttackRequest(RootModel[dict[str, Any] | str | None]):

@@ -8,7 +8,7 @@ from pydantic import BaseModel, ConfigDict, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
 from secuav_common.controlplane.contract import SwitchContract
-from secuav_common.controlplane.payloads import MODES, Mode, ModeState
+from secuav_common.controlplane.states import MODES, Mode, ModeState
 
 
 class ModeRequest(BaseModel):

@@ -13,7 +13,7 @@ from pydantic import BaseModel, ConfigDict, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
 from secuav_common.controlplane.contract import SwitchContract
-from secuav_common.controlplane.payloads import RoutesState
+from secuav_common.controlplane.states import RoutesState
 
 
 class RoutesRequest(BaseModel):

@@ -8,7 +8,7 @@ from pydantic import BaseModel, ConfigDict, model_validator
 from pydantic_core import PydanticCustomError
 
 from secuav_common.controlplane.contract import SwitchContract
-from secuav_common.controlplane.payloads import SecureState
+from secuav_common.controlplane.states import SecureState
 
 ParamValue = bool | int | float | str
 Direction = Literal["downlink", "uplink", "both"]
