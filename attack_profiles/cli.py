@@ -2,12 +2,9 @@
 
 Offline subcommands live here: ``validate F [--scenario S]``, ``list``,
 ``show NAME``, ``schema``. ``status`` and each runtime switch's verbs (``apply``,
-``clear``, ``mode``, ``secure``, ``routes``: declared with their switch in
-``secuav_common/controlplane/switches/``) talk to a running proxy; their parsers
-are built here so the proxy's CLI (``mitm_proxy.tools.attack_cli``, the installed
-``secuav-attack``) can reuse :func:`build_parser` and plug in real handlers
-through ``live_handlers`` and its transport flags through ``live_options`` (this
-module alone answers them with one line saying so and exit 2: a library never
+``clear``, ``mode``, ``secure``, ``routes``) talk to a running proxy: the proxy's
+CLI (``mitm_proxy.tools.attack_cli``, the installed ``secuav-attack``) owns them
+and adds them to :func:`build_parser` through its ``live`` hook (a library never
 imports the service).
 
 Every failure is one line on stderr and a non-zero exit code; no traceback.
@@ -18,7 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from attack_profiles import library
@@ -28,19 +25,12 @@ from attack_profiles.profile import Profile, profile_schema_text
 from attack_profiles.quantities import true_copies
 from attack_profiles.resolve import resolve_profile
 from attack_profiles.true_copy import vehicle_reports
-from secuav_common.controlplane import switches
 from secuav_common.loading import InputError, parse_params
 from secuav_common.logs import add_common_flags
 from secuav_common.scenario import load_scenario
 
 Handler = Callable[[argparse.Namespace], int]
-OptionsHook = Callable[[str, argparse.ArgumentParser], None]  # (subcommand, its parser): add transport options
-VEHICLE_HELP = "only this vehicle's sysid"
-
-
-def live_commands() -> list[str]:
-    """Every subcommand that needs a running proxy: ``status`` and each switch's verbs."""
-    return ["status", *(verb.name for _, verb in switches.verbs())]
+LiveHook = Callable[[Any], None]  # adds the subcommands that need a running proxy to the subparsers it is given
 
 
 def _params(pairs: Sequence[str]) -> dict[str, Any]:
@@ -97,22 +87,9 @@ def cmd_schema(args: argparse.Namespace) -> int:
     return 0
 
 
-def needs_proxy(args: argparse.Namespace) -> int:
-    print(
-        f"secuav-attack {args.command}: needs a running proxy; this arrives with the proxy issue "
-        "(offline: validate, list, show, schema)",
-        file=sys.stderr,
-    )
-    return 2
-
-
-def build_parser(
-    live_handlers: Mapping[str, Handler] | None = None, live_options: OptionsHook | None = None
-) -> argparse.ArgumentParser:
-    """The full command line; ``live_handlers`` maps ``status`` and the switches' verbs to real
-    implementations and ``live_options`` adds the options they need (broker, timeout) to those subcommands."""
-    live = dict.fromkeys(live_commands(), needs_proxy)
-    live.update(live_handlers or {})
+def build_parser(live: LiveHook | None = None) -> argparse.ArgumentParser:
+    """The command line: the offline subcommands, then what ``live`` adds (``status`` and the switches'
+    verbs, from ``mitm_proxy.tools.attack_cli``)."""
     parser = argparse.ArgumentParser(prog="secuav-attack", description="Check, list and apply SecUAV attack profiles.")
     add_common_flags(parser, log_flags=False)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -134,41 +111,13 @@ def build_parser(
     p = sub.add_parser("schema", help="print the profile JSON Schema")
     p.set_defaults(func=cmd_schema)
 
-    p = sub.add_parser("status", help="show the active profile of a running proxy")
-    p.add_argument("--vehicle", type=int, metavar="N", help=VEHICLE_HELP)
-    p.set_defaults(func=live["status"])
-    targets: dict[str, tuple[argparse.ArgumentParser, ...]] = {"status": (p,)}
-
-    for spec, verb in switches.verbs():
-        p = sub.add_parser(verb.name, help=verb.help)
-        if spec.scope == "vehicle":  # sent to one vehicle, or to every vehicle on the broker
-            verb.arguments(p)
-            p.add_argument("--vehicle", type=int, metavar="N", help=VEHICLE_HELP)
-            targets[verb.name] = (p,)
-        else:  # proxy-wide: read one instance's state, or send it a request
-            actions = p.add_subparsers(dest="action", required=True, metavar="ACTION")
-            show = actions.add_parser("show", help=verb.show_help)
-            change = actions.add_parser("set", help=verb.set_help)
-            verb.arguments(change)
-            targets[verb.name] = (show, change)
-        for q in targets[verb.name]:
-            if spec.scope == "proxy":
-                q.add_argument("--instance", metavar="NAME", help="the proxy instance (needed when several are online)")
-            q.set_defaults(func=live[verb.name])
-
-    if live_options is not None:
-        for name, parsers in targets.items():
-            for q in parsers:
-                live_options(name, q)
+    if live is not None:
+        live(sub)
     return parser
 
 
-def main(
-    argv: Sequence[str] | None = None,
-    live_handlers: Mapping[str, Handler] | None = None,
-    live_options: OptionsHook | None = None,
-) -> int:
-    args = build_parser(live_handlers, live_options).parse_args(argv)
+def main(argv: Sequence[str] | None = None, live: LiveHook | None = None) -> int:
+    args = build_parser(live).parse_args(argv)
     try:
         return int(args.func(args))
     except InputError as err:

@@ -37,6 +37,7 @@ from attack_profiles.profile import parse_profile
 from mavframe.frames import split
 from mavframe.packet import Direction
 from mavframe.signing import Signer
+from mitm_proxy.control.attack import AttackSwitch
 from mitm_proxy.core.pipeline import Pipeline
 from mitm_proxy.core.stats import LinkStats
 from mitm_proxy.stages.attack import AttackStage
@@ -83,10 +84,10 @@ def best_rate(run: Callable[[], int], repeat: int) -> float:
 
 
 def pipeline(profile_rules: list[dict] | None, bypass: bool = False, key: bytes | None = None) -> Pipeline:
-    slot = AttackSlot(1)
+    slot = AttackSwitch(AttackSlot(1))
     if profile_rules is not None:
         slot.offer(parse_profile({"name": "bench", "rules": profile_rules}, "bench.yaml"))
-    stage = AttackStage(slot, active=not bypass)
+    stage = AttackStage(slot.slot, active=not bypass)
     pipe = Pipeline(0, [stage], stats=LinkStats(1), signer=None if key is None else Signer(key))
     pipe.next_tick_s()  # what the link does: a direction the profile forges in is watched from now on
     return pipe

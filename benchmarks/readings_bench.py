@@ -20,6 +20,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from attack_profiles.profile import parse_profile
 from mavframe.packet import Direction
+from mitm_proxy.control.attack import AttackSwitch
 from mitm_proxy.core.pipeline import Pipeline
 from mitm_proxy.core.readings import ReadingsTap
 from mitm_proxy.core.stats import LinkStats
@@ -42,10 +43,10 @@ def _frames() -> list[bytes]:
 
 
 def _cost(profile: bool, tap: bool, frames: list[bytes], rounds: int) -> float:
-    slot = AttackSlot(1)
+    slot = AttackSwitch(AttackSlot(1))
     if profile:
         slot.offer(parse_profile(BIAS, "bench"))
-    pipe = Pipeline(0, [AttackStage(slot)], stats=LinkStats(1))
+    pipe = Pipeline(0, [AttackStage(slot.slot)], stats=LinkStats(1))
     watcher = ReadingsTap(1)
     if tap:
         pipe.attach(watcher)

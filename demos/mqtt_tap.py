@@ -13,7 +13,7 @@ from typing import Any
 from secuav_common.controlplane.address import BrokerAddress
 from secuav_common.controlplane.payloads import PayloadError, validate
 from secuav_common.controlplane.requests import Acks
-from secuav_common.controlplane.session import Client, MqttError, Session
+from secuav_common.controlplane.session import Client, MqttError, Session, messages
 
 
 @dataclass
@@ -55,10 +55,9 @@ class Tap:
             for topic in self.topics:
                 await client.subscribe(topic)
             self._ready.set()
-            async for message in client.messages:
-                topic = str(message.topic)
+            async for topic, raw, _retained in messages(client):
                 try:
-                    payload = json.loads(bytes(message.payload))  # type: ignore[arg-type]
+                    payload = json.loads(raw)
                     validate(topic, payload)
                 except (ValueError, TypeError, PayloadError):
                     self.refused += 1

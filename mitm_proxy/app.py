@@ -25,7 +25,7 @@ import os
 import signal
 import socket
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any
@@ -34,8 +34,11 @@ from attack_profiles.directions import check_no_uplink, describe
 from attack_profiles.resolve import resolve_profile
 from mavframe.signing import Signer
 from mitm_proxy.config import ProxyConfig
-from mitm_proxy.control.switch import SwitchHost
-from mitm_proxy.control.switches import Controls, ModeSwitch, build_controls, default_instance
+from mitm_proxy.control.attack import AttackSwitch
+from mitm_proxy.control.link import LinkParts, SwitchHost
+from mitm_proxy.control.mode import ModeSwitch
+from mitm_proxy.control.secure import SecureSwitch
+from mitm_proxy.control.switches import Controls, build_controls, default_instance
 from mitm_proxy.core.pipeline import Pipeline, Stage
 from mitm_proxy.core.readings import ReadingsTap
 from mitm_proxy.core.recorder import Recorder
@@ -55,7 +58,6 @@ from secuav_common.urls import Endpoint
 if TYPE_CHECKING:  # imported when used: numpy/scipy (secure) and MQTT (control) stay out of start-up
     from mitm_proxy.control.plane import ControlPlane
     from mitm_proxy.control.reload import ProfileWatcher
-    from mitm_proxy.stages.secure.stage import SecureSlot
 
 log = logging.getLogger("secuav-proxy")
 # Where the secure stage reads and substitutes, as proxy.ready says it.
@@ -63,19 +65,6 @@ WORDS_ON = {"downlink": "toward the ground", "uplink": "toward the vehicle", "bo
 VEHICLE_TAKEOVER_S = 1.0  # a new vehicle source port is followed after this much silence from the old one
 STOP_BUDGET_S = 0.8  # what the control plane may take to say goodbye
 READINGS_PERIOD_S = 0.1  # secuav/v<N>/readings while a console watches
-
-
-@dataclass(slots=True)
-class VehicleParts:
-    """What the proxy holds for one vehicle (one link): its attack slot and stage, its counters,
-    and its secure slot when there is a scenario to model the sensors."""
-
-    sysid: int
-    slot: AttackSlot
-    stage: AttackStage
-    mode: ModeSwitch
-    stats: LinkStats
-    secure: SecureSlot | None = None
 
 
 class Proxy:
@@ -90,25 +79,27 @@ class Proxy:
         if initial is not None and config.no_uplink_attacks:  # one line, before any slot logs a refusal
             check_no_uplink(initial, initial.source)
         sysids = [link.sysid for link in config.links]
-        secure: dict[int, SecureSlot] = {}
+        secure: dict[int, SecureSwitch] = {}
         if self.scenario is not None:  # the estimators' models come from the scenario
-            from mitm_proxy.stages.secure.stage import make_slots  # numpy/scipy estimators: only when they can run
+            from mitm_proxy.stages.secure.stage import make_stages  # numpy/scipy estimators: only when they can run
 
-            secure = make_slots(self.scenario, sysids, self._secure_config(), self._publish_estimate, "secure")
+            stages = make_stages(self.scenario, sysids, self._secure_config(), self._publish_estimate, "secure")
+            secure = {sysid: SecureSwitch(stage) for sysid, stage in stages.items()}
         elif config_from_payload(config.secure, "secure").enabled:
             raise InputError("secure", "estimator", config.secure, "the secure stage needs --scenario")
-        self.vehicles: dict[int, VehicleParts] = {}
+        self.vehicles: dict[int, LinkParts] = {}
         for sysid in sysids:
             slot = AttackSlot(sysid, self.scenario, config.seed, forbid_uplink=config.no_uplink_attacks)
             slot.announce = False  # the start profile's notes are said once the proxy runs (see __aenter__)
+            attack = AttackSwitch(slot)
             if initial is not None:
-                state = slot.offer(initial, request_id="--profile")
+                state = attack.offer(initial, request_id="--profile")
                 if not state.ok:  # the error names the file already
                     raise ValueError(state.error or f"{config.profile}: rejected")
             stage = AttackStage(slot)
             mode = ModeSwitch(sysid, stage)
             mode.set(config.attack == "on", source="--attack")
-            self.vehicles[sysid] = VehicleParts(sysid, slot, stage, mode, LinkStats(sysid), secure.get(sysid))
+            self.vehicles[sysid] = LinkParts(sysid, stage, attack, mode, LinkStats(sysid), secure.get(sysid))
         self.endpoints: dict[Endpoint, BaseEndpoint] = {}
         self.links: list[Link] = []
         self.routers: list[GroundRouter] = []
@@ -120,23 +111,24 @@ class Proxy:
         self._readings_task: asyncio.Task[None] | None = None
 
     def _secure_config(self) -> SecureConfig:
-        """``--secure`` / ``secure:`` (and ``--secure-direction``), checked against the scenario by ``make_slots``."""
+        """``--secure`` / ``secure:`` (and ``--secure-direction``), checked against the scenario by ``make_stages``."""
         cfg = config_from_payload(self.config.secure, "secure")
         if self.config.secure_direction is not None:
             cfg = cfg.model_copy(update={"direction": self.config.secure_direction})
         return cfg if cfg.enabled else OFF.model_copy(update={"direction": cfg.direction})
 
     @property
-    def slots(self) -> dict[int, AttackSlot]:
-        return {s: v.slot for s, v in self.vehicles.items()}
+    def slots(self) -> dict[int, AttackSwitch]:
+        """sysid -> the link's attack switch (its profile, and the verdict on the last request)."""
+        return {s: v.attack for s, v in self.vehicles.items()}
 
     @property
     def stages(self) -> dict[int, AttackStage]:
         return {s: v.stage for s, v in self.vehicles.items()}
 
     @property
-    def secure(self) -> dict[int, SecureSlot]:
-        """sysid -> SecureSlot (empty without a scenario)."""
+    def secure(self) -> dict[int, SecureSwitch]:
+        """sysid -> the link's secure switch (empty without a scenario)."""
         return {s: v.secure for s, v in self.vehicles.items() if v.secure is not None}
 
     def _publish_estimate(self, sysid: int, payload: dict[str, Any]) -> None:
@@ -157,7 +149,7 @@ class Proxy:
             "links": " ".join(f"v{ln.sysid}:{ln.vehicle.endpoint}->{','.join(str(g.endpoint) for g in ln.grounds)}"
                               for ln in self.links),
             "attack": self.config.attack, "profile": self.slots[self.links[0].sysid].state.profile or "none",
-            "changes": describe(self.slots[self.links[0].sysid].directions),
+            "changes": describe(self.slots[self.links[0].sysid].slot.directions),
             "uplink_attacks": "forbidden" if self.config.no_uplink_attacks else "allowed",
             "secure": next((s.stage.config.estimator for s in self.secure.values() if s.stage.config.estimator), "off")
             if self.secure else "unavailable (no --scenario)",
@@ -165,9 +157,9 @@ class Proxy:
             "broker": redact(self.config.broker_url), "instance": self.instance, "record": self.config.record or "off",
             "signing": "on" if self.signer else "off",
         })  # fmt: skip
-        for slot in self.slots.values():  # the start profile's notes, now that the log says them
-            slot.announce = True
-            slot.say_notes()
+        for parts in self.vehicles.values():  # the start profile's notes, now that the log says them
+            parts.stage.slot.announce = True
+            parts.stage.slot.say_notes()
         return self
 
     async def __aexit__(
@@ -194,14 +186,14 @@ class Proxy:
                 self.recorders.append(recorder)
             parts = self.vehicles[sysid]
             if recorder is not None:  # profiles.json: the profile in force now, then each change
-                _note_profile(recorder, parts.slot)
-                parts.slot.on_install.append(lambda slot, rec=recorder: _note_profile(rec, slot))
+                _note_profile(recorder, parts.stage.slot)
+                parts.stage.slot.on_install.append(lambda slot, rec=recorder: _note_profile(rec, slot))
             stages: list[Stage] = [parts.stage]  # tap -> attack -> secure -> forward
             if parts.secure is not None:
                 stages.append(parts.secure.stage)
             signer = None if self.signer is None else self.signer.for_link()  # replay state per link
             pipeline = Pipeline(i, stages, stats=parts.stats, observers=[recorder] if recorder else (), signer=signer)
-            parts.slot.unkeyed = pipeline.unkeyed_signed  # a profile that writes frames where it cannot is refused
+            parts.stage.slot.unkeyed = pipeline.unkeyed_signed  # a profile writing frames where it cannot: refused
             grounds = [self.endpoints[ep] for ep in link_cfg.ground_endpoints]
             link = Link(i, sysid, pipeline, parts.stats, self.endpoints[link_cfg.vehicle_endpoint], grounds)
             self.links.append(link)
@@ -312,7 +304,7 @@ class Proxy:
             snap["pipeline_errors"] = link.pipeline_errors
             snap["endpoints"] = {ep.name: ep.snapshot() for ep in (link.vehicle, *link.grounds)}
             secure = parts.secure
-            warnings = parts.slot.warnings
+            warnings = parts.stage.slot.warnings
             if secure is not None:
                 snap["secure"] = {"estimator": secure.stage.config.estimator, **asdict(secure.stage.counters)}
                 warnings = [*warnings, *secure.stage.warnings]
@@ -331,7 +323,7 @@ class Proxy:
 def _note_profile(recorder: Recorder, slot: AttackSlot) -> None:
     """The recording's profiles.json learns the profile in force and which way it changes frames."""
     engine = slot.engine
-    recorder.profile(None if engine is None else engine.profile.name, slot.state.hash, slot.directions)
+    recorder.profile(None if engine is None else engine.profile.name, slot.hash, slot.directions)
 
 
 def stats_line(sysid: int, snap: dict[str, Any]) -> dict[str, Any]:

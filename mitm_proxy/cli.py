@@ -20,6 +20,7 @@ from typing import Any
 
 from mitm_proxy.config import ProxyConfig, build_config, load_config, override_endpoints
 from secuav_common.broker import secret_or_env
+from secuav_common.controlplane.states import MODES
 from secuav_common.loading import InputError
 from secuav_common.logs import add_common_flags, cli_error, setup_logging
 from secuav_common.urls import parse_endpoint
@@ -65,7 +66,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="F",
         help="initial attack profile: a file (reloaded on change) or a library name (secuav-attack list)",
     )
-    p.add_argument("--attack", choices=("on", "bypass"), help="attack stage active or bypassed (default on)")
+    p.add_argument("--attack", choices=MODES, help="attack stage active or bypassed (default on)")
     p.add_argument("--secure", metavar="NAME", help="secure estimator, or off (default off); "
                    "`secuav-plugins --estimator NAME` lists its parameters")  # fmt: skip
     p.add_argument("--secure-direction", choices=("downlink", "uplink", "both"),

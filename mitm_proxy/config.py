@@ -21,6 +21,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from mitm_proxy.net.rules import EndpointRules, rules_to_query
+from secuav_common.controlplane.states import Mode
 from secuav_common.loading import InputError, load_model, validate
 from secuav_common.ports import GCS_PORT, GROUND_API_BASE, LOOPBACK, PROXY_VEHICLE_BASE
 from secuav_common.urls import Endpoint, parse_endpoint
@@ -120,7 +121,7 @@ class ProxyConfig(_Strict):
     links: list[LinkConfig] = Field(default_factory=list, max_length=MAX_LINKS)
     vehicles: int | None = Field(None, ge=1, le=MAX_LINKS, description="links by the port plan when links is empty")
     scenario: Path | None = None
-    attack: Literal["on", "bypass"] = "on"
+    attack: Mode = "on"
     profile: Path | None = None
     record: Path | None = None
     signing_key: Path | None = None

@@ -8,16 +8,16 @@
 ``GET /api/estimators``                    what ``secure`` accepts
 ``GET /api/estimators/params``             every estimator with its declared parameters (default, range)
 ``POST /api/vehicles/{sysid}/attack``      ``{"profile": name | object | YAML text | null, "params": {}}``
-``POST /api/vehicles/{sysid}/attack/mode``  ``{"mode": "on" | "bypass"}``
-``POST /api/vehicles/{sysid}/secure``      ``{"estimator": name | "off", "params": {}}``
 ``POST /api/vehicles/{sysid}/switches/{kind}``  any declared vehicle switch: the body is its request
+``POST /api/vehicles/{sysid}/attack/mode``  ``switches/attack/mode`` (older URL): ``{"mode": "on" | "bypass"}``
+``POST /api/vehicles/{sysid}/secure``      ``switches/secure`` (older URL): ``{"estimator": name | "off"}``
 ``GET /api/stream?vehicle=N``              server-sent events, 12.5 per second: the fleet, N's new samples, the broker
 =========================================  ===================================================
 
 A POST answers with the proxy's own acknowledgement (``ok``, ``error``), or 422
 when the request never left the console (a profile that does not validate, a
-request that does not fit its switch's request model: the body names the
-``field``), or 504 when no proxy answered in time. What guards
+request that does not fit its switch's request model, the one check of its
+shape: the body names the ``field``), or 504 when no proxy answered in time. What guards
 the app against other web pages and greedy clients is in ``webconsole.security``
 and docs/security.md: POSTs must be JSON from the console's own origin, bodies
 are capped before they are read (413), event streams are capped per client and
@@ -54,6 +54,7 @@ from attack_profiles.control import profile_from_payload
 from attack_profiles.profile import parse_profile, parse_text
 from secuav_common.controlplane import switches
 from secuav_common.controlplane.address import redact
+from secuav_common.controlplane.contract import SwitchContract
 from secuav_common.controlplane.payloads import MAX_PAYLOAD_BYTES, request_bytes
 from secuav_common.controlplane.topics import vehicle_topic
 from secuav_common.loading import InputError, first_error, parse_document
@@ -119,21 +120,22 @@ def profile_request(body: Any) -> dict[str, Any] | None:
     return payload
 
 
-def switch_request(spec: switches.SwitchSpec, body: Any) -> dict[str, Any] | None:
-    """The ``<kind>/set`` payload for ``POST /api/vehicles/{sysid}/switches/{kind}``: the body as it is (an
-    object, or null for a bare request such as clear), checked against the switch's request model when it
-    declares one (the check the proxy makes first); raises ``InputError``.
+def switch_request(contract: SwitchContract, body: Any) -> dict[str, Any] | None:
+    """The ``<kind>/set`` payload for ``POST /api/vehicles/{sysid}/switches/{kind}`` (and its aliases): the body
+    read by the switch's request model, the one check of its shape, and sent as the model has it; raises
+    ``InputError`` naming the field.
 
     A ``request_id`` in the body is dropped: the console gives each request its own, and waits for that.
     """
-    if body is not None and not isinstance(body, dict):
-        raise InputError("request", "", body, f"expected a JSON object (the {spec.kind} request) or null")
-    payload = None if body is None else {k: v for k, v in body.items() if k != "request_id"}
-    if spec.request_model is not None and payload is not None:
-        try:
-            spec.request_model.model_validate(payload)
-        except ValidationError as exc:
-            raise first_error(exc, "request") from None
+    try:
+        checked = contract.check(body)
+    except ValidationError as exc:
+        raise first_error(exc, "request") from None
+    payload = checked.model_dump(mode="json", exclude_unset=True)
+    if isinstance(payload, dict):
+        payload.pop("request_id", None)
+    elif payload is not None:  # the acknowledgement is found by the request id the console puts in the object
+        raise InputError("request", "", body, f"expected a JSON object (the {contract.kind} request) or null")
     size = len(request_bytes(payload, "x" * 40))  # the console's ids are "console-" and 32 hex digits
     if size > MAX_PAYLOAD_BYTES:
         raise InputError("request", "", f"{size} bytes", f"the proxy accepts requests up to {MAX_PAYLOAD_BYTES} bytes")
@@ -256,147 +258,161 @@ class StreamSlots:
             del self.open[client]
 
 
+async def json_body(request: Request) -> Any:
+    """The request's body as JSON, counted as it arrives (a huge body is never held, a slow one not for long)."""
+    chunks, size = [], 0
+    try:
+        async with asyncio.timeout(BODY_TIMEOUT_S):  # a body sent a byte at a time holds nothing for long
+            async for chunk in request.stream():
+                size += len(chunk)
+                if size > MAX_BODY:
+                    raise RequestTooLarge
+                chunks.append(chunk)
+    except TimeoutError:
+        raise RequestTimeout from None
+    raw = b"".join(chunks)
+    try:
+        return json.loads(raw or b"null")
+    except ValueError as exc:
+        raise InputError("request", "", None, f"not JSON: {exc}") from None
+
+
+def _row_of(request: Request) -> dict[str, Any] | None:
+    """The vehicle's fleet row; None once its proxy has stopped and it left the fleet (or it never came)."""
+    sysid = int(request.path_params["sysid"])
+    return next((r for r in request.app.state.fleet.summary() if r["sysid"] == sysid), None)
+
+
+async def _send(request: Request, kind: str, translate: Callable[[Any], Any] | None = None) -> Response:
+    """Read the body (``translate``: a route's own body shape into the switch's request), check it with the
+    switch's request model, send it to the vehicle's ``<kind>/set`` and answer with the proxy's state."""
+    state_of = request.app.state
+    contract = switches.find("vehicle", kind)
+    if contract is None:
+        known_kinds = ", ".join(c.kind for c in switches.contracts() if c.scope == "vehicle")
+        return _error(404, f"no vehicle switch {kind!r} (declared: {known_kinds})")
+    sysid = int(request.path_params["sysid"])
+    if not state_of.fleet.owners().get(sysid):  # nobody would answer: say so now rather than after the timeout
+        if sysid in state_of.fleet.vehicles:
+            return _error(404, f"no proxy serves vehicle {sysid} now (its proxy has stopped)")
+        return _error(404, f"no vehicle {sysid} on the broker")
+    try:
+        body = await json_body(request)
+        payload = switch_request(contract, body if translate is None else translate(body))
+    except InputError as exc:
+        return _error(422, str(exc), exc.field or None)
+    except RequestTooLarge:
+        return _error(413, f"request body larger than {MAX_BODY} bytes")
+    except RequestTimeout:
+        return _error(408, f"request body not complete within {BODY_TIMEOUT_S:g} s")
+    try:
+        state = await state_of.session.request(vehicle_topic(sysid, kind, "set"), payload, state_of.ack_timeout_s)
+    except AckTimeout as exc:
+        return _error(504, str(exc))
+    return JSONResponse(state, status_code=200 if state.get("ok") else 409)
+
+
+async def index(request: Request) -> Response:
+    return FileResponse(STATIC / "index.html")
+
+
+async def vehicles(request: Request) -> Response:
+    return JSONResponse(request.app.state.fleet.summary())
+
+
+async def vehicle(request: Request) -> Response:
+    row = _row_of(request)
+    if row is None:
+        return _error(404, f"no vehicle {request.path_params['sysid']} on the broker")
+    scenario = request.app.state.fleet.scenario_of(row["sysid"])
+    return JSONResponse({**row, "world": world_json(scenario) if scenario is not None else None})
+
+
+async def profiles(request: Request) -> Response:
+    cache = request.app.state.library
+    if not cache:
+        cache.extend(library_json())
+    return JSONResponse(cache)
+
+
+async def estimators_list(request: Request) -> Response:
+    import estimators  # numpy/scipy: only when asked
+
+    return JSONResponse(["off", *estimators.names()])
+
+
+async def estimator_params(request: Request) -> Response:
+    cache = request.app.state.estimators
+    if not cache:  # imports numpy, scipy and every plugin: off the loop, the streams keep going
+        described = await asyncio.to_thread(estimators_json)
+        if not cache:  # another request may have filled it meanwhile
+            cache.extend(described)
+    return JSONResponse(cache)
+
+
+async def switch(request: Request) -> Response:
+    """``POST /api/vehicles/{sysid}/switches/{kind}``: any declared vehicle switch; the body is its request."""
+    return await _send(request, request.path_params["kind"])
+
+
+async def attack(request: Request) -> Response:
+    """``POST .../attack``: the ``attack`` switch, with the page's body (a library name, profile text...)."""
+    return await _send(request, "attack", profile_request)
+
+
+async def mode(request: Request) -> Response:
+    """``POST .../attack/mode``: the generic route's ``attack/mode``, under its older URL."""
+    return await _send(request, "attack/mode")
+
+
+async def secure(request: Request) -> Response:
+    """``POST .../secure``: the generic route's ``secure``, under its older URL."""
+    return await _send(request, "secure")
+
+
+async def stream(request: Request) -> Response:
+    try:
+        watched = int(request.query_params.get("vehicle", "0"))
+    except ValueError:
+        return _error(400, "vehicle: must be a sysid")
+    if request.method != "GET":  # HEAD: the headers a stream would have, and no slot (nothing will run)
+        return Response(status_code=200, media_type="text/event-stream", headers={"Cache-Control": "no-store"})
+    state_of = request.app.state
+    client = request.client.host if request.client else "?"
+    refused = state_of.streams.take(client)
+    if refused is not None:
+        return _error(429, refused)
+    return SlotStream(_updates(request, state_of.fleet, watched, state_of.session),
+                      lambda: state_of.streams.give_back(client), ping=15,
+                      send_timeout=state_of.stream_send_timeout_s)  # fmt: skip
+
+
+ROUTES = [
+    Route("/", index),
+    Route("/api/vehicles", vehicles),
+    Route("/api/vehicles/{sysid:int}", vehicle),
+    Route("/api/vehicles/{sysid:int}/attack", attack, methods=["POST"]),
+    Route("/api/vehicles/{sysid:int}/attack/mode", mode, methods=["POST"]),  # = switches/attack/mode
+    Route("/api/vehicles/{sysid:int}/secure", secure, methods=["POST"]),  # = switches/secure
+    Route("/api/vehicles/{sysid:int}/switches/{kind:path}", switch, methods=["POST"]),
+    Route("/api/library", profiles),
+    Route("/api/estimators", estimators_list),
+    Route("/api/estimators/params", estimator_params),
+    Route("/api/stream", stream),
+    Mount("/static", StaticFiles(directory=STATIC), name="static"),
+]
+
+
 def build_app(fleet: Fleet, session: Session, password: str | None = None, ack_timeout_s: float = 5.0,
               hosts: Iterable[str] = LOOPBACK_NAMES, streams: StreamSlots | None = None,
               stream_send_timeout_s: float = STREAM_SEND_TIMEOUT_S) -> ASGIApp:  # fmt: skip
     """The ASGI application behind ``webconsole.security``'s guards (``hosts``: the Host names it answers
-    to), and behind :class:`BasicAuth` when a password is given."""
-    library_cache: list[dict[str, Any]] = []
-    estimators_cache: list[dict[str, Any]] = []
-    slots = streams or StreamSlots()
-
-    async def json_body(request: Request) -> Any:
-        chunks, size = [], 0
-        try:
-            async with asyncio.timeout(BODY_TIMEOUT_S):  # a body sent a byte at a time holds nothing for long
-                async for chunk in request.stream():  # counted as it arrives: a huge body is never held
-                    size += len(chunk)
-                    if size > MAX_BODY:
-                        raise RequestTooLarge
-                    chunks.append(chunk)
-        except TimeoutError:
-            raise RequestTimeout from None
-        raw = b"".join(chunks)
-        try:
-            return json.loads(raw or b"null")
-        except ValueError as exc:
-            raise InputError("request", "", None, f"not JSON: {exc}") from None
-
-    def row_of(request: Request) -> dict[str, Any] | None:
-        """The vehicle's fleet row; None once its proxy has stopped and it left the fleet (or it never came)."""
-        sysid = int(request.path_params["sysid"])
-        return next((r for r in fleet.summary() if r["sysid"] == sysid), None)
-
-    async def send(request: Request, leaf: str, build: Callable[[Any], dict[str, Any] | None]) -> Response:
-        sysid = int(request.path_params["sysid"])
-        if not fleet.owners().get(sysid):  # nobody would answer: say so now rather than after ack_timeout_s
-            if sysid in fleet.vehicles:
-                return _error(404, f"no proxy serves vehicle {sysid} now (its proxy has stopped)")
-            return _error(404, f"no vehicle {sysid} on the broker")
-        try:
-            payload = build(await json_body(request))
-        except InputError as exc:
-            return _error(422, str(exc), exc.field or None)
-        except RequestTooLarge:
-            return _error(413, f"request body larger than {MAX_BODY} bytes")
-        except RequestTimeout:
-            return _error(408, f"request body not complete within {BODY_TIMEOUT_S:g} s")
-        try:
-            state = await session.request(vehicle_topic(sysid, leaf, "set"), payload, ack_timeout_s)
-        except AckTimeout as exc:
-            return _error(504, str(exc))
-        return JSONResponse(state, status_code=200 if state.get("ok") else 409)
-
-    async def index(request: Request) -> Response:
-        return FileResponse(STATIC / "index.html")
-
-    async def vehicles(request: Request) -> Response:
-        return JSONResponse(fleet.summary())
-
-    async def vehicle(request: Request) -> Response:
-        row = row_of(request)
-        if row is None:
-            return _error(404, f"no vehicle {request.path_params['sysid']} on the broker")
-        scenario = fleet.scenario_of(row["sysid"])
-        return JSONResponse({**row, "world": world_json(scenario) if scenario is not None else None})
-
-    async def profiles(request: Request) -> Response:
-        if not library_cache:
-            library_cache.extend(library_json())
-        return JSONResponse(library_cache)
-
-    async def estimators_list(request: Request) -> Response:
-        import estimators  # numpy/scipy: only when asked
-
-        return JSONResponse(["off", *estimators.names()])
-
-    async def estimator_params(request: Request) -> Response:
-        if not estimators_cache:  # imports numpy, scipy and every plugin: off the loop, the streams keep going
-            described = await asyncio.to_thread(estimators_json)
-            if not estimators_cache:  # another request may have filled it meanwhile
-                estimators_cache.extend(described)
-        return JSONResponse(estimators_cache)
-
-    async def attack(request: Request) -> Response:
-        return await send(request, "attack", lambda body: profile_request(body) or {})
-
-    async def mode(request: Request) -> Response:
-        def build(body: Any) -> dict[str, Any]:
-            value = body.get("mode") if isinstance(body, dict) else body
-            if value not in ("on", "bypass"):
-                raise InputError("request", "mode", value, 'must be "on" or "bypass"')
-            return {"mode": value}
-
-        return await send(request, "attack/mode", build)
-
-    async def secure(request: Request) -> Response:
-        def build(body: Any) -> dict[str, Any]:
-            if not isinstance(body, dict) or not isinstance(body.get("estimator"), str):
-                raise InputError("request", "estimator", body, 'expected {"estimator": NAME or "off"}')
-            params = body.get("params") or {}
-            if not isinstance(params, dict):
-                raise InputError("request", "params", params, "must be a mapping")
-            return {"estimator": body["estimator"], **({"params": params} if params else {})}
-
-        return await send(request, "secure", build)
-
-    async def switch(request: Request) -> Response:
-        kind = request.path_params["kind"]
-        spec = switches.find("vehicle", kind)
-        if spec is None:
-            known_kinds = ", ".join(s.kind for s in switches.specs() if s.scope == "vehicle")
-            return _error(404, f"no vehicle switch {kind!r} (declared: {known_kinds})")
-        return await send(request, spec.kind, lambda body: switch_request(spec, body))
-
-    async def stream(request: Request) -> Response:
-        try:
-            watched = int(request.query_params.get("vehicle", "0"))
-        except ValueError:
-            return _error(400, "vehicle: must be a sysid")
-        if request.method != "GET":  # HEAD: the headers a stream would have, and no slot (nothing will run)
-            return Response(status_code=200, media_type="text/event-stream", headers={"Cache-Control": "no-store"})
-        client = request.client.host if request.client else "?"
-        refused = slots.take(client)
-        if refused is not None:
-            return _error(429, refused)
-        return SlotStream(_updates(request, fleet, watched, session), lambda: slots.give_back(client), ping=15,
-                          send_timeout=stream_send_timeout_s)  # fmt: skip
-
-    routes = [
-        Route("/", index),
-        Route("/api/vehicles", vehicles),
-        Route("/api/vehicles/{sysid:int}", vehicle),
-        Route("/api/vehicles/{sysid:int}/attack", attack, methods=["POST"]),
-        Route("/api/vehicles/{sysid:int}/attack/mode", mode, methods=["POST"]),
-        Route("/api/vehicles/{sysid:int}/secure", secure, methods=["POST"]),
-        Route("/api/vehicles/{sysid:int}/switches/{kind:path}", switch, methods=["POST"]),
-        Route("/api/library", profiles),
-        Route("/api/estimators", estimators_list),
-        Route("/api/estimators/params", estimator_params),
-        Route("/api/stream", stream),
-        Mount("/static", StaticFiles(directory=STATIC), name="static"),
-    ]
-    app: ASGIApp = Starlette(routes=routes)
+    to), and behind :class:`BasicAuth` when a password is given. The handlers above find what they serve
+    in ``request.app.state``."""
+    app = Starlette(routes=ROUTES)
+    app.state.fleet, app.state.session, app.state.ack_timeout_s = fleet, session, ack_timeout_s
+    app.state.streams, app.state.stream_send_timeout_s = streams or StreamSlots(), stream_send_timeout_s
+    app.state.library, app.state.estimators = [], []  # asked for once, then kept
     return guarded(BasicAuth(app, password) if password else app, hosts, MAX_BODY)
 
 

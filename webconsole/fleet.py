@@ -30,7 +30,7 @@ from secuav_common.controlplane import switches
 from secuav_common.controlplane.address import BrokerAddress
 from secuav_common.controlplane.payloads import PayloadError, as_dict, decode
 from secuav_common.controlplane.requests import Acks, AckTimeout
-from secuav_common.controlplane.session import Client, LastWill, MqttError
+from secuav_common.controlplane.session import Client, LastWill, MqttError, messages
 from secuav_common.controlplane.session import Session as MqttSession
 from secuav_common.controlplane.topics import ANY, INSTANCES_ONLINE, console_topic, parse, vehicle_topic
 from secuav_common.scenario import Scenario
@@ -81,7 +81,7 @@ class VehicleView:
 def vehicle_switches() -> list[str]:
     """The kind of every declared vehicle switch (``attack``, ``attack/mode``, ``secure``, and any other
     module in secuav_common/controlplane/switches/), in the registry's order."""
-    return [spec.kind for spec in switches.specs() if spec.scope == "vehicle"]
+    return [spec.kind for spec in switches.contracts() if spec.scope == "vehicle"]
 
 
 def leaves() -> list[str]:
@@ -297,8 +297,8 @@ class Session:
         await client.subscribe([(vehicle_topic(ANY, leaf), 0) for leaf in leaves()] + [(INSTANCES_ONLINE, 1)])
         await client.publish(self.online_topic, self._record(True), qos=1, retain=True)
         self.mqtt.mark_connected()
-        async for message in client.messages:
-            self._receive(str(message.topic), message.payload)
+        async for topic, payload, _retained in messages(client):
+            self._receive(topic, payload)
 
     def _receive(self, topic: str, payload: Any) -> None:
         raw = payload if isinstance(payload, bytes | bytearray) else b""

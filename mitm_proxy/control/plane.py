@@ -51,7 +51,7 @@ from secuav_common.controlplane.payloads import (
     salvage_request_id,
     validate,
 )
-from secuav_common.controlplane.session import Client, LastWill, MqttError, Session
+from secuav_common.controlplane.session import Client, LastWill, MqttError, Session, messages
 from secuav_common.controlplane.topics import (
     CONSOLES_ONLINE,
     PROXY_ONLINE,
@@ -382,10 +382,8 @@ class ControlPlane:
         backlog: asyncio.Queue[Request] = asyncio.Queue(maxsize=REQUEST_BACKLOG)
         worker = asyncio.create_task(self._work(backlog), name="control-requests")
         try:
-            async for message in client.messages:
-                body = message.payload
-                raw = bytes(body) if isinstance(body, bytes | bytearray) else str(body or "").encode()
-                request = self.accept(str(message.topic), raw, message.retain, time.monotonic())
+            async for topic, raw, retained in messages(client):
+                request = self.accept(topic, raw, retained, time.monotonic())
                 if request is None:
                     continue
                 try:

@@ -2,9 +2,9 @@
 
 A researcher edits the profile in an editor while the vehicle flies; on save
 the proxy picks it up within ``interval_s``, under the same rules as an MQTT
-``attack/set``: the new profile goes through :meth:`AttackSlot.offer` (whole,
+``attack/set``: the new profile goes through :meth:`AttackSwitch.offer` (whole,
 between two frames), and a bad edit keeps the previous profile and puts the
-one-line error in the slot's state (and so on ``secuav/v<sysid>/attack/state``:
+one-line error in the switch's state (and so on ``secuav/v<sysid>/attack/state``:
 the control plane publishes every state change).
 
 Which vehicles get it: if every rule names a ``target.sysid``, the vehicles so
@@ -30,7 +30,8 @@ from pathlib import Path
 from types import TracebackType
 
 from attack_profiles.profile import Profile, parse_profile
-from mitm_proxy.stages.attack_slot import AttackSlot, SlotState
+from mitm_proxy.control.attack import AttackSwitch
+from secuav_common.controlplane.payloads import AttackState
 from secuav_common.loading import InputError, parse_document
 
 log = logging.getLogger(__name__)
@@ -49,10 +50,10 @@ class ProfileWatcher:
     def __init__(
         self,
         path: str | Path,
-        slots: Mapping[int, AttackSlot],
+        slots: Mapping[int, AttackSwitch],
         interval_s: float = 0.5,
         *,
-        on_state: Callable[[SlotState], None] | None = None,
+        on_state: Callable[[AttackState], None] | None = None,
     ) -> None:
         self.path = Path(path)
         self.slots = slots
@@ -100,7 +101,7 @@ class ProfileWatcher:
 
     # -- one check ------------------------------------------------------------------------------------
 
-    def poll(self) -> list[SlotState]:
+    def poll(self) -> list[AttackState]:
         """Reload if the file changed since the last look; the states it produced (empty: nothing to do)."""
         signature = self._stat()
         if signature is None:
@@ -123,7 +124,7 @@ class ProfileWatcher:
         self._digest = digest
         return self._offer(raw)
 
-    def apply_now(self) -> list[SlotState]:
+    def apply_now(self) -> list[AttackState]:
         """Read and offer the file whatever its state; raises nothing, reports like a reload."""
         raw = self._read()
         if raw is None:
@@ -161,13 +162,13 @@ class ProfileWatcher:
             log.warning("reload.no_such_vehicle", extra={"path": str(self.path), "sysids": missing})
         return {s for s in named if s in self.slots}
 
-    def _offer(self, raw: bytes) -> list[SlotState]:
+    def _offer(self, raw: bytes) -> list[AttackState]:
         try:
             profile = self._parse(raw)
         except InputError as exc:
             return self._reject(str(exc))
         targets = self.targets(profile)
-        states: list[SlotState] = []
+        states: list[AttackState] = []
         accepted: set[int] = set()
         for sysid in sorted(targets):
             state = self.slots[sysid].offer(profile, self.request_id)
@@ -194,7 +195,7 @@ class ProfileWatcher:
         self._notify(states)
         return states
 
-    def _reject(self, error: str) -> list[SlotState]:
+    def _reject(self, error: str) -> list[AttackState]:
         self.rejects += 1
         log.warning("reload.rejected", extra={"path": str(self.path), "error": error})
         ours = [s for s in sorted(self._fed) if self.slots[s].state.hash == self._installed]
@@ -202,7 +203,7 @@ class ProfileWatcher:
         self._notify(states)
         return states
 
-    def _notify(self, states: list[SlotState]) -> None:
+    def _notify(self, states: list[AttackState]) -> None:
         if self.on_state is not None:
             for state in states:
                 self.on_state(state)

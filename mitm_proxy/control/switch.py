@@ -1,60 +1,55 @@
-"""The one shape of every runtime switch: validate a request, apply it atomically, keep one typed verdict.
+"""The one shape of every runtime switch: check a request, apply it atomically, keep one typed verdict.
 
-A :class:`Switch` is the proxy's side of a switch declared in
-``secuav_common/controlplane/switches/<name>.py`` (its :class:`SwitchSpec`: topic
-leaf, scope, state and request models, ``secuav-attack`` verbs). It owns what it
-switches (the attack profile, the attack stage's mode, the secure stage's
-estimator, the endpoints' rules) and the verdict on the last request; its class
-names its spec (``spec = SPEC``), from which ``kind`` (``secuav/v<N>/<kind>/set``
-and ``.../state``), ``scope``, ``state_model`` and ``bare_words`` follow, and the
-spec's ``implementation`` names the factory the proxy's registry calls to build
-or find it for each link (``build(host, sysid)``). Every change, whichever door it came through (MQTT, the
-``--profile`` file reload, a flag at start, ``secuav-record``), goes through
-:meth:`Switch.handle`, so the verdict is kept in one place and the published
-state always says what is in force.
+A :class:`Switch` is the proxy's side of one switch: its class names the wire
+contract (``contract = CONTRACT``, from ``secuav_common/controlplane/switches/<kind>.py``),
+from which ``kind`` (``secuav/v<N>/<kind>/set`` and ``.../state``), ``scope``,
+``state_model`` and ``bare_words`` follow, and it wraps the stage (or the
+endpoints) it switches; a link holds its own switches
+(:class:`~mitm_proxy.control.link.LinkParts`), and a switch no link holds is
+built by its class from what the process holds (``build(host, sysid)``,
+:mod:`mitm_proxy.control.switches`). Every change, whichever door it
+came through (MQTT, the ``--profile`` file reload, a flag at start,
+``secuav-record``), goes through :meth:`Switch.handle`, so the verdict is kept in
+one place and the published state always says what is in force.
 
-A switch never half-applies: :meth:`Switch.apply` builds and checks
-everything first, then installs it with one assignment, and the event loop
-runs one callback at a time, so a change always falls between two frames.
-What is costly and pure (validating a profile) a switch may do in
-:meth:`Switch.prepare`, which the MQTT session runs in a worker thread. A
-refused request leaves the old setting in place and says why in the state.
+A request from the wire meets its contract's request model first, and nothing
+else checks its shape; the switch gets the model. A switch never half-applies:
+:meth:`Switch.apply` builds and checks everything first, then installs it with
+one assignment, and the event loop runs one callback at a time, so a change
+always falls between two frames. What is costly and pure (validating a profile)
+a switch may do in :meth:`Switch.prepare`, which the MQTT session runs in a
+worker thread. A refused request leaves the old setting in place and says why
+in the state.
 """
 
 from __future__ import annotations
 
-import json
 import logging
 from abc import ABC, abstractmethod
-from collections.abc import Mapping
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar, Generic, Protocol, TypeVar
+from typing import Any, ClassVar, Generic, TypeVar
 
 from pydantic import BaseModel, ValidationError
 
-from secuav_common.controlplane.payloads import RequestError, Verdict
-from secuav_common.controlplane.switches import SwitchSpec
+from secuav_common.controlplane.contract import SwitchContract
+from secuav_common.controlplane.payloads import RequestError, Verdict, error_text
 from secuav_common.controlplane.topics import Scope
 from secuav_common.loading import InputError
-
-if TYPE_CHECKING:
-    from mitm_proxy.control.switches import ModeSwitch
-    from mitm_proxy.net.endpoints import BaseEndpoint
-    from mitm_proxy.stages.attack import AttackStage
-    from mitm_proxy.stages.attack_slot import AttackSlot
-    from mitm_proxy.stages.secure.stage import SecureSlot
 
 log = logging.getLogger(__name__)
 
 StateT = TypeVar("StateT", bound=BaseModel)
 
-__all__ = ["LinkParts", "RequestError", "StateT", "Switch", "SwitchHost", "Verdict"]
+__all__ = ["RequestError", "StateT", "Switch", "Verdict"]
+
+# What a request decoded from JSON can be; anything else was made by the proxy itself (a parsed profile at
+# start, a built engine, a configuration) and has no wire shape to check.
+_WIRE = (dict, list, str, int, float, bool, type(None))
 
 
 class Switch(ABC, Generic[StateT]):
     """One runtime switch; subclasses say what they hold (:meth:`current`) and how a request changes it."""
 
-    spec: ClassVar[SwitchSpec]  # the declaration this class implements; what follows is read from it
+    contract: ClassVar[SwitchContract]  # the wire contract this class serves; what follows is read from it
     kind: ClassVar[str]  # the topic leaf: attack, attack/mode, secure, routes
     scope: ClassVar[Scope] = "vehicle"  # or "proxy": one per process, on secuav/proxy/<instance>/<kind>/...
     state_model: ClassVar[type[BaseModel]]  # what .../state carries
@@ -62,10 +57,10 @@ class Switch(ABC, Generic[StateT]):
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
-        spec = cls.__dict__.get("spec")
-        if spec is not None:
+        contract = cls.__dict__.get("contract")
+        if contract is not None:
             cls.kind, cls.scope, cls.state_model, cls.bare_words = (
-                spec.kind, spec.scope, spec.state_model, spec.bare_words)  # fmt: skip
+                contract.kind, contract.scope, contract.state_model, contract.bare_words)  # fmt: skip
 
     def __init__(self) -> None:
         self.verdict = Verdict()
@@ -74,26 +69,22 @@ class Switch(ABC, Generic[StateT]):
         """The costly, pure part of checking a request (parsing a profile), run off the event loop by the
         MQTT session; what it returns is what :meth:`apply` gets. Raises ``RequestError``/``InputError``.
 
-        Where the spec has a ``request_model`` the payload is checked against it here and :meth:`apply`
+        A request from the wire is checked against the contract's request model here, and :meth:`apply`
         gets the model; the error names the field and the value."""
         return self._checked(payload)
 
     def _checked(self, payload: Any) -> Any:
-        spec: SwitchSpec | None = getattr(self, "spec", None)
-        model = None if spec is None else spec.request_model
-        if model is None or isinstance(payload, model):
+        if not isinstance(payload, _WIRE):
             return payload
+        model = self.contract.request_model
         try:
-            return model.model_validate(payload)
+            return self.contract.check(payload)
         except ValidationError as exc:
-            err = exc.errors()[0]
-            where = ".".join(str(p) for p in err["loc"]) or "(payload)"
-            value = json.dumps(err.get("input"), default=str)[:60]
-            raise RequestError(f"{where}: {err['msg']} (got {value})") from None
+            raise RequestError(error_text(exc, model=model)) from None
 
     @abstractmethod
     def apply(self, payload: Any, source: str) -> None:
-        """Validate ``payload`` completely, then install it in one step; ``RequestError``/``InputError`` refuse."""
+        """Install what ``payload`` asks for in one step; ``RequestError``/``InputError`` refuse it."""
 
     @abstractmethod
     def current(self) -> dict[str, Any]:
@@ -124,31 +115,10 @@ class Switch(ABC, Generic[StateT]):
                     extra={**self._log_fields(), "error": error, "request_id": request_id})  # fmt: skip
         return self.state
 
+    def reject(self, error: str, request_id: str | None = None) -> StateT:
+        """A request that failed before it became one (bad JSON, oversized, binary): the setting stays."""
+        return self.refuse(error, request_id)
+
     def _log_fields(self) -> dict[str, Any]:
         sysid = getattr(self, "sysid", None)
         return {} if sysid is None else {"sysid": sysid}
-
-
-class LinkParts(Protocol):
-    """What the proxy holds for one link, as a vehicle switch's factory finds it."""
-
-    @property
-    def sysid(self) -> int: ...
-    @property
-    def slot(self) -> AttackSlot: ...
-    @property
-    def stage(self) -> AttackStage | None: ...
-    @property
-    def mode(self) -> ModeSwitch | None: ...
-    @property
-    def secure(self) -> SecureSlot | None: ...
-
-
-@dataclass(frozen=True, slots=True)
-class SwitchHost:
-    """What a switch's factory (its spec's ``implementation``) may build on: this process's instance name,
-    its links' parts by sysid, its endpoints by name."""
-
-    instance: str
-    links: Mapping[int, LinkParts]
-    endpoints: Mapping[str, BaseEndpoint] = field(default_factory=dict)

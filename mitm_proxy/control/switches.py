@@ -1,73 +1,65 @@
-"""The proxy's side of the runtime switches, and the registry the MQTT session dispatches into.
+"""The proxy's runtime switches, one class per kind, and the registry the MQTT session dispatches into.
 
-Each switch is declared once, in ``secuav_common/controlplane/switches/<name>.py``
-(its topic leaf, scope, state model, ``secuav-attack`` verbs and where its
-implementation lives); the proxy side is a :class:`~mitm_proxy.control.switch.Switch`:
+Each switch is declared on the wire once, in ``secuav_common/controlplane/switches/<kind>.py``
+(its contract: topic leaf, scope, state and request models); the proxy's side is one
+:class:`~mitm_proxy.control.switch.Switch` class per kind, in its own module here, wrapping its stage:
 
-===============  ===============================  ==========================================  ===============
-kind, scope      what it holds                    implementation                              secuav-attack
-===============  ===============================  ==========================================  ===============
-``attack``       the active attack profile        :class:`~mitm_proxy.stages.attack_slot.     ``apply``,
-vehicle                                           AttackSlot`                                 ``clear``
-``attack/mode``  the attack stage on or bypassed  :class:`ModeSwitch`                         ``mode``
-vehicle
-``secure``       the secure stage's estimator     :class:`~mitm_proxy.stages.secure.stage.    ``secure``
-vehicle                                           SecureSlot`, :class:`NoSecure` (no
+===============  ===============================  =====================================  ===============
+kind, scope      what it holds                    proxy side                             secuav-attack
+===============  ===============================  =====================================  ===============
+``attack``       the active attack profile        :class:`~mitm_proxy.control.attack.     ``apply``,
+vehicle                                           AttackSwitch` (the stage's slot)       ``clear``
+``attack/mode``  the attack stage on or bypassed  :class:`~mitm_proxy.control.mode.       ``mode``
+vehicle                                           ModeSwitch` (the attack stage)
+``secure``       the secure stage's estimator     :class:`~mitm_proxy.control.secure.     ``secure``
+vehicle                                           SecureSwitch`, ``NoSecure`` (no
                                                   scenario)
-``routes``       the endpoints' routing rules     :class:`RoutesSwitch`                       ``routes``
-proxy
-===============  ===============================  ==========================================  ===============
+``routes``       the endpoints' routing rules     :class:`~mitm_proxy.control.routes.     ``routes``
+proxy                                             RoutesSwitch` (the endpoints)
+===============  ===============================  =====================================  ===============
 
 A vehicle switch is set on ``secuav/v<N>/<kind>/set``, a proxy-wide one on
 ``secuav/proxy/<kind>/set`` (every proxy) or ``secuav/proxy/<instance>/<kind>/set``.
 Each answers on the retained ``.../<kind>/state`` next to its ``set`` topic (a
-proxy-wide switch on ``secuav/proxy/<instance>/<kind>/state``) with its spec's
+proxy-wide switch on ``secuav/proxy/<instance>/<kind>/state``) with its contract's
 state model.
 
-:func:`build_controls` fills the registry (:class:`Controls`) from the declared
-switches, calling each spec's factory for every link (or once, for a proxy-wide
-switch) with what the proxy holds (:class:`~mitm_proxy.control.switch.SwitchHost`);
-a factory that returns ``None`` leaves that switch out there. The MQTT session
+:data:`BUILT_IN` lists the classes; :func:`register` adds one more by an explicit call.
+:func:`build_controls` fills the registry (:class:`Controls`): each link's own
+switches (:meth:`~mitm_proxy.control.link.LinkParts.switches`), then each class no
+link holds, built from what the proxy holds (:class:`~mitm_proxy.control.link.SwitchHost`). The MQTT session
 (:mod:`mitm_proxy.control.plane`) dispatches into the registry; it is sans-I/O,
 so tests drive it directly.
 """
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import re
 import socket
-import time
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
-from pydantic import ValidationError
-
-from mitm_proxy.control.switch import Switch, SwitchHost
-from mitm_proxy.net.rules import NO_RULES, EndpointRules
+from mitm_proxy.control.attack import AttackSwitch
+from mitm_proxy.control.link import LinkParts, SwitchHost
+from mitm_proxy.control.mode import ModeSwitch
+from mitm_proxy.control.routes import RoutesSwitch
+from mitm_proxy.control.secure import SecureSwitch
+from mitm_proxy.control.switch import RequestError, Switch
+from mitm_proxy.core.stats import LinkStats
 from mitm_proxy.stages.attack import AttackStage
-from mitm_proxy.stages.attack_slot import AttackSlot
-from secuav_common.controlplane import switches as declared
-from secuav_common.controlplane.payloads import ModeState, RequestError, RoutesState, SecureState
-from secuav_common.controlplane.switches import mode as mode_spec
-from secuav_common.controlplane.switches import routes as routes_spec
-from secuav_common.controlplane.switches import secure as secure_spec
 from secuav_common.controlplane.topics import (
     ANY,
     INSTANCE_RE,
     PREFIX,
+    Scope,
     parse,
     parse_vehicle_key,
     proxy_topic,
     vehicle_topic,
 )
-
-if TYPE_CHECKING:
-    from mitm_proxy.net.endpoints import BaseEndpoint
-    from mitm_proxy.stages.secure.stage import SecureSlot  # numpy/scipy: imported by the proxy only with a scenario
 
 log = logging.getLogger(__name__)
 
@@ -78,146 +70,6 @@ def default_instance() -> str:
     """``<host>-<pid>``, cleaned to what a topic level may hold: unique per process on one broker."""
     host = re.sub(r"[^A-Za-z0-9_.-]", "-", socket.gethostname())[:40] or "host"
     return f"{host}-{os.getpid()}"
-
-
-MODES = {"on": True, "bypass": False}
-
-
-class ModeSwitch(Switch[ModeState]):
-    """``attack/mode/set``: ``"on"`` or ``"bypass"`` (or ``{"mode": ...}``); the profile stays installed.
-
-    The attack stage's ``enabled`` flag is what the pipeline reads; this switch is the one that writes it
-    (``--attack bypass`` at start is :meth:`set` too).
-    """
-
-    spec = mode_spec.SPEC
-
-    def __init__(self, sysid: int, stage: AttackStage, on: bool | None = None) -> None:
-        super().__init__()
-        self.sysid = sysid
-        self.stage = stage
-        if on is not None:
-            stage.enabled = on
-        self._since = time.time()
-
-    @classmethod
-    def build(cls, host: SwitchHost, sysid: int | None) -> ModeSwitch | None:
-        """The link's mode switch (the proxy makes it with the stage, for ``--attack``), else one for its
-        attack stage; none where the link has no stage."""
-        if sysid is None:
-            return None
-        parts = host.links[sysid]
-        if parts.mode is not None:
-            return parts.mode
-        return None if parts.stage is None else cls(sysid, parts.stage)
-
-    def set(self, on: bool, request_id: str | None = None, source: str = "<app>") -> ModeState:
-        return self.handle("on" if on else "bypass", request_id, source)
-
-    def apply(self, payload: Any, source: str) -> None:
-        value = payload.get("mode") if isinstance(payload, dict) else payload
-        if not (isinstance(value, str) and value in MODES):
-            raise RequestError(f'mode: must be "on" or "bypass" (got {json.dumps(value)[:40]})')
-        if self.stage.enabled != MODES[value]:
-            self.stage.enabled = MODES[value]
-            self._since = time.time()
-
-    def current(self) -> dict[str, Any]:
-        return {"sysid": self.sysid, "mode": "on" if self.stage.enabled else "bypass", "since": self._since}
-
-
-class NoSecure(Switch[SecureState]):
-    """``secure/set`` on a link without a secure stage (no ``--scenario``): every request is refused, with why."""
-
-    spec = secure_spec.SPEC
-
-    def __init__(self, sysid: int) -> None:
-        super().__init__()
-        self.sysid = sysid
-
-    def apply(self, payload: Any, source: str) -> None:
-        raise RequestError("the secure stage is not available in this proxy (start it with --scenario)")
-
-    def current(self) -> dict[str, Any]:
-        return {"sysid": self.sysid, "available": False, "estimator": None}
-
-
-def secure_switch(host: SwitchHost, sysid: int | None) -> Switch[SecureState] | None:
-    """The link's secure slot (made with the link when there is a scenario), else :class:`NoSecure`."""
-    if sysid is None:
-        return None
-    slot = host.links[sysid].secure
-    return slot if slot is not None else NoSecure(sysid)
-
-
-class RoutesSwitch(Switch[RoutesState]):
-    """``routes/set``: new rules for named endpoints, all checked before any is installed.
-
-    Payload: ``{"endpoints": {"<name or URL>": <rules> | null, ...}}`` where ``<rules>`` is
-    an :class:`~mitm_proxy.net.rules.EndpointRules` object (``{"listen_only": true, "down":
-    {"deny": ["ATTITUDE"]}}``) and ``null`` lifts every rule. An endpoint is named as the
-    stats name it (``ground:14550``) or by its URL without options; endpoints left out
-    keep their rules.
-    """
-
-    spec = routes_spec.SPEC
-
-    def __init__(self, instance: str, endpoints: Mapping[str, BaseEndpoint]) -> None:
-        super().__init__()
-        self.instance = instance
-        self.endpoints = dict(endpoints)  # name -> BaseEndpoint
-        self._since = time.time()
-
-    @classmethod
-    def build(cls, host: SwitchHost, sysid: int | None) -> RoutesSwitch | None:
-        """The process's routes; none where there are no endpoints to route (a registry built for tests)."""
-        return cls(host.instance, host.endpoints) if host.endpoints else None
-
-    def _find(self, key: str) -> BaseEndpoint:
-        ep = self.endpoints.get(key)
-        if ep is not None:
-            return ep
-        for candidate in self.endpoints.values():
-            if key in (str(candidate.endpoint), str(candidate.endpoint.without_options())):
-                return candidate
-        known = ", ".join(sorted(self.endpoints))
-        raise RequestError(f"endpoints.{key}: no such endpoint in this proxy (known: {known})")
-
-    def apply(self, payload: Any, source: str) -> None:
-        body = payload.get("endpoints") if isinstance(payload, dict) else None
-        if not isinstance(body, dict) or not body:
-            raise RequestError('endpoints: expected {"endpoints": {"<name>": {rules} or null, ...}}')
-        extra = sorted(set(payload) - {"endpoints", "request_id"})
-        if extra:
-            raise RequestError(f"{extra[0]}: unknown field (known: endpoints, request_id)")
-        plan: list[tuple[BaseEndpoint, EndpointRules]] = []
-        for key, raw in body.items():
-            ep = self._find(str(key))
-            try:
-                rules = NO_RULES if raw is None else EndpointRules.model_validate(raw)
-            except ValidationError as exc:
-                err = exc.errors()[0]
-                where = ".".join(str(p) for p in err["loc"])
-                value = json.dumps(err.get("input"), default=str)[:60]
-                raise RequestError(f"endpoints.{key}.{where}: {err['msg']} (got {value})") from None
-            if rules.listen_only and ep.role != "ground":
-                raise RequestError(f"endpoints.{key}.listen_only: only a ground endpoint can be listen-only")
-            plan.append((ep, rules))
-        for ep, rules in plan:  # everything checked: install (nothing above touched an endpoint)
-            ep.set_rules(rules)
-        self._since = time.time()
-        log.info("routes.installed", extra={"endpoints": ",".join(ep.name for ep, _ in plan)})
-
-    def current(self) -> dict[str, Any]:
-        return {
-            "instance": self.instance,
-            "since": self._since,
-            "endpoints": {
-                name: {"url": str(ep.endpoint.without_options()), "role": ep.role,
-                       "rules": ep.gate.rules.model_dump(exclude_defaults=True)}
-                for name, ep in self.endpoints.items()
-            },
-        }  # fmt: skip
 
 
 @dataclass(frozen=True, slots=True)
@@ -294,49 +146,66 @@ class Controls:
         return None if control is None else Target(control, parsed.with_verb("state"))
 
 
+class Built(Protocol):
+    """A switch class no link holds: it builds its switch from what the process holds (None leaves it out).
+    ``sysid`` is a link's for a vehicle switch, None for a proxy-wide one."""
+
+    kind: str
+    scope: Scope
+
+    def build(self, host: SwitchHost, sysid: int | None) -> Switch[Any] | None: ...
+
+
+# Every built-in kind, one class each: the first three are held by each link (LinkParts.switches; NoSecure
+# stands in for SecureSwitch on a link without a scenario), routes is built from the endpoints.
+BUILT_IN: tuple[type[Switch[Any]], ...] = (AttackSwitch, ModeSwitch, SecureSwitch, RoutesSwitch)
+_BUILT: tuple[Built, ...] = (RoutesSwitch,)
+_ADDED: dict[str, Built] = {}
+
+
+def register(switch: Built) -> Built:
+    """Serve one more switch class (its contract registered in secuav_common too); a kind twice is a bug."""
+    if any(c.kind == switch.kind and c is not switch for c in (*BUILT_IN, *_ADDED.values())):
+        raise ValueError(f"switch {switch.kind!r} is registered twice")
+    _ADDED[switch.kind] = switch
+    return switch
+
+
+def unregister(kind: str) -> None:
+    """Take an added switch class out again (tests that declare one of their own)."""
+    _ADDED.pop(kind, None)
+
+
 def build_controls(host: SwitchHost) -> Controls:
-    """The registry of every declared switch: each spec's factory, for every link (in sysid order) or, for a
-    proxy-wide switch, once."""
+    """The registry of every switch: each link's own (in sysid order), then each class no link holds, built
+    for every link or, for a proxy-wide switch, once."""
     controls = Controls(host.instance)
-    for spec in declared.specs():
-        factory = spec.load()
-        if spec.scope == "proxy":
-            switch = factory(host, None)
-            if switch is not None:
-                controls.add(switch)
-            continue
-        for sysid in sorted(host.links):
-            switch = factory(host, sysid)
-            if switch is not None:
-                controls.add(switch, sysid)
+    for sysid, link in sorted(host.links.items()):
+        for switch in link.switches():
+            controls.add(switch, sysid)
+    for cls in (*_BUILT, *_ADDED.values()):
+        for sysid in [None] if cls.scope == "proxy" else sorted(host.links):
+            built = cls.build(host, sysid)
+            if built is not None:
+                controls.add(built, sysid)
     return controls
-
-
-@dataclass(slots=True)
-class _Link:
-    sysid: int
-    slot: AttackSlot
-    stage: AttackStage | None = None
-    mode: ModeSwitch | None = None
-    secure: SecureSlot | None = None
 
 
 def vehicle_controls(
     instance: str,
-    slots: Mapping[int, AttackSlot],
+    attack: Mapping[int, AttackSwitch],
     modes: Mapping[int, ModeSwitch | AttackStage] | None = None,
-    secure: Mapping[int, SecureSlot] | None = None,
+    secure: Mapping[int, SecureSwitch] | None = None,
 ) -> Controls:
     """The registry for a set of links without endpoints (tests, tools): :func:`build_controls` over the
-    attack slots, the mode switches or attack stages where given, and the secure slots (:class:`NoSecure`,
-    refusing every request with the reason, on a link without one)."""
-    links: dict[int, _Link] = {}
-    for sysid, slot in slots.items():
-        mode = None if modes is None else modes.get(sysid)
-        links[sysid] = _Link(
-            sysid, slot,
-            stage=mode.stage if isinstance(mode, ModeSwitch) else mode,
-            mode=mode if isinstance(mode, ModeSwitch) else None,
-            secure=None if secure is None else secure.get(sysid),
-        )  # fmt: skip
+    attack switches, the mode switches (or the attack stages they switch; a stage of its own where none
+    is given), and the secure switches (:class:`~mitm_proxy.control.secure.NoSecure`, refusing every
+    request with the reason, on a link without one)."""
+    links: dict[int, LinkParts] = {}
+    for sysid, switch in attack.items():
+        given = None if modes is None else modes.get(sysid)
+        mode = given if isinstance(given, ModeSwitch) else None
+        stage = mode.stage if mode is not None else given if given is not None else AttackStage(switch.slot)
+        links[sysid] = LinkParts(sysid, stage, switch, mode or ModeSwitch(sysid, stage), LinkStats(sysid),
+                                 None if secure is None else secure.get(sysid))  # fmt: skip
     return build_controls(SwitchHost(instance, links))

@@ -1,14 +1,14 @@
-"""The per-link holder of the active attack profile: the ``attack`` switch.
+"""The per-link holder of the active attack profile, which the attack stage reads.
 
 Every way of changing the profile (``--profile`` at start, the file reload, MQTT
 ``secuav/v<sysid>/attack/set``, ``secuav-attack apply``, ``secuav-record``'s
-shared engine) goes through :meth:`AttackSlot.handle` (:meth:`AttackSlot.offer`
-for a profile already parsed, :meth:`AttackSlot.install` for a built engine);
+shared engine) goes through the ``attack`` switch (:class:`mitm_proxy.control.attack.AttackSwitch`,
+which keeps the verdict and calls :meth:`AttackSlot.prepare` and :meth:`AttackSlot.apply`);
 the attack stage reads :attr:`AttackSlot.engine` once per targeted frame. A new
 engine is built and checked completely before the single attribute assignment
 that installs it, and the event loop runs one callback at a time, so a swap
 always falls between two frames. A rejected profile leaves the previous engine
-in place and says why in :attr:`state`.
+in place, and the switch says why in its state.
 
 When the vehicle signs its frames and the proxy has no key, the pipeline leaves
 the frames the profile targets alone (docs/interfaces.md); the slot then says so
@@ -49,17 +49,11 @@ from attack_profiles.profile import Profile
 from attack_profiles.true_copy import findings, vehicle_reports
 from mavframe import codec
 from mavframe.packet import Direction
-from mitm_proxy.control.switch import Switch, SwitchHost
 from mitm_proxy.stages.true_copy_watch import TrueCopyWatch
-from secuav_common.controlplane.payloads import AttackState
-from secuav_common.controlplane.switches.attack import SPEC
-from secuav_common.controlplane.topics import vehicle_topic
 from secuav_common.loading import InputError
 from secuav_common.scenario import Scenario
 
-SlotState = AttackState  # what ``secuav/v<sysid>/attack/state`` carries (retained)
-
-__all__ = ["AttackSlot", "SlotState"]
+__all__ = ["AttackSlot"]
 
 log = logging.getLogger(__name__)
 
@@ -71,14 +65,11 @@ class _Built(NamedTuple):
     hash: str  # the profile's content hash (11 ms for 420 rules): computed once, off the loop
 
 
-class AttackSlot(Switch[AttackState]):
+class AttackSlot:
     """Active profile of one link (one vehicle)."""
-
-    spec = SPEC
 
     def __init__(self, sysid: int, scenario: Scenario | None = None, seed: int = 0, *,
                  forbid_uplink: bool = False) -> None:  # fmt: skip
-        super().__init__()
         self.sysid = sysid
         self.scenario = scenario
         self.seed = seed
@@ -97,11 +88,6 @@ class AttackSlot(Switch[AttackState]):
         self.unkeyed: Callable[[], frozenset[Direction]] | None = None  # signed directions without a key
         self.listeners: list[Callable[[], None]] = []  # told after every install or clear
 
-    @classmethod
-    def build(cls, host: SwitchHost, sysid: int | None) -> AttackSlot | None:
-        """The link's slot: the proxy made it with the link, since the attack stage reads it."""
-        return None if sysid is None else host.links[sysid].slot
-
     @property
     def message_ids(self) -> frozenset[int]:
         """What the attack stage wants: the profile's messages, and the true-copy carriers not yet seen."""
@@ -113,17 +99,23 @@ class AttackSlot(Switch[AttackState]):
         return frozenset() if self._watch is None else self._watch.message_ids
 
     @property
+    def hash(self) -> str | None:
+        """The active profile's content hash (None when there is none)."""
+        return self._hash
+
+    @property
     def directions(self) -> list[str]:
         """``downlink`` (toward the ground), ``uplink`` (toward the vehicle): what the active profile changes."""
         return list(self._directions)
 
     def current(self) -> dict[str, Any]:
+        """What is in force, as ``attack/state``'s fields (without the verdict)."""
         profile = None if self.engine is None else self.engine.profile
         return {"sysid": self.sysid, "profile": None if profile is None else profile.name,
                 "hash": self._hash, "since": self._since, "directions": self.directions,
                 "warnings": self.warnings}  # fmt: skip
 
-    def _log_fields(self) -> dict[str, Any]:
+    def log_fields(self) -> dict[str, Any]:
         """``attack.applied``/``rejected`` say what is in force and which way it changes frames."""
         if self.engine is None:
             return {"sysid": self.sysid, "profile": "none"}
@@ -152,8 +144,9 @@ class AttackSlot(Switch[AttackState]):
             self._signed[sysid] = msgid
 
     def prepare(self, payload: Any, source: str) -> Any:
-        """A request's JSON validated into a profile and its engine built, not started (pure: the MQTT session
-        runs it off the forwarding loop; a 420-rule profile took 80 ms)."""
+        """A request's JSON (or a parsed profile, ``None``, an engine) validated into a profile and its engine
+        built, not started (pure: the MQTT session runs it off the forwarding loop; a 420-rule profile took
+        80 ms)."""
         if isinstance(payload, Engine) or payload is None:
             return payload
         profile = payload if isinstance(payload, Profile) else profile_from_payload(payload, source)
@@ -162,7 +155,7 @@ class AttackSlot(Switch[AttackState]):
 
     def apply(self, payload: Any, source: str) -> None:
         """A profile, its JSON (a profile, ``{"library": ...}``), ``None`` to clear, a built :class:`Engine`,
-        or what :meth:`prepare` made of a request."""
+        or what :meth:`prepare` made of a request; ``InputError`` refuses it and the previous one stays."""
         if isinstance(payload, _Built):
             engine: Engine | None = payload.engine
             self._allowed(payload.engine.profile, source)
@@ -243,22 +236,6 @@ class AttackSlot(Switch[AttackState]):
         for note in () if engine is None else vehicle_reports(engine.profile):
             log.info("attack.vehicle_reports", extra={"sysid": self.sysid, "profile": engine.profile.name,
                                                       "note": note})  # fmt: skip
-
-    def offer(self, profile: Profile | None, request_id: str | None = None, source: str = "<profile>") -> AttackState:
-        """Install ``profile`` (``None`` clears); on ``InputError`` keep the old one and report it."""
-        return self.handle(profile, request_id, source)
-
-    def offer_payload(self, payload: Any, request_id: str | None = None, source: str | None = None) -> AttackState:
-        """Decoded JSON of an ``attack/set`` message: a profile, ``{"library": ...}`` or ``null``."""
-        return self.handle(payload, request_id, source or vehicle_topic(self.sysid, "attack", "set"))
-
-    def install(self, engine: Engine, request_id: str | None = None) -> AttackState:
-        """An engine the caller built and activated (its clock shared with other slots)."""
-        return self.handle(engine, request_id, "<engine>")
-
-    def reject(self, error: str, request_id: str | None = None) -> AttackState:
-        """A request that failed before it became a profile (bad JSON, oversized, binary)."""
-        return self.refuse(error, request_id)
 
 
 def signed_no_key(sysid: int, msgid: int) -> str:

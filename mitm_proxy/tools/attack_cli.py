@@ -1,10 +1,11 @@
 """``secuav-attack status`` and every runtime switch's verbs (``apply``, ``clear``, ``mode``, ``secure``,
 ``routes``): the live subcommands, over MQTT.
 
-The offline subcommands and every parser live in :mod:`attack_profiles.cli`;
-each verb is declared with its switch (``secuav_common/controlplane/switches/``:
-its arguments, the request it sends, the line it prints), and this module runs
-any of them the same way: the request is built and checked here first (a typo
+The offline subcommands live in :mod:`attack_profiles.cli`; this module adds
+``status`` and every switch's verbs to its parser. Each verb is declared in one
+small module per switch (:mod:`mitm_proxy.tools.verbs`: its arguments, the
+request it sends, the line it prints), and this module runs any of them the
+same way: the request is built and checked here first (a typo
 fails at once, with the file and field named), sent with a fresh
 ``request_id`` leading the JSON, and the command waits for the ``.../state``
 that carries that id: the proxy's own verdict, not just the broker's receipt.
@@ -36,11 +37,12 @@ from pathlib import Path
 from typing import Any
 
 from attack_profiles import cli as profiles_cli
+from mitm_proxy.tools import verbs as switches
 from mitm_proxy.tools.board import Board
+from mitm_proxy.tools.verbs import SwitchVerbs, Verb
 from secuav_common.broker import read_secret
-from secuav_common.controlplane import switches
 from secuav_common.controlplane.address import parse_broker_url, with_port
-from secuav_common.controlplane.session import Client, MqttError
+from secuav_common.controlplane.session import Client, MqttError, messages
 from secuav_common.controlplane.session import Session as MqttSession
 from secuav_common.controlplane.topics import ANY, INSTANCES_ONLINE, PROXY_ONLINE, proxy_topic, vehicle_topic
 from secuav_common.loading import InputError
@@ -48,10 +50,11 @@ from secuav_common.loading import InputError
 DEFAULT_HOST = "mqtt://127.0.0.1"
 DEFAULT_BROKER = f"{DEFAULT_HOST}:1883"
 EXIT_OK, EXIT_REJECTED, EXIT_USAGE, EXIT_UNREACHABLE = 0, 1, 2, 3
+VEHICLE_HELP = "only this vehicle's sysid"
 
 
 def add_options(command: str, parser: argparse.ArgumentParser) -> None:
-    """Transport options of the live subcommands (the ``live_options`` hook of the shared parser)."""
+    """Transport options of the live subcommands."""
     parser.add_argument(
         "--broker", default=None, metavar="URL", help=f"MQTT broker (default {DEFAULT_BROKER})"
     )
@@ -62,7 +65,7 @@ def add_options(command: str, parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--username", metavar="NAME", help="broker user (or in the URL: mqtt://NAME@HOST)")
     parser.add_argument("--password-file", metavar="F", type=Path,
                         help="broker password from F (mode 600); SECUAV_BROKER_PASSWORD works too")  # fmt: skip
-    found = switches.spec_for(command)
+    found = switches.owner(command)
     if command == "status" or (found is not None and found[0].scope == "proxy"):
         parser.add_argument("--json", action="store_true", help="print what the broker holds as one JSON document")
     if command == "status":
@@ -71,9 +74,8 @@ def add_options(command: str, parser: argparse.ArgumentParser) -> None:
 
 
 async def _listen(client: Client, board: Board) -> None:
-    async for message in client.messages:
-        raw = message.payload if isinstance(message.payload, bytes | bytearray) else b""
-        board.receive(str(message.topic), bytes(raw))
+    async for topic, raw, _retained in messages(client):
+        board.receive(topic, raw)
 
 
 Body = Callable[[Client, Board], Awaitable[int]]
@@ -137,7 +139,7 @@ def _online(board: Board) -> str:
 
 
 async def _request(
-    client: Client, board: Board, args: argparse.Namespace, spec: switches.SwitchSpec, verb: switches.Verb, body: Any
+    client: Client, board: Board, args: argparse.Namespace, spec: SwitchVerbs, verb: Verb, body: Any
 ) -> int:
     """Send ``body`` to each target vehicle's ``<kind>/set`` and report each verdict; the worst exit code wins."""
     leaf = spec.kind
@@ -181,7 +183,7 @@ async def _request(
     return worst
 
 
-def run_verb(spec: switches.SwitchSpec, verb: switches.Verb, args: argparse.Namespace) -> int:
+def run_verb(spec: SwitchVerbs, verb: Verb, args: argparse.Namespace) -> int:
     """Any switch's verb: build (and check) its request before the broker is involved, then send it."""
     if spec.scope == "proxy":
         body = verb.request(args) if args.action == "set" else None
@@ -215,7 +217,7 @@ def _stats_line(stats: dict[str, Any]) -> str:
 
 def _leaves() -> list[str]:
     """What ``status`` reads of each vehicle: every vehicle switch's state, then the stats."""
-    return [*(spec.state_leaf for spec in switches.specs() if spec.scope == "vehicle"), "stats"]
+    return [*(spec.state_leaf for spec in switches.switches() if spec.scope == "vehicle"), "stats"]
 
 
 def _status_topics() -> list[str]:
@@ -266,12 +268,12 @@ async def _status(board: Board, args: argparse.Namespace) -> int:
         return EXIT_OK
     for line in _instance_lines(board):
         print(line)
-    printers = [spec.status for spec in switches.specs() if spec.scope == "vehicle" and spec.status is not None]
+    printers = [spec.status for spec in switches.switches() if spec.scope == "vehicle" and spec.status is not None]
     for key, entry in report["vehicles"].items():
         for status_lines in printers:
             for line in status_lines(key, entry):
                 print(line)
-        for spec in switches.specs():  # what keeps a switch's stage from working, whichever switch it is
+        for spec in switches.switches():  # what keeps a switch's stage from working, whichever switch it is
             state = entry.get(f"{spec.kind}/state")
             if spec.scope == "vehicle" and isinstance(state, dict):
                 _print_warnings(key, state)
@@ -321,7 +323,7 @@ def _pick_instance(board: Board, args: argparse.Namespace, kind: str) -> str | N
 
 
 async def _proxy_verb(
-    client: Client, board: Board, args: argparse.Namespace, spec: switches.SwitchSpec, verb: switches.Verb, body: Any
+    client: Client, board: Board, args: argparse.Namespace, spec: SwitchVerbs, verb: Verb, body: Any
 ) -> int:
     """``<verb> show`` (one instance's state, or every one's with ``--json``) or ``<verb> set ...``."""
     await board.settle(args.timeout)
@@ -350,16 +352,42 @@ async def _proxy_verb(
     return EXIT_OK
 
 
-def _verb_handler(spec: switches.SwitchSpec, verb: switches.Verb) -> Callable[[argparse.Namespace], int]:
+def _verb_handler(spec: SwitchVerbs, verb: Verb) -> Callable[[argparse.Namespace], int]:
     return lambda args: run_verb(spec, verb, args)
 
 
+def add_live(sub: Any) -> None:
+    """``status`` and every switch's verbs, with their transport options, on the shared parser's subcommands."""
+    p = sub.add_parser("status", help="show the active profile of a running proxy")
+    p.add_argument("--vehicle", type=int, metavar="N", help=VEHICLE_HELP)
+    p.set_defaults(func=cmd_status)
+    add_options("status", p)
+    for spec, verb in switches.verbs():
+        p = sub.add_parser(verb.name, help=verb.help)
+        if spec.scope == "vehicle":  # sent to one vehicle, or to every vehicle on the broker
+            verb.arguments(p)
+            p.add_argument("--vehicle", type=int, metavar="N", help=VEHICLE_HELP)
+            targets: tuple[argparse.ArgumentParser, ...] = (p,)
+        else:  # proxy-wide: read one instance's state, or send it a request
+            actions = p.add_subparsers(dest="action", required=True, metavar="ACTION")
+            show = actions.add_parser("show", help=verb.show_help)
+            change = actions.add_parser("set", help=verb.set_help)
+            verb.arguments(change)
+            targets = (show, change)
+        for q in targets:
+            if spec.scope == "proxy":
+                q.add_argument("--instance", metavar="NAME", help="the proxy instance (needed when several are online)")
+            q.set_defaults(func=_verb_handler(spec, verb))
+            add_options(verb.name, q)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The whole ``secuav-attack`` command line: the offline subcommands and the live ones."""
+    return profiles_cli.build_parser(add_live)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    return profiles_cli.main(
-        argv,
-        live_handlers={"status": cmd_status, **{v.name: _verb_handler(s, v) for s, v in switches.verbs()}},
-        live_options=add_options,
-    )
+    return profiles_cli.main(argv, add_live)
 
 
 if __name__ == "__main__":

@@ -55,6 +55,7 @@ from attack_profiles.resolve import resolve_profile
 from mavframe import codec, tlog
 from mavframe.frames import split
 from mavframe.packet import Direction, Header, Packet
+from mitm_proxy.control.attack import AttackSwitch
 from mitm_proxy.core.pipeline import Pipeline
 from mitm_proxy.core.stats import LinkStats
 from mitm_proxy.stages.attack import AttackStage
@@ -112,7 +113,7 @@ class TlogWriter:
         pipe = self._pipes.get(sysid)
         if pipe is None:
             slot = AttackSlot(sysid)
-            slot.install(self.engine)  # the caller's engine and its clock, shared by the vehicles as before
+            AttackSwitch(slot).install(self.engine)  # the caller's engine and clock, shared by the vehicles
             pipe = self._pipes[sysid] = Pipeline(len(self._pipes), [AttackStage(slot)], stats=LinkStats(sysid))
         return pipe
 

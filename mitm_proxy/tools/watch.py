@@ -37,7 +37,7 @@ BOOKKEEPING = frozenset({"sysid", "since", "request_id", "ok", "error", "warning
 
 def other_switches() -> list[str]:
     """Every declared vehicle switch the first columns do not already show."""
-    return [s.kind for s in switches.specs() if s.scope == "vehicle" and s.kind not in SHOWN]
+    return [s.kind for s in switches.contracts() if s.scope == "vehicle" and s.kind not in SHOWN]
 
 
 def state_cell(state: Any) -> str:

@@ -19,10 +19,20 @@ import json
 import math
 import re
 from functools import cache
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
+from secuav_common.controlplane.states import (  # noqa: F401  (the switches' states, handed on with the rest)
+    MODES,
+    AttackState,
+    Mode,
+    ModeState,
+    RouteEntry,
+    RoutesState,
+    SecureState,
+    Verdict,
+)
 from secuav_common.controlplane.topics import Topic, parse
 
 MAX_PAYLOAD_BYTES = 64 * 1024  # a set request larger than this is refused unread
@@ -44,84 +54,10 @@ class PayloadError(ValueError):
 
 
 class _Payload(BaseModel):
-    """Fields a consumer relies on are required; the rest is optional, and unknown ones pass through."""
+    """Fields a consumer relies on are required; the rest is optional, and unknown ones pass through (as
+    :mod:`~secuav_common.controlplane.states` does for the switches' states)."""
 
     model_config = ConfigDict(extra="allow")
-
-
-class Verdict(BaseModel):
-    """The verdict on the last request to a switch: its id, whether it was accepted, and why not."""
-
-    model_config = ConfigDict(frozen=True)
-
-    request_id: str | None = None
-    ok: bool = True
-    error: str | None = None
-
-
-# Each state below lists its fields in the order they go on the wire (docs/interfaces.md), the verdict's
-# three among them; a switch builds it from what is in force and its one Verdict.
-
-
-class AttackState(_Payload):
-    """``secuav/v<N>/attack/state`` (retained)."""
-
-    sysid: int
-    profile: str | None = None  # active profile name; None when no profile is active
-    hash: str | None = None
-    since: float | None = None  # wall-clock time (epoch s) the active profile was installed
-    # Which way its rules change frames: "downlink" (toward the ground), "uplink" (toward the vehicle)
-    directions: list[str] = []
-    # What keeps the profile from acting fully, as "code: text": signed frames and no key
-    # (attack.signed_no_key), carriers of an attacked quantity it leaves true (attack.true_copy)
-    warnings: list[str] = []
-    request_id: str | None = None  # of the last request, accepted or not
-    ok: bool = True  # whether the last request was accepted
-    error: str | None = None  # why it was rejected
-
-
-class ModeState(_Payload):
-    """``secuav/v<N>/attack/mode/state`` (retained)."""
-
-    sysid: int
-    mode: Literal["on", "bypass"]
-    since: float | None = None
-    request_id: str | None = None
-    ok: bool = True
-    error: str | None = None
-
-
-class SecureState(_Payload):
-    """``secuav/v<N>/secure/state`` (retained); ``available`` false: this proxy has no secure stage."""
-
-    sysid: int
-    ok: bool = True
-    estimator: str | None = None
-    params: dict[str, Any] = {}
-    group: str | None = None
-    direction: str | None = None  # where the stage reads its group and substitutes: downlink, uplink or both
-    request_id: str | None = None
-    error: str | None = None
-    since: float | None = None
-    available: bool = True
-    warnings: list[str] = []  # what keeps the stage from working (e.g. the layout does not fit): "code: text"
-
-
-class RouteEntry(_Payload):
-    url: str
-    role: Literal["vehicle", "ground"]
-    rules: dict[str, Any] = {}
-
-
-class RoutesState(_Payload):
-    """``secuav/proxy/<instance>/routes/state`` (retained)."""
-
-    instance: str
-    since: float | None = None
-    endpoints: dict[str, RouteEntry] = {}
-    request_id: str | None = None
-    ok: bool = True
-    error: str | None = None
 
 
 class ProxyOnline(_Payload):
@@ -206,7 +142,7 @@ class ReadingsMessage(_Payload):
 
 
 # (scope, leaf, verb) -> what the message holds; a leaf not listed here is not checked. A switch's state
-# (and request, where it has a model) is the switch's own: secuav_common/controlplane/switches/.
+# and request are the switch's own contract: secuav_common/controlplane/switches/.
 MODELS: dict[tuple[str, str, str | None], Any] = {
     ("vehicle", "stats", None): LinkStatsMessage,
     ("vehicle", "estimate", None): EstimateMessage,
@@ -227,7 +163,7 @@ def model_for(topic: Topic) -> Any | None:
     if topic.scope == "proxy" and topic.leaf == "online" and topic.key is None:
         return bool
     if topic.verb is not None:
-        from secuav_common.controlplane.switches import find  # the switches import the models above
+        from secuav_common.controlplane.switches import find  # the switches' contracts import the models above
 
         spec = find(topic.scope, topic.leaf)
         if spec is not None:
@@ -246,10 +182,20 @@ def validate(topic: str | Topic, body: Any) -> Any:
     try:
         return _adapter(kind).validate_python(body)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        where = ".".join(str(p) for p in err["loc"]) or "(payload)"
-        value = json.dumps(err.get("input"), default=str)[:60]
-        raise PayloadError(f"{name}: {where}: {err['msg']} (got {value})") from None
+        raise PayloadError(f"{name}: {error_text(exc)}") from None
+
+
+def error_text(exc: ValidationError, prefix: str = "", model: type[BaseModel] | None = None) -> str:
+    """The first error of ``exc`` as one line, ``<field>: <why> (got <value>)``, the field after ``prefix``:
+    how every refused message or request on the plane says what was wrong (a field ``model`` does not know
+    is named with the ones it does)."""
+    err = exc.errors()[0]
+    where = ".".join(str(p) for p in err["loc"])
+    where = prefix + where if where else prefix.rstrip(".") or "(payload)"
+    if err["type"] == "extra_forbidden" and model is not None and len(err["loc"]) == 1:
+        return f"{where}: unknown field (known: {', '.join(model.model_fields)})"
+    value = json.dumps(err.get("input"), default=str)[:60]
+    return f"{where}: {err['msg']} (got {value})"
 
 
 def decode(topic: str | Topic, raw: bytes | bytearray) -> Any:

@@ -8,6 +8,10 @@ uses it directly, a service hands :meth:`Session.run` the coroutine that
 serves one connection and gets reconnects for free: when the broker goes away
 the session says so once (``mqtt.unavailable``), retries with a growing
 backoff, and says ``mqtt.reconnected`` when it is back.
+
+What arrives leaves this module as plain :class:`Message` tuples (:func:`messages`):
+aiomqtt's own message type stops here, so a new major version of aiomqtt (its
+next drops paho) touches this file, not the control plane behind it.
 """
 
 from __future__ import annotations
@@ -15,8 +19,9 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import aiomqtt
 
@@ -37,6 +42,22 @@ class LastWill:
 
 
 Serve = Callable[[aiomqtt.Client], Awaitable[None]]
+
+
+class Message(NamedTuple):
+    """One message as it arrived: its topic, its payload as bytes (empty for none), whether it was retained."""
+
+    topic: str
+    payload: bytes
+    retain: bool
+
+
+async def messages(client: aiomqtt.Client) -> AsyncIterator[Message]:
+    """The messages ``client`` receives, as they arrive, in plain terms."""
+    async for message in client.messages:
+        body = message.payload
+        payload = bytes(body) if isinstance(body, bytes | bytearray) else str(body or "").encode()
+        yield Message(str(message.topic), payload, bool(message.retain))
 
 
 class PacketTooLarge(OSError):

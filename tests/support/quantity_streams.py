@@ -14,6 +14,7 @@ from flightsim.runner import RunConfig, SimRunner
 from mavframe import tlog
 from mavframe.frames import split
 from mavframe.packet import Direction
+from mitm_proxy.control.attack import AttackSwitch
 from mitm_proxy.core.pipeline import Pipeline
 from mitm_proxy.core.stats import LinkStats
 from mitm_proxy.stages.attack import AttackStage
@@ -28,10 +29,10 @@ OFFSETS = Offsets(range_m=5.0, range_ids=frozenset({0}), up_m=3.0, north_m=7.0, 
 
 def through_stage(frames: list[tuple[bytes, Direction]], offsets: Offsets) -> list[bytes]:
     """Each frame as its own datagram through one link's pipeline with the attack stage; the frames that leave."""
-    slot = AttackSlot(1)
+    slot = AttackSwitch(AttackSlot(1))
     state = slot.offer(parse_profile(offsets.profile(), "quantities.yaml"))
     assert state.ok, state.error
-    pipe = Pipeline(0, [AttackStage(slot)], stats=LinkStats(1))
+    pipe = Pipeline(0, [AttackStage(slot.slot)], stats=LinkStats(1))
     out: list[bytes] = []
     now = time.monotonic()
     for raw, direction in frames:

@@ -15,6 +15,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from attack_profiles.profile import parse_profile
 from mavframe.frames import split
 from mavframe.packet import Direction
+from mitm_proxy.control.attack import AttackSwitch
 from mitm_proxy.core.pipeline import Pipeline
 from mitm_proxy.core.stats import LinkStats
 from mitm_proxy.stages.attack import AttackStage
@@ -37,9 +38,9 @@ class UplinkBench:
 
     def __init__(self, scenario: Scenario, profile: dict[str, Any] | str, source: str,
                  secure: SecureConfig | None) -> None:  # fmt: skip
-        slot = AttackSlot(1, scenario)
+        slot = AttackSwitch(AttackSlot(1, scenario))
         assert slot.offer(parse_profile(profile, source)).ok
-        stages: list[Any] = [AttackStage(slot)]
+        stages: list[Any] = [AttackStage(slot.slot)]
         if secure is not None:
             stages.append(SecureStage(secure, scenario, 1))
         self.pipe = Pipeline(0, stages, stats=LinkStats(1))

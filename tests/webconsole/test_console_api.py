@@ -18,11 +18,13 @@ from typing import Any
 import pytest
 import uvicorn
 
+from mitm_proxy.control.attack import AttackSwitch
 from mitm_proxy.control.plane import ControlPlane
+from mitm_proxy.control.secure import SecureSwitch
 from mitm_proxy.control.switches import vehicle_controls
 from mitm_proxy.stages.attack import AttackStage
 from mitm_proxy.stages.attack_slot import AttackSlot
-from mitm_proxy.stages.secure.stage import SecureSlot
+from mitm_proxy.stages.secure.stage import OFF, SecureStage
 from secuav_common.broker import BrokerAddress, EmbeddedBroker
 from secuav_common.scenario import load_scenario
 from tests.conftest import free_tcp_port
@@ -82,12 +84,12 @@ async def serve(fleet: Fleet, session: Session, password: str | None = None, **o
 
 
 @contextlib.asynccontextmanager
-async def _bench(secure: dict[int, SecureSlot] | None = None) -> AsyncIterator[Bench]:
+async def _bench(secure: dict[int, SecureSwitch] | None = None) -> AsyncIterator[Bench]:
     port = free_tcp_port()
-    slots = {1: AttackSlot(1)}
+    slots = {1: AttackSwitch(AttackSlot(1))}
     async with EmbeddedBroker(port=port):
         url = f"mqtt://127.0.0.1:{port}"
-        controls = vehicle_controls("lab", slots, {1: AttackStage(slots[1])}, secure)
+        controls = vehicle_controls("lab", slots, {1: AttackStage(slots[1].slot)}, secure)
         plane = ControlPlane(url, controls, stats=_stats)
         fleet = Fleet([load_scenario("wall_hover")])
         session = Session(BrokerAddress("127.0.0.1", port), fleet, "http://test/")
@@ -112,7 +114,7 @@ async def bench() -> AsyncIterator[Bench]:
 @pytest.fixture
 async def secure_bench() -> AsyncIterator[Bench]:
     """The bench with a real secure stage on vehicle 1 (the wall scenario's rangefinder group)."""
-    slot = SecureSlot(1, load_scenario("wall_hover"))
+    slot = SecureSwitch(SecureStage(OFF, load_scenario("wall_hover"), 1))
     try:
         async with _bench({1: slot}) as b:
             yield b

@@ -1,9 +1,10 @@
-"""The console and the watch view show a switch declared in one module, without naming it.
+"""The console and the watch view show a switch they were never told about, without naming it.
 
-This module declares a ``note`` switch (spec, models, proxy side), as a new
-``secuav_common/controlplane/switches/note.py`` would, registers it for the test only, runs the real proxy
-(in-process, two links on loopback UDP) and the real console app (uvicorn, its MQTT session) on a real
-embedded broker, and checks that ``GET /api/vehicles`` carries the note's state in each row's ``switches``,
+This module declares a ``note`` switch (its wire contract, as a new
+``secuav_common/controlplane/switches/note.py`` would, and its proxy side, as a new
+``mitm_proxy/control/note.py`` would), registers each for the test only, runs the real proxy (in-process,
+two links on loopback UDP) and the real console app (uvicorn, its MQTT session) on a real embedded broker,
+and checks that ``GET /api/vehicles`` carries the note's state in each row's ``switches``,
 that ``POST /api/vehicles/{sysid}/switches/note`` sets it through the proxy (and what is refused where),
 that ``secuav-attack status --watch`` draws a ``note`` column, and that the page (in chromium) lists the
 note in the vehicle's panel and sets it.
@@ -23,12 +24,14 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from mitm_proxy.app import Proxy
 from mitm_proxy.config import LinkConfig, ProxyConfig
-from mitm_proxy.control.switch import Switch, SwitchHost
+from mitm_proxy.control import switches as proxy_side
+from mitm_proxy.control.link import SwitchHost
+from mitm_proxy.control.switch import Switch
 from mitm_proxy.tools.board import Board
 from mitm_proxy.tools.watch import COLUMNS, Rates, table
 from secuav_common.broker import BrokerAddress, EmbeddedBroker
 from secuav_common.controlplane import switches
-from secuav_common.controlplane.switches import SwitchSpec
+from secuav_common.controlplane.contract import SwitchContract
 from tests.webconsole.test_console_api import call, serve
 from tests.webconsole.test_console_browser import browser  # noqa: F401  (a fixture)
 from tests.webconsole.test_console_security import raw
@@ -59,12 +62,11 @@ class NoteState(BaseModel):
     error: str | None = None
 
 
-SPEC = SwitchSpec(kind="note", scope="vehicle", state_model=NoteState, request_model=NoteRequest,
-                  implementation=f"{__name__}:NoteSwitch.build")  # fmt: skip
+CONTRACT = SwitchContract(kind="note", scope="vehicle", state_model=NoteState, request_model=NoteRequest)
 
 
 class NoteSwitch(Switch[NoteState]):
-    spec = SPEC
+    contract = CONTRACT
 
     def __init__(self, sysid: int) -> None:
         super().__init__()
@@ -89,12 +91,14 @@ class NoteSwitch(Switch[NoteState]):
 
 
 @pytest.fixture
-def note_switch() -> Iterator[SwitchSpec]:
-    switches.register(SPEC)
+def note_switch() -> Iterator[SwitchContract]:
+    switches.register(CONTRACT)
+    proxy_side.register(NoteSwitch)
     try:
-        yield SPEC
+        yield CONTRACT
     finally:
-        switches.unregister(SPEC.kind)
+        proxy_side.unregister(CONTRACT.kind)
+        switches.unregister(CONTRACT.kind)
 
 
 @dataclass
@@ -106,7 +110,7 @@ class Bench:
 
 @pytest.fixture
 async def bench(
-    note_switch: SwitchSpec, tcp_port: Callable[[], int], udp_port: Callable[[], int]
+    note_switch: SwitchContract, tcp_port: Callable[[], int], udp_port: Callable[[], int]
 ) -> AsyncIterator[Bench]:
     """The real proxy and the real console on one embedded broker, the console's fleet holding both vehicles."""
     port = tcp_port()
@@ -170,7 +174,7 @@ async def test_the_rows_carry_every_declared_switch_and_the_console_sets_the_new
     status, answer = await asyncio.to_thread(call, bench.base, "/api/vehicles/2/switches/note", {"text": "x" * 41})
     assert status == 422 and answer["field"] == "text" and "at most 40 characters" in answer["error"], answer
     status, answer = await asyncio.to_thread(call, bench.base, "/api/vehicles/2/switches/note", ["text"])
-    assert status == 422 and "JSON object" in answer["error"], answer
+    assert status == 422 and "valid dictionary" in answer["error"], answer
     await asyncio.sleep(0.3)
     assert bench.proxy.control.controls.vehicle(2, "note").text == "LOW BATTERY"  # type: ignore[union-attr]
 
@@ -179,9 +183,9 @@ async def test_the_rows_carry_every_declared_switch_and_the_console_sets_the_new
     status, ack = await asyncio.to_thread(call, bench.base, "/api/vehicles/1/switches/note", body)
     assert status == 200 and ack["text"] == "quiet now" and ack["request_id"] != "mine"
 
-    # Refused by the proxy (a switch without a request model is checked there only): 409 with its state.
+    # A built-in switch is checked by its own request model the same way, before anything is sent.
     status, ack = await asyncio.to_thread(call, bench.base, "/api/vehicles/1/switches/attack/mode", {"mode": "off"})
-    assert status == 409 and not ack["ok"] and "mode" in ack["error"] and ack["mode"] == "on", ack
+    assert status == 422 and not ack["ok"] and ack["field"] == "mode" and 'must be "on" or "bypass"' in ack["error"]
     status, ack = await asyncio.to_thread(call, bench.base, "/api/vehicles/1/switches/attack/mode", {"mode": "bypass"})
     assert status == 200 and ack["mode"] == "bypass"
 

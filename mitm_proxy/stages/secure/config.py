@@ -11,9 +11,10 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from secuav_common.loading import InputError, validate
+from secuav_common.controlplane.switches.secure import SecureRequest
+from secuav_common.loading import first_error, validate
 
 Group = Literal["auto", "wall", "anchors"]
 ParamValue = bool | int | float | str
@@ -87,20 +88,20 @@ OFF = SecureConfig()
 
 
 def config_from_payload(payload: Any, source: str = "<mqtt>", base: SecureConfig | None = None) -> SecureConfig:
-    """Decode a ``secure/set`` payload: ``null``/``"off"``, a name, or an object of :class:`SecureConfig` fields.
+    """The configuration a ``secure/set`` request (or ``--secure``, or the config file's ``secure:``) makes:
+    ``null``/``"off"``, a name, or an object of :class:`SecureConfig` fields, read by the switch's request
+    model (:class:`~secuav_common.controlplane.switches.secure.SecureRequest`), the one check of its shape.
 
     Fields the payload leaves out keep the values of ``base`` (the configured
     stage), except ``params``, which a new estimator name resets: parameters of
     one estimator rarely mean the same for another. ``request_id`` is the
     transport's business and ignored here.
     """
-    if payload is None:
-        return (base or OFF).model_copy(update={"estimator": None})
-    if isinstance(payload, str):
-        payload = {"estimator": payload}
-    if not isinstance(payload, dict):
-        raise InputError(source, "", payload, "expected null, 'off', an estimator name or an object")
-    data = {k: v for k, v in payload.items() if k != "request_id"}
+    try:
+        request = payload if isinstance(payload, SecureRequest) else SecureRequest.model_validate(payload)
+    except ValidationError as exc:
+        raise first_error(exc, source) from None
+    data = request.fields()
     if base is not None:
         merged = base.model_dump()
         if "estimator" in data and data["estimator"] != base.estimator and "params" not in data:

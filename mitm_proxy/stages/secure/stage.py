@@ -61,15 +61,15 @@ link's uplink goes to this vehicle.
 Until the first estimate exists, frames pass unchanged. Frames of other
 vehicles, of a direction the stage does not sit on, and of sensors outside the
 group pass untouched.
-:class:`SecureSlot` is the one door for changing the configuration at runtime
-(``secure/set``); a rejected request keeps the running estimator.
+:meth:`SecureStage.reconfigure` is the one door for changing the configuration at runtime (the proxy's
+``secure`` switch, :mod:`mitm_proxy.control.secure`, calls it); a rejected configuration keeps the running
+estimator.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import time
 from collections.abc import Callable
 from typing import Any
 
@@ -77,7 +77,6 @@ import numpy as np
 
 from mavframe import codec
 from mavframe.packet import Direction, Header, Packet
-from mitm_proxy.control.switch import Switch
 from mitm_proxy.stages.secure.collect import Readings
 from mitm_proxy.stages.secure.config import OFF, SecureConfig, config_from_payload
 from mitm_proxy.stages.secure.geodesy import HomeTracker, position_ned
@@ -96,12 +95,10 @@ from mitm_proxy.stages.secure.peers import PeerBoard
 from mitm_proxy.stages.secure.report import Counters, estimate_payload, stage_stats
 from mitm_proxy.stages.secure.substitute import FLAGGED_QUALITY, Substitution
 from mitm_proxy.stages.secure.worker import Stepper, StepResult
-from secuav_common.controlplane.payloads import SecureState
-from secuav_common.controlplane.switches.secure import SPEC
 from secuav_common.loading import InputError
 from secuav_common.scenario import Scenario
 
-__all__ = ["FLAGGED_QUALITY", "PeerBoard", "SecureConfig", "SecureSlot", "SecureStage", "make_slots"]
+__all__ = ["FLAGGED_QUALITY", "PeerBoard", "SecureConfig", "SecureStage", "make_stages"]
 
 log = logging.getLogger(__name__)
 
@@ -330,68 +327,14 @@ class SecureStage:
         return st.wait_idle(timeout_s) if st is not None else True
 
 
-class SecureSlot(Switch[SecureState]):
-    """The secure stage of one link and the one door for changing it (``--secure``, config, MQTT): ``secure``."""
-
-    spec = SPEC
-
-    def __init__(
-        self,
-        sysid: int,
-        scenario: Scenario,
-        config: SecureConfig | None = None,
-        publish: Publish | None = None,
-        peers: PeerBoard | None = None,
-    ) -> None:
-        """``config`` is the starting configuration (``--secure``, config file); ``InputError`` if unusable.
-
-        Give every slot of one proxy the same ``peers`` board, so inter-vehicle
-        ranges can be checked against the peers' secure positions.
-        """
-        super().__init__()
-        self.sysid = sysid
-        self.stage = SecureStage(config or OFF, scenario, sysid, publish, source="--secure", peers=peers)
-        self._since = time.time()
-
-    def current(self) -> dict[str, Any]:
-        cfg = self.stage.config
-        group = None if self.stage.layout is None else self.stage.layout.group
-        return {"sysid": self.sysid, "estimator": cfg.estimator, "params": dict(cfg.params), "group": group,
-                "direction": cfg.direction, "since": self._since, "warnings": self.stage.warnings}  # fmt: skip
-
-    def apply(self, payload: Any, source: str) -> None:
-        """A :class:`SecureConfig`, or the JSON of ``secure/set``: ``null``/``"off"``, a name, or
-        ``{"estimator": ..., "params": {...}}`` (fields left out keep their value)."""
-        config = payload if isinstance(payload, SecureConfig) else config_from_payload(
-            payload, source, base=self.stage.config)  # fmt: skip
-        self.stage.reconfigure(config, source)
-        self._since = time.time()
-
-    def offer(self, config: SecureConfig, request_id: str | None = None, source: str = "<secure>") -> SecureState:
-        return self.handle(config, request_id, source)
-
-    def offer_payload(self, payload: Any, request_id: str | None = None, source: str = "<mqtt>") -> SecureState:
-        """Decoded JSON of ``secure/set``; a ``request_id`` inside it counts when none is given."""
-        if request_id is None and isinstance(payload, dict) and isinstance(payload.get("request_id"), str):
-            request_id = payload["request_id"]
-        return self.handle(payload, request_id, source)
-
-    def reject(self, error: str, request_id: str | None = None) -> SecureState:
-        """A request refused (bad JSON, oversized, invalid): the running estimator stays."""
-        return self.refuse(error, request_id)
-
-    def close(self) -> None:
-        self.stage.close()
-
-
-def make_slots(
+def make_stages(
     scenario: Scenario,
     sysids: list[int],
     config: SecureConfig | str | None = None,
     publish: Publish | None = None,
     source: str = "--secure",
-) -> dict[int, SecureSlot]:
-    """One slot per link, all on one :class:`PeerBoard`; what the proxy app builds at start.
+) -> dict[int, SecureStage]:
+    """One stage per link, all on one :class:`PeerBoard`; what the proxy app builds at start.
 
     ``config`` may be an estimator name (``--secure NAME``), ``"off"``/None, or a
     full :class:`SecureConfig` (the config file). ``InputError`` names the
@@ -400,12 +343,12 @@ def make_slots(
     if not isinstance(config, SecureConfig):
         config = config_from_payload(config, source)
     board = PeerBoard()
-    slots: dict[int, SecureSlot] = {}
+    stages: dict[int, SecureStage] = {}
     try:
         for sysid in sysids:
-            slots[sysid] = SecureSlot(sysid, scenario, config, publish, peers=board)
+            stages[sysid] = SecureStage(config, scenario, sysid, publish, source="--secure", peers=board)
     except InputError:
-        for slot in slots.values():
-            slot.close()
+        for stage in stages.values():
+            stage.close()
         raise
-    return slots
+    return stages

@@ -1,76 +1,28 @@
-"""``attack``: the active attack profile of one link (``secuav/v<N>/attack/set``, retained ``.../state``).
-
-The proxy's side is :class:`mitm_proxy.stages.attack_slot.AttackSlot`, which the attack stage reads.
-``secuav-attack apply F`` checks the profile here first (a typo fails at once, with the file and field
-named) and sends it resolved; ``clear`` sends ``null``.
-"""
+"""``attack``: the active attack profile of one link (``secuav/v<N>/attack/set``, retained ``.../state``)."""
 
 from __future__ import annotations
 
-import argparse
-import json
-import uuid
 from typing import Any
 
-from secuav_common.controlplane.payloads import MAX_PAYLOAD_BYTES, AttackState, request_bytes
-from secuav_common.controlplane.switches import State, SwitchSpec, Verb, register, since_text
-from secuav_common.loading import InputError
+from pydantic import RootModel, model_validator
+from pydantic_core import PydanticCustomError
+
+from secuav_common.controlplane.contract import SwitchContract
+from secuav_common.controlplane.states import AttackState
 
 
-def _apply_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("profile", metavar="F", help="profile file (YAML/JSON) or library name")
-    parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
-                        help="override a profile parameter")  # fmt: skip
+class AttackRequest(RootModel[dict[str, Any] | str | None]):
+    """``.../attack/set``: a profile (an object, or its YAML/JSON text), ``{"library": NAME, "parameters":
+    {...}}``, or ``null`` to clear. The profile grammar is the attack library's: the proxy checks the profile
+    itself when it builds it (the contract, below every library, only says what shape travels)."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _shape(cls, value: Any) -> Any:
+        if value is not None and not isinstance(value, dict | str):
+            raise PydanticCustomError("attack_request", 'expected a profile (an object or its text), '
+                                      '{"library": NAME, "parameters": {...}} or null')  # fmt: skip
+        return value
 
 
-def _apply_request(args: argparse.Namespace) -> dict[str, Any]:
-    from attack_profiles.resolve import parse_params, resolve_profile  # the profile grammar: only when a verb runs
-
-    profile = resolve_profile(args.profile, parse_params(args.param), "profile")
-    body: dict[str, Any] = json.loads(profile.canonical_json())
-    size = len(request_bytes(body, uuid.uuid4().hex))
-    if size > MAX_PAYLOAD_BYTES:
-        raise InputError(args.profile, "", size, f"the proxy accepts profiles up to {MAX_PAYLOAD_BYTES} bytes of JSON")
-    return body
-
-
-# The wire names of AttackState.directions in words (attack_profiles.directions, which this module must not import).
-_WORDS = {"downlink": "toward the ground", "uplink": "toward the vehicle"}
-
-
-def _toward(directions: Any) -> str:
-    """``toward the ground``, ``toward the vehicle``, both joined, ``nothing``; ``?`` from an older proxy."""
-    if not isinstance(directions, list):
-        return "(directions unknown)"
-    words = [_WORDS[d] for d in _WORDS if d in directions]
-    return " and ".join(words) if words else "nothing"
-
-
-def _done(key: str, state: State, args: argparse.Namespace) -> str:
-    if state.get("profile") is None:
-        return f"ok: {key} cleared"
-    return (f"ok: {key} {state['profile']} (hash {str(state.get('hash'))[:12]}), "
-            f"changing frames {_toward(state.get('directions'))}")  # fmt: skip
-
-
-def _status(key: str, states: dict[str, State | None]) -> list[str]:
-    attack = states.get("attack/state") or {}
-    active = f"{attack.get('profile')} (hash {str(attack.get('hash'))[:12]})" if attack.get("profile") else "none"
-    if attack.get("profile"):
-        active += f" changing frames {_toward(attack.get('directions'))}"
-    last = "ok" if attack.get("ok") else f"rejected: {attack.get('error')}"
-    bypass = " (bypassed)" if (states.get("attack/mode/state") or {}).get("mode") == "bypass" else ""
-    return [f"{key}: attack {active}{bypass} since {since_text(attack.get('since'))}; last request {last}"]
-
-
-SPEC = register(SwitchSpec(
-    kind="attack",
-    scope="vehicle",
-    state_model=AttackState,
-    implementation="mitm_proxy.stages.attack_slot:AttackSlot.build",
-    verbs=(
-        Verb("apply", "activate a profile on a running proxy", _done, _apply_arguments, _apply_request),
-        Verb("clear", "remove the active profile on a running proxy", _done),
-    ),
-    status=_status,
-))  # fmt: skip
+CONTRACT = SwitchContract(kind="attack", scope="vehicle", state_model=AttackState, request_model=AttackRequest)

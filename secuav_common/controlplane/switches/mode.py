@@ -1,37 +1,36 @@
-"""``attack/mode``: the attack stage on, or bypassed with its profile kept (``secuav/v<N>/attack/mode/set``).
-
-The proxy's side is :class:`mitm_proxy.control.switches.ModeSwitch`, which writes the attack stage's
-``enabled`` flag; ``secuav-attack status`` shows a bypassed stage on the ``attack`` line.
-"""
+"""``attack/mode``: the attack stage on, or bypassed with its profile kept (``secuav/v<N>/attack/mode/set``)."""
 
 from __future__ import annotations
 
-import argparse
+from typing import Any
 
-from secuav_common.controlplane.payloads import ModeState
-from secuav_common.controlplane.switches import State, SwitchSpec, Verb, register
+from pydantic import BaseModel, ConfigDict, field_validator, model_validator
+from pydantic_core import PydanticCustomError
 
-MODES = ("on", "bypass")
-
-
-def _arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("mode", choices=list(MODES))
+from secuav_common.controlplane.contract import SwitchContract
+from secuav_common.controlplane.states import MODES, Mode, ModeState
 
 
-def _request(args: argparse.Namespace) -> dict[str, str]:
-    return {"mode": args.mode}
+class ModeRequest(BaseModel):
+    """``.../attack/mode/set``: ``"on"`` or ``"bypass"``, bare or as ``{"mode": ...}``."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    mode: Mode
+    request_id: str | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _bare(cls, value: Any) -> Any:
+        return value if isinstance(value, dict) else {"mode": value}
+
+    @field_validator("mode", mode="wrap")
+    @classmethod
+    def _one_of(cls, value: Any, handler: Any) -> Any:
+        if value not in MODES:
+            raise PydanticCustomError("mode", "must be " + " or ".join(f'"{m}"' for m in MODES))
+        return handler(value)
 
 
-def _done(key: str, state: State, args: argparse.Namespace) -> str:
-    return f"ok: {key} attack {state.get('mode')}"
-
-
-SPEC = register(SwitchSpec(
-    kind="attack/mode",
-    scope="vehicle",
-    state_model=ModeState,
-    implementation="mitm_proxy.control.switches:ModeSwitch.build",
-    verbs=(Verb("mode", "switch the attack stage on or to bypass (the profile stays installed)",
-                _done, _arguments, _request),),
-    bare_words=frozenset(m.encode() for m in MODES),
-))  # fmt: skip
+CONTRACT = SwitchContract(kind="attack/mode", scope="vehicle", state_model=ModeState, request_model=ModeRequest,
+                          bare_words=frozenset(m.encode() for m in MODES))  # fmt: skip

@@ -2,67 +2,40 @@
 
 Proxy-wide: a request on ``secuav/proxy/routes/set`` reaches every proxy, one on
 ``secuav/proxy/<instance>/routes/set`` that instance; each answers on its own
-``secuav/proxy/<instance>/routes/state``. The proxy's side is
-:class:`mitm_proxy.control.switches.RoutesSwitch`; the rules' grammar is the proxy's
-(``mitm_proxy/net/rules.py``, docs/routes.md), imported when ``secuav-attack routes`` runs.
+``secuav/proxy/<instance>/routes/state``. The rules' grammar is the proxy's (docs/routes.md).
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 from typing import Any
 
-from secuav_common.controlplane.payloads import RoutesState
-from secuav_common.controlplane.switches import State, SwitchSpec, Verb, register
+from pydantic import BaseModel, ConfigDict, field_validator, model_validator
+from pydantic_core import PydanticCustomError
+
+from secuav_common.controlplane.contract import SwitchContract
+from secuav_common.controlplane.states import RoutesState
 
 
-def _arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("endpoint", metavar="ENDPOINT", help="as the stats name it (ground:14550) or its URL")
-    parser.add_argument(
-        "rules",
-        metavar="RULES",
-        help="URL options as in docs/routes.md ('deny=ATTITUDE&listen_only=true'); 'none' lifts all",
-    )
+class RoutesRequest(BaseModel):
+    """``.../routes/set``: ``{"endpoints": {"<name or URL>": <rules> | null, ...}}``; ``null`` lifts every rule
+    of that endpoint, endpoints left out keep theirs."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    endpoints: dict[str, dict[str, Any] | None]
+    request_id: str | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _object(cls, value: Any) -> Any:
+        return value if isinstance(value, dict) else {"endpoints": value}  # said as the endpoints it lacks
+
+    @field_validator("endpoints", mode="wrap")
+    @classmethod
+    def _some(cls, value: Any, handler: Any) -> Any:
+        if not isinstance(value, dict) or not value:
+            raise PydanticCustomError("endpoints", 'expected {"endpoints": {"<name>": {rules} or null, ...}}')
+        return handler(value)
 
 
-def _lifts_all(args: argparse.Namespace) -> bool:
-    return bool(args.rules.strip().lower() in ("none", ""))
-
-
-def _request(args: argparse.Namespace) -> dict[str, Any]:
-    """The rules checked here first, as the proxy will check them (a typo fails before anything is sent)."""
-    if _lifts_all(args):
-        return {"endpoints": {args.endpoint: None}}
-    from mitm_proxy.net.rules import rules_from_query
-
-    rules = rules_from_query(args.rules, "RULES").model_dump(exclude_defaults=True)
-    return {"endpoints": {args.endpoint: rules}}
-
-
-def _done(key: str, state: State, args: argparse.Namespace) -> str:
-    return f"ok: {key} {args.endpoint} {'no rules' if _lifts_all(args) else args.rules}"
-
-
-def _show(name: str, state: State) -> list[str]:
-    from mitm_proxy.net.rules import EndpointRules, rules_to_query
-
-    lines = [f"proxy {name}:"]
-    for ep_name, ep in (state.get("endpoints") or {}).items():
-        try:
-            spelled = rules_to_query(EndpointRules.model_validate(ep.get("rules") or {})) or "no rules"
-        except ValueError:
-            spelled = json.dumps(ep.get("rules"))
-        lines.append(f"  {ep_name:<16} {ep.get('role', '?'):<7} {ep.get('url')}  {spelled}")
-    return lines
-
-
-SPEC = register(SwitchSpec(
-    kind="routes",
-    scope="proxy",
-    state_model=RoutesState,
-    implementation="mitm_proxy.control.switches:RoutesSwitch.build",
-    verbs=(Verb("routes", "show or change a running proxy's per-endpoint routing rules", _done, _arguments,
-                _request, show=_show, show_help="every endpoint of the proxy and its rules",
-                set_help="replace one endpoint's rules (the others keep theirs)"),),
-))  # fmt: skip
+CONTRACT = SwitchContract(kind="routes", scope="proxy", state_model=RoutesState, request_model=RoutesRequest)

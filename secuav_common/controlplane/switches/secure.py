@@ -1,69 +1,44 @@
-"""``secure``: the secure stage's estimator on one link (``secuav/v<N>/secure/set``, retained ``.../state``).
-
-The proxy's side is :class:`mitm_proxy.stages.secure.stage.SecureSlot` where the proxy has a scenario,
-and :class:`mitm_proxy.control.switches.NoSecure` (every request refused, saying why) where it has none.
-"""
+"""``secure``: the secure stage's estimator on one link (``secuav/v<N>/secure/set``, retained ``.../state``)."""
 
 from __future__ import annotations
 
-import argparse
-from typing import Any
+from typing import Any, Literal
 
-from secuav_common.controlplane.payloads import SecureState
-from secuav_common.controlplane.switches import State, SwitchSpec, Verb, register
+from pydantic import BaseModel, ConfigDict, model_validator
+from pydantic_core import PydanticCustomError
 
+from secuav_common.controlplane.contract import SwitchContract
+from secuav_common.controlplane.states import SecureState
 
-def _arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("estimator", metavar="NAME",
-                        help="secekf, secopt, recap, rarse, l1, l0, milp, ekf, ls, a plugin's name (secuav-plugins), "
-                        "package.module:Class, or off")  # fmt: skip
-    parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="estimator parameter")
-    parser.add_argument("--direction", choices=("downlink", "uplink", "both"),
-                        help="where the stage reads its group and substitutes: downlink (toward the ground), "
-                        "uplink (the frames the autopilot receives) or both; left out: as it is")  # fmt: skip
+ParamValue = bool | int | float | str
+Direction = Literal["downlink", "uplink", "both"]
 
 
-def _request(args: argparse.Namespace) -> dict[str, Any]:
-    body: dict[str, Any] = {"estimator": args.estimator}
-    if args.param:
-        from attack_profiles.resolve import parse_params  # NAME=VALUE as --param reads it everywhere
+class SecureRequest(BaseModel):
+    """``.../secure/set``: ``null`` or ``"off"``, an estimator's name, or an object. Fields left out keep
+    their value; the stage's tuning fields (``group``, ``rate_hz``...: docs/interfaces.md) pass through to the
+    stage's own configuration, which checks them."""
 
-        body["params"] = parse_params(args.param)
-    if getattr(args, "direction", None) is not None:
-        body["direction"] = args.direction
-    return body
+    model_config = ConfigDict(extra="allow")
 
+    estimator: str | None = None
+    params: dict[str, ParamValue] | None = None
+    direction: Direction | None = None
+    request_id: str | None = None
 
-# SecureState.direction in words: which frames the stage reads and rewrites.
-_ON = {"downlink": "toward the ground", "uplink": "toward the vehicle", "both": "in both directions"}
+    @model_validator(mode="before")
+    @classmethod
+    def _word(cls, value: Any) -> Any:
+        if value is None or isinstance(value, str):
+            return {"estimator": value}
+        if not isinstance(value, dict):
+            raise PydanticCustomError("secure_request", "expected null, 'off', an estimator name or an object")
+        return value
 
-
-def _where(state: State) -> str:
-    direction = state.get("direction")
-    return f" on the frames {_ON[direction]}" if state.get("estimator") and direction in _ON else ""
-
-
-def _done(key: str, state: State, args: argparse.Namespace) -> str:
-    return f"ok: {key} secure {state.get('estimator') or 'off'}{_where(state)}"
-
-
-def _status(key: str, states: dict[str, State | None]) -> list[str]:
-    secure = states.get("secure/state")
-    if not isinstance(secure, dict):
-        return []
-    if secure.get("available") is False:
-        return [f"{key}: secure not available in this proxy"]
-    note = "" if secure.get("ok") else f"; last request rejected: {secure.get('error')}"
-    return [f"{key}: secure {secure.get('estimator') or 'off'}{_where(secure)}{note}"]
+    def fields(self) -> dict[str, Any]:
+        """What the request sets (``request_id`` is the transport's)."""
+        return {k: v for k, v in self.model_dump(exclude_unset=True).items() if k != "request_id"}
 
 
-SPEC = register(SwitchSpec(
-    kind="secure",
-    scope="vehicle",
-    state_model=SecureState,
-    implementation="mitm_proxy.control.switches:secure_switch",
-    verbs=(Verb("secure", "choose the secure stage's estimator on a running proxy, or 'off'",
-                _done, _arguments, _request),),
-    bare_words=frozenset({b"off"}),
-    status=_status,
-))  # fmt: skip
+CONTRACT = SwitchContract(kind="secure", scope="vehicle", state_model=SecureState, request_model=SecureRequest,
+                          bare_words=frozenset({b"off"}))  # fmt: skip

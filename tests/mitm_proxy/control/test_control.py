@@ -13,12 +13,14 @@ from typing import Any
 import pytest
 
 from attack_profiles import library
+from mitm_proxy.control.attack import AttackSwitch
 from mitm_proxy.control.plane import MAX_PAYLOAD_BYTES, ONLINE_TOPIC, ControlPlane
 from mitm_proxy.control.switch import Switch
 from mitm_proxy.control.switches import vehicle_controls
 from mitm_proxy.stages.attack_slot import AttackSlot
 from secuav_common.broker import EmbeddedBroker
 from secuav_common.controlplane.payloads import SecureState
+from secuav_common.controlplane.switches.secure import CONTRACT as secure_contract
 from tests.support.brokers import MOSQUITTO, Mosquitto, Observer
 
 pytestmark = pytest.mark.timeout(60)
@@ -51,7 +53,7 @@ def fake_stats() -> dict[int, dict[str, Any]]:
 
 @pytest.fixture
 def slots() -> dict[int, AttackSlot]:
-    return {1: AttackSlot(1), 2: AttackSlot(2)}
+    return {1: AttackSwitch(AttackSlot(1)), 2: AttackSwitch(AttackSlot(2))}
 
 
 async def test_library_profile_is_applied_acknowledged_and_retained(
@@ -184,8 +186,7 @@ async def test_secure_set_without_and_with_a_secure_stage(broker_port: int, slot
             assert not anonymous["ok"] and anonymous["request_id"] is None
 
     class BrokenSlot(Switch[SecureState]):  # a secure stage whose code raises: the plane reports it, serves on
-        kind = "secure"
-        state_model = SecureState
+        contract = secure_contract
 
         def apply(self, payload: Any, source: str) -> None:
             raise RuntimeError("boom")
@@ -252,12 +253,13 @@ async def test_no_broker_means_no_mqtt_and_publish_is_a_no_op(slots: dict[int, A
 
 
 async def test_the_real_secure_slot_through_the_plane(broker_port: int) -> None:
-    from mitm_proxy.stages.secure.stage import SecureSlot
+    from mitm_proxy.control.secure import SecureSwitch
+    from mitm_proxy.stages.secure.stage import OFF, SecureStage
     from secuav_common.scenario import load_scenario
 
     scenario = load_scenario("scenarios/wall_hover.yaml")
-    secure_slots = {1: SecureSlot(1, scenario)}
-    controls = vehicle_controls("t", {1: AttackSlot(1, scenario)}, secure=secure_slots)
+    secure_slots = {1: SecureSwitch(SecureStage(OFF, scenario, 1))}
+    controls = vehicle_controls("t", {1: AttackSwitch(AttackSlot(1, scenario))}, secure=secure_slots)
     plane = ControlPlane(f"mqtt://127.0.0.1:{broker_port}", controls, stats=fake_stats)
     topic = "secuav/v1/secure/state"
     async with plane, Observer(broker_port, ["secuav/v1/secure/#"]) as obs:
@@ -278,7 +280,7 @@ async def test_attack_mode_switches_bypass_at_runtime_and_keeps_the_profile(
 ) -> None:
     from mitm_proxy.stages.attack import AttackStage
 
-    stages = {sysid: AttackStage(slot) for sysid, slot in slots.items()}
+    stages = {sysid: AttackStage(slot.slot) for sysid, slot in slots.items()}
     plane = ControlPlane(f"mqtt://127.0.0.1:{broker_port}", vehicle_controls("t", slots, stages), stats=fake_stats)
     mode_set, mode_state = "secuav/v1/attack/mode/set", "secuav/v1/attack/mode/state"
     async with plane, Observer(broker_port, ["secuav/v1/attack/#"]) as obs:

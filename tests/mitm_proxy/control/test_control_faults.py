@@ -12,6 +12,7 @@ from typing import Any
 
 import pytest
 
+from mitm_proxy.control.attack import AttackSwitch
 from mitm_proxy.control.plane import ControlPlane, Outbox
 from mitm_proxy.control.switches import vehicle_controls
 from mitm_proxy.stages.attack_slot import AttackSlot
@@ -50,7 +51,7 @@ async def test_publish_never_blocks_while_the_broker_is_down_and_delivers_after(
 ) -> None:
     caplog.set_level(logging.INFO)
     port = tcp_port()
-    slots = {1: AttackSlot(1)}
+    slots = {1: AttackSwitch(AttackSlot(1))}
     plane = ControlPlane(
         f"mqtt://127.0.0.1:{port}", vehicle_controls("t", slots), stats=no_stats, outbox_size=100, backoff_s=(0.1, 0.3)
     )
@@ -80,7 +81,7 @@ async def test_broker_restart_reconnects_republishes_and_keeps_serving(
     caplog.set_level(logging.INFO, logger="mitm_proxy.control")
     port = tcp_port()
     broker = Mosquitto(port, tmp_path)
-    slots = {1: AttackSlot(1)}
+    slots = {1: AttackSwitch(AttackSlot(1))}
     plane = ControlPlane(f"mqtt://127.0.0.1:{port}", vehicle_controls("t", slots), stats=no_stats, backoff_s=(0.1, 0.5))
     broker.start()
     try:
@@ -115,7 +116,7 @@ async def test_a_retained_request_is_applied_once_not_on_every_reconnect(
     tcp_port: Callable[[], int], tmp_path: Path
 ) -> None:
     port = tcp_port()
-    slots = {1: AttackSlot(1)}
+    slots = {1: AttackSwitch(AttackSlot(1))}
     plane = ControlPlane(f"mqtt://127.0.0.1:{port}", vehicle_controls("t", slots), stats=no_stats, backoff_s=(0.1, 0.3))
     with Mosquitto(port, tmp_path):
         async with plane:
@@ -235,7 +236,7 @@ def test_publish_nowait_turns_nan_and_numpy_into_json_and_never_raises(caplog: p
 
     import numpy as np
 
-    plane = ControlPlane("mqtt://127.0.0.1:1", vehicle_controls("t", {1: AttackSlot(1)}), stats=no_stats)
+    plane = ControlPlane("mqtt://127.0.0.1:1", vehicle_controls("t", {1: AttackSwitch(AttackSlot(1))}), stats=no_stats)
     estimate = {"pos_ned_m": np.array([1.0, np.nan, -2.0]), "t_s": np.float64(3.5), "attacked": [np.int64(12)]}
     plane.publish_nowait("secuav/v1/estimate", estimate)
     plane.publish_nowait("secuav/v1/estimate", {"range_m": float("nan"), "ok": True})
@@ -261,7 +262,8 @@ async def test_aiomqtts_dead_socket_race_stays_out_of_the_log_and_other_errors_d
     caplog.set_level(logging.DEBUG)
     loop = asyncio.get_running_loop()
     plane = ControlPlane(
-        "mqtt://127.0.0.1:1", vehicle_controls("t", {1: AttackSlot(1)}), stats=no_stats, backoff_s=(30.0, 30.0)
+        "mqtt://127.0.0.1:1", vehicle_controls("t", {1: AttackSwitch(AttackSlot(1))}), stats=no_stats,
+        backoff_s=(30.0, 30.0),
     )
     async with plane:
         # What aiomqtt does when the broker vanishes mid-publish: add_writer scheduled for a socket closed since.

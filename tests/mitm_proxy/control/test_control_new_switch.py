@@ -1,6 +1,6 @@
-"""A runtime switch is one module: this one declares a ``note`` switch (spec, models, proxy side, CLI verb) and
-nothing else in the repository changes, yet the real proxy serves it over a real broker and ``secuav-attack``
-lists and runs its verb.
+"""A runtime switch is one small piece per audience: this module declares a ``note`` switch (its wire contract,
+its proxy side, its ``secuav-attack`` verb), registers each with its own audience, and nothing else in the
+repository changes, yet the real proxy serves it over a real broker and ``secuav-attack`` lists and runs its verb.
 
 The note is a short text a vehicle carries (``secuav/v<N>/note/set`` ``{"text": ...}``, retained
 ``.../note/state``); its request model holds it to 40 characters, checked by the proxy, not by the CLI, so
@@ -22,18 +22,21 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from mitm_proxy.app import Proxy
 from mitm_proxy.config import LinkConfig, ProxyConfig
-from mitm_proxy.control.switch import Switch, SwitchHost
-from mitm_proxy.tools import attack_cli
+from mitm_proxy.control import switches as proxy_side
+from mitm_proxy.control.link import SwitchHost
+from mitm_proxy.control.switch import Switch
+from mitm_proxy.tools import attack_cli, verbs
+from mitm_proxy.tools.verbs import State, SwitchVerbs, Verb
 from secuav_common.broker import EmbeddedBroker
 from secuav_common.controlplane import switches
+from secuav_common.controlplane.contract import SwitchContract
 from secuav_common.controlplane.payloads import PayloadError, decode
-from secuav_common.controlplane.switches import State, SwitchSpec, Verb
 from tests.support.brokers import Observer
 
 pytestmark = pytest.mark.timeout(60)
 
 
-# -- the whole switch: what a new secuav_common/controlplane/switches/note.py and its proxy side would hold --
+# -- the wire contract: what a new secuav_common/controlplane/switches/note.py would hold ----------------------
 
 
 class NoteRequest(BaseModel):
@@ -56,6 +59,12 @@ class NoteState(BaseModel):
     error: str | None = None
 
 
+CONTRACT = SwitchContract(kind="note", scope="vehicle", state_model=NoteState, request_model=NoteRequest)
+
+
+# -- the command line: what a new mitm_proxy/tools/verbs/note.py would hold ------------------------------------
+
+
 def _arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("text", metavar="TEXT")
 
@@ -73,19 +82,15 @@ def _status(key: str, states: dict[str, State | None]) -> list[str]:
     return [f"{key}: note {note.get('text')!r}"] if isinstance(note, dict) and note.get("text") else []
 
 
-SPEC = SwitchSpec(
-    kind="note",
-    scope="vehicle",
-    state_model=NoteState,
-    request_model=NoteRequest,
-    implementation=f"{__name__}:NoteSwitch.build",
-    verbs=(Verb("note", "leave a short note on a vehicle", _done, _arguments, _request),),
-    status=_status,
-)
+VERBS = SwitchVerbs(CONTRACT, (Verb("note", "leave a short note on a vehicle", _done, _arguments, _request),),
+                    status=_status)  # fmt: skip
+
+
+# -- the proxy side: what a new mitm_proxy/control/note.py would hold -------------------------------------------
 
 
 class NoteSwitch(Switch[NoteState]):
-    spec = SPEC
+    contract = CONTRACT
 
     def __init__(self, sysid: int) -> None:
         super().__init__()
@@ -109,13 +114,17 @@ class NoteSwitch(Switch[NoteState]):
 
 
 @pytest.fixture
-def note_switch() -> Iterator[SwitchSpec]:
-    """Registered for one test only: the other tests see the built-in switches alone."""
-    switches.register(SPEC)
+def note_switch() -> Iterator[SwitchContract]:
+    """Registered with each audience for one test only: the other tests see the built-in switches alone."""
+    switches.register(CONTRACT)
+    proxy_side.register(NoteSwitch)
+    verbs.register(VERBS)
     try:
-        yield SPEC
+        yield CONTRACT
     finally:
-        switches.unregister(SPEC.kind)
+        verbs.unregister(CONTRACT.kind)
+        proxy_side.unregister(CONTRACT.kind)
+        switches.unregister(CONTRACT.kind)
 
 
 @dataclass
@@ -127,7 +136,7 @@ class Bench:
 
 @pytest.fixture
 async def bench(
-    note_switch: SwitchSpec, tcp_port: Callable[[], int], udp_port: Callable[[], int]
+    note_switch: SwitchContract, tcp_port: Callable[[], int], udp_port: Callable[[], int]
 ) -> AsyncIterator[Bench]:
     """The real proxy (two links, real UDP endpoints on loopback) on a real embedded broker."""
     port = tcp_port()
@@ -196,14 +205,21 @@ async def test_secuav_attack_lists_and_runs_the_new_verb(bench: Bench, capsys: p
 
 
 def test_without_it_the_built_in_switches_are_all_there_is() -> None:
-    assert [s.kind for s in switches.specs()] == ["attack", "attack/mode", "secure", "routes"]
-    assert [v.name for _, v in switches.verbs()] == ["apply", "clear", "mode", "secure", "routes"]
+    assert [s.kind for s in switches.contracts()] == ["attack", "attack/mode", "secure", "routes"]
+    assert [v.name for _, v in verbs.verbs()] == ["apply", "clear", "mode", "secure", "routes"]
 
 
-def test_a_kind_or_verb_cannot_be_taken_twice(note_switch: SwitchSpec) -> None:
+def test_a_kind_or_verb_cannot_be_taken_twice(note_switch: SwitchContract) -> None:
+    other = SwitchContract(kind="note", scope="vehicle", state_model=NoteState, request_model=NoteRequest)
     with pytest.raises(ValueError, match="registered twice"):
-        switches.register(SwitchSpec(kind="note", scope="vehicle", state_model=NoteState, implementation="x:y"))
-    thief = SwitchSpec(kind="other", scope="vehicle", state_model=NoteState, implementation="x:y",
-                       verbs=(Verb("mode", "?", _done),))  # fmt: skip
+        switches.register(other)
+
+    class Other(NoteSwitch):
+        contract = other
+
+    with pytest.raises(ValueError, match="registered twice"):
+        proxy_side.register(Other)
+    thief = SwitchVerbs(SwitchContract(kind="other", scope="vehicle", state_model=NoteState, request_model=NoteRequest),
+                        (Verb("mode", "?", _done),))  # fmt: skip
     with pytest.raises(ValueError, match="verb 'mode' belongs to another switch"):
-        switches.register(thief)
+        verbs.register(thief)

@@ -74,7 +74,7 @@ async def test_requests_left_retained_on_the_broker_change_nothing_at_start(
                 got = await _frames(vehicle, quiet_s=1.0)
                 parts = proxy.vehicles[1]
                 assert proxy.links[0].grounds[0].gate.rules.listen_only  # what the command line said still holds
-                assert parts.slot.engine is None and parts.stage.enabled  # no profile, not bypassed
+                assert parts.attack.engine is None and parts.stage.enabled  # no profile, not bypassed
                 assert got == []  # the arm command never reached the vehicle
     finally:
         vehicle.close()
@@ -133,7 +133,7 @@ async def test_heavy_requests_do_not_hold_up_frames_and_a_flood_is_limited_per_t
             got = await collector
             assert answered() + plane.rate_limited == 200
             assert plane.rate_limited > 0 and answered() <= REQUEST_BURST + REQUESTS_PER_S * elapsed_s + 1
-            assert proxy.vehicles[1].slot.engine is not None and proxy.vehicles[1].slot.engine.profile.name == "p2"
+            assert proxy.vehicles[1].attack.engine is not None and proxy.vehicles[1].attack.engine.profile.name == "p2"
     finally:
         vehicle.close()
         ground.close()

@@ -10,6 +10,7 @@ from typing import Any
 
 import pytest
 
+from mitm_proxy.control.attack import AttackSwitch
 from mitm_proxy.control.plane import ControlPlane
 from mitm_proxy.control.switches import vehicle_controls
 from mitm_proxy.stages.attack_slot import AttackSlot
@@ -52,7 +53,7 @@ async def test_tls_and_password_from_plane_to_cli(
     secured: tuple[int, Path], capsys: pytest.CaptureFixture[str]
 ) -> None:
     port, ca = secured
-    slots = {1: AttackSlot(1)}
+    slots = {1: AttackSwitch(AttackSlot(1))}
     controls = vehicle_controls("t", slots)
     plane = ControlPlane(f"mqtts://127.0.0.1:{port}", controls, stats=no_stats, username="secuav", password="s3cret",
                          tls_ca=str(ca))  # fmt: skip
@@ -85,7 +86,7 @@ async def test_a_wrong_password_or_an_unknown_ca_never_connects_and_is_logged_on
     ]
     for options in cases:
         caplog.clear()
-        controls = vehicle_controls("t", {1: AttackSlot(1)})
+        controls = vehicle_controls("t", {1: AttackSwitch(AttackSlot(1))})
         plane = ControlPlane(f"mqtts://127.0.0.1:{port}", controls, stats=no_stats, backoff_s=(0.1, 0.2),
                              **options)  # type: ignore[arg-type]  # fmt: skip
         async with plane:

@@ -6,14 +6,11 @@ from typing import Any
 
 import pytest
 
-from mitm_proxy.control.switches import (
-    Controls,
-    ModeSwitch,
-    NoSecure,
-    RoutesSwitch,
-    Target,
-    vehicle_controls,
-)
+from mitm_proxy.control.attack import AttackSwitch
+from mitm_proxy.control.mode import ModeSwitch
+from mitm_proxy.control.routes import RoutesSwitch
+from mitm_proxy.control.secure import NoSecure
+from mitm_proxy.control.switches import Controls, Target, vehicle_controls
 from mitm_proxy.net.factory import make_endpoint
 from mitm_proxy.net.rules import EndpointRules, rules_from_query, rules_to_query
 from mitm_proxy.stages.attack import AttackStage
@@ -32,8 +29,8 @@ def _endpoints() -> dict[str, Any]:
 
 
 def _registry() -> tuple[Controls, dict[str, Any]]:
-    slots = {1: AttackSlot(1), 2: AttackSlot(2)}
-    controls = vehicle_controls("bench", slots, {s: AttackStage(slot) for s, slot in slots.items()})
+    slots = {1: AttackSwitch(AttackSlot(1)), 2: AttackSwitch(AttackSlot(2))}
+    controls = vehicle_controls("bench", slots, {s: AttackStage(slot.slot) for s, slot in slots.items()})
     endpoints = _endpoints()
     controls.add(RoutesSwitch("bench", endpoints))
     return controls, endpoints
@@ -42,7 +39,7 @@ def _registry() -> tuple[Controls, dict[str, Any]]:
 def test_every_set_topic_finds_its_control_and_state_topic() -> None:
     controls, _ = _registry()
     cases = {
-        "secuav/v1/attack/set": (AttackSlot, "secuav/v1/attack/state"),
+        "secuav/v1/attack/set": (AttackSwitch, "secuav/v1/attack/state"),
         "secuav/v2/attack/mode/set": (ModeSwitch, "secuav/v2/attack/mode/state"),
         "secuav/v2/secure/set": (NoSecure, "secuav/v2/secure/state"),
         "secuav/proxy/routes/set": (RoutesSwitch, "secuav/proxy/bench/routes/state"),
@@ -94,8 +91,8 @@ def test_a_route_set_is_all_or_nothing() -> None:
 
 
 def test_every_change_of_mode_goes_through_its_switch_and_leaves_one_verdict() -> None:
-    slot = AttackSlot(1)
-    stage = AttackStage(slot)
+    slot = AttackSwitch(AttackSlot(1))
+    stage = AttackStage(slot.slot)
     mode = ModeSwitch(1, stage)
     state = mode.handle("bypass", "r1")
     assert state.mode == "bypass" and state.request_id == "r1" and state.ok and not stage.enabled
@@ -108,7 +105,7 @@ def test_every_change_of_mode_goes_through_its_switch_and_leaves_one_verdict() -
 
 
 def test_one_verdict_per_switch_whatever_the_door() -> None:
-    slot = AttackSlot(1)
+    slot = AttackSwitch(AttackSlot(1))
     assert slot.offer_payload({"library": "drift"}, "mqtt-1").ok
     refused = slot.offer_payload({"library": "no-such-profile"}, "mqtt-2")
     assert not refused.ok and refused.request_id == "mqtt-2" and refused.profile == "drift"

@@ -12,11 +12,13 @@ from typing import Any
 import pytest
 
 from attack_profiles.profile import load_profile
+from mitm_proxy.control.attack import AttackSwitch
 from mitm_proxy.control.plane import ControlPlane
 from mitm_proxy.control.reload import REHASH_EVERY, ProfileWatcher
 from mitm_proxy.control.switches import vehicle_controls
-from mitm_proxy.stages.attack_slot import AttackSlot, SlotState
+from mitm_proxy.stages.attack_slot import AttackSlot
 from secuav_common.broker import EmbeddedBroker
+from secuav_common.controlplane.payloads import AttackState as SlotState
 from secuav_common.scenario import load_scenario
 from tests.support.brokers import Observer
 
@@ -55,7 +57,7 @@ def names(slots: dict[int, AttackSlot]) -> dict[int, str | None]:
 def test_a_good_edit_swaps_and_an_unchanged_save_does_nothing(tmp_path: Path) -> None:
     path = tmp_path / "attack.yaml"
     write(path, profile_text("first"))
-    slots = {1: AttackSlot(1), 2: AttackSlot(2)}
+    slots = {1: AttackSwitch(AttackSlot(1)), 2: AttackSwitch(AttackSlot(2))}
     watcher = started(path, slots)
     assert watcher.poll() == []
 
@@ -79,7 +81,7 @@ def test_a_bad_edit_keeps_the_old_profile_and_names_file_and_field(
     caplog.set_level(logging.WARNING, logger="mitm_proxy.control.reload")
     path = tmp_path / "attack.yaml"
     write(path, profile_text("first"))
-    slots = {1: AttackSlot(1)}
+    slots = {1: AttackSwitch(AttackSlot(1))}
     watcher = started(path, slots)
     engine = slots[1].engine
 
@@ -103,7 +105,7 @@ def test_a_bad_edit_keeps_the_old_profile_and_names_file_and_field(
 def test_an_editor_that_writes_a_temp_file_and_renames_it(tmp_path: Path) -> None:
     path = tmp_path / "attack.yaml"
     write(path, profile_text("first"))
-    slots = {1: AttackSlot(1)}
+    slots = {1: AttackSwitch(AttackSlot(1))}
     watcher = started(path, slots)
     tmp = tmp_path / ".attack.yaml.swp"
     tmp.write_text(profile_text("renamed"), encoding="utf-8")
@@ -115,7 +117,7 @@ def test_rules_that_name_vehicles_go_to_those_vehicles_only(tmp_path: Path, capl
     caplog.set_level(logging.WARNING, logger="mitm_proxy.control.reload")
     path = tmp_path / "attack.yaml"
     write(path, profile_text("for-2", sysid=2))
-    slots = {1: AttackSlot(1), 2: AttackSlot(2), 3: AttackSlot(3)}
+    slots = {1: AttackSwitch(AttackSlot(1)), 2: AttackSwitch(AttackSlot(2)), 3: AttackSwitch(AttackSlot(3))}
     watcher = ProfileWatcher(path, slots)
     watcher.apply_now()
     assert names(slots) == {1: None, 2: "for-2", 3: None}
@@ -137,7 +139,7 @@ def test_rules_that_name_vehicles_go_to_those_vehicles_only(tmp_path: Path, capl
 
 
 def test_a_profile_the_scenario_refuses_keeps_the_old_one(tmp_path: Path) -> None:
-    slots = {1: AttackSlot(1, load_scenario("scenarios/wall_hover.yaml"))}
+    slots = {1: AttackSwitch(AttackSlot(1, load_scenario("scenarios/wall_hover.yaml")))}
     path = tmp_path / "attack.yaml"
     write(path, profile_text("ok", sensor_id=0))
     watcher = ProfileWatcher(path, slots)
@@ -152,7 +154,7 @@ def test_a_missing_file_keeps_the_profile_until_it_returns(tmp_path: Path, caplo
     caplog.set_level(logging.WARNING, logger="mitm_proxy.control.reload")
     path = tmp_path / "attack.yaml"
     write(path, profile_text("first"))
-    slots = {1: AttackSlot(1)}
+    slots = {1: AttackSwitch(AttackSlot(1))}
     watcher = started(path, slots)
     path.unlink()
     assert watcher.poll() == [] and watcher.poll() == []
@@ -168,7 +170,7 @@ async def test_the_running_watcher_reloads_and_the_plane_acknowledges_on_mqtt(
 ) -> None:
     path = tmp_path / "attack.yaml"
     write(path, profile_text("first"))
-    slots = {1: AttackSlot(1)}
+    slots = {1: AttackSwitch(AttackSlot(1))}
     seen: list[SlotState] = []
     watcher = started(path, slots)
     watcher.interval_s = 0.1
@@ -203,7 +205,7 @@ async def test_the_running_watcher_reloads_and_the_plane_acknowledges_on_mqtt(
 def test_a_same_size_edit_within_one_timestamp_tick_is_still_seen(tmp_path: Path) -> None:
     path = tmp_path / "attack.yaml"
     write(path, profile_text("first", offset_m=1.0))
-    slots = {1: AttackSlot(1)}
+    slots = {1: AttackSwitch(AttackSlot(1))}
     watcher = started(path, slots)
     before = path.stat()
     path.write_text(profile_text("first", offset_m=2.0), encoding="utf-8")  # same size

@@ -13,6 +13,7 @@ from attack_profiles.profile import parse_profile
 from mavframe import codec
 from mavframe.frames import CRC_EXTRA, split
 from mavframe.packet import Direction, Packet
+from mitm_proxy.control.attack import AttackSwitch
 from mitm_proxy.core.pipeline import HOSTILE_BYTES_PER_S, Outgoing, Pipeline
 from mitm_proxy.core.stats import LinkStats
 from mitm_proxy.stages.attack import AttackStage
@@ -48,10 +49,10 @@ def bias(sensor_id: int = 0, offset_m: float = 2.0, **kw: Any) -> dict[str, Any]
 
 
 def make(*rules: dict[str, Any], extra: list[Any] | None = None) -> tuple[Pipeline, LinkStats, AttackStage]:
-    slot = AttackSlot(1)
+    slot = AttackSwitch(AttackSlot(1))
     if rules:
         slot.offer(profile(*rules))
-    stage = AttackStage(slot)
+    stage = AttackStage(slot.slot)
     stats = LinkStats(1)
     return Pipeline(0, [stage, *(extra or [])], stats=stats), stats, stage
 
@@ -124,9 +125,9 @@ def test_profile_swap_takes_effect_between_two_datagrams() -> None:
     pipe, _, stage = make(bias(offset_m=1.0))
     dgram = pack(distance(cm=500))
     assert parse_all(pipe.feed(dgram, DOWN, time.monotonic())[0].data)[0].current_distance == 600
-    stage.slot.offer(profile(bias(offset_m=3.0)))
+    AttackSwitch(stage.slot).offer(profile(bias(offset_m=3.0)))
     assert parse_all(pipe.feed(dgram, DOWN, time.monotonic())[0].data)[0].current_distance == 800
-    stage.slot.offer(None)
+    AttackSwitch(stage.slot).offer(None)
     assert pipe.feed(dgram, DOWN, time.monotonic())[0].data is dgram
 
 

@@ -15,6 +15,7 @@ from mavframe import codec
 from mavframe.frames import split
 from mavframe.packet import Direction, Packet
 from mavframe.signing import Signer
+from mitm_proxy.control.attack import AttackSwitch
 from mitm_proxy.core.pipeline import Pipeline
 from mitm_proxy.core.stats import LinkStats
 from mitm_proxy.stages.attack import AttackStage
@@ -28,11 +29,11 @@ DOWN = Direction.DOWNLINK
 
 
 def attacked_pipeline(signer: Signer | None) -> tuple[Pipeline, LinkStats]:
-    slot = AttackSlot(1)
+    slot = AttackSwitch(AttackSlot(1))
     slot.offer(parse_profile({"name": "b", "rules": [{"target": {"message": "DISTANCE_SENSOR", "sensor_id": 0},
                                                       "kind": "bias", "offset_m": 1.0}]}, "b.yaml"))  # fmt: skip
     stats = LinkStats(1)
-    return Pipeline(0, [AttackStage(slot)], stats=stats, signer=signer), stats
+    return Pipeline(0, [AttackStage(slot.slot)], stats=stats, signer=signer), stats
 
 
 def test_without_a_key_signed_frames_are_left_alone_and_counted() -> None:
@@ -55,10 +56,10 @@ def test_without_a_key_the_attack_says_so_once_per_sending_system(caplog: pytest
     said = [r for r in caplog.records if r.getMessage() == "attack.signed_no_key"]
     assert sorted(r.sysid for r in said) == [1, 2]  # type: ignore[attr-defined]
     assert all(r.levelno == logging.WARNING and "--signing-key" in r.detail for r in said)  # type: ignore[attr-defined]
-    assert [w.split(" signs")[0] for w in _signing(slot.state.warnings)] == ["attack.signed_no_key: system 1",
+    assert [w.split(" signs")[0] for w in _signing(slot.warnings)] == ["attack.signed_no_key: system 1",
                                                                   "attack.signed_no_key: system 2"]  # fmt: skip
-    slot.offer(None)
-    assert slot.state.warnings == []  # cleared with the profile
+    AttackSwitch(slot).offer(None)
+    assert slot.warnings == []  # cleared with the profile
 
 
 def test_a_key_or_unsigned_frames_raise_no_warning(caplog: pytest.LogCaptureFixture) -> None:
@@ -68,7 +69,7 @@ def test_a_key_or_unsigned_frames_raise_no_warning(caplog: pytest.LogCaptureFixt
     plain.feed(pack(distance(cm=500), mav(1)), DOWN, time.monotonic())
     assert not [r for r in caplog.records if "signed_no_key" in r.getMessage()]
     keyed_slot, plain_slot = keyed.stages[0].slot, plain.stages[0].slot  # type: ignore[attr-defined]
-    assert _signing(keyed_slot.state.warnings) == _signing(plain_slot.state.warnings) == []
+    assert _signing(keyed_slot.warnings) == _signing(plain_slot.warnings) == []
 
 
 def test_with_a_key_signed_frames_are_verified_rewritten_and_resigned() -> None:
@@ -147,9 +148,9 @@ def test_a_signed_true_copy_is_seen_and_not_taken_for_a_targeted_frame() -> None
         (out,) = pipe.feed(twin, DOWN, time.monotonic())
         assert out.data == twin
     assert stats[DOWN].signed_untouched == 1  # the first only: then it is no longer watched
-    assert _signing(slot.state.warnings) == []
-    (copy,) = [w for w in slot.state.warnings if w.startswith("attack.true_copy: ")]
+    assert _signing(slot.warnings) == []
+    (copy,) = [w for w in slot.warnings if w.startswith("attack.true_copy: ")]
     assert "RANGEFINDER.distance still carries the true value" in copy
     pipe.feed(pack(distance(cm=500), m), DOWN, time.monotonic())
-    (signed,) = _signing(slot.state.warnings)
+    (signed,) = _signing(slot.warnings)
     assert "(DISTANCE_SENSOR among them)" in signed

@@ -14,6 +14,7 @@ from pymavlink import mavutil
 from attack_profiles.profile import parse_profile
 from mavframe import codec
 from mavframe.packet import Direction, Packet
+from mitm_proxy.control.attack import AttackSwitch
 from mitm_proxy.core.pipeline import Pipeline
 from mitm_proxy.core.recorder import Recorder
 from mitm_proxy.core.stats import LinkStats
@@ -36,14 +37,14 @@ def read_tlog(path: Path) -> list[Any]:
 
 
 def test_original_and_forwarded_read_back_with_the_attack_visible(tmp_path: Path) -> None:
-    slot = AttackSlot(1)
+    slot = AttackSwitch(AttackSlot(1))
     slot.offer(parse_profile({"name": "wall", "rules": [
         {"target": {"message": "DISTANCE_SENSOR", "sensor_id": 0}, "kind": "bias", "offset_m": 1.5},
         {"target": {"message": "DISTANCE_SENSOR", "sensor_id": 1}, "kind": "drop"},
         {"target": {"message": "DISTANCE_SENSOR", "sensor_id": 2}, "kind": "delay", "delay_s": 0.25},
     ]}, "wall.yaml"))  # fmt: skip
     rec = Recorder(tmp_path / "rec", link=0)
-    pipe = Pipeline(0, [AttackStage(slot)], stats=LinkStats(1), observers=[rec])
+    pipe = Pipeline(0, [AttackStage(slot.slot)], stats=LinkStats(1), observers=[rec])
     m = mav()
     sent = [
         pack(heartbeat(), m) + pack(local_position(), m),
@@ -163,9 +164,9 @@ def test_a_full_disk_stops_the_recording_once_and_never_changes_what_is_forwarde
     rec = Recorder(tmp_path)
     profile = parse_profile({"name": "plus", "rules": [{"target": {"message": "DISTANCE_SENSOR"}, "kind": "bias",
                                                         "offset": 1.0}]})  # fmt: skip
-    slot = AttackSlot(1)
+    slot = AttackSwitch(AttackSlot(1))
     slot.offer(profile)
-    pipe = Pipeline(0, [AttackStage(slot)], stats=LinkStats(), observers=[rec])
+    pipe = Pipeline(0, [AttackStage(slot.slot)], stats=LinkStats(), observers=[rec])
     sender = mav(1)
     outs = []
     for i in range(2000):

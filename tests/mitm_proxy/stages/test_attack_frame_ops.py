@@ -22,6 +22,7 @@ from mavframe.packet import Direction
 from mavframe.signing import Signer
 from mitm_proxy.app import Proxy
 from mitm_proxy.config import LinkConfig, ProxyConfig
+from mitm_proxy.control.attack import AttackSwitch
 from mitm_proxy.core.pipeline import Pipeline
 from mitm_proxy.core.stats import LinkStats
 from mitm_proxy.stages.attack import AttackStage
@@ -34,10 +35,10 @@ pytestmark = pytest.mark.timeout(60)
 
 
 def linked(signer: Signer | None = None) -> tuple[AttackSlot, Pipeline, LinkStats]:
-    slot = AttackSlot(1)
+    slot = AttackSwitch(AttackSlot(1))
     stats = LinkStats(1)
-    pipe = Pipeline(0, [AttackStage(slot)], stats=stats, signer=signer)
-    slot.unkeyed = pipe.unkeyed_signed
+    pipe = Pipeline(0, [AttackStage(slot.slot)], stats=stats, signer=signer)
+    slot.slot.unkeyed = pipe.unkeyed_signed
     return slot, pipe, stats
 
 
@@ -94,7 +95,7 @@ def test_signing_that_starts_after_the_profile_withholds_the_forged_frames_and_s
     pipe.feed(pack(heartbeat(), signed_mav(sysid=255)), UP, time.monotonic())  # the stage cannot read it
     assert pipe.tick(time.monotonic() + 2.0) == []  # not heard: due after 1.5 s, then withheld
     assert stats[UP].injected == 0 and stats[UP].signed_untouched == 2  # the heartbeat, the forged command
-    assert any(w.startswith("attack.signed_no_key") for w in slot.warnings)
+    assert any(w.startswith("attack.signed_no_key") for w in slot.slot.warnings)
 
 
 def test_duplicates_are_counted_and_status_says_so() -> None:
@@ -146,8 +147,8 @@ async def test_the_link_sends_spoofed_heartbeats_on_its_timer_and_keeps_none_whe
 
 
 def test_the_stage_tells_its_clock_when_the_profile_or_the_bypass_changes() -> None:
-    slot = AttackSlot(1)
-    stage = AttackStage(slot)
+    slot = AttackSwitch(AttackSlot(1))
+    stage = AttackStage(slot.slot)
     calls: list[int] = []
     stage.on_schedule = lambda: calls.append(1)
     assert slot.offer(library.load("inject-rtl")).ok  # installed

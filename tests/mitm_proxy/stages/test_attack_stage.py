@@ -13,6 +13,7 @@ from attack_profiles.engine import Engine
 from attack_profiles.profile import Profile, parse_profile
 from mavframe.frames import split
 from mavframe.packet import Direction, Packet
+from mitm_proxy.control.attack import AttackSwitch
 from mitm_proxy.core.pipeline import Pipeline
 from mitm_proxy.core.stats import LinkStats
 from mitm_proxy.stages.attack import AttackStage
@@ -48,21 +49,21 @@ def packet(frame: bytes, direction: Direction = DOWN) -> Packet:
 
 
 def test_inactive_without_a_profile_and_when_bypassed() -> None:
-    slot = AttackSlot(1)
-    stage = AttackStage(slot)
+    slot = AttackSwitch(AttackSlot(1))
+    stage = AttackStage(slot.slot)
     assert stage.name == "attack" and not stage.active and stage.message_ids == frozenset()
     slot.offer(prof(ds("bias", offset_m=1.0)))
     # the profile's message, and ArduPilot's RANGEFINDER (173) until the vehicle is seen sending one or not
-    assert stage.active and stage.message_ids == frozenset({DISTANCE_SENSOR, 173}) and slot.watching == {173}
+    assert stage.active and stage.message_ids == frozenset({DISTANCE_SENSOR, 173}) and slot.slot.watching == {173}
     stage.active = False
     assert not stage.active and not stage.enabled
-    assert AttackStage(slot, active=False).active is False
+    assert AttackStage(slot.slot, active=False).active is False
 
 
 def test_rewrite_notes_the_rule_and_keeps_the_packet() -> None:
-    slot = AttackSlot(1)
+    slot = AttackSwitch(AttackSlot(1))
     slot.offer(prof(ds("bias", sensor_id=3, offset_m=0.5), name="wall"))
-    stage = AttackStage(slot)
+    stage = AttackStage(slot.slot)
     p = packet(pack(distance(cm=200, sensor_id=3)))
     (out,) = stage.process(p, time.monotonic())
     assert out is p and p.changed and p.fields is not None and p.fields["current_distance"] == 250
@@ -70,26 +71,26 @@ def test_rewrite_notes_the_rule_and_keeps_the_packet() -> None:
 
 
 def test_untouched_frame_is_not_marked_changed() -> None:
-    slot = AttackSlot(1)
+    slot = AttackSwitch(AttackSlot(1))
     slot.offer(prof(ds("bias", sensor_id=3, offset_m=0.5)))
     p = packet(pack(distance(cm=200, sensor_id=4)))
-    assert AttackStage(slot).process(p, time.monotonic()) == [p]
+    assert AttackStage(slot.slot).process(p, time.monotonic()) == [p]
     assert not p.changed and p.notes == []
 
 
 def test_clamped_values_are_noted() -> None:
-    slot = AttackSlot(1)
+    slot = AttackSwitch(AttackSlot(1))
     slot.offer(prof(ds("bias", offset_m=1000.0, out_of_range="attack")))  # past the sensor's max: wire range
     p = packet(pack(distance(cm=60000)))
-    (out,) = AttackStage(slot).process(p, time.monotonic())
+    (out,) = AttackStage(slot.slot).process(p, time.monotonic())
     assert out.fields is not None and out.fields["current_distance"] == 65535
     assert "clamped:current_distance" in out.notes
 
 
 def test_drop_and_delay() -> None:
-    slot = AttackSlot(1)
+    slot = AttackSwitch(AttackSlot(1))
     slot.offer(prof(ds("drop", sensor_id=1), ds("delay", sensor_id=2, delay_s=0.3)))
-    stage = AttackStage(slot)
+    stage = AttackStage(slot.slot)
     now = time.monotonic()
     assert stage.process(packet(pack(distance(sensor_id=1))), now) == []
     p = packet(pack(distance(sensor_id=2)))
@@ -98,9 +99,9 @@ def test_drop_and_delay() -> None:
 
 
 def test_uplink_rules_see_only_uplink() -> None:
-    slot = AttackSlot(1)
+    slot = AttackSwitch(AttackSlot(1))
     slot.offer(prof(ds("bias", offset_m=1.0, direction="uplink")))
-    stage = AttackStage(slot)
+    stage = AttackStage(slot.slot)
     now = time.monotonic()
     down, up = packet(pack(distance(cm=100))), packet(pack(distance(cm=100)), UP)
     stage.process(down, now)
@@ -109,18 +110,18 @@ def test_uplink_rules_see_only_uplink() -> None:
 
 
 def test_cleared_between_check_and_process_passes_the_frame() -> None:
-    slot = AttackSlot(1)
+    slot = AttackSwitch(AttackSlot(1))
     slot.offer(prof(ds("bias", offset_m=1.0)))
-    stage = AttackStage(slot)
+    stage = AttackStage(slot.slot)
     slot.offer(None)
     p = packet(pack(distance()))
     assert stage.process(p, time.monotonic()) == [p] and p.fields is None
 
 
 def test_ramp_follows_the_profile_clock() -> None:
-    slot = AttackSlot(1)
+    slot = AttackSwitch(AttackSlot(1))
     slot.offer(prof(ds("ramp", rate_per_s=1.0, start_s=0.0)))
-    pipe = Pipeline(0, [AttackStage(slot)], stats=LinkStats(1))
+    pipe = Pipeline(0, [AttackStage(slot.slot)], stats=LinkStats(1))
     start = time.monotonic()
     slot.engine.activate(start)  # restart the profile clock at a known instant
     values = []
@@ -157,12 +158,12 @@ PROFILE = prof(
     st.binary(max_size=6),
 )
 def test_fuzz_untargeted_byte_exact_targeted_as_the_engine_says(parts: list[bytes], junk: bytes) -> None:
-    slot = AttackSlot(1)
+    slot = AttackSwitch(AttackSlot(1))
     slot.offer(PROFILE)
     reference = Engine(PROFILE)
     now = time.monotonic()
     reference.activate(now)
-    pipe = Pipeline(0, [AttackStage(slot)], stats=LinkStats(1))
+    pipe = Pipeline(0, [AttackStage(slot.slot)], stats=LinkStats(1))
     out = pipe.feed(junk.join(parts), DOWN, now)
     sent = b"".join(o.data for o in out)
     got = split(sent).frames

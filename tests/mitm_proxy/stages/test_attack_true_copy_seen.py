@@ -18,6 +18,7 @@ from attack_profiles.profile import parse_profile
 from mavframe import tlog
 from mavframe.frames import split
 from mavframe.packet import Direction
+from mitm_proxy.control.attack import AttackSwitch
 from mitm_proxy.core.pipeline import Pipeline
 from mitm_proxy.core.stats import LinkStats
 from mitm_proxy.stages.attack import AttackStage
@@ -28,7 +29,7 @@ RANGEFINDER = 173
 
 
 def slot_for(target: dict[str, Any]) -> AttackSlot:
-    slot = AttackSlot(1)
+    slot = AttackSwitch(AttackSlot(1))
     rule = {"target": {"message": "DISTANCE_SENSOR", **target}, "kind": "bias", "offset": 2.0}
     state = slot.offer(parse_profile({"name": "p", "rules": [rule]}, "p.yaml"))
     assert state.ok, state.error
@@ -37,7 +38,7 @@ def slot_for(target: dict[str, Any]) -> AttackSlot:
 
 def run(slot: AttackSlot, frames: list[bytes]) -> list[bytes]:
     """Each frame as its own datagram, toward the ground; the frames that leave."""
-    pipe = Pipeline(0, [AttackStage(slot)], stats=LinkStats(1))
+    pipe = Pipeline(0, [AttackStage(slot.slot)], stats=LinkStats(1))
     out: list[bytes] = []
     now = time.monotonic()
     for raw in frames:
@@ -62,7 +63,7 @@ def test_on_the_benchs_own_simulator_nothing_is_said_about_rangefinder(caplog: p
         slot = slot_for(target)
         out = run(slot, frames)
         assert len(out) == len(frames)
-        assert slot.state.warnings == [] and slot.watching == {RANGEFINDER}  # still waiting: never sent
+        assert slot.state.warnings == [] and slot.slot.watching == {RANGEFINDER}  # still waiting: never sent
         assert slot.state.directions == ["downlink"]
     assert said(caplog, "attack.true_copy") == []
 
@@ -82,7 +83,7 @@ def test_in_front_of_ardupilot_the_twin_is_said_once_when_it_arrives(caplog: pyt
     (record,) = said(caplog, "attack.true_copy")  # once, though ArduPilot sends RANGEFINDER at 10 Hz
     assert record.warning == warning.removeprefix("attack.true_copy: ")  # type: ignore[attr-defined]
     # once seen, RANGEFINDER is no longer handed to the stage: only the profile's own message is
-    assert slot.watching == frozenset() and slot.message_ids == slot.engine.message_ids  # type: ignore[union-attr]
+    assert slot.slot.watching == frozenset() and slot.slot.message_ids == slot.engine.message_ids  # type: ignore[union-attr]
     sent = {raw for raw in frames[first:] if split(raw).frames[0][0].msgid == RANGEFINDER}
     assert sent <= set(out)  # RANGEFINDER frames pass byte for byte
     # the vehicle is known to send RANGEFINDER: a new profile is warned about at once
@@ -94,7 +95,7 @@ def test_in_front_of_ardupilot_the_twin_is_said_once_when_it_arrives(caplog: pyt
 def test_anchor_links_leave_no_rangefinder_twin_even_in_front_of_ardupilot() -> None:
     slot = slot_for({"sensor_id": [11, 14]})
     run(slot, ardupilot())
-    assert slot.state.warnings == [] and slot.watching == frozenset()  # nothing to watch for
+    assert slot.state.warnings == [] and slot.slot.watching == frozenset()  # nothing to watch for
 
 
 def test_toward_the_vehicle_no_twin_is_warned_and_the_echo_is_noted_once(caplog: pytest.LogCaptureFixture) -> None:

@@ -12,6 +12,7 @@ from attack_profiles import library
 from mavframe import codec
 from mavframe.frames import split
 from mavframe.packet import Direction
+from mitm_proxy.control.attack import AttackSwitch
 from mitm_proxy.core.pipeline import Pipeline
 from mitm_proxy.core.stats import LinkStats
 from mitm_proxy.stages.attack import AttackStage
@@ -34,9 +35,9 @@ def _command(seq: int, command: int, **params: float) -> bytes:
 
 
 def test_takeoff_to_5_m_leaves_the_proxy_as_12_m_and_nothing_else_changes() -> None:
-    slot = AttackSlot(1)
+    slot = AttackSwitch(AttackSlot(1))
     slot.offer(library.load("takeoff-altitude"))
-    pipe = Pipeline(0, [AttackStage(slot)], stats=LinkStats(1))
+    pipe = Pipeline(0, [AttackStage(slot.slot)], stats=LinkStats(1))
     frames = [
         _frame("HEARTBEAT", 0, type=6, autopilot=8, mavlink_version=3),
         _command(1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, param1=1.0, param7=5.0),
@@ -63,9 +64,9 @@ def test_takeoff_to_5_m_leaves_the_proxy_as_12_m_and_nothing_else_changes() -> N
 
 
 def test_the_same_command_toward_the_ground_is_left_alone() -> None:
-    slot = AttackSlot(1)
+    slot = AttackSwitch(AttackSlot(1))
     slot.offer(library.load("takeoff-altitude"))
-    pipe = Pipeline(0, [AttackStage(slot)], stats=LinkStats(1))
+    pipe = Pipeline(0, [AttackStage(slot.slot)], stats=LinkStats(1))
     frame = _command(7, mavlink.MAV_CMD_NAV_TAKEOFF, param7=5.0)
     (out,) = pipe.feed(frame, Direction.DOWNLINK, time.monotonic())
     assert out.data == frame

@@ -12,9 +12,10 @@ from hypothesis import strategies as st
 from attack_profiles import library
 from attack_profiles.engine import Engine
 from mavframe.packet import Direction
+from mitm_proxy.control.secure import SecureSwitch
 from mitm_proxy.core.pipeline import Pipeline
 from mitm_proxy.core.stats import LinkStats
-from mitm_proxy.stages.secure.stage import SecureConfig, SecureSlot, SecureStage
+from mitm_proxy.stages.secure.stage import OFF, SecureConfig, SecureStage
 from secuav_common.scenario import Scenario, load_scenario
 from tests.support.secure_streams import StreamMaker, packet_of, wire_fields
 
@@ -114,7 +115,7 @@ def _datagrams(
 
 @pytest.mark.timeout(60)
 def test_pipeline_bypass_is_byte_exact_and_active_touches_only_the_group(wall: Scenario) -> None:
-    slot = SecureSlot(1, wall)
+    slot = SecureSwitch(SecureStage(OFF, wall, 1))
     pipe = Pipeline(0, [slot.stage], stats=LinkStats(1))
     try:
         for t, dgram in _datagrams(wall, 13, 2.0):
@@ -153,7 +154,7 @@ def test_pipeline_bypass_is_byte_exact_and_active_touches_only_the_group(wall: S
 @pytest.mark.timeout(30)
 def test_secure_set_acknowledges_and_a_rejected_request_keeps_the_estimator(anchors8: Scenario) -> None:
     published: list[dict[str, Any]] = []
-    slot = SecureSlot(1, anchors8, publish=lambda s, p: published.append(p))
+    slot = SecureSwitch(SecureStage(OFF, anchors8, 1, publish=lambda s, p: published.append(p)))
     try:
         st = slot.state
         assert st.ok and st.estimator is None and not slot.stage.active
@@ -234,13 +235,13 @@ def test_auto_executor_keeps_cheap_steps_inline(wall: Scenario) -> None:
 
 
 @pytest.mark.timeout(30)
-def test_make_slots_from_the_secure_flag() -> None:
-    """``--secure NAME`` for every vehicle of a scenario: one slot each, one shared peer board; bad input refused."""
-    from mitm_proxy.stages.secure.stage import make_slots
+def test_make_stages_from_the_secure_flag() -> None:
+    """``--secure NAME`` for every vehicle of a scenario: one stage each, one shared peer board; bad input refused."""
+    from mitm_proxy.stages.secure.stage import make_stages
     from secuav_common.loading import InputError
 
     formation = load_scenario("formation")
-    slots = make_slots(formation, [1, 2], "secekf")
+    slots = {sysid: SecureSwitch(stage) for sysid, stage in make_stages(formation, [1, 2], "secekf").items()}
     try:
         assert [s.state.estimator for s in slots.values()] == ["secekf", "secekf"]
         assert slots[1].stage.peers is slots[2].stage.peers
@@ -248,12 +249,12 @@ def test_make_slots_from_the_secure_flag() -> None:
     finally:
         for s in slots.values():
             s.close()
-    off = make_slots(formation, [1, 2], "off")
-    assert not any(s.stage.active for s in off.values())
+    off = make_stages(formation, [1, 2], "off")
+    assert not any(s.active for s in off.values())
     with pytest.raises(InputError, match=r"--secure: estimator: unknown estimator.*'kalmanish'"):
-        make_slots(formation, [1, 2], "kalmanish")
+        make_stages(formation, [1, 2], "kalmanish")
     with pytest.raises(InputError, match=r"--secure: group: .*no wall_distance target"):
-        make_slots(formation, [1], SecureConfig(estimator="secekf", group="wall"))
+        make_stages(formation, [1], SecureConfig(estimator="secekf", group="wall"))
 
 
 _u16 = st.integers(0, 65535)

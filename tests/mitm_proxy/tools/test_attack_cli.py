@@ -16,6 +16,7 @@ from attack_profiles import library
 from attack_profiles.profile import load_profile
 from mavframe.frames import split
 from mavframe.packet import Direction, Header, Packet
+from mitm_proxy.control.attack import AttackSwitch
 from mitm_proxy.control.plane import ControlPlane
 from mitm_proxy.control.switches import vehicle_controls
 from mitm_proxy.stages.attack import AttackStage
@@ -49,8 +50,8 @@ def stats() -> dict[int, dict[str, Any]]:
 @pytest.fixture
 async def bench(tcp_port: Callable[[], int]) -> AsyncIterator[Bench]:
     port = tcp_port()
-    slots = {1: AttackSlot(1), 2: AttackSlot(2)}
-    stages = {sysid: AttackStage(slot) for sysid, slot in slots.items()}
+    slots = {1: AttackSwitch(AttackSlot(1)), 2: AttackSwitch(AttackSlot(2))}
+    stages = {sysid: AttackStage(slot.slot) for sysid, slot in slots.items()}
     async with EmbeddedBroker(port=port):
         url = f"mqtt://127.0.0.1:{port}"
         async with ControlPlane(url, vehicle_controls("t", slots, stages), stats=stats) as plane:
