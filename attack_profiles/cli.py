@@ -22,9 +22,8 @@ from attack_profiles import library
 from attack_profiles.directions import describe, directions_of
 from attack_profiles.engine import Engine
 from attack_profiles.profile import Profile, profile_schema_text
-from attack_profiles.quantities import true_copies
 from attack_profiles.resolve import resolve_profile
-from attack_profiles.true_copy import vehicle_reports
+from attack_profiles.true_copy import true_copies, vehicle_reports
 from secuav_common.loading import InputError, parse_params
 from secuav_common.logs import add_common_flags
 from secuav_common.scenario import load_scenario

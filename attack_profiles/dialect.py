@@ -60,7 +60,7 @@ from functools import cache
 from types import ModuleType
 from typing import Any
 
-from attack_profiles.units import DERIVED_UNITS, FieldSpec, MessageSpec, wire_range
+from attack_profiles.wire import DERIVED_UNITS, FieldSpec, MessageSpec, wire_range
 
 _WIDE = frozenset({"uint64_t", "int64_t"})
 

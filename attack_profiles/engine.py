@@ -67,8 +67,9 @@ from attack_profiles.frame_ops import FrameOps, is_frame_rule, value_warnings
 from attack_profiles.primitives import PRIMITIVES, Context, Primitive, Sample, primitive
 from attack_profiles.primitives.base import Vec3
 from attack_profiles.profile import Profile
-from attack_profiles.quantities import DEFAULT_COMPONENT, Carrier, carriers_of, true_copies
+from attack_profiles.quantities import DEFAULT_COMPONENT, Carrier, carriers_of
 from attack_profiles.rule import IdRange, RuleBase
+from attack_profiles.true_copy import true_copies
 from attack_profiles.units import (
     EPOCH_USEC_THRESHOLD,
     LOCAL_POSITION_NED_ID,

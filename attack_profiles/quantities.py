@@ -52,7 +52,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
 if TYPE_CHECKING:
-    from attack_profiles.profile import Profile
+    pass
 
 QuantityName = Literal["rangefinder", "altitude", "position"]
 QUANTITY_NAMES: tuple[str, ...] = ("rangefinder", "altitude", "position")
@@ -159,14 +159,6 @@ NOT_COVERED: dict[str, tuple[tuple[str, str], ...]] = {
 def carriers_of(quantity: str, component: str | None = None) -> tuple[Carrier, ...]:
     """The carriers of ``quantity`` (one component, or all of them when ``component`` is None)."""
     return tuple(c for c in CARRIERS if c.quantity == quantity and component in (None, c.component))
-
-
-def true_copies(profile: Profile) -> list[str]:
-    """One warning per rule whose attacked quantity may still travel true toward the ground in a message the
-    profile leaves alone, worded for an unknown vehicle (:mod:`attack_profiles.true_copy` says how)."""
-    from attack_profiles.true_copy import true_copies as worded
-
-    return worded(profile)
 
 
 def mapping_table() -> str:

@@ -14,8 +14,8 @@ from hypothesis import strategies as st
 
 from attack_profiles.directions import check_no_uplink, describe, directions_of
 from attack_profiles.profile import Profile, parse_profile
-from attack_profiles.quantities import NOT_COVERED, true_copies
-from attack_profiles.true_copy import findings, message_names, vehicle_reports
+from attack_profiles.quantities import NOT_COVERED
+from attack_profiles.true_copy import findings, message_names, true_copies, vehicle_reports
 from mavframe import codec
 from secuav_common.loading import InputError
 

@@ -14,7 +14,8 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from attack_profiles import library, parse_profile
-from attack_profiles.quantities import CARRIERS, M_PER_DEG, NOT_COVERED, mapping_table, true_copies
+from attack_profiles.quantities import CARRIERS, M_PER_DEG, NOT_COVERED, mapping_table
+from attack_profiles.true_copy import true_copies
 from attack_profiles.units import MESSAGES
 from secuav_common.loading import InputError
 from tests.support.attack_helpers import (

@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from attack_profiles.profile import parse_profile
-from attack_profiles.quantities import true_copies
+from attack_profiles.true_copy import true_copies
 from mavframe import tlog
 from tests.support.quantity_streams import recorded_through_stage
 
