@@ -306,7 +306,9 @@ class Proxy:
             secure = parts.secure
             warnings = parts.stage.slot.warnings
             if secure is not None:
-                snap["secure"] = {"estimator": secure.stage.config.estimator, **asdict(secure.stage.counters)}
+                counters = asdict(secure.stage.counters)
+                counters["readings"] = counters.pop("readings_taken")  # the snapshot's key (docs/interfaces.md)
+                snap["secure"] = {"estimator": secure.stage.config.estimator, **counters}
                 warnings = [*warnings, *secure.stage.warnings]
             snap["warnings"] = warnings  # what keeps the attack or the secure stage from working, "code: text"
             out[link.sysid] = snap
