@@ -58,6 +58,21 @@ class Registry(Generic[T]):
         self._builtin.append(name)
         return part
 
+    def add(self, name: str, part: T) -> T:
+        """Add a part that is not built in (a test's, a lab's own) by an explicit call: the same part twice is
+        a no-op, another part under a name already taken a ``ValueError``."""
+        if self.table.get(name) is part:
+            return part
+        if not name or name in self.table:
+            raise ValueError(f"{self.what} {name!r} is registered twice")
+        self.table[name] = part
+        return part
+
+    def remove(self, name: str) -> None:
+        """Take an added part out again; a built-in stays."""
+        if name not in self._builtin:
+            self.table.pop(name, None)
+
     def unregister(self, name: str) -> None:
         """Take a part out again (a test that declared one of its own)."""
         self.table.pop(name, None)

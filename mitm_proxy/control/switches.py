@@ -60,6 +60,7 @@ from secuav_common.controlplane.topics import (
     proxy_topic,
     vehicle_topic,
 )
+from secuav_common.registry import Registry
 
 log = logging.getLogger(__name__)
 
@@ -159,21 +160,21 @@ class Built(Protocol):
 # Every built-in kind, one class each: the first three are held by each link (LinkParts.switches; NoSecure
 # stands in for SecureSwitch on a link without a scenario), routes is built from the endpoints.
 BUILT_IN: tuple[type[Switch[Any]], ...] = (AttackSwitch, ModeSwitch, SecureSwitch, RoutesSwitch)
-_BUILT: tuple[Built, ...] = (RoutesSwitch,)
-_ADDED: dict[str, Built] = {}
+_HELD_BY_LINKS = frozenset({AttackSwitch, ModeSwitch, SecureSwitch})
+TABLE: Registry[type[Switch[Any]]] = Registry("switch")
+for _cls in BUILT_IN:
+    TABLE.register(_cls.kind, _cls)
 
 
 def register(switch: Built) -> Built:
     """Serve one more switch class (its contract registered in secuav_common too); a kind twice is a bug."""
-    if any(c.kind == switch.kind and c is not switch for c in (*BUILT_IN, *_ADDED.values())):
-        raise ValueError(f"switch {switch.kind!r} is registered twice")
-    _ADDED[switch.kind] = switch
+    TABLE.add(switch.kind, switch)  # type: ignore[arg-type]  # a Built is a Switch class with build()
     return switch
 
 
 def unregister(kind: str) -> None:
     """Take an added switch class out again (tests that declare one of their own)."""
-    _ADDED.pop(kind, None)
+    TABLE.remove(kind)
 
 
 def build_controls(host: SwitchHost) -> Controls:
@@ -183,7 +184,7 @@ def build_controls(host: SwitchHost) -> Controls:
     for sysid, link in sorted(host.links.items()):
         for switch in link.switches():
             controls.add(switch, sysid)
-    for cls in (*_BUILT, *_ADDED.values()):
+    for cls in [c for c in TABLE.table.values() if c not in _HELD_BY_LINKS]:
         for sysid in [None] if cls.scope == "proxy" else sorted(host.links):
             built = cls.build(host, sysid)
             if built is not None:

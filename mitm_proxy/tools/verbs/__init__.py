@@ -14,35 +14,35 @@ from collections.abc import Iterator
 
 from mitm_proxy.tools.verbs import attack, mode, routes, secure
 from mitm_proxy.tools.verbs.base import State, SwitchVerbs, Verb, since_text
+from secuav_common.registry import Registry
 
 __all__ = ["BUILT_IN", "State", "SwitchVerbs", "Verb", "owner", "register", "since_text", "switches", "unregister",
            "verbs"]  # fmt: skip
 
 
 BUILT_IN: tuple[SwitchVerbs, ...] = (attack.VERBS, mode.VERBS, secure.VERBS, routes.VERBS)
-_ADDED: dict[str, SwitchVerbs] = {}
+TABLE: Registry[SwitchVerbs] = Registry("switch")
+for _entry in BUILT_IN:
+    TABLE.register(_entry.kind, _entry)
 
 
 def register(entry: SwitchVerbs) -> SwitchVerbs:
     """Add the verbs of a switch that is not built in; a kind or a verb name taken twice is a bug."""
-    if any(s.kind == entry.kind and s is not entry for s in switches()):
-        raise ValueError(f"switch {entry.kind!r} is registered twice")
     taken = {v.name for s in switches() if s.kind != entry.kind for v in s.verbs}
     clash = sorted(taken & {v.name for v in entry.verbs})
     if clash:
         raise ValueError(f"switch {entry.kind!r}: verb {clash[0]!r} belongs to another switch")
-    _ADDED[entry.kind] = entry
-    return entry
+    return TABLE.add(entry.kind, entry)
 
 
 def unregister(kind: str) -> None:
     """Take an added switch's verbs out again (tests that declare one of their own)."""
-    _ADDED.pop(kind, None)
+    TABLE.remove(kind)
 
 
 def switches() -> list[SwitchVerbs]:
     """Every switch's command line: the vehicle ones first, then the proxy-wide ones, each by kind."""
-    return sorted([*BUILT_IN, *_ADDED.values()], key=lambda s: (s.scope != "vehicle", s.kind))
+    return sorted(TABLE.table.values(), key=lambda s: (s.scope != "vehicle", s.kind))
 
 
 def verbs() -> Iterator[tuple[SwitchVerbs, Verb]]:

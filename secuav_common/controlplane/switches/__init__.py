@@ -16,30 +16,29 @@ from __future__ import annotations
 
 from secuav_common.controlplane.contract import SwitchContract
 from secuav_common.controlplane.switches import attack, mode, routes, secure
+from secuav_common.registry import Registry
 
 __all__ = ["BUILT_IN", "SwitchContract", "contracts", "find", "register", "unregister"]
 
 BUILT_IN: tuple[SwitchContract, ...] = (attack.CONTRACT, mode.CONTRACT, secure.CONTRACT, routes.CONTRACT)
-_ADDED: dict[str, SwitchContract] = {}
+TABLE: Registry[SwitchContract] = Registry("switch")  # the same shape as the estimators' and primitives' tables
+for _contract in BUILT_IN:
+    TABLE.register(_contract.kind, _contract)
 
 
 def register(contract: SwitchContract) -> SwitchContract:
     """Add a switch that is not built in; a kind declared twice is a bug."""
-    old = next((c for c in contracts() if c.kind == contract.kind), None)
-    if old is not None and old is not contract:
-        raise ValueError(f"switch {contract.kind!r} is registered twice")
-    _ADDED[contract.kind] = contract
-    return contract
+    return TABLE.add(contract.kind, contract)
 
 
 def unregister(kind: str) -> None:
     """Take an added switch out again (tests that declare one of their own)."""
-    _ADDED.pop(kind, None)
+    TABLE.remove(kind)
 
 
 def contracts() -> list[SwitchContract]:
     """Every switch: the vehicle ones first, then the proxy-wide ones, each by kind."""
-    return sorted([*BUILT_IN, *_ADDED.values()], key=lambda c: (c.scope != "vehicle", c.kind))
+    return sorted(TABLE.table.values(), key=lambda c: (c.scope != "vehicle", c.kind))
 
 
 def find(scope: str, kind: str) -> SwitchContract | None:
