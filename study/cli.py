@@ -67,6 +67,10 @@ def build_parser() -> argparse.ArgumentParser:
                       help="a method under test, as in a study's estimators: NAME, package.module:Class, or "
                       "'{name: huber, params: {huber_k: [1.0, 1.345]}}' (YAML); repeatable")  # fmt: skip
     srun.add_argument("--only", action="append", default=[], metavar="STUDY", help="run only this study (repeatable)")
+    srun.add_argument("--split", choices=("evaluation", "tuning"), default="evaluation",
+                      help="tuning: where a method's parameters are chosen (other seeds and hover points, "
+                      "OUT/tuning/); evaluation (default): the scored cells, where a method given with a grid "
+                      "runs only at its best tuning point")  # fmt: skip
     swhere = srun.add_mutually_exclusive_group()
     swhere.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes (default: cores)")
     swhere.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="a running dask scheduler")
@@ -83,10 +87,27 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _load(path: Path) -> tuple[Any, list[Any]]:
+SMOKE_ENV = "SECUAV_STUDY_SMOKE"
+
+
+def _smoke() -> bool:
+    """``SECUAV_STUDY_SMOKE=1``: every study cut to one seed, one leg, one hover point and 3 s (docs/bench.md):
+    to try the commands of the docs, never a score (its directories say so and refuse real rows)."""
+    return os.environ.get(SMOKE_ENV, "") not in ("", "0")
+
+
+def _load(path: Path, smoke: bool = False) -> tuple[Any, list[Any]]:
     from study.spec import expand, load_study
 
     study = load_study(path)
+    if smoke:
+        cut: dict[str, Any] = {"seeds": study.seed_list()[:1], "legs": study.legs[:1]}
+        if study.mode == "offline" and study.recording is None:
+            cut["duration_s"] = min(3.0, study.duration_s or 3.0)
+        if study.positions:
+            cut["positions"] = study.positions[:1]
+        study = study.model_copy(update=cut)
+        print(f"secuav-study: {SMOKE_ENV} set: {path} cut to one seed, one leg, 3 s (not a score)", file=sys.stderr)
     return study, expand(study, str(path))
 
 
@@ -112,16 +133,19 @@ def _run(args: argparse.Namespace) -> int:
     from study.report import write_report
 
     try:
-        study, cells = _load(args.study)
+        study, cells = _load(args.study, smoke=_smoke())
         if args.workers is not None and not 1 <= args.workers <= 1024:
             raise InputError("--workers", "", args.workers, "must lie in 1..1024")
         if args.scheduler is not None:
             _check_scheduler(args.scheduler)
-        definition = study.model_dump(mode="json")
+        definition = {**study.model_dump(mode="json"), **({"smoke": True} if _smoke() else {})}
         held = store.saved_study(args.out)
         if held is not None and held.get("name") != study.name:
             raise InputError(str(args.out), "study.json: name", held.get("name"),
                              f"this directory holds another study; use a new --out for {study.name!r}")  # fmt: skip
+        if held is not None and bool(held.get("smoke")) != _smoke():
+            raise InputError(str(args.out), "study.json: smoke", bool(held.get("smoke")),
+                             f"{SMOKE_ENV} runs and real ones never share a directory; use a new --out")  # fmt: skip
     except InputError as err:
         print(f"secuav-study: {err}", file=sys.stderr)
         return 2
@@ -172,7 +196,7 @@ def _suite(args: argparse.Namespace) -> int:
                  *(["--scheduler", args.scheduler] if args.scheduler else []),
                  *(["--no-progress"] if args.no_progress else [])]  # fmt: skip
         return suite.run(args.out, quick=args.quick, version=args.version, added=added, runner_args=extra,
-                         only=args.only)  # fmt: skip
+                         only=args.only, split=args.split)  # fmt: skip
     except (InputError, ValueError) as err:
         print(f"secuav-study: {err}", file=sys.stderr)
         return 2
