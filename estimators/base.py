@@ -37,8 +37,9 @@ class Estimate:
     group: the distance; two vehicles: n1, e1, n2, e2). ``velocity_mps`` is
     None for snapshot estimators. ``covariance`` is over ``[position, velocity]``
     when velocity is modelled, else over position. ``attacked`` and ``used`` are
-    indices into z; ``attacked`` is decided for every secure estimator alike by
-    :mod:`estimators.attribution` (family-wise level alpha per step). ``alarm``:
+    indices into z; ``attacked`` is decided by :mod:`estimators.attribution` (family-wise level alpha per
+    step) for every estimator with the shared attribution on (``attribution``, by default the secure ones),
+    else it is the method's own naming. ``alarm``:
     the readings cannot single out an attacked set of at most s sensors (more
     are attacked than tolerated, or the model is wrong). ``ok`` is False while
     no estimate exists yet (position is NaN then). ``valid`` is False when the

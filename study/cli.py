@@ -17,7 +17,9 @@ again only because the code of a row changed (an estimator's source or default,
 a primitive's, the secuav version: docs/study.md, "Provenance"), also said on
 stderr. Exit 0 when none failed,
 1 when some did (they are in the results), 2 on bad input, 130 when
-interrupted (what finished is kept; run again to go on).
+interrupted (what finished is kept; run again to go on). With ``SECUAV_STUDY_SMOKE=1`` in the environment every
+study is cut to its first two cells (one seed, one leg, 3 s), to try commands (docs/bench.md); such a directory
+is never a score.
 """
 
 from __future__ import annotations
@@ -88,10 +90,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 SMOKE_ENV = "SECUAV_STUDY_SMOKE"
+SMOKE_CELLS = 2
 
 
 def _smoke() -> bool:
-    """``SECUAV_STUDY_SMOKE=1``: every study cut to one seed, one leg, one hover point and 3 s (docs/bench.md):
+    """``SECUAV_STUDY_SMOKE=1``: every study cut to its first two cells (one seed, one leg, one hover point) of
+    3 s (docs/bench.md):
     to try the commands of the docs, never a score (its directories say so and refuse real rows)."""
     return os.environ.get(SMOKE_ENV, "") not in ("", "0")
 
@@ -107,7 +111,9 @@ def _load(path: Path, smoke: bool = False) -> tuple[Any, list[Any]]:
         if study.positions:
             cut["positions"] = study.positions[:1]
         study = study.model_copy(update=cut)
-        print(f"secuav-study: {SMOKE_ENV} set: {path} cut to one seed, one leg, 3 s (not a score)", file=sys.stderr)
+        print(f"secuav-study: {SMOKE_ENV} set: {path} cut to its first {SMOKE_CELLS} cells of one seed, one leg, "
+              "3 s (not a score)", file=sys.stderr)  # fmt: skip
+        return study, expand(study, str(path))[:SMOKE_CELLS]
     return study, expand(study, str(path))
 
 

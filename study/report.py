@@ -297,6 +297,9 @@ def write_report(out: Path) -> Path:
         f"- rows: {len(frame)} ({len(ok)} ok, {len(failed)} failed) over {frame['cell'].nunique()} cells; "
         f"workers: {', '.join(sorted(str(w) for w in ok['worker'].dropna().unique())) or 'n/a'}",
         f"- means over seeds with {CI_LEVEL:.0%} bootstrap confidence intervals ({RESAMPLES} resamples)",
+        "- a secure method has two rows: `name`, its own output, and `name+attribution`, its output with SecUAV's "
+        "shared attribution; detection: `own_*` the method's own naming, `attribution_*` the attribution's, one "
+        "definition (docs/bench.md, \"Detection\")",
         "",
     ]
     if len(failed):

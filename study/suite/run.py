@@ -287,8 +287,11 @@ def _tuned_on(name: Any, label: str, chosen: dict[str, Any], split: str) -> str:
     import estimators
 
     pick = chosen.get(name) if isinstance(name, str) else None
-    if pick is not None and split == "evaluation" and label.split("+")[0] == pick["label"]:
+    point = label.split("+")[0]
+    if pick is not None and split == "evaluation" and point == pick["label"]:
         return f"tuning split: best of {pick['of']} points"
+    if "[" in point:  # parameters of its own: a point of a grid, or one given as it is
+        return "a tuning point" if split == "tuning" else "as given (--add)"
     try:
         declared = estimators.registry.get(name).tuned_on if isinstance(name, str) else ""
     except (ValueError, ImportError):
