@@ -157,10 +157,13 @@ def _charge(out: Path, added: list[Any], budget: int, split: str) -> None:
     (out / BUDGET_FILE).write_text(json.dumps(book, indent=2, sort_keys=True) + "\n", encoding="utf-8")
 
 
-def best_points(out: Path, added: list[Any], version: str) -> tuple[list[Any], dict[str, Any]]:
+def best_points(out: Path, added: list[Any], version: str, before: dict[str, Any] | None = None,
+                ) -> tuple[list[Any], dict[str, Any]]:  # fmt: skip
     """The evaluation split's entries: a method given with a grid runs at its one point of least mean RMSE over
     OUT's tuning split (its own output's rows; every point must have been run there), others as given; and what
-    was chosen, per method (point, how many points, the tuning RMSE of each)."""
+    was chosen, per method (point, how many points, the tuning RMSE of each). A choice made before in OUT for
+    the same grid (``before``) stands: the evaluation split of one directory has one point per method, so a
+    later tuning command cannot change which evaluation rows are the method's."""
     from study import store
     from study.spec import variant_label
 
@@ -173,6 +176,11 @@ def best_points(out: Path, added: list[Any], version: str) -> tuple[list[Any], d
             resolved.append(entry)
             continue
         labels = {variant_label(name, p): p for p in points}
+        held = (before or {}).get(name)
+        if held is not None and set(held["tuning_rmse_m"]) == set(labels):
+            resolved.append({"name": name, "params": held["point"]} if held["point"] else name)
+            chosen[name] = held
+            continue
         frames = [store.load(out / "tuning" / Path(e.file).stem) for e in entries]
         rows = pd.concat([f for f in frames if len(f)], ignore_index=True) if any(len(f) for f in frames) else None
         scores: dict[str, float] = {}
@@ -234,7 +242,8 @@ def run(out: Path, *, quick: bool, version: str, added: list[Any], runner_args: 
                              "use a new OUT")  # fmt: skip
     chosen: dict[str, Any] = {}
     if split == "evaluation":
-        added, chosen = best_points(out, added, version)
+        before = meta.get("splits", {}).get("evaluation", {}).get("chosen", {})
+        added, chosen = best_points(out, added, version, before)
     _charge(out, added, int(head["tuning_budget"]), split)
     splits = meta.get("splits", {})
     splits[split] = {"added": added, **({"chosen": chosen} if split == "evaluation" else {})}

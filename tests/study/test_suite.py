@@ -96,6 +96,10 @@ def test_tuning_split_budget_and_best_point_across_commands(tmp_path: Path) -> N
     rows = pd.read_parquet(out / "beyond-tolerance" / "results.parquet")
     assert set(rows.loc[rows["estimator_name"] == "huber", "estimator"]) == {chosen["label"]}
     assert set(rows["seed"]) == {0} and rows["position"].isna().all()
+    # More tuning later does not move the evaluation split's point: the choice made in this directory stands.
+    again = _smoke("suite", "run", *common, "--add", grid)
+    assert again.returncode == 0 and json.loads((out / "suite.json").read_text())["splits"]["evaluation"][
+        "chosen"]["huber"] == chosen  # fmt: skip
     # Two more points pass the budget of 4 in this directory: refused before anything runs, said once.
     over = _smoke("suite", "run", *common, "--split", "tuning", "--add", "{name: huber, params: {huber_k: [0.6, 0.8]}}")
     assert over.returncode == 2 and "exceed the suite's tuning budget of 4" in over.stderr
