@@ -20,6 +20,10 @@ from estimators.bank import Chi2Table, EkfBank, cv_matrices, gauss_newton, inv_s
 from estimators.envelope import MAX_SPEED_MPS, SLACK_M, Envelope
 from estimators.models import Known, MeasurementModel
 
+# Where the built-ins' defaults were chosen (``Estimator.tuned_on``): during development, by hand, on the bundled
+# scenarios the suite's studies also fly, before the suite had a tuning split. Their suite figures are therefore
+# not held out, and a reader should weigh them so (docs/bench.md, "Tuning").
+TUNED_ON_BUNDLED = "by hand on the bundled scenarios (the suite's own; not held out)"
 EVIDENCE_STEPS = 10  # the evidence window: the last second at 10 Hz
 EVIDENCE_MIN = 3  # a reading counts as accused when named on at least this many of its steps
 
@@ -32,8 +36,9 @@ class Estimate:
     group: the distance; two vehicles: n1, e1, n2, e2). ``velocity_mps`` is
     None for snapshot estimators. ``covariance`` is over ``[position, velocity]``
     when velocity is modelled, else over position. ``attacked`` and ``used`` are
-    indices into z; ``attacked`` is decided for every secure estimator alike by
-    :mod:`estimators.attribution` (family-wise level alpha per step). ``alarm``:
+    indices into z; ``attacked`` is decided by :mod:`estimators.attribution` (family-wise level alpha per
+    step) for every estimator with the shared attribution on (``attribution``, by default the secure ones),
+    else it is the method's own naming. ``alarm``:
     the readings cannot single out an attacked set of at most s sensors (more
     are attacked than tolerated, or the model is wrong). ``ok`` is False while
     no estimate exists yet (position is NaN then). ``valid`` is False when the
@@ -83,6 +88,19 @@ def _indices(mask: np.ndarray) -> frozenset[int]:
     return frozenset(np.flatnonzero(mask).tolist())
 
 
+def _as_indices(readings: object, p: int) -> frozenset[int]:
+    """Indices into z from a boolean mask of length p or from an iterable of indices (each checked)."""
+    arr = np.asarray(list(readings) if isinstance(readings, set | frozenset) else readings)
+    if arr.dtype == bool:
+        if arr.shape != (p,):
+            raise ValueError(f"a reading mask must have {p} entries, got shape {arr.shape}")
+        return _indices(arr)
+    out = frozenset(int(i) for i in arr.reshape(-1).tolist())
+    if any(not 0 <= i < p for i in out):
+        raise ValueError(f"reading indices {sorted(out)} must lie in 0..{p - 1}")
+    return out
+
+
 def _mahalanobis(gap: np.ndarray, cov: np.ndarray) -> float:
     return float(gap @ np.linalg.solve(cov + 1e-12 * np.eye(gap.shape[0]), gap))
 
@@ -97,10 +115,18 @@ class Estimator:
     """Common parameters and bookkeeping; see the module docstring."""
 
     name: ClassVar[str] = ""
+    # A secure estimator: one that claims to tolerate up to ``s`` attacked readings. The flag does one thing: the
+    # shared attribution (estimators.attribution, ``_attribute``) may run on its output, judging it, naming the
+    # attacked readings and, beyond tolerance, replacing the position. ``attribution`` (a constructor keyword)
+    # switches that per instance; it defaults to ``secure``. Studies run a secure method twice, its own output
+    # and its output with the attribution (two rows: ``name`` and ``name+attribution``, docs/bench.md).
     secure: ClassVar[bool] = False
     # Whether the method itself claims detections (its _step's attacked/alarm are recorded as own_*);
-    # None: as ``secure``. The shared attribution runs on the output of every ``secure`` method either way.
+    # None: as ``secure``. A method that is not ``secure`` but names readings itself sets it True.
     detects: ClassVar[bool | None] = None
+    # Where the defaults were chosen (shown on the suite's leaderboard beside the method): a plugin says e.g.
+    # "suite v1 tuning split, 3 points"; empty: not declared.
+    tuned_on: ClassVar[str] = ""
     motion_input: ClassVar[bool] = False  # reads the vehicle's own velocity (``step(..., velocity=)``)
 
     def __init__(
@@ -116,8 +142,11 @@ class Estimator:
         velocity_std_mps: float | None = None,
         max_speed_mps: float = MAX_SPEED_MPS,
         motion_slack_m: float = SLACK_M,
+        attribution: bool | None = None,
     ) -> None:
         self.model = model
+        # Whether the shared attribution runs on this instance's output (None: as the class's ``secure``).
+        self.attribution = self.secure if attribution is None else bool(attribution)
         # Never unsafe: outputs outside the anchors' box or the motion bound are caught here (estimators.envelope).
         self.envelope = Envelope.of(model, max_speed_mps, motion_slack_m)
         if velocity_std_mps is not None and not (self.motion_input and velocity_std_mps > 0):
@@ -150,7 +179,7 @@ class Estimator:
         self.n_iter = n_iter
         self.t_s: float | None = None
         # Lines and planes of anchors on which p - 2s readings could sit: where a tie is possible at all.
-        self.mirrors = model.mirrors(model.p - 2 * self.s) if self.secure and self.s > 0 else []
+        self.mirrors = model.mirrors(model.p - 2 * self.s) if self.attribution and self.s > 0 else []
         self.reset()
 
     @classmethod
@@ -196,7 +225,7 @@ class Estimator:
         if self.secure if self.detects is None else self.detects:
             object.__setattr__(est, "own_attacked", est.attacked)
             object.__setattr__(est, "own_alarm", est.alarm)
-        if est.ok and self.secure:
+        if est.ok and self.attribution:
             self._attribute(zv, est, kn)
         if est.ok and self.envelope is not None:
             self._guard(est)
@@ -381,6 +410,42 @@ class Estimator:
         scale = np.where(use, np.maximum(1.0 - lever, 1e-6), 1.0 + lever)
         t = resid * resid / (sig2 * scale)
         return np.where(np.isnan(t), 0.0, t)
+
+    def make_estimate(
+        self,
+        t_s: float,
+        position: np.ndarray | None,
+        *,
+        velocity: np.ndarray | None = None,
+        covariance: np.ndarray | None = None,
+        used: np.ndarray | frozenset[int] | None = None,
+        attacked: np.ndarray | frozenset[int] | set[int] | list[int] | tuple[int, ...] = (),
+        alarm: bool = False,
+        valid: bool = True,
+    ) -> Estimate:
+        """One step's answer, for a ``_step`` to return (the public way; a plugin needs nothing private).
+
+        ``position``: the model's d entries (None or NaN: no estimate yet, ``ok`` False). ``covariance`` over the
+        position (d x d) or position and velocity (2d x 2d). ``used``, ``attacked``: the readings the answer rests
+        on and the ones the method itself names as attacked, as indices into z or a boolean mask of length p.
+        ``alarm``: the method says the readings are inconsistent; ``valid`` False: it says its answer is degraded.
+        ``attacked`` and ``alarm`` are the method's own claim (recorded as ``own_*`` when the class ``detects``);
+        with the shared attribution on (``+attribution`` rows) ``attacked`` is replaced by the attribution's names.
+        """
+        p, d = self.model.p, self.model.d
+        ok = position is not None and bool(np.isfinite(np.asarray(position, dtype=float)).all())
+        return Estimate(
+            t_s=float(t_s),
+            position_m=np.full(d, np.nan) if position is None else np.array(position, dtype=float).reshape(-1),
+            velocity_mps=None if velocity is None else np.array(velocity, dtype=float),
+            covariance=None if covariance is None else np.array(covariance, dtype=float),
+            attacked=_as_indices(attacked, p),
+            alarm=bool(alarm),
+            step_time_s=0.0,
+            used=frozenset() if used is None else _as_indices(used, p),
+            ok=ok,
+            valid=bool(valid),
+        )
 
     def _estimate(
         self,

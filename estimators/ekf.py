@@ -25,12 +25,13 @@ from __future__ import annotations
 import numpy as np
 
 from estimators.bank import EkfBank
-from estimators.base import Estimate, Estimator
+from estimators.base import TUNED_ON_BUNDLED, Estimate, Estimator
 from estimators.models import Known
 
 
 class ExtendedKalman(Estimator):
     name = "ekf"
+    tuned_on = TUNED_ON_BUNDLED
     motion_input = True
 
     def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:

@@ -31,7 +31,7 @@ import itertools
 import numpy as np
 
 from estimators.bank import GnResult, gauss_newton, inv_small
-from estimators.base import Estimate, Estimator
+from estimators.base import TUNED_ON_BUNDLED, Estimate, Estimator
 from estimators.models import Known, MeasurementModel
 
 GRID_PER_AXIS = 3  # starts per axis of the model's box (models of up to two dimensions)
@@ -39,6 +39,7 @@ GRID_PER_AXIS = 3  # starts per axis of the model's box (models of up to two dim
 
 class L0Exact(Estimator):
     name = "l0"
+    tuned_on = TUNED_ON_BUNDLED
     secure = True
 
     def __init__(

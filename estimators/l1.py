@@ -41,12 +41,13 @@ from __future__ import annotations
 import numpy as np
 
 from estimators.bank import damping, gauss_newton, inv_small, solve_small
-from estimators.base import Estimate, Estimator
+from estimators.base import TUNED_ON_BUNDLED, Estimate, Estimator
 from estimators.models import Known, MeasurementModel
 
 
 class L1Decoder(Estimator):
     name = "l1"
+    tuned_on = TUNED_ON_BUNDLED
     secure = True
 
     def __init__(self, model: MeasurementModel, *, n_irls: int = 2, eps: float = 0.5, **params) -> None:

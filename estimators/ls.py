@@ -17,12 +17,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimators.base import Estimate, Estimator
+from estimators.base import TUNED_ON_BUNDLED, Estimate, Estimator
 from estimators.models import Known
 
 
 class LeastSquares(Estimator):
     name = "ls"
+    tuned_on = TUNED_ON_BUNDLED
 
     def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:
         d = self.model.d

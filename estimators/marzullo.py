@@ -25,12 +25,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimators.base import Estimate, Estimator
+from estimators.base import TUNED_ON_BUNDLED, Estimate, Estimator
 from estimators.models import Known, MeasurementModel, ScalarGroup
 
 
 class Marzullo(Estimator):
     name = "marzullo"
+    tuned_on = TUNED_ON_BUNDLED
     secure = True
 
     @classmethod

@@ -38,13 +38,14 @@ from collections import deque
 import numpy as np
 from scipy.optimize import Bounds, LinearConstraint, milp
 
-from estimators.base import Estimate, Estimator
+from estimators.base import TUNED_ON_BUNDLED, Estimate, Estimator
 from estimators.models import Known, MeasurementModel
 from estimators.subsets import secure_snapshot
 
 
 class Milp(Estimator):
     name = "milp"
+    tuned_on = TUNED_ON_BUNDLED
     secure = True
 
     def __init__(

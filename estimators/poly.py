@@ -49,12 +49,13 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import Bounds, LinearConstraint, milp
 
-from estimators.base import Estimate, Estimator
+from estimators.base import TUNED_ON_BUNDLED, Estimate, Estimator
 from estimators.models import AnchorRanges2D, Known, MeasurementModel
 
 
 class Polyhedral(Estimator):
     name = "poly"
+    tuned_on = TUNED_ON_BUNDLED
     secure = True
 
     def __init__(

@@ -49,13 +49,14 @@ import math
 import numpy as np
 
 from estimators.bank import EkfBank, gauss_newton, inv_small, subset_masks
-from estimators.base import Estimate, Estimator
+from estimators.base import TUNED_ON_BUNDLED, Estimate, Estimator
 from estimators.drift import InnovationWindow
 from estimators.models import Known, MeasurementModel
 
 
 class Rarse(Estimator):
     name = "rarse"
+    tuned_on = TUNED_ON_BUNDLED
     secure = True
 
     def __init__(

@@ -53,7 +53,7 @@ from __future__ import annotations
 import numpy as np
 
 from estimators.bank import EkfBank, gauss_newton, inv_small, solve_small
-from estimators.base import Estimate, Estimator
+from estimators.base import TUNED_ON_BUNDLED, Estimate, Estimator
 from estimators.drift import InnovationWindow
 from estimators.models import Known, MeasurementModel
 from estimators.subsets import choose, secure_snapshot
@@ -61,6 +61,7 @@ from estimators.subsets import choose, secure_snapshot
 
 class Recap(Estimator):
     name = "recap"
+    tuned_on = TUNED_ON_BUNDLED
     secure = True
 
     def __init__(self, model: MeasurementModel, *, reinit_after: int = 5, window: int = 10, **params) -> None:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import inspect
 import math
+import re
 import sys
 from dataclasses import dataclass
 from typing import Any
@@ -144,12 +145,13 @@ def parameters(cls: type[Estimator]) -> list[Param]:
 
 
 def summary(cls: type[Estimator]) -> str:
-    """The first line of ``cls``'s docstring (or, without one, its module's), less its "``name``:" label."""
+    """The first line of ``cls``'s docstring (or, without one, its module's), less a leading label naming it
+    (``name``:, `name`:, name:, name - ; the listing prints the name itself)."""
     module = sys.modules.get(cls.__module__)
     text = (cls.__doc__ or getattr(module, "__doc__", None) or "").strip()
     line = text.splitlines()[0] if text else ""
-    label = f"``{cls.name}``:"
-    return line[len(label):].strip() if line.startswith(label) else line
+    label = re.match(rf"\s*(``|`|\*\*)?{re.escape(cls.name)}(``|`|\*\*)?\s*(:|-|\u2014)\s*", line)
+    return line[label.end() :].strip() if label and cls.name else line
 
 
 def describe(name: str) -> dict[str, Any]:

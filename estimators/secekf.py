@@ -48,13 +48,14 @@ from __future__ import annotations
 import numpy as np
 
 from estimators.bank import EkfBank
-from estimators.base import Estimate, Estimator
+from estimators.base import TUNED_ON_BUNDLED, Estimate, Estimator
 from estimators.models import Known, MeasurementModel
 from estimators.subsets import Evidence, choose, secure_snapshot
 
 
 class SecEkf(Estimator):
     name = "secekf"
+    tuned_on = TUNED_ON_BUNDLED
     secure = True
     motion_input = True
 

@@ -36,13 +36,14 @@ from __future__ import annotations
 import numpy as np
 
 from estimators.bank import gauss_newton, inv_small
-from estimators.base import Estimate, Estimator
+from estimators.base import TUNED_ON_BUNDLED, Estimate, Estimator
 from estimators.models import Known, MeasurementModel
 from estimators.subsets import Evidence, choose
 
 
 class SecOpt(Estimator):
     name = "secopt"
+    tuned_on = TUNED_ON_BUNDLED
     secure = True
 
     def __init__(self, model: MeasurementModel, *, window: int = 5, **params) -> None:

@@ -38,11 +38,26 @@ BEYOND = ("anchors-relay", "anchors-overwhelm")
 Pick = Callable[[pd.DataFrame], pd.DataFrame]
 
 
+# These tables are of the estimators as SecUAV runs them live: a secure method's output with the shared
+# attribution (its +attribution row, shown under its name), the undefended ones as they are. Their detection
+# figures: the attribution's where it ran, else the method's own naming; a method that names nothing: 0.
+LEGACY = {"false_alarm_rate": "false_naming", "recall_all": "recall", "precision_all": "precision",
+          "detection_delay_s": "detection_delay_s"}  # fmt: skip
+
+
 def _ok(out: Path) -> pd.DataFrame | None:
     if not (out / "results.parquet").is_dir():
         return None
     frame = load(out)
-    return labelled(frame[frame["status"] == "ok"])
+    frame = frame[frame["status"] == "ok"]
+    if "output" in frame and frame["output"].notna().any():
+        attributed = set(frame.loc[frame["output"] == "attributed", "estimator_name"])
+        frame = frame[(frame["output"] == "attributed") | ~frame["estimator_name"].isin(attributed)]
+        frame = frame.assign(estimator=frame["estimator"].str.replace("+attribution", "", regex=False))
+        for legacy, figure in LEGACY.items():
+            value = frame[f"attribution_{figure}"].fillna(frame[f"own_{figure}"])
+            frame = frame.assign(**{legacy: value.fillna(0.0) if figure == "false_naming" else value})
+    return labelled(frame)
 
 
 def _params(frame: pd.DataFrame, **want: object) -> pd.DataFrame:

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from study import provenance
-from study.spec import Cell, Variant
+from study.spec import Cell, Variant, with_attribution
 from study.store import as_json
 
 
@@ -45,11 +45,16 @@ def base_row(cell: Cell, variant: Variant | str) -> dict[str, Any]:
         "estimator": estimator,
         "estimator_params": as_json(cell.estimator_params) if cell.estimator_params else None,
         "estimator_name": v.name,
+        "output": v.output,
     }
 
 
-def _variants(given: list[Variant] | list[str]) -> list[Variant]:
-    return [Variant(v, v, {}) if isinstance(v, str) else v for v in given]
+def as_variants(given: list[Variant] | list[str], mode: str = "offline") -> list[Variant]:
+    """Variants as given; a plain name stands for its rows as a study lists them (a secure method's two)."""
+    out: list[Variant] = []
+    for v in given:
+        out += with_attribution(v, v, {}, mode) if isinstance(v, str) else [v]
+    return out
 
 
 def run_offline(cell: Cell, variants: list[Variant] | list[str]) -> dict[str, dict[str, Any]]:
@@ -58,9 +63,9 @@ def run_offline(cell: Cell, variants: list[Variant] | list[str]) -> dict[str, di
     from evaluation.trial import evaluate, run_trial
     from study.metrics import trial_rows
 
-    variants = _variants(variants)
+    variants = as_variants(variants)
     labels = [v.label for v in variants]
-    own = {v.label: (v.name, v.params) for v in variants}
+    own = {v.label: (v.name, v.build_params()) for v in variants}
     if cell.recording is not None:
         from attack_profiles import Engine
 
@@ -84,7 +89,7 @@ def _provenance(cell: Cell, v: Variant) -> dict[str, Any]:
 
 def run_cell(cell: Cell, variants: list[Variant] | list[str]) -> list[dict[str, Any]]:
     """The rows of one cell for the estimator ``variants`` (status ok, or error with its text)."""
-    variants = _variants(variants)
+    variants = as_variants(variants, cell.mode)
     started = datetime.now(UTC)
     t0 = time.perf_counter()
     worker = _worker_address()
@@ -105,14 +110,14 @@ def run_cell(cell: Cell, variants: list[Variant] | list[str]) -> list[dict[str, 
     for v in variants:
         row = base_row(cell, v)
         row.update(_provenance(cell, v))
-        per = figures.get(v.label)
+        per = figures.get(v.label, figures.get(v.name) if cell.mode != "offline" else None)
         if per is None:
             row.update(status="error", error=failure or "no result for this estimator")
         else:
             err = per.pop("error", None)
             row.update(per, status="error" if err else "ok", error=err)
         row.update(worker=worker, started_at=started, wall_s=wall_s)
-        for key in ("recall_by_sigma", "flagged", "calibration"):
+        for key in ("own_recall_by_sigma", "attribution_recall_by_sigma", "flagged", "calibration"):
             if isinstance(row.get(key), dict):
                 row[key] = as_json(row[key])
         rows.append(row)

@@ -17,7 +17,9 @@ again only because the code of a row changed (an estimator's source or default,
 a primitive's, the secuav version: docs/study.md, "Provenance"), also said on
 stderr. Exit 0 when none failed,
 1 when some did (they are in the results), 2 on bad input, 130 when
-interrupted (what finished is kept; run again to go on).
+interrupted (what finished is kept; run again to go on). With ``SECUAV_STUDY_SMOKE=1`` in the environment every
+study is cut to its first two cells (one seed, one leg, 3 s), to try commands (docs/bench.md); such a directory
+is never a score.
 """
 
 from __future__ import annotations
@@ -63,6 +65,10 @@ def build_parser() -> argparse.ArgumentParser:
                       help="a method under test, as in a study's estimators: NAME, package.module:Class, or "
                       "'{name: huber, params: {huber_k: [1.0, 1.345]}}' (YAML); repeatable")  # fmt: skip
     srun.add_argument("--only", action="append", default=[], metavar="STUDY", help="run only this study (repeatable)")
+    srun.add_argument("--split", choices=("evaluation", "tuning"), default="evaluation",
+                      help="tuning: where a method's parameters are chosen (other seeds and hover points, "
+                      "OUT/tuning/); evaluation (default): the scored cells, where a method given with a grid "
+                      "runs only at its best tuning point")  # fmt: skip
     swhere = srun.add_mutually_exclusive_group()
     swhere.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes (default: cores)")
     swhere.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="a running dask scheduler")
@@ -102,7 +108,7 @@ def _suite(args: argparse.Namespace) -> int:
         added = [yaml.safe_load(text) for text in args.add]
         return suite.run(args.out, quick=args.quick, version=args.version, added=added, only=args.only,
                          workers=args.workers or None, scheduler=args.scheduler or None,
-                         progress=not args.no_progress)  # fmt: skip
+                         progress=not args.no_progress, split=args.split)  # fmt: skip
     except (InputError, ValueError) as err:
         print(f"secuav-study: {err}", file=sys.stderr)
         return 2

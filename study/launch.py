@@ -17,12 +17,33 @@ from typing import Any
 
 from secuav_common.loading import InputError
 
+SMOKE_ENV = "SECUAV_STUDY_SMOKE"
+SMOKE_CELLS = 2
 
-def load(path: Path) -> tuple[Any, list[Any]]:
-    """The study in ``path`` and its cells; ``InputError`` names the field at fault."""
+
+def smoke() -> bool:
+    """``SECUAV_STUDY_SMOKE=1``: every study cut to its first two cells (one seed, one leg, one hover point) of
+    3 s (docs/bench.md): to try the commands of the docs, never a score (its directories say so and refuse
+    real rows)."""
+    return os.environ.get(SMOKE_ENV, "") not in ("", "0")
+
+
+def load(path: Path, smoke: bool = False) -> tuple[Any, list[Any]]:
+    """The study in ``path`` and its cells (with ``smoke``, the first two of a cut study); ``InputError`` names
+    the field at fault."""
     from study.spec import expand, load_study
 
     study = load_study(path)
+    if smoke:
+        cut: dict[str, Any] = {"seeds": study.seed_list()[:1], "legs": study.legs[:1]}
+        if study.mode == "offline" and study.recording is None and not study.recordings:
+            cut["duration_s"] = min(3.0, study.duration_s or 3.0)
+        if study.positions:
+            cut["positions"] = study.positions[:1]
+        study = study.model_copy(update=cut)
+        print(f"secuav-study: {SMOKE_ENV} set: {path} cut to its first {SMOKE_CELLS} cells of one seed, one leg, "
+              "3 s (not a score)", file=sys.stderr)  # fmt: skip
+        return study, expand(study, str(path))[:SMOKE_CELLS]
     return study, expand(study, str(path))
 
 
@@ -56,16 +77,19 @@ def run_study(path: Path, out: Path, *, workers: int | None = None, scheduler: s
 
     os.environ.setdefault("PYTHONWARNINGS", "ignore::DeprecationWarning")  # quiet workers
     try:
-        study, cells = load(path)
+        study, cells = load(path, smoke=smoke())
         if workers is not None and not 1 <= workers <= 1024:
             raise InputError("--workers", "", workers, "must lie in 1..1024")
         if scheduler is not None:
             check_scheduler(scheduler)
-        definition = study.model_dump(mode="json")
+        definition = {**study.model_dump(mode="json"), **({"smoke": True} if smoke() else {})}
         held = store.saved_study(out)
         if held is not None and held.get("name") != study.name:
             raise InputError(str(out), "study.json: name", held.get("name"),
                              f"this directory holds another study; use a new --out for {study.name!r}")  # fmt: skip
+        if held is not None and bool(held.get("smoke")) != smoke():
+            raise InputError(str(out), "study.json: smoke", bool(held.get("smoke")),
+                             f"{SMOKE_ENV} runs and real ones never share a directory; use a new --out")  # fmt: skip
     except InputError as err:
         print(f"secuav-study: {err}", file=sys.stderr)
         return 2

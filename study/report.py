@@ -3,7 +3,7 @@
 Per attack, magnitude and estimator: the mean over seeds with a 95 % bootstrap
 confidence interval (``scipy.stats.bootstrap``, percentile method, fixed
 random state so the same rows give the same report) of the RMSE, recall and
-detection delay; the worst error over seeds; the false-alarm rate on clean runs;
+detection delay; the worst error over seeds; false naming on clean runs;
 and a summary of error and time per step per attack and estimator. A study that sweeps
 ``estimator_params`` shows each grid point as its own estimator (``secekf alpha=0.001``). Rows that failed are listed,
 and every group whose estimate fraction is below 1 is named: a step without an
@@ -42,6 +42,10 @@ def mean_ci(values: Any) -> tuple[float | None, float | None, float | None, int]
     res = stats.bootstrap((a,), np.mean, confidence_level=CI_LEVEL, n_resamples=RESAMPLES, method="percentile",
                           random_state=np.random.default_rng(0))  # fmt: skip
     return mean, float(res.confidence_interval.low), float(res.confidence_interval.high), int(a.size)
+
+
+def _ci(r: pd.Series, metric: str) -> str:
+    return _fmt(r[metric], r[f"{metric}_lo"], r[f"{metric}_hi"])
 
 
 def _missing(value: Any) -> bool:
@@ -97,8 +101,7 @@ def summarise(frame: pd.DataFrame) -> pd.DataFrame:
     for key, g in frame.groupby(GROUP, dropna=False, sort=False):
         row = dict(zip(GROUP, key, strict=True))
         row["n"] = len(g)
-        for metric in ("rmse_m", "recall_all", "precision_all", "detection_delay_s", "false_alarm_rate", "valid_rmse_m",
-                       "nees_mean", "nis_mean"):  # fmt: skip
+        for metric in ("rmse_m", *DETECTION_SCORED, "valid_rmse_m", "nees_mean", "nis_mean"):
             m, lo, hi, n = mean_ci(g[metric].tolist())
             row.update({metric: m, f"{metric}_lo": lo, f"{metric}_hi": hi, f"{metric}_n": n})
         worst = g["max_error_m"].dropna()
@@ -112,6 +115,10 @@ def summarise(frame: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(out)
 
 
+# The detection figures (study.metrics, one definition) with a CI in the tables: the method's own naming and the
+# shared attribution's, under the results' own column names.
+DETECTION_SCORED = tuple(f"{who}_{figure}" for who in ("own", "attribution")
+                         for figure in ("recall", "precision", "false_naming", "detection_delay_s"))  # fmt: skip
 BASELINE = "ls"  # the undefended snapshot least-squares fix every offline table is compared with
 
 
@@ -158,8 +165,8 @@ def _attack_section(name: str, s: pd.DataFrame, closed_loop: bool) -> list[str]:
     head = ["magnitude" if axis is None else axis, "estimator", "n", "RMSE [m] mean [95% CI]", "worst [m]"]
     if not closed_loop:
         head.append("RMSE / LS")
-    offline = ["recall (all attacked readings)", "precision (readings named)", "detection delay [s] (detected/n)",
-               "false alarms", "claimed valid", "RMSE when claimed valid [m]"]  # fmt: skip
+    offline = [*(f"{c} (detected/n)" if c.endswith("delay_s") else c for c in DETECTION_SCORED),
+               "claimed valid", "RMSE when claimed valid [m]"]  # fmt: skip
     head += ["collided"] if closed_loop else offline
     for place, block in s.groupby(PLACE, dropna=False, sort=False):
         lines += [f"{_where(*_place(place))}:", ""]
@@ -174,12 +181,12 @@ def _attack_section(name: str, s: pd.DataFrame, closed_loop: bool) -> list[str]:
             if closed_loop:
                 cells.append("n/a" if _missing(r["collided"]) else f"{r['collided']:.0%}")
             else:
-                delay = _fmt(r["detection_delay_s"], r["detection_delay_s_lo"], r["detection_delay_s_hi"], 2)
+                for c in DETECTION_SCORED:
+                    if c.endswith("delay_s"):
+                        cells.append(f"{_fmt(r[c], r[f'{c}_lo'], r[f'{c}_hi'], 2)} ({r[f'{c}_n']}/{r['n']})")
+                    else:
+                        cells.append(_fmt(r[c], r[f"{c}_lo"], r[f"{c}_hi"]))
                 cells += [
-                    _fmt(r["recall_all"], r["recall_all_lo"], r["recall_all_hi"]),
-                    _fmt(r["precision_all"], r["precision_all_lo"], r["precision_all_hi"]),
-                    f"{delay} ({r['detection_delay_s_n']}/{r['n']})",
-                    _fmt(r["false_alarm_rate"], r["false_alarm_rate_lo"], r["false_alarm_rate_hi"]),
                     "n/a" if _missing(r["valid_fraction"]) else f"{r['valid_fraction']:.0%}",
                     _fmt(r["valid_rmse_m"], r["valid_rmse_m_lo"], r["valid_rmse_m_hi"]),
                 ]
@@ -270,7 +277,10 @@ def _figures(out: Path, summary: pd.DataFrame) -> list[Path]:
         for col, (place, block) in enumerate(places):
             for est, e in block.groupby("estimator", sort=False):
                 e = e.assign(_x=[_x_value(p, axis) for p in e["params"]]).sort_values("_x")
-                for row, metric in enumerate(("rmse_m", "detection_delay_s")):
+                # The delay of the row's own output: the attribution's in a +attribution row, else the method's.
+                who = "attribution" if str(est).endswith("+attribution") else "own"
+                delay = f"{who}_detection_delay_s"
+                for row, metric in enumerate(("rmse_m", delay)):
                     ax = axes[row, col]
                     y = e[metric].astype(float)
                     line = ax.plot(e["_x"], y, marker="o", ms=3, lw=1.2, label=est)[0]
@@ -334,6 +344,9 @@ def write_report(out: Path) -> Path:
         f"- rows: {len(frame)} ({len(ok)} ok, {len(failed)} failed) over {frame['cell'].nunique()} cells; "
         f"workers: {', '.join(sorted(str(w) for w in ok['worker'].dropna().unique())) or 'n/a'}",
         f"- means over seeds with {CI_LEVEL:.0%} bootstrap confidence intervals ({RESAMPLES} resamples)",
+        "- a secure method has two rows: `name`, its own output, and `name+attribution`, its output with SecUAV's "
+        "shared attribution; detection: `own_*` the method's own naming, `attribution_*` the attribution's, one "
+        "definition (docs/bench.md, \"Detection\")",
         "",
     ]
     if len(failed):
@@ -367,9 +380,9 @@ def write_report(out: Path) -> Path:
                       "estimators).", "",
                       "RMSE / LS: the mean RMSE over the undefended snapshot least-squares fix's in the same "
                       "place; a secure method above 1 loses to it on clean data and is marked.", "",
-                      "| estimator | where | n | false-alarm rate [95% CI] | RMSE [m] [95% CI] | RMSE / LS "
-                      "| NEES [95% CI] | NIS / dof [95% CI] |",
-                      "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+                      "| estimator | where | n | own_false_naming [95% CI] | attribution_false_naming [95% CI] "
+                      "| RMSE [m] [95% CI] | RMSE / LS | NEES [95% CI] | NIS / dof [95% CI] |",
+                      "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
             losers = []
             for _, r in clean.iterrows():
                 where = _row_where(r)
@@ -377,7 +390,7 @@ def write_report(out: Path) -> Path:
                 if worse:
                     losers.append(f"{r['estimator']} ({where}: {r['vs_ls']:.2f}x)")
                 lines.append(f"| {r['estimator']} | {where} | {r['n']} | "
-                             f"{_fmt(r['false_alarm_rate'], r['false_alarm_rate_lo'], r['false_alarm_rate_hi'])} | "
+                             f"{_ci(r, 'own_false_naming')} | {_ci(r, 'attribution_false_naming')} | "
                              f"{_fmt(r['rmse_m'], r['rmse_m_lo'], r['rmse_m_hi'])} | "
                              f"{_ratio_cell(r['vs_ls'], worse)} | "
                              f"{_fmt(r['nees_mean'], r['nees_mean_lo'], r['nees_mean_hi'], 2)} | "

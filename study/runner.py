@@ -23,7 +23,7 @@ from typing import Any
 from tqdm import tqdm
 
 from study import provenance
-from study.cells import base_row, run_cell
+from study.cells import as_variants, base_row, run_cell
 from study.spec import Cell, Variant
 from study.store import Writer, load
 
@@ -120,7 +120,7 @@ def run(
     """Submit what is not done, write rows as cells finish; returns the counts of this run."""
     from distributed import as_completed
 
-    variants = [Variant(v, v, {}) if isinstance(v, str) else v for v in variants]
+    variants = as_variants(variants, cells[0].mode if cells else "offline")
     todo, changed = plan(cells, variants, done)
     summary = Summary(cells=len(cells), skipped=len(cells) - len(todo), changed=changed)
     if changed:

@@ -80,13 +80,46 @@ class EstimatorSpec(_Strict):
 EstimatorEntry = Annotated[str | EstimatorSpec, Field(description="a name, or {name, params}")]
 
 
+ATTRIBUTED = "+attribution"  # the label suffix of a secure method's row with the shared attribution on its output
+
+
 @dataclass(frozen=True, slots=True)
 class Variant:
-    """One estimator at one point of its own parameter grid: what a row's ``estimator`` column names."""
+    """One estimator at one point of its own parameter grid, with or without the shared attribution on its
+    output: what a row's ``estimator`` column names."""
 
-    label: str  # the name, or name[k=v,...] when it has parameters of its own
+    label: str  # the name, or name[k=v,...] when it has parameters of its own; + "+attribution" when attributed
     name: str
-    params: dict[str, Any]
+    params: dict[str, Any]  # its own parameters (the grid point)
+    # The shared attribution on its output (estimators.base, ``attribution``): None = the class's default
+    # (closed loop, where the secure stage always attributes); False for a secure method's own row.
+    attribution: bool | None = None
+
+    @property
+    def output(self) -> str:
+        """What the row scores: ``own`` (the method's own output) or ``attributed`` (with the attribution)."""
+        return "attributed" if self.label.endswith(ATTRIBUTED) else "own"
+
+    def build_params(self) -> dict[str, Any]:
+        """Its own parameters as the estimator's constructor takes them (the attribution switched off or not)."""
+        return self.params if self.attribution is None else {**self.params, "attribution": self.attribution}
+
+
+def with_attribution(name: str, label: str, params: dict[str, Any], mode: str) -> list[Variant]:
+    """A secure method's two rows offline (its own output, then with the shared attribution); one row otherwise.
+    Closed loop flies the secure stage, which always attributes: its one row is labelled ``+attribution``."""
+    if name == SECURE_OFF or not _is_secure(name):
+        return [Variant(label, name, params)]
+    if mode != "offline":
+        return [Variant(label + ATTRIBUTED, name, params)]
+    return [Variant(label, name, params, attribution=False), Variant(label + ATTRIBUTED, name, params, True)]
+
+
+def _is_secure(name: str) -> bool:
+    try:
+        return bool(estimators.registry.get(name).secure)
+    except (ValueError, ImportError):
+        return False
 
 
 def variant_label(name: str, params: dict[str, Any]) -> str:
@@ -169,13 +202,17 @@ class Study(_Strict):
         out: list[Variant] = []
         for entry in self.estimators:
             if isinstance(entry, str):
-                out.append(Variant(entry, entry, {}))
+                out += with_attribution(entry, entry, {}, self.mode)
                 continue
+            if "attribution" in entry.params:
+                raise ValueError(f"{entry.name}: attribution is not a parameter to tune: a secure method's rows "
+                                 "come both ways (its own output, and name+attribution)")  # fmt: skip
             points = _grid(entry.params, set())
             if self.tuning_budget is not None and len(points) > self.tuning_budget:
                 raise ValueError(f"{entry.name}: {len(points)} parameter points exceed tuning_budget "
                                  f"{self.tuning_budget}")  # fmt: skip
-            out += [Variant(variant_label(entry.name, p), entry.name, p) for p in points]
+            for p in points:
+                out += with_attribution(entry.name, variant_label(entry.name, p), p, self.mode)
         return out
 
     @field_validator("seeds")
@@ -474,7 +511,7 @@ def _check_sparse(study: Study, tunings: list[dict[str, Any]], src: _Source, sou
     naming the recording, its file, the link and the numbers (evaluation.trial.check_readings), not every cell."""
     from evaluation.trial import SparseReadings, check_readings
 
-    own = {v.label: (v.name, v.params) for v in study.variants()}
+    own = {v.label: (v.name, v.build_params()) for v in study.variants()}
     for tuning in tunings:
         try:
             check_readings(src.scenario, src.recording.streams, study.dims, tuning, own)
@@ -499,7 +536,7 @@ def _check_tunings(study: Study, tunings: list[dict[str, Any]], scenario: Scenar
         for v in study.variants():
             try:
                 # estimators.create, plus calibration_s; a shared motion input only where there is one
-                noise.create(v.name, model, **{**shared_params(v.name, tuning), **v.params})
+                noise.create(v.name, model, **{**shared_params(v.name, tuning), **v.build_params()})
             except (TypeError, ValueError) as exc:
                 where = f"estimators ({v.label})" if v.params else f"estimator_params ({v.name})"
                 raise InputError(source, where, {**tuning, **v.params}, str(exc)) from None

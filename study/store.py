@@ -37,15 +37,18 @@ SCHEMA = pa.schema([
     ("status", _S), ("error", _S),
     ("rmse_m", _F), ("mean_error_m", _F), ("p95_error_m", _F), ("max_error_m", _F),
     ("range_rmse_m", _F), ("range_max_error_m", _F), ("height_rmse_m", _F),
-    ("estimate_fraction", _F), ("alarm_fraction", _F),
-    ("attack_detection_precision", _F), ("attack_detection_recall", _F),
-    ("detection_delay_s", _F), ("false_alarm_rate", _F), ("recall_all", _F), ("precision_all", _F),
-    ("recall_by_sigma", _S), ("attacked_fraction", _F),
+    ("estimate_fraction", _F), ("attacked_fraction", _F),
     ("valid_fraction", _F), ("valid_rmse_m", _F), ("valid_max_error_m", _F), ("nees_mean", _F),
     ("nis_mean", _F),  # the output filter's NIS per degree of freedom, over the steps claimed valid (1: consistent)
-    # The method's own detection (its own attacked/alarm, before the shared attribution judged its output);
-    # null for a method that claims none. The detection columns above are the shared attribution's.
-    ("own_alarm_fraction", _F), ("own_recall_all", _F), ("own_precision_all", _F), ("own_false_alarm_rate", _F),
+    # What the row scores: "own" (the method's own output) or "attributed" (a secure method's output with the
+    # shared attribution on it: the +attribution row).
+    ("output", _S),
+    # Detection, one definition (study.metrics) for two claimants: own_* the method's own naming (null for a
+    # method that claims none), attribution_* the shared attribution's (null but in +attribution rows).
+    *((f"{who}_{figure}", _S if figure == "recall_by_sigma" else _F)
+      for who in ("own", "attribution")
+      for figure in ("recall", "precision", "false_naming", "alarm_fraction", "detection_delay_s",
+                     "recall_by_sigma")),
     # JSON: what the calibration window did (estimators.noise.Calibrated.report: status, per link the readings
     # used, the offset and the scale); null without calibration_s
     ("calibration", _S),

@@ -1,13 +1,19 @@
 """``secuav-study suite list|run|check``: the versioned benchmark suite (docs/bench.md).
 
 A suite version is a folder ``study/suite/vN/``: ``suite.yaml`` (the version, the tuning budget, the study
-files in order and each one's quick overrides) and the study files. ``run`` writes one study directory per
-study file under ``OUT`` (``OUT/suite.json`` says which version and variant), adding the methods under test
-(``--add huber``, ``--add '{name: huber, params: {huber_k: [1.0, 1.345]}}'``) to every offline study whose
-scenario they run on. ``check`` reads ``OUT`` and prints the leaderboard, per study and method: mean RMSE
-with its 95 % bootstrap CI, the valid fraction, detection recall, the median wall time of a cell and the
-method's step time; each built-in's mean is compared with its expected band (``expected-quick.yaml``,
-``expected-full.yaml``: measured, see there), and the provenance line says what computed the rows.
+files in order, each one's quick overrides and its tuning split's hover points) and the study files. ``run``
+writes one study directory per study file under ``OUT`` (the tuning split, ``--split tuning``: under
+``OUT/tuning/``; ``OUT/suite.json`` says which version and variant, what was added, what was chosen), adding
+the methods under test (``--add huber``, ``--add '{name: huber, params: {huber_k: [1.0, 1.345]}}'``) to every
+offline study whose scenario they run on. Every point a method is run at in ``OUT``, on either split, is
+charged to its tuning budget (``OUT/budget.json``); on the evaluation split a method given with a grid runs
+only at its best point on the tuning split. ``check`` reads ``OUT`` and prints the leaderboard, per split,
+study and method variant (a secure method's own output and its ``+attribution`` row): mean RMSE with its 95 %
+bootstrap CI, the valid fraction, detection (the method's own naming and the attribution's, one definition),
+where the parameters were tuned, the median wall time of a cell and the method's step time; each built-in's
+mean on the evaluation split is compared with its expected band (``expected-quick.yaml``,
+``expected-full.yaml``: measured, see there), and the provenance lines say what computed the rows and the
+budget each method used.
 """
 
 from __future__ import annotations
@@ -21,15 +27,20 @@ import pandas as pd
 import yaml
 
 from secuav_common.loading import InputError
+from study.launch import SMOKE_ENV, smoke  # docs/bench.md: cuts every study to try the commands, never a score
 
 SUITES = Path(__file__).resolve().parent
 LATEST = "v1"
+
+
+SPLITS = ("evaluation", "tuning")
 
 
 @dataclass(frozen=True)
 class Entry:
     file: str
     quick: dict[str, Any] | None
+    tuning: dict[str, Any] | None = None  # the tuning split's overrides (positions); None: no tuning split
 
 
 def manifest(version: str = LATEST) -> tuple[dict[str, Any], list[Entry]]:
@@ -38,16 +49,26 @@ def manifest(version: str = LATEST) -> tuple[dict[str, Any], list[Entry]]:
         have = ", ".join(sorted(p.name for p in SUITES.glob("v*")))
         raise InputError("--version", "", version, f"no such suite (have: {have})")
     doc = yaml.safe_load((folder / "suite.yaml").read_text(encoding="utf-8"))
-    return doc, [Entry(s["file"], s.get("quick")) for s in doc["studies"]]
+    return doc, [Entry(s["file"], s.get("quick"), s.get("tuning")) for s in doc["studies"]]
 
 
-def study_doc(version: str, entry: Entry, quick: bool) -> dict[str, Any] | None:
-    """The study document as this variant runs it (None: not in this variant)."""
+def study_doc(version: str, entry: Entry, quick: bool, split: str = "evaluation") -> dict[str, Any] | None:
+    """The study document as this variant and split run it (None: not in this variant or split). The tuning
+    split: the same attacks and durations, seeds from the suite's ``tuning_seed0`` on (as many as the
+    evaluation split has) and the hover points of the entry's ``tuning``, so the splits share no flight."""
     doc = yaml.safe_load((SUITES / version / entry.file).read_text(encoding="utf-8"))
     if quick:
         if entry.quick is None:
             return None
         doc.update(entry.quick)
+    if split == "tuning":
+        if entry.tuning is None:
+            return None
+        head, _ = manifest(version)
+        seeds = doc["seeds"]
+        count = seeds if isinstance(seeds, int) else len(seeds)
+        doc.update(entry.tuning, name=f"{doc['name']}-tuning",
+                   seeds=[int(head["tuning_seed0"]) + i for i in range(count)])  # fmt: skip
     return doc
 
 
@@ -55,19 +76,21 @@ def list_text(version: str = LATEST) -> str:
     from study.spec import expand, parse_study
 
     head, entries = manifest(version)
-    lines = [f"SecUAV suite v{head['version']} (tuning budget {head['tuning_budget']} points per method)",
-             f"{'study':<28} {'quick cells':>11} {'full cells':>10}  scenario / mode"]  # fmt: skip
+    lines = [f"SecUAV suite v{head['version']} (tuning budget {head['tuning_budget']} points per method, counted per "
+             "OUT over both splits)",
+             f"{'study':<28} {'quick cells':>11} {'full cells':>10} {'tuning quick/full':>17}  "
+             "scenario / mode"]  # fmt: skip
     for entry in entries:
         counts = []
-        for quick in (True, False):
-            doc = study_doc(version, entry, quick)
+        for split, quick in (("evaluation", True), ("evaluation", False), ("tuning", True), ("tuning", False)):
+            doc = study_doc(version, entry, quick, split)
             if doc is None:
                 counts.append("-")
                 continue
             source = str(SUITES / version / entry.file)
             counts.append(str(len(expand(parse_study(yaml.safe_dump(doc), source), source))))
         full = study_doc(version, entry, False) or {}
-        lines.append(f"{Path(entry.file).stem:<28} {counts[0]:>11} {counts[1]:>10}  "
+        lines.append(f"{Path(entry.file).stem:<28} {counts[0]:>11} {counts[1]:>10} {counts[2] + '/' + counts[3]:>17}  "
                      f"{full.get('scenario')} / {full.get('mode', 'offline')}")  # fmt: skip
     return "\n".join(lines)
 
@@ -92,44 +115,162 @@ def _with_added(doc: dict[str, Any], added: list[Any], budget: int) -> tuple[dic
     return {**doc, "estimators": keep}, skipped
 
 
+def _entry_points(entry: Any) -> tuple[str, list[dict[str, Any]]]:
+    """A method under test: its name and every point of its own grid (``ValueError`` on a bad entry)."""
+    from study.spec import EstimatorSpec, _grid
+
+    if isinstance(entry, str):
+        return entry, [{}]
+    if not isinstance(entry, dict):
+        raise ValueError(f"--add {entry!r}: a name or {{name: ..., params: {{...}}}}")
+    spec = EstimatorSpec.model_validate(entry)
+    return spec.name, _grid(spec.params, set())
+
+
+def _point_key(point: dict[str, Any]) -> str:
+    return json.dumps(point, sort_keys=True, separators=(",", ":"))
+
+
+BUDGET_FILE = "budget.json"
+
+
+def ledger(out: Path) -> dict[str, Any]:
+    """``OUT/budget.json``: per method under test, every parameter point any command ran in OUT (either split)."""
+    path = out / BUDGET_FILE
+    return json.loads(path.read_text(encoding="utf-8")) if path.is_file() else {"methods": {}}
+
+
+def _charge(out: Path, added: list[Any], budget: int, split: str) -> None:
+    """Count this command's points into OUT's ledger; refuse (nothing run) when a method would pass the budget."""
+    book = ledger(out)
+    methods = book.setdefault("methods", {})
+    for entry in added:
+        name, points = _entry_points(entry)
+        had = methods.get(name, {}).get("points", [])
+        total = list(dict.fromkeys([*had, *(_point_key(p) for p in points)]))
+        if len(total) > budget:
+            raise InputError(str(out / BUDGET_FILE), name, len(total),
+                             f"{len(total)} parameter points of {name} in this directory ({len(had)} run before, "
+                             f"over both splits) exceed the suite's tuning budget of {budget}")  # fmt: skip
+        methods[name] = {"points": total, "splits": sorted({*methods.get(name, {}).get("splits", []), split})}
+    book["budget"] = budget
+    (out / BUDGET_FILE).write_text(json.dumps(book, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+
+
+def best_points(out: Path, added: list[Any], version: str, before: dict[str, Any] | None = None,
+                ) -> tuple[list[Any], dict[str, Any]]:  # fmt: skip
+    """The evaluation split's entries: a method given with a grid runs at its one point of least mean RMSE over
+    OUT's tuning split (its own output's rows; every point must have been run there), others as given; and what
+    was chosen, per method (point, how many points, the tuning RMSE of each). A choice made before in OUT for
+    the same grid (``before``) stands: the evaluation split of one directory has one point per method, so a
+    later tuning command cannot change which evaluation rows are the method's."""
+    from study import store
+    from study.spec import variant_label
+
+    _, entries = manifest(version)
+    resolved: list[Any] = []
+    chosen: dict[str, Any] = {}
+    for entry in added:
+        name, points = _entry_points(entry)
+        if len(points) == 1:
+            resolved.append(entry)
+            continue
+        labels = {variant_label(name, p): p for p in points}
+        held = (before or {}).get(name)
+        if held is not None and set(held["tuning_rmse_m"]) == set(labels):
+            resolved.append({"name": name, "params": held["point"]} if held["point"] else name)
+            chosen[name] = held
+            continue
+        frames = [store.load(out / "tuning" / Path(e.file).stem) for e in entries]
+        rows = pd.concat([f for f in frames if len(f)], ignore_index=True) if any(len(f) for f in frames) else None
+        scores: dict[str, float] = {}
+        for label in labels:
+            mine = None if rows is None else rows[(rows["estimator"] == label) & (rows["status"] == "ok")]
+            if mine is None or not len(mine):
+                raise InputError(str(out / "tuning"), "estimator", label,
+                                 "no tuning-split rows for this point: run `secuav-study suite run --split "
+                                 "tuning` with the same --add first; the evaluation split runs only the best "
+                                 "point")  # fmt: skip
+            scores[label] = float(mine["rmse_m"].mean())
+        best = min(scores, key=lambda k: scores[k])
+        point = labels[best]
+        resolved.append({"name": name, "params": point} if point else name)
+        scored = {k: round(v, 6) for k, v in scores.items()}
+        chosen[name] = {"point": point, "label": best, "of": len(points), "tuning_rmse_m": scored}
+    return resolved, chosen
+
+
 def run(out: Path, *, quick: bool, version: str, added: list[Any], only: list[str] | None = None,
-        workers: int | None = None, scheduler: str | None = None, progress: bool = True) -> int:  # fmt: skip
-    """Run every study of the suite (or those in ``only``) into ``out/<study>``; the worst exit code.
+        workers: int | None = None, scheduler: str | None = None, progress: bool = True,
+        split: str = "evaluation") -> int:  # fmt: skip
+    """Run every study of the suite (or those in ``only``) of one split into ``out/<study>`` (the tuning split:
+    ``out/tuning/<study>``); the worst exit code. Every method under test is charged to OUT's tuning budget.
 
     Each study runs as ``secuav-study run`` runs it (:func:`study.launch.run_study`), with these workers,
     scheduler and progress bars."""
     from study.launch import run_study
 
     head, entries = manifest(version)
+    if split not in SPLITS:
+        raise InputError("--split", "", split, f"one of {', '.join(SPLITS)}")
     stems = [Path(e.file).stem for e in entries]
     for name in only or []:
         if name not in stems:
             raise InputError("--only", "", name, f"not a study of suite {version} ({', '.join(stems)})")
+    for entry in added:
+        try:
+            _entry_points(entry)
+        except ValueError as exc:
+            raise InputError("--add", "", entry, str(exc).splitlines()[0]) from None
+    names = [_entry_points(e)[0] for e in added]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise InputError("--add", "", twice[0], "given twice: one --add per method, with a list in params to sweep "
+                         "(--add '{name: huber, params: {huber_k: [1.0, 2.0]}}')")  # fmt: skip
     if only:
         entries = [e for e in entries if Path(e.file).stem in only]
     out.mkdir(parents=True, exist_ok=True)
-    meta = {"suite": head["version"], "variant": "quick" if quick else "full", "added": added}
     held = out / "suite.json"
-    if held.is_file() and json.loads(held.read_text())["variant"] != meta["variant"]:
-        raise InputError(str(out), "suite.json: variant", json.loads(held.read_text())["variant"],
-                         "this directory holds the other variant; use a new OUT")  # fmt: skip
+    meta = json.loads(held.read_text()) if held.is_file() else {}
+    variant = "quick" if quick else "full"
+    for key, want in (("variant", variant), ("smoke", smoke())):
+        if meta and meta.get(key, False) != want:
+            raise InputError(str(out), f"suite.json: {key}", meta.get(key, False),
+                             f"this directory holds another run ({key} {meta.get(key, False)}); "
+                             "use a new OUT")  # fmt: skip
+    chosen: dict[str, Any] = {}
+    if split == "evaluation":
+        before = meta.get("splits", {}).get("evaluation", {}).get("chosen", {})
+        added, chosen = best_points(out, added, version, before)
+    _charge(out, added, int(head["tuning_budget"]), split)
+    splits = meta.get("splits", {})
+    splits[split] = {"added": added, **({"chosen": chosen} if split == "evaluation" else {})}
+    meta = {"suite": head["version"], "variant": variant, "smoke": smoke(), "added": added, "splits": splits}
     held.write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
+    for name, c in chosen.items():
+        print(f"suite: {name}: best of {c['of']} points on the tuning split: {c['label']}", flush=True)
     worst = 0
     for entry in entries:
-        doc = study_doc(version, entry, quick)
+        doc = study_doc(version, entry, quick, split)
         if doc is None:
-            print(f"suite: {entry.file}: not in the quick variant", flush=True)
+            print(f"suite: {entry.file}: not in the {'quick variant' if quick else f'{split} split'}", flush=True)
+            continue
+        if smoke() and doc.get("mode", "offline") != "offline":
+            print(f"suite: {entry.file}: real-time flights are not in a smoke run ({SMOKE_ENV})", flush=True)
             continue
         doc, skipped = _with_added(doc, added, int(head["tuning_budget"]))
         for s in skipped:
             print(f"suite: {entry.file}: {s}", flush=True)
         stem = Path(entry.file).stem
-        path = out / "studies" / f"{stem}.yaml"
+        where = out / stem if split == "evaluation" else out / "tuning" / stem
+        path = out / "studies" / f"{stem}{'' if split == 'evaluation' else '-tuning'}.yaml"
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
-        print(f"suite: {stem}", flush=True)
-        code = run_study(path, out / stem, workers=workers, scheduler=scheduler, progress=progress)
+        print(f"suite: {stem} ({split} split)", flush=True)
+        code = run_study(path, where, workers=workers, scheduler=scheduler, progress=progress)
         if code == 130:  # interrupted: stop here; run again to go on (done cells are skipped)
+            return code
+        if code == 2:  # bad input: the same for every study, so said once
             return code
         worst = max(worst, code)
     return worst
@@ -143,61 +284,103 @@ def _expected(version: str, variant: str) -> dict[str, dict[str, list[float]]]:
     return doc.get("bands", {})
 
 
+DETECTION_COLUMNS = tuple(f"{who}_{figure}" for who in ("own", "attribution")
+                          for figure in ("recall", "precision", "false_naming"))  # fmt: skip
+
+
+def _tuned_on(name: Any, label: str, chosen: dict[str, Any], split: str) -> str:
+    """Where a row's parameters were chosen: the suite's tuning split (a method given with a grid), else what
+    the class declares (``Estimator.tuned_on``; the built-ins: docs/bench.md, "Tuning")."""
+    import estimators
+
+    pick = chosen.get(name) if isinstance(name, str) else None
+    point = label.split("+")[0]
+    if pick is not None and split == "evaluation" and point == pick["label"]:
+        return f"tuning split: best of {pick['of']} points"
+    if "[" in point:  # parameters of its own: a point of a grid, or one given as it is
+        return "a tuning point" if split == "tuning" else "as given (--add)"
+    try:
+        declared = estimators.registry.get(name).tuned_on if isinstance(name, str) else ""
+    except (ValueError, ImportError):
+        declared = ""
+    return declared or "not declared"
+
+
 def leaderboard(out: Path, version: str = LATEST) -> tuple[pd.DataFrame, list[str]]:
-    """One row per (study, method variant) over ``out``; and the provenance lines."""
+    """One row per (study, split, method variant) over ``out``; and the provenance lines."""
     from study import store
     from study.report import BASELINE, mean_ci, secure_names
 
     meta = json.loads((out / "suite.json").read_text(encoding="utf-8"))
-    bands = _expected(version, meta["variant"])
+    bands = {} if meta.get("smoke") else _expected(version, meta["variant"])
+    chosen = meta.get("splits", {}).get("evaluation", {}).get("chosen", {})
     rows: list[dict[str, Any]] = []
     prov: set[str] = set()
     _, entries = manifest(version)
-    for entry in entries:
-        stem = Path(entry.file).stem
-        frame = store.load(out / stem)
-        if not len(frame):
-            continue
-        ok = frame[frame["status"] == "ok"]
-        for col in ("secuav_version", "secuav_commit", "secuav_dirty", "python_version", "numpy_version",
-                    "scipy_version"):  # fmt: skip
-            if col not in ok:
-                ok = ok.assign(**{col: None})
-        for r in ok[["secuav_version", "secuav_commit", "secuav_dirty", "python_version", "numpy_version",
-                     "scipy_version"]].drop_duplicates().itertuples(index=False):  # fmt: skip
-            dirty = " (dirty)" if r.secuav_dirty else ""
-            prov.add(f"secuav {r.secuav_version} {str(r.secuav_commit)[:12]}{dirty}, python {r.python_version}, "
-                     f"numpy {r.numpy_version}, scipy {r.scipy_version}")  # fmt: skip
-        clean = ok[ok["attack"] == "none"]
-        secure = secure_names(ok)
-        for (label, dist, version_), g in ok.groupby(["estimator", "estimator_dist", "estimator_version"],
-                                                       dropna=False, sort=False):  # fmt: skip
-            mean, lo, hi, n = mean_ci(g["rmse_m"])
-            mine = clean[clean["estimator"] == label]["rmse_m"].mean()
-            # The baseline at the same grid point of the study's estimator_params (rows of one grid point only).
-            tuning = g["estimator_params"].dropna().unique() if "estimator_params" in g else []
-            same = clean["estimator_params"].isin(tuning) if len(tuning) else clean["estimator_params"].isna()
-            ls_clean = clean[(clean["estimator"] == BASELINE) & same]["rmse_m"].mean()
-            vs_ls = float(mine / ls_clean) if ls_clean == ls_clean and ls_clean > 0 and mine == mine else None
-            band = bands.get(stem, {}).get(label)
-            verdict = "" if band is None or mean is None else ("in band" if band[0] <= mean <= band[1] else "OUT")
-            rows.append({
-                "study": stem, "method": label, "origin": f"{dist} {version_}" if isinstance(dist, str) else "",
-                "n": n, "rmse_m": mean, "rmse_lo": lo, "rmse_hi": hi,
-                "valid_fraction": g["valid_fraction"].mean(), "recall": g["attack_detection_recall"].mean(),
-                "own_recall": g["own_recall_all"].mean() if "own_recall_all" in g else None,
-                "false_alarm_rate": g["false_alarm_rate"].mean(),
-                "cell_wall_s": float(frame.drop_duplicates("cell")["wall_s"].median()),
-                "step_us": g["step_time_us_median"].median(),
-                "clean_vs_ls": vs_ls, "worse_than_ls": bool(secure.get(label) and vs_ls is not None and vs_ls > 1),
-                "band": "" if band is None else f"{band[0]:.3f}-{band[1]:.3f}", "check": verdict,
-                "failed": int((frame[frame["estimator"] == label]["status"] != "ok").sum()),
-            })  # fmt: skip
+    for split in SPLITS:
+        for entry in entries:
+            stem = Path(entry.file).stem
+            frame = store.load(out / stem if split == "evaluation" else out / "tuning" / stem)
+            if not len(frame):
+                continue
+            rows += _study_rows(frame, stem, split, bands if split == "evaluation" else {}, chosen, prov,
+                                BASELINE, mean_ci, secure_names)  # fmt: skip
     board = pd.DataFrame(rows)
     if len(board):
-        board = board.sort_values(["study", "rmse_m"], kind="stable").reset_index(drop=True)
-    head = f"SecUAV suite v{meta['suite']} ({meta['variant']})"
-    return board, [head, *sorted(prov)]
+        order = {s: i for i, s in enumerate(SPLITS)}
+        board = board.assign(_split=board["split"].map(order)).sort_values(["_split", "study", "rmse_m"],
+                                                                          kind="stable")  # fmt: skip
+        board = board.drop(columns="_split").reset_index(drop=True)
+    head = f"SecUAV suite v{meta['suite']} ({meta['variant']}{', smoke: not a score' if meta.get('smoke') else ''})"
+    book = ledger(out)
+    used = "; ".join(f"{name} {len(m['points'])} (splits: {', '.join(m['splits'])})"
+                     for name, m in sorted(book.get("methods", {}).items()))  # fmt: skip
+    budget = f"tuning budget {book.get('budget', '?')} points per method in this directory; used: {used or 'none'}"
+    return board, [head, budget, *sorted(prov)]
+
+
+def _study_rows(frame: pd.DataFrame, stem: str, split: str, bands: dict[str, Any], chosen: dict[str, Any],
+                prov: set[str], baseline: str, mean_ci: Any, secure_names: Any) -> list[dict[str, Any]]:  # fmt: skip
+    ok = frame[frame["status"] == "ok"]
+    for col in ("secuav_version", "secuav_commit", "secuav_dirty", "python_version", "numpy_version",
+                "scipy_version", "output", *DETECTION_COLUMNS):  # fmt: skip
+        if col not in ok:
+            ok = ok.assign(**{col: None})
+    for r in ok[["secuav_version", "secuav_commit", "secuav_dirty", "python_version", "numpy_version",
+                 "scipy_version"]].drop_duplicates().itertuples(index=False):  # fmt: skip
+        dirty = " (dirty)" if r.secuav_dirty else ""
+        prov.add(f"secuav {r.secuav_version} {str(r.secuav_commit)[:12]}{dirty}, python {r.python_version}, "
+                 f"numpy {r.numpy_version}, scipy {r.scipy_version}")  # fmt: skip
+    clean = ok[ok["attack"] == "none"]
+    secure = secure_names(ok)
+    out = []
+    for (label, name, dist, version_), g in ok.groupby(["estimator", "estimator_name", "estimator_dist",
+                                                          "estimator_version"], dropna=False, sort=False):  # fmt: skip
+        mean, lo, hi, n = mean_ci(g["rmse_m"])
+        mine = clean[clean["estimator"] == label]["rmse_m"].mean()
+        # The baseline at the same grid point of the study's estimator_params (rows of one grid point only).
+        tuning = g["estimator_params"].dropna().unique() if "estimator_params" in g else []
+        same = clean["estimator_params"].isin(tuning) if len(tuning) else clean["estimator_params"].isna()
+        ls_clean = clean[(clean["estimator"] == baseline) & same]["rmse_m"].mean()
+        vs_ls = float(mine / ls_clean) if ls_clean == ls_clean and ls_clean > 0 and mine == mine else None
+        band = bands.get(stem, {}).get(label)
+        verdict = "" if band is None or mean is None else ("in band" if band[0] <= mean <= band[1] else "OUT")
+        output = g["output"].dropna()
+        out.append({
+            "study": stem, "split": split, "method": label,
+            "output": output.iloc[0] if len(output) else ("attributed" if "+attribution" in label else "own"),
+            "origin": f"{dist} {version_}" if isinstance(dist, str) else "",
+            "tuned_on": _tuned_on(name, label, chosen, split),
+            "n": n, "rmse_m": mean, "rmse_lo": lo, "rmse_hi": hi,
+            "valid_fraction": g["valid_fraction"].mean(),
+            **{c: g[c].astype(float).mean() for c in DETECTION_COLUMNS},
+            "cell_wall_s": float(frame.drop_duplicates("cell")["wall_s"].median()),
+            "step_us": g["step_time_us_median"].median(),
+            "clean_vs_ls": vs_ls, "worse_than_ls": bool(secure.get(label) and vs_ls is not None and vs_ls > 1),
+            "band": "" if band is None else f"{band[0]:.3f}-{band[1]:.3f}", "check": verdict,
+            "failed": int((frame[frame["estimator"] == label]["status"] != "ok").sum()),
+        })  # fmt: skip
+    return out
 
 
 def _num(v: Any, digits: int = 3) -> str:
@@ -205,22 +388,28 @@ def _num(v: Any, digits: int = 3) -> str:
 
 
 def markdown(board: pd.DataFrame, provenance: list[str]) -> str:
-    lines = [f"# {provenance[0]}", "", *(f"- computed by: {p}" for p in provenance[1:]), ""]
-    cols = ["method", "from", "n", "RMSE [m] mean [95% CI]", "clean RMSE / LS", "valid", "own recall",
-            "attribution recall", "false alarms", "cell [s]", "step [us]", "expected band", "check"]  # fmt: skip
-    for study, g in board.groupby("study", sort=False):
-        lines += [f"## {study}", "", "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    lines = [f"# {provenance[0]}", "", f"- {provenance[1]}", *(f"- computed by: {p}" for p in provenance[2:]), ""]
+    cols = ["method", "output", "from", "tuned on", "n", "RMSE [m] mean [95% CI]", "clean RMSE / LS", "valid",
+            *DETECTION_COLUMNS, "cell [s]", "step [us]", "expected band", "check"]  # fmt: skip
+    for (split, study), g in board.groupby(["split", "study"], sort=False):
+        lines += [f"## {study} ({split} split)", "", "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
         for r in g.itertuples(index=False):
             ci = f"{_num(r.rmse_m)} [{_num(r.rmse_lo)}, {_num(r.rmse_hi)}]"
             vs = _num(r.clean_vs_ls, 2) or "n/a"
             vs += " **worse than LS**" if r.worse_than_ls else ""
-            lines.append(f"| {r.method} | {r.origin} | {r.n} | {ci} | {vs} | "
-                         f"{_num(r.valid_fraction, 2)} | {_num(r.own_recall, 2)} | {_num(r.recall, 2)} | "
-                         f"{_num(r.false_alarm_rate, 3)} | "
+            detection = " | ".join(_num(getattr(r, c), 2) for c in DETECTION_COLUMNS)
+            lines.append(f"| {r.method} | {r.output} | {r.origin} | {r.tuned_on} | {r.n} | {ci} | {vs} | "
+                         f"{_num(r.valid_fraction, 2)} | {detection} | "
                          f"{_num(r.cell_wall_s, 1)} | {_num(r.step_us, 0)} | {r.band} | {r.check} |")  # fmt: skip
         lines.append("")
-    lines.append("clean RMSE / LS: a method's mean RMSE on the study's clean runs over the undefended snapshot "
-                 "least-squares fix's (ls, run in every offline study); a secure method above 1 is marked.")
+    lines += ["clean RMSE / LS: a method's mean RMSE on the study's clean runs over the undefended snapshot "
+              "least-squares fix's (ls, run in every offline study); a secure method above 1 is marked.",
+              "output: own = the method's own output; attributed = its output with SecUAV's shared attribution "
+              "(the +attribution row of a secure method). own_* / attribution_*: recall, precision and false "
+              "naming of the method's own naming and of the attribution's (docs/bench.md, \"Detection\"); "
+              "empty where there is no such claim.",
+              "split: evaluation = the scored cells; tuning = where parameters are chosen (other seeds and hover "
+              "points), never a score."]  # fmt: skip
     return "\n".join(lines)
 
 
@@ -232,7 +421,8 @@ def record_bands(out: Path, version: str = LATEST) -> Path:
     measured run; the file says which run)."""
     board, provenance = leaderboard(out, version)
     meta = json.loads((out / "suite.json").read_text(encoding="utf-8"))
-    builtin = board[board["origin"].str.startswith("secuav ") & ~board["method"].str.contains(r"\[")]
+    builtin = board[board["origin"].str.startswith("secuav ") & ~board["method"].str.contains(r"\[")
+                    & (board["split"] == "evaluation")]
     bands: dict[str, dict[str, list[float]]] = {}
     for r in builtin.itertuples(index=False):
         if r.rmse_m is None or r.rmse_m != r.rmse_m:

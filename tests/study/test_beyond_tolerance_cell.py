@@ -33,7 +33,7 @@ def test_an_estimate_claimed_valid_is_not_far_worse_than_the_plain_ekf(tmp_path:
     (cell,) = expand(study, str(path))
     rows = run_offline(cell, study.estimators)
     ekf_worst = rows["ekf"]["max_error_m"]
-    for name in ("secekf", "recap", "rarse"):
+    for name in ("secekf+attribution", "recap+attribution", "rarse+attribution"):  # with the attribution's verdict
         claimed = rows[name]["valid_max_error_m"]
         assert claimed is not None and claimed <= 2.0 * ekf_worst, (
             f"{name}: {claimed:.2f} m off while claimed valid, the plain EKF at worst {ekf_worst:.2f} m"

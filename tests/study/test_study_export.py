@@ -62,10 +62,12 @@ def test_an_exported_bundle_reproduces_the_rows_row_for_row(tmp_path: Path) -> N
     assert done.returncode == 0, done.stderr
     before = pd.read_csv(bundle / "results.csv")
     after = pd.read_parquet(again / "results.parquet")
-    assert len(before) == len(after) == 2 * 4  # ekf, secekf at two windows, and the ls baseline
+    # ekf, secekf at two windows (each its own output and with the attribution), and the ls baseline
+    assert len(before) == len(after) == 2 * 6
     both = before.merge(after, on=["cell", "estimator"], suffixes=("_then", "_now"))
     assert len(both) == len(before)
-    for col in ("rmse_m", "max_error_m", "alarm_fraction", "code_key", "attack_hash"):
+    for col in ("rmse_m", "max_error_m", "own_alarm_fraction", "attribution_recall", "attribution_false_naming",
+                "output", "code_key", "attack_hash"):  # fmt: skip
         assert both[f"{col}_then"].equals(both[f"{col}_now"].rename(f"{col}_then")), col  # NaN = NaN here
 
 

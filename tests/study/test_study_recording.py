@@ -73,15 +73,20 @@ def test_a_study_on_recorded_ranges(tmp_path: Path) -> None:
     assert json.loads(done.stdout.strip().splitlines()[-1])["ran"] == 2
     rows = pd.read_parquet(out / "results.parquet")
     # ls: the undefended least-squares baseline, run in every offline study though not listed.
-    assert (rows["status"] == "ok").all() and len(rows) == 6 and set(rows["estimator"]) == {"ls", "ekf", "secekf"}
+    assert (rows["status"] == "ok").all() and len(rows) == 8
+    assert set(rows["estimator"]) == {"ls", "ekf", "secekf", "secekf+attribution"}
     attacked = rows[rows["attack"] != "none"].set_index("estimator")
     assert attacked.loc["secekf", "rmse_m"] < attacked.loc["ekf", "rmse_m"]
     assert rows.loc[rows["attack"] == "none", "estimator_params"].notna().all()  # calibration_s went along
     assert set(rows["recording"]) == {"ranges.csv"}  # an unnamed single recording: its ranges file as written
     report = (out / "report.md").read_text()
     assert "| RMSE / LS |" in report and "| none | ls calibration_s=15.0 | " in report  # clean table, Table 5.1
-    assert re.search(r"\| ls calibration_s=15.0 \| leg hover \| 1 \| [0-9.]+ \| [0-9.]+ \| 1\.00 \|", report)
-    assert re.search(r"\| secekf calibration_s=15.0 \| leg hover \| 1 \| [0-9.]+ \| [0-9.]+ \| [0-9]\.[0-9]{2}", report)
+    # own_false_naming, attribution_false_naming (ls claims nothing; secekf's own output has no attribution)
+    assert re.search(r"\| ls calibration_s=15.0 \| leg hover \| 1 \| n/a \| n/a \| [0-9.]+ \| 1\.00 \|", report)
+    assert re.search(r"\| secekf calibration_s=15.0 \| leg hover \| 1 \| [0-9.]+ \| n/a \| [0-9.]+ \| [0-9]\.[0-9]{2}",
+                     report)  # fmt: skip
+    assert re.search(r"\| secekf\+attribution calibration_s=15.0 \| leg hover \| 1 \| [0-9.]+ \| [0-9.]+ \| [0-9.]+",
+                     report)  # fmt: skip
     # What the window did, per row: every link's readings used, offset and scale.
     for text in rows["calibration"]:
         rep = json.loads(text)

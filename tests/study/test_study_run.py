@@ -55,23 +55,28 @@ def test_small_study_on_a_local_cluster_writes_rows_report_and_figures(tmp_path:
     assert done.returncode == 0, done.stderr
     assert _summary(done) == {"cells": 4, "ran": 4, "skipped": 0, "failed": 0, "changed": 0, "out": str(out)}
     rows = pd.read_parquet(out / "results.parquet")
-    assert len(rows) == 12 and set(rows["estimator"]) == {"ls", "ekf", "secekf"} and (rows["status"] == "ok").all()
+    # The secure method twice: its own output and its output with the shared attribution.
+    assert len(rows) == 16 and set(rows["estimator"]) == {"ls", "ekf", "secekf", "secekf+attribution"}
+    assert (rows["status"] == "ok").all()
+    assert dict(zip(rows["estimator"], rows["output"], strict=True))["secekf+attribution"] == "attributed"
     for column in ("cell", "params", "seed", "rmse_m", "p95_error_m", "max_error_m", "estimate_fraction",
-                   "attack_detection_precision", "attack_detection_recall", "detection_delay_s", "false_alarm_rate",
-                   "step_time_us_median", "worker", "started_at", "wall_s"):  # fmt: skip
+                   "own_recall", "own_precision", "own_false_naming", "attribution_recall", "attribution_precision",
+                   "attribution_false_naming", "attribution_detection_delay_s", "step_time_us_median", "worker",
+                   "started_at", "wall_s"):  # fmt: skip
         assert column in rows.columns
     assert rows["worker"].str.startswith("tcp://127.0.0.1:").all()
     attacked = rows[rows["attack"] == "anchors-constant"].set_index("estimator")
     # The secure estimator catches a 15-sigma bias and stays accurate; the plain EKF is dragged off.
     assert (attacked.loc["secekf", "rmse_m"] < 0.15).all() and (attacked.loc["ekf", "rmse_m"] > 0.25).all()
-    delay = attacked["detection_delay_s"]
-    assert delay.loc["secekf"].notna().all() and delay.loc["ekf"].isna().all()
+    delay = attacked["attribution_detection_delay_s"]
+    assert delay.loc["secekf+attribution"].notna().all() and delay.loc["ekf"].isna().all()
+    assert attacked["own_recall"].loc["secekf"].eq(0).all()  # SecEKF names nobody itself: the attribution does
     report = (out / "report.md").read_text()
     assert "Clean runs: false alarms" in report and "anchors-constant" in report
     assert "## Summary: error and time per step, per attack and estimator" in report and "Table 5" not in report
     again = _run("run", str(out / ".." / "study.yaml"), "--out", str(out), "--no-progress")
     assert again.returncode == 0 and _summary(again)["skipped"] == 4 and _summary(again)["ran"] == 0
-    assert len(pd.read_parquet(out / "results.parquet")) == 12
+    assert len(pd.read_parquet(out / "results.parquet")) == 16
 
 
 @pytest.mark.xdist_group("dask_study")
@@ -97,7 +102,7 @@ def test_a_run_killed_half_way_resumes_without_duplicates_or_gaps(tmp_path: Path
     assert summary["cells"] == 60 and summary["skipped"] >= before["cell"].nunique()
     assert summary["ran"] + summary["skipped"] == 60
     rows = pd.read_parquet(parts)
-    assert len(rows) == 180 and not rows.duplicated(["cell", "estimator"]).any()
+    assert len(rows) == 240 and not rows.duplicated(["cell", "estimator"]).any()  # ls, ekf, secekf twice
     kept = rows.merge(before, on=["cell", "estimator"], suffixes=("", "_before"))
     assert len(kept) == len(before) and (kept["rmse_m"] == kept["rmse_m_before"]).all()  # never rewritten
 
@@ -145,7 +150,7 @@ def test_a_real_scheduler_and_workers_run_the_cells_and_are_named_in_the_rows(
     assert done.returncode == 0, done.stderr
     assert _summary(done)["ran"] == 12
     rows = pd.read_parquet(out / "results.parquet")
-    assert set(rows["worker"]) <= set(workers) and len(rows) == 36
+    assert set(rows["worker"]) <= set(workers) and len(rows) == 48
     assert "workers: " + ", ".join(sorted(set(rows["worker"]))) in (out / "report.md").read_text()
 
 

@@ -151,15 +151,32 @@ def test_detection_delay_and_false_alarms_from_known_offsets() -> None:
     named[20, 3] = True  # a false alarm before the attack
     named[35:, 1] = True  # caught 0.5 s after onset
     named[40, 2] = True  # a wrong name during the attack
-    fig = detection_figures(_trial(offsets, named, np.ones(n, dtype=bool)), "x")
-    assert fig["detection_delay_s"] == pytest.approx(0.5)
+    fig = detection_figures(_trial(offsets, named, np.ones(n, dtype=bool)), "x", attributed=True)
+    assert fig["attribution_detection_delay_s"] == pytest.approx(0.5)
     scored = n - 10  # after the 1 s warm-up
-    assert fig["false_alarm_rate"] == pytest.approx(2 / scored)
-    assert fig["recall_all"] == pytest.approx(25 / 30)
-    assert fig["recall_by_sigma"]["0-1"] == pytest.approx(25 / 30) and fig["recall_by_sigma"][">10"] is None
-    clean = detection_figures(_trial(np.zeros((n, p)), named, np.ones(n, dtype=bool)), "x")
-    assert clean["detection_delay_s"] is None and clean["recall_all"] is None
-    assert clean["false_alarm_rate"] == pytest.approx(26 / scored)
+    assert fig["attribution_false_naming"] == pytest.approx(2 / scored)
+    assert fig["attribution_recall"] == pytest.approx(25 / 30)
+    assert fig["attribution_precision"] == pytest.approx(25 / 27)
+    by_sigma = fig["attribution_recall_by_sigma"]
+    assert by_sigma["0-1"] == pytest.approx(25 / 30) and by_sigma[">10"] is None
+    assert fig["own_recall"] is None  # this trace makes no claim of its own (own_named None)
+    clean = detection_figures(_trial(np.zeros((n, p)), named, np.ones(n, dtype=bool)), "x", attributed=True)
+    assert clean["attribution_detection_delay_s"] is None and clean["attribution_recall"] is None
+    assert clean["attribution_false_naming"] == pytest.approx(26 / scored)
+    # The same names as the method's own claim: the same definition, under own_*, and no attribution figures.
+    own = detection_figures(_trial_own(offsets, named), "x")
+    assert own["own_recall"] == fig["attribution_recall"] and own["own_false_naming"] == fig["attribution_false_naming"]
+    assert own["own_detection_delay_s"] == pytest.approx(0.5) and own["attribution_recall"] is None
+
+
+def _trial_own(offsets: np.ndarray, named: np.ndarray) -> TrialResult:
+    n = offsets.shape[0]
+    trial = _trial(offsets, named, np.ones(n, dtype=bool))
+    trace = trial.traces["x"]
+    own = EstimatorTrace(trace.err_m, None, trace.est_xy_m, trace.step_time_s, named, named.any(axis=1),
+                         own_named=named, own_alarm=named.any(axis=1))  # fmt: skip
+    return TrialResult(trial.t_s, trial.truth_xy_m, trial.anchors_xy_m, offsets, trial.sigma_m, trial.sensor_ids,
+                       {"x": own})  # fmt: skip
 
 
 @pytest.mark.parametrize("path", sorted((Path(__file__).resolve().parents[2] / "studies").glob("*.yaml")))
@@ -199,18 +216,23 @@ def test_a_cell_runs_its_estimators_with_the_grid_point() -> None:
 
     text = BASE.replace("duration_s: 5", "duration_s: 30").replace("seeds: 3", "seeds: 1")
     cells = [c for c in _cells(text + "estimator_params: {alpha: [0.001, 0.3]}\n") if c.attack == "none"]
-    rows = {c.estimator_params["alpha"]: run_cell(c, ["secekf"])[0] for c in cells}
-    assert all(r["status"] == "ok" for r in rows.values())
+    rows = {c.estimator_params["alpha"]: run_cell(c, ["secekf"])[1] for c in cells}
+    assert all(r["status"] == "ok" and r["estimator"] == "secekf+attribution" for r in rows.values())
     assert rows[0.3]["estimator_params"] == '{"alpha":0.3}'
     # Naming readings is a test at level alpha: a loose alpha names honest readings, a strict one hardly ever.
-    assert rows[0.3]["false_alarm_rate"] > rows[0.001]["false_alarm_rate"] + 0.05
+    assert rows[0.3]["attribution_false_naming"] > rows[0.001]["attribution_false_naming"] + 0.05
 
 
 def test_an_estimators_own_params_are_a_grid_for_it_alone() -> None:
     text = BASE.replace("estimators: [ekf, secekf]", "estimators: [ekf, {name: secekf, params: {window: [5, 10]}}]")
     study = parse_study(text, "s.yaml")
     # ls: the undefended least-squares baseline every offline study runs, appended where not listed.
-    assert [v.label for v in study.variants()] == ["ekf", "secekf[window=5]", "secekf[window=10]", "ls"]
+    # A secure method's every point twice: its own output, then with the shared attribution.
+    assert [v.label for v in study.variants()] == ["ekf", "secekf[window=5]", "secekf[window=5]+attribution",
+                                                   "secekf[window=10]", "secekf[window=10]+attribution", "ls"]
+    assert [v.attribution for v in study.variants()][1:3] == [False, True]
+    with pytest.raises(ValueError, match="attribution is not a parameter"):
+        parse_study(text.replace("window: [5, 10]", "attribution: [true, false]"), "s.yaml").variants()
     assert len(expand(study, "s.yaml")) == len(_cells(BASE))  # the same cells: the grid is per estimator
     with pytest.raises(InputError, match=r"estimators\[1\]\.params.*tuning_budget 1"):
         expand(parse_study(text + "tuning_budget: 1\n", "s.yaml"), "s.yaml")
@@ -256,9 +278,9 @@ def test_a_noisier_flight_than_stated_names_honest_readings_more_often() -> None
     assert all(r["status"] == "ok" for rs in rows.values() for r in rs)
     assert {r["noise_scale"] for rs in rows.values() for r in rs} == {1.0, 1.5}
     ekf = {k: next(r for r in rs if r["estimator"] == "ekf") for k, rs in rows.items()}
-    sec = {k: next(r for r in rs if r["estimator"] == "secekf") for k, rs in rows.items()}
+    sec = {k: next(r for r in rs if r["estimator"] == "secekf+attribution") for k, rs in rows.items()}
     assert ekf[1.5]["rmse_m"] > 1.2 * ekf[1.0]["rmse_m"]  # the flight really was noisier
-    assert sec[1.5]["false_alarm_rate"] > sec[1.0]["false_alarm_rate"] + 0.01
+    assert sec[1.5]["attribution_false_naming"] > sec[1.0]["attribution_false_naming"] + 0.01
 
 
 def test_rows_written_before_noise_scales_existed_read_as_stated_noise(tmp_path: Path) -> None:

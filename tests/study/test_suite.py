@@ -4,6 +4,7 @@ leaderboard and the expected bands; and detection reported two ways (the method'
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -50,29 +51,89 @@ def test_a_quick_suite_study_with_a_plugin_added_and_its_leaderboard(tmp_path: P
     assert done.returncode == 0, done.stderr
     check = _run("suite", "check", str(out))
     board = pd.read_csv(out / "leaderboard.csv")
-    assert set(board["study"]) == {"beyond-tolerance"}
+    assert set(board["study"]) == {"beyond-tolerance"} and set(board["split"]) == {"evaluation"}
     huber = board[board["method"] == "huber"].iloc[0]
-    assert huber["origin"] == "secuav-example-plugin 0.1.0" and huber["n"] == 6
+    assert huber["origin"] == "secuav-example-plugin 0.1.0" and huber["n"] == 6 and huber["output"] == "own"
     builtin = board[board["method"] != "huber"]
-    assert builtin["check"].isin(["in band", "OUT"]).all()  # every built-in has a measured band
+    # Every built-in's undefended row and every secure one's +attribution row has a measured band; a secure
+    # method's own-output row is reported beside it.
+    banded = builtin[(builtin["output"] == "attributed") | builtin["method"].isin(["ls", "ekf"])]
+    assert banded["check"].isin(["in band", "OUT"]).all() and len(banded) == 7
+    assert set(builtin[builtin["output"] == "own"]["method"]) == {"ls", "ekf", "l1", "secekf", "secopt", "recap",
+                                                                  "rarse"}  # fmt: skip
     assert check.returncode == (1 if (builtin["check"] == "OUT").any() else 0), check.stdout
     text = (out / "leaderboard.md").read_text()
     assert "clean RMSE / LS" in text and {"clean_vs_ls", "worse_than_ls"} <= set(board.columns)
     assert text.startswith("# SecUAV suite v1 (quick)") and "computed by: secuav " in text and "numpy" in text
+    assert "## beyond-tolerance (evaluation split)" in text and "| own_recall | own_precision |" in text
     assert json.loads((out / "suite.json").read_text())["added"] == ["huber"]
 
 
-def test_detection_two_ways_the_methods_own_and_the_attribution(tmp_path: Path) -> None:
+def _smoke(*args: str) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, "SECUAV_STUDY_SMOKE": "1"}
+    return subprocess.run([str(STUDY), *args], capture_output=True, text=True, timeout=600, check=False, env=env)
+
+
+@pytest.mark.xdist_group("dask_study")
+def test_tuning_split_budget_and_best_point_across_commands(tmp_path: Path) -> None:
+    """A grid is run on the tuning split, its best point alone on the evaluation split; every point run in OUT
+    counts against the budget whatever the command; both splits are on the leaderboard."""
+    out = tmp_path / "suite"
+    grid = "{name: huber, params: {huber_k: [1.0, 2.0, 4.0]}}"
+    common = ("--quick", "--out", str(out), "--only", "beyond-tolerance", "--workers", "1", "--no-progress")
+    early = _smoke("suite", "run", *common, "--add", grid)  # evaluation first: nothing tuned yet
+    assert early.returncode == 2 and "--split tuning" in early.stderr and early.stderr.count("\n") == 1
+    tuned = _smoke("suite", "run", *common, "--split", "tuning", "--add", grid)
+    assert tuned.returncode == 0, tuned.stderr
+    tuning = pd.read_parquet(out / "tuning" / "beyond-tolerance" / "results.parquet")
+    assert set(tuning["seed"]) == {1000} and set(tuning["position"]) == {"[3.5,1.0]"}  # disjoint from evaluation
+    evaluated = _smoke("suite", "run", *common, "--add", grid)
+    assert evaluated.returncode == 0, evaluated.stderr
+    meta = json.loads((out / "suite.json").read_text())
+    chosen = meta["splits"]["evaluation"]["chosen"]["huber"]
+    scores = chosen["tuning_rmse_m"]
+    assert chosen["of"] == 3 and scores[chosen["label"]] == min(scores.values())
+    rows = pd.read_parquet(out / "beyond-tolerance" / "results.parquet")
+    assert set(rows.loc[rows["estimator_name"] == "huber", "estimator"]) == {chosen["label"]}
+    assert set(rows["seed"]) == {0} and rows["position"].isna().all()
+    # More tuning later does not move the evaluation split's point: the choice made in this directory stands.
+    again = _smoke("suite", "run", *common, "--add", grid)
+    assert again.returncode == 0 and json.loads((out / "suite.json").read_text())["splits"]["evaluation"][
+        "chosen"]["huber"] == chosen  # fmt: skip
+    # Two more points pass the budget of 4 in this directory: refused before anything runs, said once.
+    over = _smoke("suite", "run", *common, "--split", "tuning", "--add", "{name: huber, params: {huber_k: [0.6, 0.8]}}")
+    assert over.returncode == 2 and "exceed the suite's tuning budget of 4" in over.stderr
+    assert json.loads((out / "budget.json").read_text())["methods"]["huber"]["splits"] == ["evaluation", "tuning"]
+    assert _smoke("suite", "check", str(out)).returncode == 0
+    board = pd.read_csv(out / "leaderboard.csv")
+    assert set(board["split"]) == {"tuning", "evaluation"}
+    ev = board[(board["split"] == "evaluation") & (board["method"] == chosen["label"])].iloc[0]
+    assert ev["tuned_on"] == "tuning split: best of 3 points"
+    assert board[board["method"] == "secekf"]["tuned_on"].str.contains("not held out").all()
+    assert "tuning budget 4 points per method in this directory; used: huber 3" in board["provenance"].iloc[0]
+
+
+def test_a_method_added_twice_is_one_error_before_any_study(tmp_path: Path) -> None:
+    done = _run("suite", "run", "--quick", "--out", str(tmp_path / "s"), "--add", "huber",
+                "--add", "{name: huber, params: {huber_k: [1.0, 2.0]}}")  # fmt: skip
+    assert done.returncode == 2 and done.stderr.count("given twice") == 1 and "suite: tc1" not in done.stdout
+
+
+def test_detection_one_definition_the_methods_own_and_the_attribution() -> None:
     from attack_profiles import library
     from evaluation.trial import run_trial
     from secuav_common.scenario import load_scenario
     from study.metrics import trial_rows
+    from study.spec import with_attribution
 
-    trial = run_trial(load_scenario("anchors8"), library.load("type-a", offset_m=1.0), ["ekf", "secekf", "huber"],
-                      0, 6.0, "hover")  # fmt: skip
+    variants = [v for n in ("ekf", "secekf", "huber") for v in with_attribution(n, n, {}, "offline")]
+    trial = run_trial(load_scenario("anchors8"), library.load("type-a", offset_m=1.0), [v.label for v in variants],
+                      0, 6.0, "hover", variants={v.label: (v.name, v.build_params()) for v in variants})  # fmt: skip
     rows = trial_rows(trial)
-    for undefended in ("ekf", "huber"):  # they claim nothing: absent, not zero
-        assert rows[undefended]["own_recall_all"] is None and rows[undefended]["own_alarm_fraction"] is None
-    sec = rows["secekf"]
-    assert sec["recall_all"] > 0.9  # the shared attribution names the two attacked links on its output
-    assert sec["own_recall_all"] == 0.0 and sec["own_alarm_fraction"] is not None  # it names none itself
+    assert set(rows) == {"ekf", "secekf", "secekf+attribution", "huber"}
+    assert rows["ekf"]["own_recall"] is None and rows["ekf"]["attribution_recall"] is None  # claims nothing
+    attributed, own = rows["secekf+attribution"], rows["secekf"]
+    assert attributed["attribution_recall"] > 0.9  # the shared attribution names the two attacked links
+    assert attributed["own_recall"] == 0.0 and own["own_recall"] == 0.0  # SecEKF names none itself
+    assert own["attribution_recall"] is None  # its own output: no attribution ran
+    assert rows["huber"]["own_recall"] > 0.9 and rows["huber"]["attribution_recall"] is None  # its own names

@@ -71,3 +71,17 @@ def test_the_primitive_is_registered_under_its_kind() -> None:
     from attack_profiles.primitives import primitive
 
     assert primitive("moving_bias") is MovingBias
+
+
+def test_huber_names_the_liar_itself_through_the_public_contract() -> None:
+    """Its own claim (detects = True): the reading 3 m long is named, an alarm raised, the answer still valid
+    (five honest readings pin the position down); the base class records it as the method's own."""
+    model, truth = _model(), np.array([2.0, 2.0])
+    z = _ranges(truth, model)
+    z[0] += 3.0
+    est = create("huber", model)
+    for k in range(10):
+        out = est.step(0.1 * k, z)
+    assert out.attacked == frozenset({0}) and out.alarm and out.valid
+    assert out.own_attacked == frozenset({0}) and out.own_alarm
+    assert 0 not in out.used
