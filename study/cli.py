@@ -11,11 +11,12 @@
     secuav-study suite check out/suite                                        # leaderboard and expected bands
 
 ``run`` prints a progress bar (cells done, failed, ETA) and, last, one JSON
-line ``{"cells", "ran", "skipped", "failed", "changed", "out"}``: ``failed`` counts the
+line ``{"cells", "ran", "skipped", "failed", "changed", "fresh", "out"}``: ``failed`` counts the
 cells of the study whose rows in DIR carry an error; ``changed`` the cells run
 again only because the code of a row changed (an estimator's source or default,
 a primitive's, the secuav version: docs/study.md, "Provenance"), also said on
-stderr. Exit 0 when none failed,
+stderr; ``fresh`` the cells a worker ran in a new process because it had loaded
+older code than the client's (docs/bench.md, "Long-lived workers"). Exit 0 when none failed,
 1 when some did (they are in the results), 2 on bad input, 130 when
 interrupted (what finished is kept; run again to go on).
 """

@@ -36,10 +36,11 @@ class Summary:
     failed: int = 0
     interrupted: bool = False
     changed: int = 0  # cells re-run because the code of one of their rows changed
+    fresh: int = 0  # cells a worker ran in a new process because it had loaded other code than the client's
 
     def as_dict(self, out: Path) -> dict[str, Any]:
         return {"cells": self.cells, "ran": self.ran, "skipped": self.skipped, "failed": self.failed,
-                "changed": self.changed, "out": str(out)}  # fmt: skip
+                "changed": self.changed, "fresh": self.fresh, "out": str(out)}  # fmt: skip
 
 
 def _expected_key(cell: Cell, v: Variant, cache: dict[tuple[str, str], str]) -> str:
@@ -131,7 +132,8 @@ def run(
     by_future = {}
     for cell, missing in todo:
         tag = hashlib.sha256("\0".join(v.label for v in missing).encode()).hexdigest()[:12]
-        future = client.submit(run_cell, cell, missing, key=f"cell-{cell.key}-{tag}", pure=False)
+        expected = provenance.identity([v.name for v in missing], cell.profile)  # checked by the worker
+        future = client.submit(run_cell, cell, missing, expected, key=f"cell-{cell.key}-{tag}", pure=False)
         by_future[future] = (cell, missing)
     bar = tqdm(total=len(todo), desc=label, unit="cell", disable=not progress, dynamic_ncols=True)
     failed_now = 0
@@ -142,6 +144,7 @@ def run(
                 cell, missing = by_future.pop(future)
                 cell_rows = result if future.status == "finished" else _failed_rows(cell, missing, result)
                 failed_now += any(r["status"] != "ok" for r in cell_rows)
+                summary.fresh += any(r.get("fresh_process") for r in cell_rows)
                 rows.extend(cell_rows)
             writer.write(rows)
             summary.ran += len(batch)
@@ -153,4 +156,7 @@ def run(
             future.cancel()
     finally:
         bar.close()
+    if summary.fresh:
+        print(f"secuav-study: {summary.fresh} cells ran in a new process because their worker had loaded other code "
+              "(restart the workers to run in-process again)", file=sys.stderr, flush=True)  # fmt: skip
     return summary
