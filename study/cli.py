@@ -3,6 +3,7 @@
     secuav-study run studies/stealth.yaml --out out/stealth                 # embedded LocalCluster, one worker per core
     secuav-study run studies/stealth.yaml --out out/stealth --workers 2
     secuav-study run studies/stealth.yaml --out out/stealth --scheduler tcp://10.0.0.5:8786
+    secuav-study run studies/stealth.yaml --out out/stealth --workers 2 --ports 9100   # cluster on 9100-9107
     secuav-study report out/stealth                                          # rewrite report.md and figures/
     secuav-study validate studies/stealth.yaml
     secuav-study schema
@@ -36,6 +37,9 @@ from secuav_common.extras import require
 from secuav_common.loading import InputError
 from secuav_common.logs import add_common_flags
 
+PORTS_HELP = ("the embedded cluster's loopback ports: BASE (scheduler), BASE+1 (its HTTP), then per worker three "
+              "(nanny, worker, worker HTTP): 2+3*workers in all (default: any free ones)")  # fmt: skip
+
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="secuav-study", description=__doc__.splitlines()[0])
@@ -47,6 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
     where = run.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes (default: cores)")
     where.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="a running dask scheduler")
+    run.add_argument("--ports", type=int, default=None, metavar="BASE", help=PORTS_HELP)
     run.add_argument("--retry-failed", action="store_true", help="run again the cells recorded as failed")
     run.add_argument("--no-progress", action="store_true", help="no progress bar (the JSON line still comes)")
     rep = sub.add_parser("report", help="(re)write DIR/report.md and DIR/figures/ from DIR/results.parquet")
@@ -71,6 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
     swhere = srun.add_mutually_exclusive_group()
     swhere.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes (default: cores)")
     swhere.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="a running dask scheduler")
+    srun.add_argument("--ports", type=int, default=None, metavar="BASE", help=PORTS_HELP)
     srun.add_argument("--no-progress", action="store_true", help="no progress bars")
     what = "the leaderboard (Markdown and CSV) and the built-ins' expected bands"
     scheck = steps.add_parser("check", help=what, description=what)
@@ -104,6 +110,18 @@ def _check_scheduler(url: str) -> None:
         raise InputError("--scheduler", "", url, f"cannot reach the scheduler: {exc.strerror or exc}") from None
 
 
+def _check_ports(args: argparse.Namespace) -> None:
+    if args.ports is None:
+        return
+    if args.scheduler is not None:
+        raise InputError("--ports", "", args.ports, "sets the embedded cluster's ports; not with --scheduler")
+    from study.runner import cluster_ports
+
+    last = args.ports + cluster_ports(args.ports, args.workers or os.cpu_count() or 1) - 1
+    if not 1024 <= args.ports <= last <= 65535:
+        raise InputError("--ports", "", args.ports, f"the block {args.ports}..{last} must lie in 1024..65535")
+
+
 def _terminate(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
@@ -118,6 +136,7 @@ def _run(args: argparse.Namespace) -> int:
             raise InputError("--workers", "", args.workers, "must lie in 1..1024")
         if args.scheduler is not None:
             _check_scheduler(args.scheduler)
+        _check_ports(args)
         definition = study.model_dump(mode="json")
         held = store.saved_study(args.out)
         if held is not None and held.get("name") != study.name:
@@ -134,7 +153,7 @@ def _run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, _terminate)
     summary = runner.Summary(cells=len(cells))
     try:
-        with runner.dask_client(args.workers, args.scheduler) as client:
+        with runner.dask_client(args.workers, args.scheduler, args.ports) as client:
             summary = runner.run(cells, study.variants(), args.out, client, done, label=study.name,
                                  progress=not args.no_progress)  # fmt: skip
     except KeyboardInterrupt:
@@ -171,6 +190,7 @@ def _suite(args: argparse.Namespace) -> int:
         added = [yaml.safe_load(text) for text in args.add]
         extra = [*(["--workers", str(args.workers)] if args.workers else []),
                  *(["--scheduler", args.scheduler] if args.scheduler else []),
+                 *(["--ports", str(args.ports)] if args.ports else []),
                  *(["--no-progress"] if args.no_progress else [])]  # fmt: skip
         return suite.run(args.out, quick=args.quick, version=args.version, added=added, runner_args=extra,
                          only=args.only)  # fmt: skip

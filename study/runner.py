@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import logging
+import os
 import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -72,9 +73,33 @@ def plan(
     return out, changed
 
 
+def cluster_ports(base: int, workers: int) -> int:
+    """How many loopback ports ``--ports BASE`` takes from BASE: the scheduler and its HTTP endpoint, then per
+    worker its nanny, the worker and the worker's HTTP endpoint."""
+    return 2 + 3 * workers
+
+
+def _pinned_cluster(workers: int, base: int) -> Any:
+    """The embedded cluster on ports BASE.. (see :func:`cluster_ports`), every one on 127.0.0.1."""
+    from distributed import Nanny, Scheduler, SpecCluster
+
+    host = "127.0.0.1"
+    spec = {
+        i: {"cls": Nanny, "options": {
+            "host": host, "port": base + 2 + 3 * i, "worker_port": base + 3 + 3 * i,
+            "dashboard_address": f"{host}:{base + 4 + 3 * i}", "nthreads": 1, "name": i,
+            "silence_logs": logging.ERROR,
+        }}
+        for i in range(workers)
+    }  # fmt: skip
+    sched = {"cls": Scheduler, "options": {"host": host, "port": base, "dashboard_address": f"{host}:{base + 1}"}}
+    return SpecCluster(workers=spec, scheduler=sched, silence_logs=logging.ERROR, name="secuav-study")
+
+
 @contextlib.contextmanager
-def dask_client(workers: int | None, scheduler: str | None) -> Iterator[Any]:
-    """An embedded LocalCluster (one single-threaded process per worker), or a client of a running scheduler."""
+def dask_client(workers: int | None, scheduler: str | None, base_port: int | None = None) -> Iterator[Any]:
+    """An embedded LocalCluster (one single-threaded process per worker; on ports ``base_port``.. when given), or a
+    client of a running scheduler."""
     import dask
     from distributed import Client, LocalCluster
 
@@ -82,6 +107,10 @@ def dask_client(workers: int | None, scheduler: str | None) -> Iterator[Any]:
     dask.config.set({"distributed.scheduler.worker-saturation": float("inf")})
     if scheduler is not None:
         with Client(scheduler, timeout="15s") as client:
+            yield client
+        return
+    if base_port is not None:
+        with _pinned_cluster(workers or os.cpu_count() or 1, base_port) as cluster, Client(cluster) as client:
             yield client
         return
     with (

@@ -165,6 +165,7 @@ def leaderboard(out: Path, version: str = LATEST) -> tuple[pd.DataFrame, list[st
             dirty = " (dirty)" if r.secuav_dirty else ""
             prov.add(f"secuav {r.secuav_version} {str(r.secuav_commit)[:12]}{dirty}, python {r.python_version}, "
                      f"numpy {r.numpy_version}, scipy {r.scipy_version}")  # fmt: skip
+        prov |= plugin_code(ok)
         clean = ok[ok["attack"] == "none"]
         secure = secure_names(ok)
         for (label, dist, version_), g in ok.groupby(["estimator", "estimator_dist", "estimator_version"],
@@ -195,6 +196,22 @@ def leaderboard(out: Path, version: str = LATEST) -> tuple[pd.DataFrame, list[st
         board = board.sort_values(["study", "rmse_m"], kind="stable").reset_index(drop=True)
     head = f"SecUAV suite v{meta['suite']} ({meta['variant']})"
     return board, [head, *sorted(prov)]
+
+
+def plugin_code(rows: pd.DataFrame) -> set[str]:
+    """A provenance line per plugin estimator and primitive that computed ``rows``: its distribution, version and
+    source hash (the built-ins are pinned by the secuav commit)."""
+    out = set()
+    cols = ["estimator_name", "estimator_dist", "estimator_version", "estimator_code"]
+    if all(c in rows for c in cols):
+        for name, dist, version, code in rows[cols].drop_duplicates().itertuples(index=False):
+            if isinstance(dist, str) and dist and dist != "secuav":
+                out.add(f"plugin estimator {name} from {dist} {version}, code {code}")
+    for text in rows["primitives"].dropna().unique() if "primitives" in rows else []:
+        for kind, where in json.loads(text).items():
+            if where.get("dist") and where["dist"] != "secuav":
+                out.add(f"plugin primitive {kind} from {where['dist']} {where['version']}, code {where['code']}")
+    return out
 
 
 def _num(v: Any, digits: int = 3) -> str:
