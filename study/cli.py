@@ -8,6 +8,7 @@
     secuav-study validate studies/stealth.yaml
     secuav-study schema
     secuav-study export out/stealth bundle/                                   # study, inputs, environment, results
+    secuav-study export out/stealth bundle/ --with-sources                    # ... and the plugins' sources
     secuav-study suite run --quick --out out/suite --add huber                # the benchmark suite, your method added
     secuav-study suite check out/suite                                        # leaderboard and expected bands
 
@@ -87,6 +88,11 @@ def build_parser() -> argparse.ArgumentParser:
     exp = sub.add_parser("export", help="write DIR's study, inputs, environment and results to BUNDLE (reproducible)")
     exp.add_argument("out", type=Path, metavar="DIR")
     exp.add_argument("bundle", type=Path, metavar="BUNDLE")
+    exp.add_argument("--with-sources", action="store_true",
+                     help="also the source of every plugin that computed the rows (BUNDLE/plugins/), from the "
+                     "folder it was installed from; `run BUNDLE/study.yaml` installs the missing ones")  # fmt: skip
+    exp.add_argument("--source", action="append", type=Path, default=[], metavar="PATH",
+                     help="a plugin's project folder, sdist or wheel to ship (implies --with-sources; repeatable)")
     return p
 
 
@@ -131,6 +137,10 @@ def _run(args: argparse.Namespace) -> int:
     from study.report import write_report
 
     try:
+        from study.bundle import install_plugins
+
+        for line in install_plugins(args.study):  # a bundle's plugins/ (secuav-study export --with-sources)
+            print(f"secuav-study: {line}", file=sys.stderr, flush=True)
         study, cells = _load(args.study)
         if args.workers is not None and not 1 <= args.workers <= 1024:
             raise InputError("--workers", "", args.workers, "must lie in 1..1024")
@@ -222,7 +232,7 @@ def main(argv: list[str] | None = None) -> int:
         from study.bundle import export
 
         try:
-            print(export(args.out, args.bundle))
+            print(export(args.out, args.bundle, with_sources=args.with_sources, sources=args.source))
         except InputError as err:
             print(f"secuav-study: {err}", file=sys.stderr)
             return 2
