@@ -16,7 +16,9 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+from distributed import Client
 
+from study import provenance
 from tests.study.test_study_run import plain_cluster
 
 BIN = Path(sys.executable).parent
@@ -89,10 +91,14 @@ def test_an_edited_plugin_on_long_lived_workers_gives_a_fresh_clusters_rows_stam
         before = _mine(out)
         assert (before["status"] == "ok").all(), before["error"].tolist()
 
+        with Client(address, timeout="60s") as client:  # every worker holds the old module, whichever ran cells
+            held = client.run(provenance.estimator, "mine")  # import it and hash it, as a cell's rows do
+        assert len(held) == 2 and {h["estimator_code"] for h in held.values()} == set(before["estimator_code"])
+
         _plugin(site, "0.6")  # one line of the estimator changes; the workers keep the module they imported
         second, summary = _study(str(study), "--out", str(out), "--scheduler", address, env=env)
         assert second.returncode == 0, second.stderr
-        assert summary["changed"] == 4 and summary["ran"] == 4 and summary["fresh"] >= 1, second.stderr
+        assert summary["changed"] == 4 and summary["ran"] == 4 and summary["fresh"] == 4, second.stderr
         assert "4 cells re-run because their code changed" in second.stderr
         assert "ran in a new process because their worker had loaded other code" in second.stderr
         after = _mine(out)
