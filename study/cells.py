@@ -95,8 +95,9 @@ def _refused(cell: Cell, variants: list[Variant], why: str, expected: dict[str, 
 
 
 def _checked(cell: Cell, variants: list[Variant], expected: dict[str, Any], fresh: bool) -> list[dict[str, Any]] | None:
-    """None when this process's loaded code is the client's; else the cell's rows computed by a new process that
-    loads the code on disk (``fresh``), or refused with one line when that code is not the client's either."""
+    """None when this process's loaded code is the client's; else the cell's rows computed by a child process that
+    loaded the code on disk (``fresh``, :mod:`study.fresh`), or refused with one line when that code is not the
+    client's either."""
     names = [v.name for v in variants]
     diffs = provenance.differences(provenance.identity(names, cell.profile), expected)
     if not diffs:
