@@ -64,6 +64,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--secure", default=None, help="estimator of the secure stage, or 'off' (default: the demo's)")
     p.add_argument("--matrix", action="store_true", help="all four combinations of attack on/off and secure on/off "
                    "(the default when neither --attack nor --secure is given)")  # fmt: skip
+    p.add_argument("--scenario", default=None, metavar="NAME|FILE",
+                   help="wall-hover, localise, formation: fly this scenario instead of the demo's own, a bundled "
+                   "name, a plugin's (docs/plugins.md) or a file, of the demo's shape (docs/bench.md)")  # fmt: skip
     p.add_argument("--seconds", type=float, default=40.0, help="hold time per flight (default 40)")
     p.add_argument("--settle", type=float, default=5.0, help="seconds of hold before the attack and the scoring start")
     p.add_argument("--seed", type=int, default=None, help="flightsim's noise seed (default: the scenario's)")
@@ -134,7 +137,26 @@ def check_autopilot(args: argparse.Namespace) -> str | None:
         return f"--instance: a non-negative integer, got {args.instance}"
     if args.speedup is not None and args.speedup <= 0:
         return f"--speedup: a positive number, got {args.speedup:g}"
-    return None
+    return None if args.scenario is None else check_scenario(args.demo, args.scenario)
+
+
+def check_scenario(demo: str, name: str) -> str | None:
+    """Why ``--scenario`` cannot be flown by ``demo`` (one line), or None."""
+    from demos.catalog import SCENARIO_OF_DEMO, demo_for
+    from secuav_common.loading import InputError
+    from secuav_common.scenario import load_scenario
+
+    if demo not in SCENARIO_OF_DEMO:
+        return f"--scenario: only wall-hover, localise and formation fly another scenario, not {demo}"
+    try:
+        scenario = load_scenario(name)
+    except InputError as err:
+        return f"--scenario: {err}"
+    try:
+        flies = demo_for(scenario)
+    except ValueError as exc:
+        return f"--scenario {name}: {exc}"
+    return None if flies == demo else f"--scenario {name}: a {flies} scenario, not a {demo} one"
 
 
 def sitl_options(args: argparse.Namespace) -> sitl.SitlOptions | None:
@@ -171,8 +193,10 @@ async def _main(args: argparse.Namespace, sim: sitl.SitlOptions | None, px4_opts
     params = attack_params(demo, next((c.attack for c in selected if c.attack), None), parse_params(args.param))
     opts = Options(out=out, seconds=args.seconds, settle_s=args.settle, seed=args.seed, ports=ports,
                    attack_params=params, progress=not args.no_progress and sys.stderr.isatty(), sitl=sim,
-                   px4=px4_opts)  # fmt: skip
+                   px4=px4_opts, scenario=args.scenario)  # fmt: skip
     settings: dict[str, object] = {"autopilot": args.autopilot}
+    if args.scenario is not None:
+        settings["scenario"] = args.scenario
     if sim is not None:
         built = sitl.build_info(sim.binary)
         settings.update(ardupilot=built, sitl_binary=str(sim.binary), sitl_instance=sim.instance,

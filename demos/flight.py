@@ -56,6 +56,7 @@ class Options:
     progress: bool = True  # a progress bar per flight on stderr
     sitl: SitlOptions | None = None  # the demos that fly ArduPilot SITL (secuav-demo --autopilot ardupilot)
     px4: Px4Options | None = None  # the demos that fly PX4 SIH (secuav-demo --autopilot px4)
+    scenario: str | None = None  # a name (bundled or a plugin's) or a file of the demo's shape; None: its own
 
 
 @dataclass

@@ -12,7 +12,9 @@ from typing import Any
 
 from demos.catalog import SCENARIO_OF_DEMO
 from demos.flight import Case, Controller, Options, fly
+from demos.localise import hold_point
 from demos.scoring import position_metrics, range_metrics
+from secuav_common.scenario import load_scenario
 
 SCENARIO = SCENARIO_OF_DEMO["formation"]
 CONTROLLER = "demos.controllers.localise"
@@ -25,16 +27,24 @@ AUTOPILOTS = ("flightsim",)  # the vehicles it flies: secuav-sim's
 
 
 async def run_case(case: Case, opts: Options) -> dict[str, Any]:
-    where = f"{LEADER[0]},{LEADER[1]}"
-    follow = ("--peer-range", "51", "--peer-at", where, "--keep", str(KEEP_M), "--target", "1.0,1.0")
+    name = opts.scenario or SCENARIO
+    lead, keep_m, start = LEADER, KEEP_M, "1.0,1.0"
+    if opts.scenario is not None:  # a scenario of the formation's shape (demos.catalog.demo_for checked it)
+        scenario = load_scenario(name)
+        lead = hold_point(scenario, 1)
+        second = next(v for v in scenario.vehicles if v.sysid == 2)
+        keep_m = float(second.target.distance_m)  # type: ignore[union-attr]
+        start = f"{second.start.pos_ned_m[0]},{second.start.pos_ned_m[1]}"
+    where = f"{lead[0]},{lead[1]}"
+    follow = ("--peer-range", "51", "--peer-at", where, "--keep", str(keep_m), "--target", start)
     controllers = [
-        Controller(1, CONTROLLER, ("--scenario", SCENARIO, "--target", where)),
-        Controller(2, CONTROLLER, ("--scenario", SCENARIO, *follow)),
+        Controller(1, CONTROLLER, ("--scenario", name, "--target", where)),
+        Controller(2, CONTROLLER, ("--scenario", name, *follow)),
     ]
-    record = await fly(SCENARIO, controllers, case, opts, attack_sysids=[2])
-    leader = position_metrics(record.truth[1], LEADER, record.steps[1], record.estimates[1], record.window)
+    record = await fly(name, controllers, case, opts, attack_sysids=[2])
+    leader = position_metrics(record.truth[1], lead, record.steps[1], record.estimates[1], record.window)
     follower = position_metrics(record.truth[2], None, record.steps[2], record.estimates[2], record.window)
-    ranges = range_metrics(record.truth[1], record.truth[2], KEEP_M, record.window)
+    ranges = range_metrics(record.truth[1], record.truth[2], keep_m, record.window)
     return {
         "case": case.slug, "attack": case.attack, "secure": case.secure, "attack_ack": record.attack_ack.get(2),
         "range_error_m": ranges["range_error_m"],

@@ -13,6 +13,7 @@ from typing import Any
 from demos.catalog import SCENARIO_OF_DEMO
 from demos.flight import Case, Controller, Options, fly
 from demos.scoring import position_metrics
+from secuav_common.scenario import Scenario, load_scenario
 
 SCENARIO = SCENARIO_OF_DEMO["localise"]
 CONTROLLER = "demos.controllers.localise"
@@ -23,11 +24,19 @@ AUTOPILOTS = ("flightsim",)  # the vehicles it flies: secuav-sim's
 
 
 async def run_case(case: Case, opts: Options) -> dict[str, Any]:
-    controller = Controller(1, CONTROLLER, ("--scenario", SCENARIO, "--target", f"{TARGET[0]},{TARGET[1]}"))
-    record = await fly(SCENARIO, [controller], case, opts, attack_sysids=[1])
-    figures = position_metrics(record.truth[1], TARGET, record.steps[1], record.estimates[1], record.window)
+    name = opts.scenario or SCENARIO
+    target = TARGET if opts.scenario is None else hold_point(load_scenario(name), 1)
+    controller = Controller(1, CONTROLLER, ("--scenario", name, "--target", f"{target[0]},{target[1]}"))
+    record = await fly(name, [controller], case, opts, attack_sysids=[1])
+    figures = position_metrics(record.truth[1], target, record.steps[1], record.estimates[1], record.window)
     figures.update(case=case.slug, attack=case.attack, secure=case.secure, attack_ack=record.attack_ack.get(1))
     return figures
+
+
+def hold_point(scenario: Scenario, sysid: int) -> tuple[float, float]:
+    """North, east of vehicle ``sysid``'s hold target (demos.catalog.demo_for checked that it has one)."""
+    target = next(v for v in scenario.vehicles if v.sysid == sysid).target
+    return float(target.pos_ned_m[0]), float(target.pos_ned_m[1])  # type: ignore[union-attr]
 
 
 def summary(figures: dict[str, Any]) -> str:

@@ -24,8 +24,11 @@ AUTOPILOTS = ("flightsim",)  # the vehicles it flies: secuav-sim's
 
 
 async def run_case(case: Case, opts: Options) -> dict[str, Any]:
-    scenario = load_scenario(SCENARIO)
-    record = await fly(SCENARIO, [Controller(1, CONTROLLER)], case, opts, attack_sysids=[1])
+    name = opts.scenario or SCENARIO
+    scenario = load_scenario(name)
+    target = scenario.vehicles[0].target  # a wall_distance target (demos.catalog.demo_for checked the shape)
+    hold = ("--target", str(target.distance_m), "--sensors", ",".join(str(i) for i in target.sensor_ids))  # type: ignore[union-attr]
+    record = await fly(name, [Controller(1, CONTROLLER, hold)], case, opts, attack_sysids=[1])
     figures = distance_metrics(scenario, record.truth[1], record.steps[1], record.estimates[1], record.window)
     figures.update(case=case.slug, attack=case.attack, secure=case.secure, attack_ack=record.attack_ack.get(1))
     return figures

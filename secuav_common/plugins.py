@@ -162,6 +162,10 @@ def is_ref(text: str) -> bool:
 def _import(value: str) -> Any:
     module_name, _, attr = value.partition(":")
     obj: Any = importlib.import_module(module_name)
+    # Read the module's source now, as it was imported: source_hash then describes the code this process runs
+    # even if the file is edited later (a long-lived Dask worker compares it with the client's).
+    if isinstance(getattr(obj, "__file__", None), str) and obj.__file__.endswith(".py"):
+        _file_bytes(obj.__file__)
     for part in attr.split(".") if attr else ():
         obj = getattr(obj, part)
     return obj

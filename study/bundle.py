@@ -14,13 +14,23 @@ The bundle: ``study.yaml``, ``scenario.yaml``, ``profiles/``, ``environment.json
 (this machine's secuav version, commit and dirty flag, python/numpy/scipy, every
 installed distribution and version, the plugins found, and the provenance the
 rows recorded), ``results.csv`` and ``results.parquet/`` (the rows, newest per
-cell and estimator) and ``report.md``.
+cell and estimator) and ``report.md``. With ``--with-sources`` (or ``--source PATH``), also
+``plugins/``: the source of every plugin distribution whose estimator or primitive computed the rows, as an
+archive pip installs (``plugins/plugins.json`` lists them); ``secuav-study run BUNDLE/study.yaml`` then installs
+those not installed (:func:`install_plugins`) before it reads the study.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import shutil
+import subprocess
+import sys
+import tarfile
+import tempfile
+import tomllib
+from importlib import metadata
 from pathlib import Path
 from typing import Any
 
@@ -78,8 +88,146 @@ def _plugins_found() -> dict[str, list[dict[str, str]]]:
                 for f in plugins.found(g).values()] for g in plugins.GROUPS}  # fmt: skip
 
 
-def export(out: Path, bundle: Path) -> Path:
-    """Write the bundle of study directory ``out`` to ``bundle`` (a new or empty directory)."""
+PLUGINS = "plugins"
+SKIP = shutil.ignore_patterns(".git", ".venv", "build", "dist", "__pycache__", "*.egg-info", "*.pyc", ".*cache")
+
+
+def _norm(name: str) -> str:
+    return name.lower().replace("_", "-").replace(".", "-")
+
+
+def plugin_dists(rows: Any) -> dict[str, str]:
+    """Distribution -> version of every plugin (not secuav) whose estimator or primitive computed ``rows``."""
+    out: dict[str, str] = {}
+    if not len(rows):
+        return out
+    for dist, version in rows[["estimator_dist", "estimator_version"]].drop_duplicates().itertuples(index=False):
+        if isinstance(dist, str) and dist and dist != "secuav":
+            out[dist] = str(version)
+    for text in rows["primitives"].dropna().unique():
+        for where in json.loads(text).values():
+            if where.get("dist") and where["dist"] != "secuav":
+                out[where["dist"]] = str(where["version"])
+    return out
+
+
+def installed_source(dist: str) -> Path | None:
+    """The local project folder ``dist`` was installed from (PEP 610 ``direct_url.json``), if any."""
+    try:
+        text = metadata.distribution(dist).read_text("direct_url.json")
+    except metadata.PackageNotFoundError:
+        return None
+    url = json.loads(text).get("url", "") if text else ""
+    if not url.startswith("file://"):
+        return None
+    folder = Path(url.removeprefix("file://"))
+    return folder if (folder / "pyproject.toml").is_file() or (folder / "setup.py").is_file() else None
+
+
+def _project(folder: Path) -> tuple[str, str | None]:
+    """(name, static version or None) from a project folder's pyproject.toml."""
+    try:
+        project = tomllib.loads((folder / "pyproject.toml").read_text(encoding="utf-8")).get("project", {})
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise InputError(str(folder), "pyproject.toml", None, f"unreadable: {exc}") from None
+    if "name" not in project:
+        raise InputError(str(folder), "pyproject.toml: project.name", None, "missing")
+    return str(project["name"]), project.get("version")
+
+
+def _archive(folder: Path, name: str, version: str, into: Path) -> Path:
+    """The project folder as ``name-version.tar.gz`` (one top folder, as an sdist), without build or VCS files."""
+    stem = f"{_norm(name).replace('-', '_')}-{version}"
+    target = into / f"{stem}.tar.gz"
+    with tempfile.TemporaryDirectory() as tmp:
+        shutil.copytree(folder, Path(tmp) / stem, ignore=SKIP)
+        with tarfile.open(target, "w:gz") as tar:
+            tar.add(Path(tmp) / stem, arcname=stem)
+    return target
+
+
+def _sources(rows: Any, given: list[Path], bundle: Path) -> list[dict[str, str]]:
+    """Copy each plugin's source into ``bundle/plugins``: a ``--source`` folder or archive for it, else the folder
+    it was installed from; one line naming the plugin when neither is known."""
+    wanted = plugin_dists(rows)
+    by_name: dict[str, Path] = {}
+    for path in given:
+        if path.is_dir():
+            name = _project(path)[0]
+        elif path.is_file() and path.name.endswith((".tar.gz", ".whl", ".zip")):
+            name = path.name.split("-")[0]
+        else:
+            raise InputError("--source", "", str(path), "expected a project folder, an sdist or a wheel")
+        by_name[_norm(name)] = path
+    folder = bundle / PLUGINS
+    folder.mkdir(parents=True, exist_ok=True)
+    listed = []
+    for dist, version in sorted(wanted.items()):
+        src = by_name.get(_norm(dist)) or installed_source(dist)
+        if src is None:
+            why = "its source is not known (not installed from a local folder); pass --source PATH"
+            raise InputError("--with-sources", "", dist, why)
+        if src.is_dir():
+            declared = _project(src)[1]
+            if declared is not None and declared != version:
+                raise InputError(str(src), "pyproject.toml: project.version", declared,
+                                 f"the rows were computed by {dist} {version}")  # fmt: skip
+            file = _archive(src, dist, version, folder)
+        else:
+            file = folder / src.name
+            shutil.copy2(src, file)
+        digest = hashlib.sha256(file.read_bytes()).hexdigest()
+        listed.append({"dist": dist, "version": version, "file": file.name, "sha256": digest})
+    (folder / "plugins.json").write_text(json.dumps(listed, indent=2) + "\n", encoding="utf-8")
+    return listed
+
+
+def _pip(args: list[str]) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--quiet", *args],
+                          capture_output=True, text=True, check=False, timeout=600)  # fmt: skip
+
+
+def install_plugins(study: Path) -> list[str]:
+    """Install the plugins a bundle ships (``plugins/plugins.json`` beside the study file) that this environment
+    lacks; one line per plugin saying what was done. Called by ``run`` before it reads the study."""
+    listing = study.resolve().parent / PLUGINS / "plugins.json"
+    if not listing.is_file():
+        return []
+    said = []
+    for entry in json.loads(listing.read_text(encoding="utf-8")):
+        dist, version, file = entry["dist"], entry["version"], listing.parent / entry["file"]
+        try:
+            have = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            have = None
+        if have == version:
+            continue
+        if have is not None:
+            said.append(f"plugin {dist} {have} is installed; the bundle's rows came from {version} "
+                        f"(pip install {file} to use the bundle's)")  # fmt: skip
+            continue
+        if hashlib.sha256(file.read_bytes()).hexdigest() != entry["sha256"]:
+            raise InputError(str(file), "sha256", entry["sha256"], "the file does not match plugins.json")
+        # Offline first (the build backend of this environment), then with pip's isolated build (needs an index).
+        done = _pip(["--no-build-isolation", str(file)])
+        if done.returncode != 0:
+            done = _pip([str(file)])
+        if done.returncode != 0:
+            tail = " / ".join(done.stderr.strip().splitlines()[-2:])
+            raise InputError(str(file), "", dist, f"pip could not install it: {tail}")
+        said.append(f"installed plugin {dist} {version} from {file}")
+    if said:
+        import importlib
+
+        importlib.invalidate_caches()  # the new distribution's modules and metadata, in this process too
+        plugins.found.cache_clear()
+        plugins._packages_distributions.cache_clear()
+    return said
+
+
+def export(out: Path, bundle: Path, *, with_sources: bool = False, sources: list[Path] | None = None) -> Path:
+    """Write the bundle of study directory ``out`` to ``bundle`` (a new or empty directory); with ``with_sources``
+    (or ``sources``) the plugins' sources too."""
     inputs = out / INPUTS
     if not (inputs / "study.yaml").is_file():
         raise InputError(str(out), "inputs/study.yaml", None, "missing: run the study with this secuav version first")
@@ -103,4 +251,7 @@ def export(out: Path, bundle: Path) -> Path:
     rows.to_parquet(bundle / store.RESULTS / "part-export.parquet", index=False)
     if (out / "report.md").is_file():
         shutil.copy2(out / "report.md", bundle / "report.md")
+    if with_sources or sources:
+        env["plugin_sources"] = _sources(rows, list(sources or []), bundle)
+        (bundle / "environment.json").write_text(json.dumps(env, indent=2, default=str) + "\n", encoding="utf-8")
     return bundle

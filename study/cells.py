@@ -6,6 +6,7 @@ A cell that raises still returns rows, one per estimator, with ``status`` =
 
 from __future__ import annotations
 
+import subprocess
 import time
 import traceback
 from datetime import UTC, datetime
@@ -87,9 +88,53 @@ def _provenance(cell: Cell, v: Variant) -> dict[str, Any]:
         return {"code_key": None, "estimator_code": f"unavailable: {type(exc).__name__}: {exc}"}
 
 
-def run_cell(cell: Cell, variants: list[Variant] | list[str]) -> list[dict[str, Any]]:
-    """The rows of one cell for the estimator ``variants`` (status ok, or error with its text)."""
+def _refused(cell: Cell, variants: list[Variant], why: str, expected: dict[str, Any]) -> list[dict[str, Any]]:
+    """Error rows, one line of why, stamped with the client's code_key so that only ``--retry-failed`` redoes
+    them (like any failed cell)."""
+    rows = []
+    for v in variants:
+        row = base_row(cell, v)
+        row.update(status="error", error=why, worker=_worker_address(), started_at=datetime.now(UTC), wall_s=0.0,
+                   code_key=provenance.key_of(v.name, expected))  # fmt: skip
+        rows.append(row)
+    return rows
+
+
+def _checked(cell: Cell, variants: list[Variant], expected: dict[str, Any], fresh: bool) -> list[dict[str, Any]] | None:
+    """None when this process's loaded code is the client's; else the cell's rows computed by a child process that
+    loaded the code on disk (``fresh``, :mod:`study.fresh`), or refused with one line when that code is not the
+    client's either."""
+    names = [v.name for v in variants]
+    diffs = provenance.differences(provenance.identity(names, cell.profile), expected)
+    if not diffs:
+        return None
+    if not fresh:  # already the new process: the code on this machine's disk is not the client's
+        why = f"code differs from the client's on this machine: {'; '.join(diffs)}"
+        return _refused(cell, variants, f"{why}; install the client's versions here (docs/bench.md)", expected)
+    from study import fresh as fresh_process
+
+    try:
+        rows = fresh_process.run(cell, variants, expected)
+    except (RuntimeError, OSError, subprocess.SubprocessError) as exc:
+        return _refused(cell, variants, f"{exc}", expected)
+    where = _worker_address()
+    for row in rows:
+        row.update(worker=where, fresh_process=True)  # fresh_process: counted by the runner, not stored
+    return rows
+
+
+def run_cell(
+    cell: Cell, variants: list[Variant] | list[str], expected: dict[str, Any] | None = None, *, fresh: bool = True
+) -> list[dict[str, Any]]:
+    """The rows of one cell for the estimator ``variants`` (status ok, or error with its text).
+
+    ``expected``: the client's :func:`study.provenance.identity` for these variants; when this process loaded other
+    code, the cell runs in a new process instead (see :func:`_checked` and :mod:`study.fresh`)."""
     variants = as_variants(variants, cell.mode)
+    if expected is not None:
+        checked = _checked(cell, variants, expected, fresh)
+        if checked is not None:
+            return checked
     started = datetime.now(UTC)
     t0 = time.perf_counter()
     worker = _worker_address()

@@ -3,19 +3,22 @@
     secuav-study run studies/stealth.yaml --out out/stealth                 # embedded LocalCluster, one worker per core
     secuav-study run studies/stealth.yaml --out out/stealth --workers 2
     secuav-study run studies/stealth.yaml --out out/stealth --scheduler tcp://10.0.0.5:8786
+    secuav-study run studies/stealth.yaml --out out/stealth --workers 2 --ports 9100   # cluster on 9100-9107
     secuav-study report out/stealth                                          # rewrite report.md and figures/
     secuav-study validate studies/stealth.yaml
     secuav-study schema
     secuav-study export out/stealth bundle/                                   # study, inputs, environment, results
+    secuav-study export out/stealth bundle/ --with-sources                    # ... and the plugins' sources
     secuav-study suite run --quick --out out/suite --add huber                # the benchmark suite, your method added
     secuav-study suite check out/suite                                        # leaderboard and expected bands
 
 ``run`` prints a progress bar (cells done, failed, ETA) and, last, one JSON
-line ``{"cells", "ran", "skipped", "failed", "changed", "out"}``: ``failed`` counts the
+line ``{"cells", "ran", "skipped", "failed", "changed", "fresh", "out"}``: ``failed`` counts the
 cells of the study whose rows in DIR carry an error; ``changed`` the cells run
 again only because the code of a row changed (an estimator's source or default,
 a primitive's, the secuav version: docs/study.md, "Provenance"), also said on
-stderr. Exit 0 when none failed,
+stderr; ``fresh`` the cells a worker ran in a new process because it had loaded
+older code than the client's (docs/bench.md, "Long-lived workers"). Exit 0 when none failed,
 1 when some did (they are in the results), 2 on bad input, 130 when
 interrupted (what finished is kept; run again to go on). With ``SECUAV_STUDY_SMOKE=1`` in the environment every
 study is cut to its first two cells (one seed, one leg, 3 s), to try commands (docs/bench.md); such a directory
@@ -33,6 +36,9 @@ from secuav_common.extras import require
 from secuav_common.loading import InputError
 from secuav_common.logs import add_common_flags
 
+PORTS_HELP = ("the embedded cluster's loopback ports: BASE (scheduler), BASE+1 (its HTTP), then per worker three "
+              "(nanny, worker, worker HTTP): 2+3*workers in all (default: any free ones)")  # fmt: skip
+
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="secuav-study", description=__doc__.splitlines()[0])
@@ -44,6 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
     where = run.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes (default: cores)")
     where.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="a running dask scheduler")
+    run.add_argument("--ports", type=int, default=None, metavar="BASE", help=PORTS_HELP)
     run.add_argument("--retry-failed", action="store_true", help="run again the cells recorded as failed")
     run.add_argument("--no-progress", action="store_true", help="no progress bar (the JSON line still comes)")
     rep = sub.add_parser("report", help="(re)write DIR/report.md and DIR/figures/ from DIR/results.parquet")
@@ -72,6 +79,7 @@ def build_parser() -> argparse.ArgumentParser:
     swhere = srun.add_mutually_exclusive_group()
     swhere.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes (default: cores)")
     swhere.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="a running dask scheduler")
+    srun.add_argument("--ports", type=int, default=None, metavar="BASE", help=PORTS_HELP)
     srun.add_argument("--no-progress", action="store_true", help="no progress bars")
     what = "the leaderboard (Markdown and CSV) and the built-ins' expected bands"
     scheck = steps.add_parser("check", help=what, description=what)
@@ -82,13 +90,18 @@ def build_parser() -> argparse.ArgumentParser:
     exp = sub.add_parser("export", help="write DIR's study, inputs, environment and results to BUNDLE (reproducible)")
     exp.add_argument("out", type=Path, metavar="DIR")
     exp.add_argument("bundle", type=Path, metavar="BUNDLE")
+    exp.add_argument("--with-sources", action="store_true",
+                     help="also the source of every plugin that computed the rows (BUNDLE/plugins/), from the "
+                     "folder it was installed from; `run BUNDLE/study.yaml` installs the missing ones")  # fmt: skip
+    exp.add_argument("--source", action="append", type=Path, default=[], metavar="PATH",
+                     help="a plugin's project folder, sdist or wheel to ship (implies --with-sources; repeatable)")
     return p
 
 
 def _run(args: argparse.Namespace) -> int:
     from study.launch import run_study
 
-    return run_study(args.study, args.out, workers=args.workers, scheduler=args.scheduler,
+    return run_study(args.study, args.out, workers=args.workers, scheduler=args.scheduler, ports=args.ports,
                      retry_failed=args.retry_failed, progress=not args.no_progress)  # fmt: skip
 
 
@@ -107,7 +120,7 @@ def _suite(args: argparse.Namespace) -> int:
             return suite.check(args.out, args.version)
         added = [yaml.safe_load(text) for text in args.add]
         return suite.run(args.out, quick=args.quick, version=args.version, added=added, only=args.only,
-                         workers=args.workers or None, scheduler=args.scheduler or None,
+                         workers=args.workers or None, scheduler=args.scheduler or None, ports=args.ports,
                          progress=not args.no_progress, split=args.split)  # fmt: skip
     except (InputError, ValueError) as err:
         print(f"secuav-study: {err}", file=sys.stderr)
@@ -139,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
         from study.bundle import export
 
         try:
-            print(export(args.out, args.bundle))
+            print(export(args.out, args.bundle, with_sources=args.with_sources, sources=args.source))
         except InputError as err:
             print(f"secuav-study: {err}", file=sys.stderr)
             return 2

@@ -1,5 +1,8 @@
 """Closed-loop cells: one real ``secuav-demo`` flight per estimator, on a port block of its own.
 
+The demo flies the cell's scenario (``--scenario``, written as the client validated it): a demo's own, or
+a plugin's or a file of a demo's shape (:func:`demos.catalog.demo_for`).
+
 The demo starts its own embedded broker, simulator, proxy and MAVSDK
 controllers, so several cells fly at once on one machine (each on a free block
 of loopback ports) and on other machines alike. Metrics are the demo report's:
@@ -91,12 +94,19 @@ def figures_from_report(demo: str, case: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def _scenario_args(cell: Cell, workdir: Path) -> list[str]:
+    """The cell's scenario as the client validated it, as a file: a plugin's or a file's flies as the demos' own."""
+    path = workdir / "scenario.yaml"
+    path.write_text(yaml.safe_dump(cell.scenario.model_dump(mode="json"), sort_keys=False), encoding="utf-8")
+    return ["--scenario", str(path)]
+
+
 def fly_one(cell: Cell, estimator: str, workdir: Path) -> dict[str, Any]:
     demo = demo_for(cell.scenario)
     out = workdir / estimator
     secure = SECURE_OFF if estimator == SECURE_OFF else estimator
     argv = [
-        *_demo_command(), demo, *_attack_args(cell, workdir), "--secure", secure,
+        *_demo_command(), demo, *_scenario_args(cell, workdir), *_attack_args(cell, workdir), "--secure", secure,
         "--seconds", str(cell.duration_s), "--settle", str(cell.settle_s), "--seed", str(cell.seed),
         "--out", str(out), "--base-port", str(free_port_block()),
     ]  # fmt: skip

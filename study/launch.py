@@ -60,12 +60,25 @@ def check_scheduler(url: str) -> None:
         raise InputError("--scheduler", "", url, f"cannot reach the scheduler: {exc.strerror or exc}") from None
 
 
+def check_ports(ports: int | None, workers: int | None, scheduler: str | None) -> None:
+    """``--ports BASE``: the embedded cluster's block of loopback ports must fit, and not beside a scheduler."""
+    if ports is None:
+        return
+    if scheduler is not None:
+        raise InputError("--ports", "", ports, "sets the embedded cluster's ports; not with --scheduler")
+    from study.runner import cluster_ports
+
+    last = ports + cluster_ports(ports, workers or os.cpu_count() or 1) - 1
+    if not 1024 <= ports <= last <= 65535:
+        raise InputError("--ports", "", ports, f"the block {ports}..{last} must lie in 1024..65535")
+
+
 def _terminate(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
 def run_study(path: Path, out: Path, *, workers: int | None = None, scheduler: str | None = None,
-              retry_failed: bool = False, progress: bool = True) -> int:  # fmt: skip
+              ports: int | None = None, retry_failed: bool = False, progress: bool = True) -> int:  # fmt: skip
     """Run the cells of the study in ``path`` not yet in ``out``, then write the report; the exit code.
 
     0 when no cell failed, 1 when some did (they are in the results), 2 on bad input (one line on stderr),
@@ -77,11 +90,16 @@ def run_study(path: Path, out: Path, *, workers: int | None = None, scheduler: s
 
     os.environ.setdefault("PYTHONWARNINGS", "ignore::DeprecationWarning")  # quiet workers
     try:
+        from study.bundle import install_plugins
+
+        for line in install_plugins(path):  # a bundle's plugins/ (secuav-study export --with-sources)
+            print(f"secuav-study: {line}", file=sys.stderr, flush=True)
         study, cells = load(path, smoke=smoke())
         if workers is not None and not 1 <= workers <= 1024:
             raise InputError("--workers", "", workers, "must lie in 1..1024")
         if scheduler is not None:
             check_scheduler(scheduler)
+        check_ports(ports, workers, scheduler)
         definition = {**study.model_dump(mode="json"), **({"smoke": True} if smoke() else {})}
         held = store.saved_study(out)
         if held is not None and held.get("name") != study.name:
@@ -99,7 +117,7 @@ def run_study(path: Path, out: Path, *, workers: int | None = None, scheduler: s
     signal.signal(signal.SIGTERM, _terminate)
     summary = runner.Summary(cells=len(cells))
     try:
-        with runner.dask_client(workers, scheduler) as client:
+        with runner.dask_client(workers, scheduler, ports) as client:
             summary = runner.run(cells, study.variants(), out, client, done, label=study.name, progress=progress)
     except KeyboardInterrupt:
         summary.interrupted = True

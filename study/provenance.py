@@ -118,8 +118,49 @@ def attack_code(profile: Profile | None) -> str:
 def code_key(estimator_name: str, profile: Profile | None) -> str:
     """What changes a row's numbers besides its cell's definition (see the module docstring)."""
     code = "" if estimator_name == "off" else estimator(estimator_name)["estimator_code"]
-    text = json.dumps([secuav_version(), code, attack_code(profile)])
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
+    return _key(secuav_version(), code, attack_code(profile))
+
+
+def _key(version: str, code: str, attack: str) -> str:
+    return hashlib.sha256(json.dumps([version, code, attack]).encode()).hexdigest()[:16]
+
+
+def key_of(estimator_name: str, ident: dict[str, Any]) -> str:
+    """The ``code_key`` a row of ``estimator_name`` gets from the code :func:`identity` describes."""
+    code = "" if estimator_name == "off" else ident["estimators"].get(estimator_name, "")
+    return _key(ident["secuav"], code, ident["attack"])
+
+
+def identity(names: list[str], profile: Profile | None) -> dict[str, Any]:
+    """The code a cell's rows depend on, as this process loaded it: the secuav version, each estimator's source
+    hash (built-ins and plugins alike) and the attack code. The client sends its own with every task; a worker
+    compares it with this (:func:`differences`) before computing a row (docs/bench.md, "Long-lived workers")."""
+    return {
+        "secuav": secuav_version(),
+        "estimators": {n: _code_or_why(n) for n in sorted(set(names)) if n != "off"},
+        "attack": attack_code(profile),
+    }
+
+
+def _code_or_why(name: str) -> str:
+    try:
+        return str(estimator(name)["estimator_code"])
+    except Exception as exc:  # not importable here: a difference to report, not a crash of the worker
+        return f"unavailable ({type(exc).__name__}: {exc})"
+
+
+def differences(loaded: dict[str, Any], expected: dict[str, Any]) -> list[str]:
+    """What differs between two :func:`identity` results, one short phrase each ("huber ab12 here, cd34 expected")."""
+    out = []
+    if loaded.get("secuav") != expected.get("secuav"):
+        out.append(f"secuav {loaded.get('secuav')} here, {expected.get('secuav')} expected")
+    mine, theirs = loaded.get("estimators", {}), expected.get("estimators", {})
+    for name in sorted(set(mine) | set(theirs)):
+        if mine.get(name) != theirs.get(name):
+            out.append(f"{name} {mine.get(name)} here, {theirs.get(name)} expected")
+    if loaded.get("attack") != expected.get("attack"):
+        out.append(f"attack code {loaded.get('attack') or '-'} here, {expected.get('attack') or '-'} expected")
+    return out
 
 
 def row_columns(estimator_name: str, profile: Profile | None) -> dict[str, Any]:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import logging
+import os
 import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -36,10 +37,11 @@ class Summary:
     failed: int = 0
     interrupted: bool = False
     changed: int = 0  # cells re-run because the code of one of their rows changed
+    fresh: int = 0  # cells a worker ran in a new process because it had loaded other code than the client's
 
     def as_dict(self, out: Path) -> dict[str, Any]:
         return {"cells": self.cells, "ran": self.ran, "skipped": self.skipped, "failed": self.failed,
-                "changed": self.changed, "out": str(out)}  # fmt: skip
+                "changed": self.changed, "fresh": self.fresh, "out": str(out)}  # fmt: skip
 
 
 def _expected_key(cell: Cell, v: Variant, cache: dict[tuple[str, str], str]) -> str:
@@ -71,9 +73,33 @@ def plan(
     return out, changed
 
 
+def cluster_ports(base: int, workers: int) -> int:
+    """How many loopback ports ``--ports BASE`` takes from BASE: the scheduler and its HTTP endpoint, then per
+    worker its nanny, the worker and the worker's HTTP endpoint."""
+    return 2 + 3 * workers
+
+
+def _pinned_cluster(workers: int, base: int) -> Any:
+    """The embedded cluster on ports BASE.. (see :func:`cluster_ports`), every one on 127.0.0.1."""
+    from distributed import Nanny, Scheduler, SpecCluster
+
+    host = "127.0.0.1"
+    spec = {
+        i: {"cls": Nanny, "options": {
+            "host": host, "port": base + 2 + 3 * i, "worker_port": base + 3 + 3 * i,
+            "dashboard_address": f"{host}:{base + 4 + 3 * i}", "nthreads": 1, "name": i,
+            "silence_logs": logging.ERROR,
+        }}
+        for i in range(workers)
+    }  # fmt: skip
+    sched = {"cls": Scheduler, "options": {"host": host, "port": base, "dashboard_address": f"{host}:{base + 1}"}}
+    return SpecCluster(workers=spec, scheduler=sched, silence_logs=logging.ERROR, name="secuav-study")
+
+
 @contextlib.contextmanager
-def dask_client(workers: int | None, scheduler: str | None) -> Iterator[Any]:
-    """An embedded LocalCluster (one single-threaded process per worker), or a client of a running scheduler."""
+def dask_client(workers: int | None, scheduler: str | None, base_port: int | None = None) -> Iterator[Any]:
+    """An embedded LocalCluster (one single-threaded process per worker; on ports ``base_port``.. when given), or a
+    client of a running scheduler."""
     import dask
     from distributed import Client, LocalCluster
 
@@ -81,6 +107,10 @@ def dask_client(workers: int | None, scheduler: str | None) -> Iterator[Any]:
     dask.config.set({"distributed.scheduler.worker-saturation": float("inf")})
     if scheduler is not None:
         with Client(scheduler, timeout="15s") as client:
+            yield client
+        return
+    if base_port is not None:
+        with _pinned_cluster(workers or os.cpu_count() or 1, base_port) as cluster, Client(cluster) as client:
             yield client
         return
     with (
@@ -131,7 +161,8 @@ def run(
     by_future = {}
     for cell, missing in todo:
         tag = hashlib.sha256("\0".join(v.label for v in missing).encode()).hexdigest()[:12]
-        future = client.submit(run_cell, cell, missing, key=f"cell-{cell.key}-{tag}", pure=False)
+        expected = provenance.identity([v.name for v in missing], cell.profile)  # checked by the worker
+        future = client.submit(run_cell, cell, missing, expected, key=f"cell-{cell.key}-{tag}", pure=False)
         by_future[future] = (cell, missing)
     bar = tqdm(total=len(todo), desc=label, unit="cell", disable=not progress, dynamic_ncols=True)
     failed_now = 0
@@ -142,6 +173,7 @@ def run(
                 cell, missing = by_future.pop(future)
                 cell_rows = result if future.status == "finished" else _failed_rows(cell, missing, result)
                 failed_now += any(r["status"] != "ok" for r in cell_rows)
+                summary.fresh += any(r.get("fresh_process") for r in cell_rows)
                 rows.extend(cell_rows)
             writer.write(rows)
             summary.ran += len(batch)
@@ -153,4 +185,7 @@ def run(
             future.cancel()
     finally:
         bar.close()
+    if summary.fresh:
+        print(f"secuav-study: {summary.fresh} cells ran in a new process because their worker had loaded other code "
+              "(restart the workers to run in-process again)", file=sys.stderr, flush=True)  # fmt: skip
     return summary

@@ -65,8 +65,8 @@ SCHEMA = pa.schema([
 COLUMNS = SCHEMA.names
 
 
-def results_dir(out: Path) -> Path:
-    return out / RESULTS
+def results_dir(out: Path | str) -> Path:
+    return Path(out) / RESULTS
 
 
 def _sync_dir(path: Path) -> None:
@@ -102,8 +102,9 @@ class Writer:
         return final
 
 
-def load(out: Path) -> pd.DataFrame:
-    """Every row, the newest per (cell, estimator); an empty frame with the columns when there are none."""
+def load(out: Path | str) -> pd.DataFrame:
+    """Every row of study directory ``out`` (a path or a string), the newest per (cell, estimator); an empty frame
+    with the columns when there are none."""
     path = results_dir(out)
     if not path.is_dir() or not any(path.glob("part-*.parquet")):
         return pd.DataFrame({c: pd.Series(dtype=object) for c in COLUMNS})
@@ -113,7 +114,7 @@ def load(out: Path) -> pd.DataFrame:
     return frame.drop_duplicates(["cell", "estimator"], keep="last").reset_index(drop=True)
 
 
-def done(out: Path, *, retry_failed: bool = False) -> dict[tuple[str, str], str | None]:
+def done(out: Path | str, *, retry_failed: bool = False) -> dict[tuple[str, str], str | None]:
     """(cell, estimator) pairs already recorded, with the ``code_key`` they were computed with
     (with ``retry_failed``: only those that succeeded)."""
     frame = load(out)
@@ -132,8 +133,8 @@ def save_study(out: Path, definition: dict[str, Any]) -> None:
     os.replace(tmp, path)
 
 
-def saved_study(out: Path) -> dict[str, Any] | None:
-    path = out / STUDY_FILE
+def saved_study(out: Path | str) -> dict[str, Any] | None:
+    path = Path(out) / STUDY_FILE
     return json.loads(path.read_text(encoding="utf-8")) if path.exists() else None
 
 

@@ -263,3 +263,21 @@ def test_a_closed_loop_flight_with_the_plugin_estimator_and_primitive(tmp_path: 
     assert row["status"] == "ok" and row["mode"] == "closed-loop" and not row["collided"], row["error"]
     assert row["estimator_dist"] == DIST and json.loads(row["primitives"])["moving_bias"]["dist"] == DIST
     assert row["max_error_m"] < 1.5  # flown on the plugin's estimate, distance to the wall from truth
+
+
+@pytest.mark.xdist_group("flight_stack")
+@pytest.mark.slow
+def test_a_closed_loop_study_flies_the_plugins_scenario(tmp_path: Path) -> None:
+    """The plugin's anchors6_small (hold (2, 2) among six anchors) has the localise demo's shape: the study's cell
+    is a real secuav-demo localise flight of it, scored from the plugin scenario's own hold point."""
+    study = tmp_path / "flight.yaml"
+    study.write_text("name: plugin-scenario\nmode: closed-loop\nscenario: anchors6_small\nduration_s: 6\n"
+                     "settle_s: 2\nestimators: [huber]\nseeds: [1]\nattacks: [none]\n")  # fmt: skip
+    out = tmp_path / "out"
+    done = _cmd("secuav-study", "run", str(study), "--out", str(out), "--workers", "1", "--no-progress", timeout=400)
+    assert done.returncode == 0, done.stderr + done.stdout
+    (row,) = pd.read_parquet(out / "results.parquet").to_dict("records")
+    assert row["status"] == "ok" and row["mode"] == "closed-loop" and row["scenario"] == "anchors6_small", row["error"]
+    assert not row["collided"] and row["estimator_dist"] == DIST
+    # the bundled localise demo holds (2.5, 2.5): 0.71 m from this scenario's (2, 2), so this tells which one flew
+    assert row["rmse_m"] < 0.35

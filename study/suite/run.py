@@ -201,7 +201,7 @@ def best_points(out: Path, added: list[Any], version: str, before: dict[str, Any
 
 
 def run(out: Path, *, quick: bool, version: str, added: list[Any], only: list[str] | None = None,
-        workers: int | None = None, scheduler: str | None = None, progress: bool = True,
+        workers: int | None = None, scheduler: str | None = None, ports: int | None = None, progress: bool = True,
         split: str = "evaluation") -> int:  # fmt: skip
     """Run every study of the suite (or those in ``only``) of one split into ``out/<study>`` (the tuning split:
     ``out/tuning/<study>``); the worst exit code. Every method under test is charged to OUT's tuning budget.
@@ -267,7 +267,7 @@ def run(out: Path, *, quick: bool, version: str, added: list[Any], only: list[st
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
         print(f"suite: {stem} ({split} split)", flush=True)
-        code = run_study(path, where, workers=workers, scheduler=scheduler, progress=progress)
+        code = run_study(path, where, workers=workers, scheduler=scheduler, ports=ports, progress=progress)
         if code == 130:  # interrupted: stop here; run again to go on (done cells are skipped)
             return code
         if code == 2:  # bad input: the same for every study, so said once
@@ -351,6 +351,7 @@ def _study_rows(frame: pd.DataFrame, stem: str, split: str, bands: dict[str, Any
         dirty = " (dirty)" if r.secuav_dirty else ""
         prov.add(f"secuav {r.secuav_version} {str(r.secuav_commit)[:12]}{dirty}, python {r.python_version}, "
                  f"numpy {r.numpy_version}, scipy {r.scipy_version}")  # fmt: skip
+    prov |= plugin_code(ok)
     clean = ok[ok["attack"] == "none"]
     secure = secure_names(ok)
     out = []
@@ -380,6 +381,22 @@ def _study_rows(frame: pd.DataFrame, stem: str, split: str, bands: dict[str, Any
             "band": "" if band is None else f"{band[0]:.3f}-{band[1]:.3f}", "check": verdict,
             "failed": int((frame[frame["estimator"] == label]["status"] != "ok").sum()),
         })  # fmt: skip
+    return out
+
+
+def plugin_code(rows: pd.DataFrame) -> set[str]:
+    """A provenance line per plugin estimator and primitive that computed ``rows``: its distribution, version and
+    source hash (the built-ins are pinned by the secuav commit)."""
+    out = set()
+    cols = ["estimator_name", "estimator_dist", "estimator_version", "estimator_code"]
+    if all(c in rows for c in cols):
+        for name, dist, version, code in rows[cols].drop_duplicates().itertuples(index=False):
+            if isinstance(dist, str) and dist and dist != "secuav":
+                out.add(f"plugin estimator {name} from {dist} {version}, code {code}")
+    for text in rows["primitives"].dropna().unique() if "primitives" in rows else []:
+        for kind, where in json.loads(text).items():
+            if where.get("dist") and where["dist"] != "secuav":
+                out.add(f"plugin primitive {kind} from {where['dist']} {where['version']}, code {where['code']}")
     return out
 
 

@@ -3,6 +3,7 @@ as processes on 127.0.0.1), a run killed half-way and resumed, and one closed-lo
 
 from __future__ import annotations
 
+import contextlib
 import json
 import signal
 import subprocess
@@ -11,6 +12,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 import pytest
@@ -53,7 +55,8 @@ def test_small_study_on_a_local_cluster_writes_rows_report_and_figures(tmp_path:
     out = tmp_path / "out"
     done = _run("run", str(_study(tmp_path, SMALL)), "--out", str(out), "--workers", "2", "--no-progress")
     assert done.returncode == 0, done.stderr
-    assert _summary(done) == {"cells": 4, "ran": 4, "skipped": 0, "failed": 0, "changed": 0, "out": str(out)}
+    assert _summary(done) == {"cells": 4, "ran": 4, "skipped": 0, "failed": 0, "changed": 0, "fresh": 0,
+                             "out": str(out)}  # fmt: skip
     rows = pd.read_parquet(out / "results.parquet")
     # The secure method twice: its own output and its output with the shared attribution.
     assert len(rows) == 16 and set(rows["estimator"]) == {"ls", "ekf", "secekf", "secekf+attribution"}
@@ -110,9 +113,16 @@ def test_a_run_killed_half_way_resumes_without_duplicates_or_gaps(tmp_path: Path
 @pytest.fixture
 def dask_cluster(tmp_path: Path) -> Iterator[tuple[str, list[str]]]:
     """A real ``dask scheduler`` and two ``dask worker`` processes on 127.0.0.1."""
+    with plain_cluster() as cluster:
+        yield cluster
+
+
+@contextlib.contextmanager
+def plain_cluster(env: dict[str, str] | None = None) -> Iterator[tuple[str, list[str]]]:
+    """A real ``dask scheduler`` and two ``dask worker`` processes on 127.0.0.1 (``env``: theirs)."""
     port = free_tcp_port()
     address = f"tcp://127.0.0.1:{port}"
-    quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
+    quiet: dict[str, Any] = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL, "env": env}
     scheduler = [str(BIN / "dask"), "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"]
     procs = [subprocess.Popen(scheduler, **quiet)]
     try:

@@ -12,7 +12,9 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from study import store
 from study.suite import run as suite
+from tests.conftest import free_port_block
 
 STUDY = Path(sys.executable).parent / "secuav-study"
 
@@ -46,9 +48,11 @@ def test_expected_bands_name_built_ins_of_the_quick_suite_only() -> None:
 @pytest.mark.slow
 def test_a_quick_suite_study_with_a_plugin_added_and_its_leaderboard(tmp_path: Path) -> None:
     out = tmp_path / "suite"
+    base = free_port_block(5)  # the cluster's ports: scheduler, its HTTP, the worker's nanny, itself, its HTTP
     done = _run("suite", "run", "--quick", "--out", str(out), "--only", "beyond-tolerance", "--add", "huber",
-                "--workers", "1", "--no-progress")  # fmt: skip
+                "--workers", "1", "--ports", str(base), "--no-progress")  # fmt: skip
     assert done.returncode == 0, done.stderr
+    assert set(store.load(str(out / "beyond-tolerance"))["worker"]) == {f"tcp://127.0.0.1:{base + 3}"}
     check = _run("suite", "check", str(out))
     board = pd.read_csv(out / "leaderboard.csv")
     assert set(board["study"]) == {"beyond-tolerance"} and set(board["split"]) == {"evaluation"}
@@ -66,6 +70,9 @@ def test_a_quick_suite_study_with_a_plugin_added_and_its_leaderboard(tmp_path: P
     assert "clean RMSE / LS" in text and {"clean_vs_ls", "worse_than_ls"} <= set(board.columns)
     assert text.startswith("# SecUAV suite v1 (quick)") and "computed by: secuav " in text and "numpy" in text
     assert "## beyond-tolerance (evaluation split)" in text and "| own_recall | own_precision |" in text
+    from estimators import registry
+
+    assert f"plugin estimator huber from secuav-example-plugin 0.1.0, code {registry.code_hash('huber')}" in text
     assert json.loads((out / "suite.json").read_text())["added"] == ["huber"]
 
 
