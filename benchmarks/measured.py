@@ -63,6 +63,7 @@ def main() -> int:
     ap.add_argument("--soak-s", type=float, help="proxy_bench's RSS soak (default: its own)")
     ap.add_argument("--record-s", type=float, default=5.0, help="seconds of flightsim telemetry to record")
     ap.add_argument("--fuzz-datagrams", type=int, default=200_000, help="fuzz_bench datagrams (0: skip it)")
+    ap.add_argument("--fleet-procs", default="1,2,4,8", help="fleet_bench process counts ('': skip it)")
     ap.add_argument("--out", type=Path, default=ROOT / "docs/measured.md")
     args = ap.parse_args()
     bench = ["benchmarks/proxy_bench.py", *(["--quick"] if args.quick else [])]
@@ -79,6 +80,10 @@ def main() -> int:
     if args.fuzz_datagrams:
         fuzz_argv = ["benchmarks/fuzz_bench.py", "--datagrams", str(args.fuzz_datagrams)]
         fuzz = (fuzz_argv, _run(fuzz_argv))
+    fleet = None
+    if args.fleet_procs:
+        fleet_argv = ["benchmarks/fleet_bench.py", "--procs", args.fleet_procs, "--seconds", "2"]
+        fleet = (fleet_argv, _run(fleet_argv))
     commit = _git("rev-parse", "--short=12", "HEAD")
     dirty = " (with uncommitted changes)" if _git("status", "--porcelain", "--untracked-files=no") else ""
     lines = [
@@ -109,10 +114,15 @@ def main() -> int:
         lines += ["", "## Hostile input", "", f"`.venv/bin/python {' '.join(argv)}` (half valid DISTANCE_SENSOR",
                   "frames, half random, mutated or oversized datagrams; see the script's doc):", "",
                   "```text", out, "```"]  # fmt: skip
+    if fleet is not None:
+        argv, out = fleet
+        lines += ["", "## A fleet over several processes", "",
+                  f"`.venv/bin/python {' '.join(argv)}` (one vehicle per process, bypass; docs/interfaces.md,",
+                  '"Many vehicles, many cores"):', "", "```text", out, "```"]  # fmt: skip
     lines += ["", "## Not regenerated here", "",
               "Longer runs have their own scripts and are not part of this page's run: the 10-minute soak",
-              "(`benchmarks/soak_bench.py`), the fleet over several processes (`benchmarks/fleet_bench.py`),",
-              "per-endpoint rules (`benchmarks/routes_bench.py`), the web console (`benchmarks/console_bench.py`).",
+              "(`benchmarks/soak_bench.py`), per-endpoint rules (`benchmarks/routes_bench.py`), the web console",
+              "(`benchmarks/console_bench.py`), plugin discovery (`benchmarks/plugin_discovery_bench.py`).",
               ""]  # fmt: skip
     args.out.write_text("\n".join(lines), encoding="utf-8")
     print(f"wrote {args.out}", file=sys.stderr)

@@ -123,14 +123,16 @@ class NativeUdpEndpoint(UdpEndpoint):
         self.queued = 0  # datagrams that waited in that queue
 
     def _wants_icmp(self, loop: asyncio.AbstractEventLoop) -> bool:
-        # This endpoint reads its socket itself (no loop transport to trip up): a peer nobody listens on is
-        # seen on every loop, and muted (endpoints module doc).
-        return sys.platform == "linux"
+        # This endpoint reads its socket itself (no loop transport to trip up): a ground peer nobody listens on
+        # is seen on every loop, and muted (endpoints module doc). Under uvloop that takes an epoll of its own
+        # (see _start), one more system call per wake-up: a ground socket wakes for uplink, a few frames a
+        # second, while the vehicle's socket wakes for all the telemetry, so only ground sockets pay it there.
+        return sys.platform == "linux" and (self.role == "ground" or _reports_icmp(loop))
 
     async def _start(self, loop: asyncio.AbstractEventLoop, sock: socket.socket, family: int) -> None:
         self._sock, self._fd, self._family, self._loop = sock, sock.fileno(), family, loop
         self._route = _fastpath.Route(self._fd)
-        if _reports_icmp(loop) or not hasattr(select, "epoll"):
+        if _reports_icmp(loop) or not self._wants_icmp(loop) or not hasattr(select, "epoll"):
             loop.add_reader(self._fd, self._readable)
         else:
             # libuv (uvloop) stops watching a socket that reports an error (POLLERR: a queued ICMP error) and
@@ -254,11 +256,14 @@ class NativeUdpEndpoint(UdpEndpoint):
         targets = []
         skipped = []
         now = 0.0
+        eps: list[NativeUdpEndpoint] = []
         for ep in b.targets:
             if not isinstance(ep, NativeUdpEndpoint) or ep._sock is None or ep.peer is None or ep._gated_out:
                 return None
             if ep._backlog:  # its queue goes first: Python sends behind it until it is empty
                 return None
+            eps.append(ep)
+        for ep in eps:  # all can take the route: only now may a muted one's probe be spent on it
             if ep.muted:  # nobody listens there: left out, but for a probe now and then (endpoints module doc)
                 now = now or time.monotonic()
                 if not ep._send_allowed(now):
