@@ -13,9 +13,10 @@ from collections.abc import Callable
 
 import pytest
 
-from mitm_proxy.app import Proxy
+from mitm_proxy.app import Proxy, stats_line
 from mitm_proxy.config import LinkConfig, ProxyConfig
 from mitm_proxy.net.endpoints import PROBE_INTERVAL_S, UdpEndpoint
+from mitm_proxy.tools.attack_cli import _stats_line
 from tests.support.udp_peers import Peer, heartbeat, packer
 
 pytestmark = [pytest.mark.timeout(40), pytest.mark.usefixtures("proxy_path")]
@@ -60,8 +61,11 @@ async def test_a_closed_ground_port_is_muted_then_resumed_by_a_probe(
             assert (await stays.frames())[0] == sent
             assert muted.muted and muted.mutes == 1
             assert muted.muted_dropped > 100 and muted.tx < 40  # a few before the first ICMP, then a probe at 4 Hz
-            snap = proxy.stats_snapshot()[1]["endpoints"][muted.name]
+            stats = proxy.stats_snapshot()[1]
+            snap = stats["endpoints"][muted.name]
             assert snap["muted"] is True and snap["muted_dropped"] == muted.muted_dropped
+            assert stats_line(1, stats)["muted"] == muted.name  # the periodic log line names it
+            assert f"{muted.name} muted ({muted.muted_dropped} datagrams not sent)" in _stats_line(stats)  # status
 
             back = Peer(gone)  # the ground client comes up on that port; it sends nothing
             probe, tries = [], 0
