@@ -70,6 +70,8 @@ def main() -> int:
     if args.soak_s is not None:
         bench += ["--soak-s", f"{args.soak_s:g}"]
     started = dt.datetime.now(dt.UTC)
+    commit = _git("rev-parse", "--short=12", "HEAD")  # what the benches ran (they import the tree as it is now)
+    dirty = " (with uncommitted changes)" if _git("status", "--porcelain", "--untracked-files=no") else ""
     load = os.getloadavg()[0]
     runs = [
         ("ArduPilot SITL's recorded stream", [*bench, "--tlog", TLOG]),
@@ -84,8 +86,9 @@ def main() -> int:
     if args.fleet_procs:
         fleet_argv = ["benchmarks/fleet_bench.py", "--procs", args.fleet_procs, "--seconds", "2"]
         fleet = (fleet_argv, _run(fleet_argv))
-    commit = _git("rev-parse", "--short=12", "HEAD")
-    dirty = " (with uncommitted changes)" if _git("status", "--porcelain", "--untracked-files=no") else ""
+    ended = _git("rev-parse", "--short=12", "HEAD")
+    if ended != commit:
+        dirty += f"; HEAD was `{ended}` when the run ended"
     lines = [
         "# Measured: forwarding speed and hostile input",
         "",
