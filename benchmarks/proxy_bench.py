@@ -17,7 +17,10 @@
    - ``secuav-rewrite-*``: ``secuav-proxy`` with a bias on the DISTANCE_SENSOR
      ids that make up about 10 % of the stream;
    - ``secuav-*-python``: the same on uvloop with ``SECUAV_PROXY_PYTHON=1``, the pure-Python path (the
-     others take the compiled fast path when it is built: mitm_proxy/README.md, "The fast path").
+     others take the compiled fast path when it is built: mitm_proxy/README.md, "The fast path");
+   - ``*-2ground``: the default configuration's shape, two ground endpoints, the second on a loopback
+     port nobody listens on (it answers with ICMP port unreachable; the proxy mutes it: mitm_proxy/README.md);
+     ``mavlink-router-2ground`` is the router with the same two endpoints.
 
    Sustained rate: a ladder of offered rates (``--rates``), ``--step-s`` each;
    the figure is the highest rate with no frame lost. Latency: at 2 k frames/s,
@@ -219,12 +222,18 @@ def targets(profile: Path, names: list[str] | None) -> list[Target]:
         Target("mavproxy", [str(BIN / "mavproxy.py"), "--master=udpin:127.0.0.1:{inp}",
                             "--out=udpout:127.0.0.1:{out}", "--daemon", "--non-interactive"]),
         Target("mavlink-router", [str(ROUTERD), "-t", "0", "-e", "127.0.0.1:{out}", "127.0.0.1:{inp}"]),
+        Target("mavlink-router-2ground", [str(ROUTERD), "-t", "0", "-e", "127.0.0.1:{out}", "-e", "127.0.0.1:{closed}",
+                                          "127.0.0.1:{inp}"]),
         Target("secuav-bypass-asyncio", [*proxy, "--attack", "bypass", "--loop", "asyncio"]),
         Target("secuav-bypass-uvloop", [*proxy, "--attack", "bypass", "--loop", "uvloop"]),
+        Target("secuav-bypass-2ground", [*proxy, "--ground", "udpout://127.0.0.1:{closed}", "--attack", "bypass",
+                                         "--loop", "uvloop"]),
         Target("secuav-rewrite-asyncio", [*proxy, "--profile", str(profile), "--loop", "asyncio"]),
         Target("secuav-rewrite-uvloop", [*proxy, "--profile", str(profile), "--loop", "uvloop"]),
         # The same two with the compiled fast path turned off: the pure-Python path, before and after in one run.
         Target("secuav-bypass-python", [*proxy, "--attack", "bypass", "--loop", "uvloop"], env=PYTHON_PATH),
+        Target("secuav-bypass-2ground-python", [*proxy, "--ground", "udpout://127.0.0.1:{closed}", "--attack",
+                                                "bypass", "--loop", "uvloop"], env=PYTHON_PATH),
         Target("secuav-rewrite-python", [*proxy, "--profile", str(profile), "--loop", "uvloop"], env=PYTHON_PATH),
     ]
     return [t for t in all_targets if names is None or t.name in names]
@@ -235,7 +244,8 @@ def started(target: Target, inp: int, out: int, workdir: Path) -> Iterator[subpr
     if target.argv is None:
         yield None
         return
-    argv = [a.format(inp=inp, out=out) for a in target.argv]
+    closed = free_port()  # bound and closed again: nobody listens there (the *-2ground targets)
+    argv = [a.format(inp=inp, out=out, closed=closed) for a in target.argv]
     proc = subprocess.Popen(argv, cwd=workdir, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                             env={**os.environ, "PYTHONPATH": str(ROOT), **target.env})  # fmt: skip
     target.pid = proc.pid
@@ -427,7 +437,7 @@ def main() -> int:
         if target.name == "mavproxy" and not (BIN / "mavproxy.py").exists() and not shutil.which("mavproxy.py"):
             rows.append({"name": target.name, "skip": "MAVProxy not installed (pip install MAVProxy)"})
             continue
-        if target.name == "mavlink-router" and not ROUTERD.is_file():
+        if target.name.startswith("mavlink-router") and not ROUTERD.is_file():
             rows.append({"name": target.name, "skip": "not built (bash benchmarks/build_mavlink_router.sh)"})
             continue
         inp, out, src = free_port(), free_port(), free_port()

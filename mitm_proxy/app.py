@@ -347,6 +347,9 @@ def stats_line(sysid: int, snap: dict[str, Any]) -> dict[str, Any]:
         "p99_ms": _ms(lat["p99"]),
         "faults": ",".join(f"{k}={v}" for k, v in sorted(faults.items())) or "none",
     }
+    muted = [name for name, ep in snap["endpoints"].items() if ep.get("muted")]
+    if muted:  # ground ports nobody listens on, sent only a probe now and then (mitm_proxy/net/endpoints.py)
+        line["muted"] = ",".join(muted)
     warnings = snap.get("warnings")
     if warnings:  # said on every line until it is fixed; the full text is in the state and the first warning
         line["warnings"] = ",".join(dict.fromkeys(w.split(":", 1)[0] for w in warnings))

@@ -255,7 +255,8 @@ static PyObject *Route_configure(Route *self, PyObject *args) {
     }
     Py_DECREF(seq);
     self->n_targets = (int)nt;
-    self->all_up = all_up || !self->has_peer || nt == 0;
+    /* No targets is Python's to allow: every target muted (nobody listens), the datagrams go nowhere. */
+    self->all_up = all_up || !self->has_peer;
     Py_RETURN_NONE;
 }
 

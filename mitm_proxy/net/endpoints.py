@@ -20,12 +20,24 @@ the standard loop, see :func:`_reports_icmp`), a send buffer that fills, a
 datagram before anyone has sent to a ``udpin`` endpoint. Each is counted and
 logged once per kind (and again only after the endpoint saw it clear), never
 per datagram.
+
+A peer that answers with ICMP port unreachable is *muted*: nobody listens there
+(the default configuration names two ground ports; often only one has a client),
+and every datagram sent to it would cost a send and the kernel's ICMP error for
+nothing. While muted, the endpoint sends one datagram per ``PROBE_INTERVAL_S``
+(a probe) and drops the others, counted (``muted_dropped``); it resumes as soon
+as the peer sends us a datagram, or when a probe drew no ICMP error within
+``PROBE_CONFIRM_S``. Each transition is one log line (``endpoint.muted``,
+``endpoint.resumed``). It needs the kernel's ICMP reports (``IP_RECVERR``): on
+Linux, on the fast path's endpoints and on the standard loop's (not on uvloop's
+pure-Python transport, see :func:`_reports_icmp`).
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import ipaddress
 import logging
 import math
@@ -57,6 +69,11 @@ DEFAULT_TAKEOVER_S = 3.0
 # datagram is dropped unread and counted as "oversize": splitting 64 kB of crafted bytes took 6-20 ms of
 # loop time (frames.split), reading the length takes nothing.
 MAX_DATAGRAM_BYTES = 8192
+# A muted peer (it answered with ICMP port unreachable) gets one datagram this often, as a probe ...
+PROBE_INTERVAL_S = 0.25
+# ... and counts as listening again when no ICMP error came back this long after a probe (on loopback the error
+# is there before sendto returns; a LAN answers in milliseconds).
+PROBE_CONFIRM_S = 0.1
 
 
 class EndpointError(OSError):
@@ -183,6 +200,13 @@ class UdpEndpoint(BaseEndpoint, asyncio.DatagramProtocol):
         self._peer_heard_s = -math.inf  # when the pinned peer last sent
         self._udpin = endpoint.mode == "udpin"
         self._transport: asyncio.DatagramTransport | None = None
+        self._raw: socket.socket | None = None  # to read the kernel's error queue (IP_RECVERR)
+        self.muted = False  # the peer answered with ICMP port unreachable (see the module doc)
+        self.mutes = 0  # times it was muted
+        self.muted_dropped = 0  # datagrams not sent to it while muted
+        self.probes = 0
+        self._probe_s = -math.inf  # when the last probe went out while muted
+        self._refused_s = -math.inf  # when the last ICMP port unreachable was reported
 
     async def open(self) -> UdpEndpoint:
         """Resolve, then bind (``udpin``: HOST:PORT; ``udpout``: an ephemeral port); :class:`EndpointError` if not."""
@@ -199,7 +223,7 @@ class UdpEndpoint(BaseEndpoint, asyncio.DatagramProtocol):
         try:
             with contextlib.suppress(OSError):
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF_BYTES)
-            if _reports_icmp(loop) and family == socket.AF_INET:
+            if self._wants_icmp(loop) and family == socket.AF_INET:
                 with contextlib.suppress(OSError):
                     sock.setsockopt(socket.IPPROTO_IP, IP_RECVERR, 1)
             try:
@@ -207,6 +231,7 @@ class UdpEndpoint(BaseEndpoint, asyncio.DatagramProtocol):
             except OSError as exc:
                 raise EndpointError(exc.errno, f"{self.name} {ep}: cannot bind {_fmt(local)}: {exc.strerror}") from exc
             sock.setblocking(False)
+            self._raw = sock
             await self._start(loop, sock, family)
         except BaseException:
             sock.close()
@@ -214,6 +239,10 @@ class UdpEndpoint(BaseEndpoint, asyncio.DatagramProtocol):
         self.local = sock.getsockname()[:2]
         log.debug("endpoint.open", extra={"endpoint": self.name, "url": str(ep), "local": _fmt(self.local)})
         return self
+
+    def _wants_icmp(self, loop: asyncio.AbstractEventLoop) -> bool:
+        """Whether to ask the kernel for ICMP errors (``IP_RECVERR``): where the loop's transport survives them."""
+        return _reports_icmp(loop)
 
     async def _start(self, loop: asyncio.AbstractEventLoop, sock: socket.socket, family: int) -> None:
         """Serve the bound socket: an asyncio transport here; the fast path's endpoint reads it itself."""
@@ -223,6 +252,12 @@ class UdpEndpoint(BaseEndpoint, asyncio.DatagramProtocol):
         if self._transport is not None:
             self._transport.close()
             self._transport = None
+
+    def snapshot(self) -> dict[str, Any]:
+        out = super().snapshot()
+        if self.mutes:  # once muted: whether it is now, how often, what it was spared (see the module doc)
+            out.update(muted=self.muted, mutes=self.mutes, muted_dropped=self.muted_dropped, probes=self.probes)
+        return out
 
     # -- receiving ---------------------------------------------------------------
     def datagram_received(self, data: bytes, addr: tuple[str, int] | Any) -> None:
@@ -237,6 +272,8 @@ class UdpEndpoint(BaseEndpoint, asyncio.DatagramProtocol):
             return
         if addr == self.peer:  # the common case, both modes: the peer we know
             self._peer_heard_s = rx_s
+            if self.muted:
+                self._resume("the peer sent a datagram")
         elif self._udpin:
             if self.peer is not None:
                 if rx_s - self._peer_heard_s < self.takeover_after_s:
@@ -248,6 +285,8 @@ class UdpEndpoint(BaseEndpoint, asyncio.DatagramProtocol):
                 self._reported.discard("stranger")  # a new peer: strangers to it are news again
             self.peer = addr
             self._peer_heard_s = rx_s
+            if self.muted:
+                self._resume("the peer sent a datagram")
         else:
             # A udpout socket is not connected (so a vanished peer cannot make it unusable); anything
             # from a stranger is not ours to forward.
@@ -261,9 +300,53 @@ class UdpEndpoint(BaseEndpoint, asyncio.DatagramProtocol):
             self.receiver(data, rx_s)
 
     def error_received(self, exc: Exception) -> None:
-        """ICMP errors (a ground client that closed its port): count, keep the socket."""
-        kind = "unreachable" if isinstance(exc, ConnectionRefusedError) else "socket_error"
-        self._fault(kind, str(exc))
+        """ICMP errors (a ground client that closed its port): count, mute the peer, keep the socket."""
+        self._drain_errors()
+        if isinstance(exc, ConnectionRefusedError) or getattr(exc, "errno", None) == errno.ECONNREFUSED:
+            self.faults["unreachable"] += 1
+            self._refused_s = time.monotonic()
+            if not self.muted:
+                self.muted = True
+                self.mutes += 1
+                log.warning("endpoint.muted", extra={"endpoint": self.name, "url": str(self.endpoint),
+                                                     "peer": _fmt(self.peer), "detail": str(exc),
+                                                     "probe_every_s": PROBE_INTERVAL_S})  # fmt: skip
+            return
+        self._fault("socket_error", str(exc))
+
+    def _drain_errors(self) -> list[int]:
+        """Empty the kernel's error queue; the errnos it held. Each ICMP error waits there until read, keeps
+        the socket flagged (an epoll loop would spin on it) and takes receive-buffer room from real datagrams."""
+        sock = self._raw
+        found: list[int] = []
+        if sock is None or sock.fileno() < 0 or not hasattr(socket, "MSG_ERRQUEUE"):
+            return found
+        for _ in range(4096):  # bounded: the queue is at most a receive buffer's worth
+            try:
+                _data, anc, _flags, _addr = sock.recvmsg(1, 512, socket.MSG_ERRQUEUE)
+            except OSError:
+                return found
+            # struct sock_extended_err starts with the errno (native byte order)
+            found.extend(int.from_bytes(d[:4], sys.byteorder) for _lvl, _typ, d in anc if len(d) >= 4)
+        return found
+
+    def _resume(self, why: str) -> None:
+        self.muted = False
+        log.info("endpoint.resumed", extra={"endpoint": self.name, "url": str(self.endpoint), "peer": _fmt(self.peer),
+                                            "detail": why, "muted_dropped": self.muted_dropped})  # fmt: skip
+
+    def _send_allowed(self, now: float) -> bool:
+        """While muted: whether this datagram goes out (a probe, or the probe before it drew no ICMP error).
+
+        False: it is dropped and counted in ``muted_dropped`` by the caller's count ``n``."""
+        if self._refused_s < self._probe_s <= now - PROBE_CONFIRM_S:
+            self._resume(f"no ICMP error within {PROBE_CONFIRM_S:g} s of a probe")
+            return True
+        if now - self._probe_s >= PROBE_INTERVAL_S:
+            self._probe_s = now
+            self.probes += 1
+            return True
+        return False
 
     def connection_lost(self, exc: Exception | None) -> None:
         if exc is not None:
@@ -275,6 +358,9 @@ class UdpEndpoint(BaseEndpoint, asyncio.DatagramProtocol):
         transport = self._transport
         if transport is None or self.peer is None:
             self._fault("no_peer", "nobody has sent to this udpin endpoint yet; dropping until someone does")
+            return False
+        if self.muted and not self._send_allowed(time.monotonic()):
+            self.muted_dropped += 1
             return False
         if transport.get_write_buffer_size() > MAX_PENDING_SEND_BYTES:
             self._fault("send_overflow", f"more than {MAX_PENDING_SEND_BYTES} bytes waiting to be sent")

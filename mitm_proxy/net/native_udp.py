@@ -19,8 +19,12 @@ endpoints (:func:`enabled`).
 from __future__ import annotations
 
 import asyncio
+import errno
 import os
+import select
 import socket
+import sys
+import time
 from array import array
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -29,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 from mavframe.codec import MAVLINK_MAP
 from mavframe.frames import CRC_EXTRA
 from mavframe.packet import Direction
-from mitm_proxy.net.endpoints import MAX_PENDING_SEND_BYTES, BaseEndpoint, UdpEndpoint
+from mitm_proxy.net.endpoints import MAX_PENDING_SEND_BYTES, BaseEndpoint, UdpEndpoint, _reports_icmp
 
 if TYPE_CHECKING:
     from mitm_proxy.net.link import Link
@@ -102,6 +106,7 @@ class NativeUdpEndpoint(UdpEndpoint):
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self._sock: socket.socket | None = None
+        self._epoll: select.epoll | None = None
         self._fd = -1
         self._family = socket.AF_INET
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -109,6 +114,7 @@ class NativeUdpEndpoint(UdpEndpoint):
         self._binding: _Binding | None = None
         self._state: Any = ()  # what the route was last configured with (never equal to a real state)
         self._targets: tuple[NativeUdpEndpoint, ...] = ()
+        self._skipped: tuple[NativeUdpEndpoint, ...] = ()  # muted targets the route leaves out
         self.fast_datagrams = 0  # received datagrams the route forwarded without Python
         # Datagrams the kernel would not take at once, sent when the socket is writable again (as asyncio's
         # transport does): up to MAX_PENDING_SEND_BYTES, beyond that dropped and counted (send_overflow).
@@ -116,18 +122,38 @@ class NativeUdpEndpoint(UdpEndpoint):
         self._backlog_bytes = 0
         self.queued = 0  # datagrams that waited in that queue
 
+    def _wants_icmp(self, loop: asyncio.AbstractEventLoop) -> bool:
+        # This endpoint reads its socket itself (no loop transport to trip up): a ground peer nobody listens on
+        # is seen on every loop, and muted (endpoints module doc). Under uvloop that takes an epoll of its own
+        # (see _start), one more system call per wake-up: a ground socket wakes for uplink, a few frames a
+        # second, while the vehicle's socket wakes for all the telemetry, so only ground sockets pay it there.
+        return sys.platform == "linux" and (self.role == "ground" or _reports_icmp(loop))
+
     async def _start(self, loop: asyncio.AbstractEventLoop, sock: socket.socket, family: int) -> None:
         self._sock, self._fd, self._family, self._loop = sock, sock.fileno(), family, loop
         self._route = _fastpath.Route(self._fd)
-        loop.add_reader(self._fd, self._readable)
+        if _reports_icmp(loop) or not self._wants_icmp(loop) or not hasattr(select, "epoll"):
+            loop.add_reader(self._fd, self._readable)
+        else:
+            # libuv (uvloop) stops watching a socket that reports an error (POLLERR: a queued ICMP error) and
+            # would never read it again; behind an epoll of its own the loop only ever sees that epoll readable.
+            self._epoll = select.epoll()
+            self._epoll.register(self._fd, select.EPOLLIN)
+            loop.add_reader(self._epoll.fileno(), self._on_epoll)
 
     def close(self) -> None:
         if self._sock is None:
             return
         if self._loop is not None and not self._loop.is_closed():
-            self._loop.remove_reader(self._fd)
-            if self._backlog:
-                self._loop.remove_writer(self._fd)
+            if self._epoll is not None:
+                self._loop.remove_reader(self._epoll.fileno())
+            else:
+                self._loop.remove_reader(self._fd)
+                if self._backlog:
+                    self._loop.remove_writer(self._fd)
+        if self._epoll is not None:
+            self._epoll.close()
+            self._epoll = None
         self._backlog.clear()
         self._backlog_bytes = 0
         self._sock.close()
@@ -146,6 +172,9 @@ class NativeUdpEndpoint(UdpEndpoint):
         sock = self._sock
         if sock is None or self.peer is None:
             self._fault("no_peer", "nobody has sent to this udpin endpoint yet; dropping until someone does")
+            return False
+        if self.muted and not self._send_allowed(time.monotonic()):
+            self.muted_dropped += 1
             return False
         if self._backlog:
             return self._queue((data,))
@@ -168,8 +197,8 @@ class NativeUdpEndpoint(UdpEndpoint):
             if self._backlog_bytes > MAX_PENDING_SEND_BYTES:
                 self._fault("send_overflow", f"more than {MAX_PENDING_SEND_BYTES} bytes waiting to be sent")
                 continue
-            if not self._backlog and self._loop is not None:
-                self._loop.add_writer(self._fd, self._flush)
+            if not self._backlog:
+                self._want_write(True)
             self._backlog.append(data)
             self._backlog_bytes += len(data)
             self.queued += 1
@@ -189,26 +218,59 @@ class NativeUdpEndpoint(UdpEndpoint):
             self._backlog_bytes -= len(backlog.popleft())
         backlog.clear()
         self._backlog_bytes = 0
-        if self._loop is not None and not self._loop.is_closed():
-            self._loop.remove_writer(self._fd)
+        self._want_write(False)
+
+    def _want_write(self, on: bool) -> None:
+        """Call :meth:`_flush` when the socket is writable (on), or no more (off)."""
+        if self._epoll is not None:
+            self._epoll.modify(self._fd, select.EPOLLIN | (select.EPOLLOUT if on else 0))
+        elif self._loop is not None and not self._loop.is_closed():
+            if on:
+                self._loop.add_writer(self._fd, self._flush)
+            else:
+                self._loop.remove_writer(self._fd)
+
+    def _on_epoll(self) -> None:
+        """The socket's own epoll is readable (uvloop): an ICMP error, datagrams, or room to send."""
+        ep = self._epoll
+        if ep is None:
+            return
+        for _fd, events in ep.poll(0):
+            if events & select.EPOLLERR and errno.ECONNREFUSED in self._drain_errors():
+                self.error_received(ConnectionRefusedError(errno.ECONNREFUSED, os.strerror(errno.ECONNREFUSED)))
+            if events & select.EPOLLOUT and self._backlog:
+                self._flush()
+            if events & (select.EPOLLIN | select.EPOLLERR):
+                self._readable()
 
     # -- receiving -------------------------------------------------------------------------------------
     def _fast_state(self) -> tuple[Any, ...] | None:
-        """What the route needs now: ``(peer, wanted ids, targets and their peers)``, or None: all up."""
+        """What the route needs now: ``(peer, wanted ids, targets and their peers, muted targets left out)``,
+        or None: all up."""
         b = self._binding
-        if b is None or self.receiver is not b.receiver or self.peer is None or self._gated_in:
+        if b is None or self.receiver is not b.receiver or self.peer is None or self._gated_in or not b.targets:
             return None
         ids = b.link.pipeline.fast_ids(b.direction)
         if ids is None:
             return None
         targets = []
+        skipped = []
+        now = 0.0
+        eps: list[NativeUdpEndpoint] = []
         for ep in b.targets:
             if not isinstance(ep, NativeUdpEndpoint) or ep._sock is None or ep.peer is None or ep._gated_out:
                 return None
             if ep._backlog:  # its queue goes first: Python sends behind it until it is empty
                 return None
+            eps.append(ep)
+        for ep in eps:  # all can take the route: only now may a muted one's probe be spent on it
+            if ep.muted:  # nobody listens there: left out, but for a probe now and then (endpoints module doc)
+                now = now or time.monotonic()
+                if not ep._send_allowed(now):
+                    skipped.append(ep)
+                    continue
             targets.append((ep, ep.peer))
-        return self.peer, ids, tuple(targets)
+        return self.peer, ids, tuple(targets), tuple(skipped)
 
     def _configure(self) -> None:
         state = self._fast_state()
@@ -216,10 +278,10 @@ class NativeUdpEndpoint(UdpEndpoint):
             return
         self._state = state
         if state is None:
-            self._targets = ()
+            self._targets = self._skipped = ()
             self._route.configure(True, self._family, None, (), _NONE)
             return
-        peer, ids, targets = state
+        peer, ids, targets, self._skipped = state
         self._targets = tuple(ep for ep, _ in targets)
         self._route.configure(False, self._family, peer, [(ep._fd, ep._family, p) for ep, p in targets], id_bits(ids))
 
@@ -271,8 +333,12 @@ class NativeUdpEndpoint(UdpEndpoint):
         self.rx += dgrams
         self.fast_datagrams += dgrams
         self._peer_heard_s = rx_s
+        if self.muted:
+            self._resume("the peer sent a datagram")
         if self._reported:
             self._reported.discard("unreachable")
+        for ep in self._skipped:
+            ep.muted_dropped += dgrams
         for ep, n, err, rest in zip(self._targets, sent, errs, unsent, strict=True):
             ep.tx += n
             if n and ep._reported:

@@ -212,6 +212,10 @@ def _stats_line(stats: dict[str, Any]) -> str:
     lat = stats.get("latency_ms")
     if isinstance(lat, dict) and lat.get("p50") is not None:
         parts.append(f"latency p50 {lat['p50']:.2f} ms p99 {lat['p99']:.2f} ms")
+    endpoints = stats.get("endpoints")
+    for name, ep in endpoints.items() if isinstance(endpoints, dict) else ():
+        if isinstance(ep, dict) and ep.get("muted"):  # nobody listens on its port (docs/interfaces.md)
+            parts.append(f"{name} muted ({ep.get('muted_dropped', '?')} datagrams not sent)")
     return "; ".join(parts) or json.dumps(stats, separators=(",", ":"))
 
 

@@ -190,8 +190,12 @@ async def test_a_vanished_ground_client_does_not_stop_the_others(udp_port: Calla
                 vehicle.send(frame, veh)
                 await asyncio.sleep(0.001)
             assert (await stays.frames())[0] == sent
-            back = Peer(gone_port)  # the client restarts on its port
-            try:
+            back = Peer(gone_port)  # the client restarts on its port and says so (a GCS's heartbeat):
+            try:  # the proxy had muted that port (nobody listened) and sends to it again from now on
+                muted = next(ep for url, ep in proxy.endpoints.items() if url.port == gone_port)
+                assert muted.local is not None
+                back.reply(heartbeat(packer(255, 190)), muted.local)
+                assert len((await vehicle.frames(0.2))[0]) == 1
                 later = [heartbeat(mav) for _ in range(5)]
                 for frame in later:
                     vehicle.send(frame, veh)

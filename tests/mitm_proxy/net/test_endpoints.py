@@ -71,7 +71,8 @@ async def test_udpin_pins_its_peer_and_follows_it_only_after_silence(
 
 
 async def test_udpout_survives_a_vanished_peer(udp_port: Callable[[], int], caplog: pytest.LogCaptureFixture) -> None:
-    """ICMP port unreachable from a closed ground client is counted and logged once; the socket stays usable."""
+    """ICMP port unreachable from a closed ground client is counted and mutes the peer, logged once; the socket
+    stays usable and the peer is sent to again as soon as it speaks."""
     port = udp_port()
     ep = await UdpEndpoint(parse_endpoint(f"udpout://127.0.0.1:{port}"), "ground").open()
     got: list[bytes] = []
@@ -80,13 +81,15 @@ async def test_udpout_survives_a_vanished_peer(udp_port: Callable[[], int], capl
         for _ in range(50):  # nobody listens on port: the kernel answers with ICMP port unreachable
             ep.send(b"x")
             await asyncio.sleep(0.002)
+        assert ep.muted and ep.muted_dropped > 0  # the kernel's ICMP errors reach us on the standard loop
         peer = client(port)  # the ground client comes back
         try:
-            assert ep.send(b"hello")
-            assert (await recv(peer))[0] == b"hello"
             assert ep.local is not None
             peer.sendto(b"reply", ep.local)
             await until(lambda: got == [b"reply"])
+            assert not ep.muted
+            assert ep.send(b"hello")
+            assert (await recv(peer))[0] == b"hello"
             stranger = client()
             stranger.sendto(b"not ours", ep.local)  # only the fixed peer speaks for this endpoint
             await asyncio.sleep(0.05)
@@ -96,9 +99,9 @@ async def test_udpout_survives_a_vanished_peer(udp_port: Callable[[], int], capl
             peer.close()
     finally:
         ep.close()
-    assert ep.tx == 51
-    assert ep.faults["unreachable"] >= 1  # the kernel's ICMP errors reach us on the standard loop
-    assert sum(r.getMessage() == "endpoint.unreachable" for r in caplog.records) == 1
+    assert ep.tx + ep.muted_dropped == 51
+    assert ep.faults["unreachable"] >= 1
+    assert sum(r.getMessage() == "endpoint.muted" for r in caplog.records) == 1
 
 
 def test_under_uvloop_a_vanished_peer_is_survived(udp_port: Callable[[], int]) -> None:
