@@ -103,6 +103,9 @@ class Estimator:
     # None: as ``secure``. The shared attribution runs on the output of every ``secure`` method either way.
     detects: ClassVar[bool | None] = None
     motion_input: ClassVar[bool] = False  # reads the vehicle's own velocity (``step(..., velocity=)``)
+    # Takes readings one at a time as sequential updates (any subset of z per step; estimators.aligned): filters.
+    # The others take asynchronous readings through a window brought to a common time (estimators.aligned).
+    sequential: ClassVar[bool] = False
 
     def __init__(
         self,

@@ -32,6 +32,7 @@ from estimators.models import Known
 class ExtendedKalman(Estimator):
     name = "ekf"
     motion_input = True
+    sequential = True
 
     def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:
         self.bank = EkfBank(self.model, np.ones((1, self.model.p), dtype=bool), self.q_axes)

@@ -44,10 +44,12 @@ import numpy as np
 from scipy.stats import norm
 from scipy.stats import t as student_t
 
+from estimators.aligned import ASYNC_PARAM, AsyncEstimator
+from estimators.aligned import create as create_estimator
 from estimators.base import EVIDENCE_STEPS, Estimate, Estimator
 from estimators.drift import InnovationWindow
 from estimators.models import Known, MeasurementModel
-from estimators.registry import create as create_estimator
+from estimators.motion import ProcessNoiseFit, fit_process_noise
 
 WARM_STEPS = 20  # readings replayed into the rebuilt estimator (2 s at 10 Hz) so it takes over converged
 MIN_STEPS = 20  # steps of the window with a fix (min_sensors readings) the fit needs
@@ -238,7 +240,8 @@ class Calibrated:
         self.model = model
         self.window_s = float(window_s)
         self.params = params
-        self.inner: Estimator = create_estimator(name, model, **params)
+        self.inner: Estimator | AsyncEstimator = create_estimator(name, model, **params)
+        self.process_noise: ProcessNoiseFit | None = None  # q fitted on the window (estimators.motion)
         self.calibration: Calibration | None = None
         self._t0: float | None = None
         self._z: list[np.ndarray] = []
@@ -257,15 +260,38 @@ class Calibrated:
     def detects(self) -> bool | None:
         return self.inner.detects
 
-    def step(self, t_s: float, z: np.ndarray, known: Known = None, velocity: np.ndarray | None = None) -> Estimate:
+    @property
+    def core(self) -> Estimator:
+        """The estimator itself (inside an asynchronous wrapper, if any)."""
+        return self.inner.inner if isinstance(self.inner, AsyncEstimator) else self.inner
+
+    def read(self, t_s: float, z: np.ndarray, known: Known = None) -> None:
+        """Readings taken at ``t_s``, one at a time (asynchronous processing, estimators.aligned): corrected once
+        calibrated; the window fits on the readings each output brought to its time."""
+        if not isinstance(self.inner, AsyncEstimator):
+            raise TypeError(f"{self.name} was built without {ASYNC_PARAM}: it takes readings only with step()")
         zv = np.asarray(z, dtype=float).reshape(-1)
-        if self._done:
-            if self.calibration is None:
-                return self.inner.step(t_s, zv, known, velocity=velocity)
-            return self.inner.step(t_s, zv - self.calibration.offsets_m, known, velocity=velocity)
+        self.inner.read(t_s, zv if self.calibration is None else zv - self.calibration.offsets_m, known)
+
+    def step(self, t_s: float, z: np.ndarray | None = None, known: Known = None, velocity: np.ndarray | None = None,
+             times: np.ndarray | None = None) -> Estimate:  # fmt: skip
+        zv = None if z is None else np.asarray(z, dtype=float).reshape(-1)
+        if isinstance(self.inner, AsyncEstimator):
+            if zv is not None and self.calibration is not None:
+                zv = zv - self.calibration.offsets_m
+            out = self.inner.step(t_s, zv, known, velocity=velocity, times=times)
+            if self._done:
+                return out
+            zv = self.inner.last_aligned  # what the window fits on: the readings at the output's time
+        else:
+            assert zv is not None, "a synchronous estimator takes its readings with each step"
+            if self._done:
+                if self.calibration is None:
+                    return self.inner.step(t_s, zv, known, velocity=velocity)
+                return self.inner.step(t_s, zv - self.calibration.offsets_m, known, velocity=velocity)
+            out = self.inner.step(t_s, zv, known, velocity=velocity)
         if self._t0 is None:
             self._t0 = float(t_s)
-        out = self.inner.step(t_s, zv, known, velocity=velocity)
         # Calibrating: the estimate is the estimator's, but nothing is tested yet (no alarm, nobody named) and
         # it is not claimed valid.
         out = replace(out, attacked=frozenset(), alarm=False, valid=False,
@@ -292,9 +318,16 @@ class Calibrated:
                 self.refused = f"calibration window {self.window_s:g} s: the fit found too few readings"
         if self.calibration is not None:
             tuned = replace(self.model, sigma_m=self.calibration.sigma_m)
-            self.inner = create_estimator(self.name, tuned, **self.params)
-            self.inner.namer.window_vif = self.calibration.window_vif
-            drift = getattr(self.inner, "drift", None)
+            params = dict(self.params)
+            if self.process_source() == "fitted":
+                # No motion input and no q given: the constant-velocity model's process noise from the window.
+                zc = z - self.calibration.offsets_m
+                self.process_noise = fit_process_noise(tuned, np.array(self._t), zc, self._known)
+                if self.process_noise is not None:
+                    params["q_mps2"] = self.process_noise.q_mps2
+            self.inner = create_estimator(self.name, tuned, **params)
+            self.core.namer.window_vif = self.calibration.window_vif
+            drift = getattr(self.core, "drift", None)
             if isinstance(drift, InnovationWindow):
                 drift.vif = self.calibration.window_vif
             for k in range(max(0, len(self._t) - WARM_STEPS), len(self._t)):
@@ -327,7 +360,25 @@ class Calibrated:
             for sid, n, b, sg, s0 in zip(ids, used, cal.offsets_m, cal.sigma_m, self.model.sigma_m, strict=True)
         }  # fmt: skip
         return {**out, "status": "calibrated", "tail_factor": round(cal.tail_factor, 4),
-                "window_vif": round(cal.window_vif, 4), "links": links}  # fmt: skip
+                "window_vif": round(cal.window_vif, 4), "links": links,
+                "process_noise": self.process_report()}  # fmt: skip
+
+    def process_source(self) -> str:
+        """Where the process noise comes from: ``motion input`` (the vehicle's velocity drives the prior),
+        ``given`` (``q_mps2`` set), else ``fitted`` on the window (estimators.motion)."""
+        if self.params.get("velocity_std_mps") is not None:
+            return "motion input"
+        return "given" if "q_mps2" in self.params else "fitted"
+
+    def process_report(self) -> dict[str, Any]:
+        """``q_mps2`` the estimator runs with and where it comes from (results.json ``calibration.process_noise``)."""
+        source = self.process_source()
+        if self.process_noise is not None:
+            return self.process_noise.report()
+        q = round(float(self.core.q_mps2), 4)
+        if source == "fitted":  # the window held too few fixes for the fit: said, not hidden
+            return {"q_mps2": q, "source": "default (too few fixes to fit)"}
+        return {"q_mps2": q, "source": source}
 
 
 def create(name: str, model: MeasurementModel, **params: Any) -> Estimator | Calibrated:

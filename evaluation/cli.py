@@ -42,16 +42,17 @@ import estimators
 from attack_profiles import Engine
 from attack_profiles.profile import Profile
 from attack_profiles.resolve import parse_params, resolve_profile
+from estimators.aligned import ASYNC_PARAM, processing
 from estimators.models import MeasurementModel
 from estimators.noise import CALIBRATION_PARAM, TAIL_PARAM
 from estimators.scenario_models import anchor_model, two_vehicle_model, wall_group_model
 from evaluation.recorded import load_recording
 from evaluation.report import BASELINES, compare_with_ls, plot, summarise, table, write_results
 from evaluation.trial import (
-    ASYNCHRONOUS,
     RATE_HZ,
     SparseReadings,
     TrialResult,
+    async_window,
     evaluate,
     is_formation,
     is_wall,
@@ -104,12 +105,31 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--rate", type=float, default=None, help="--tlog/--ranges framing rate in Hz (default: the ranges' own)"
     )
-    p.add_argument(
+    timing = p.add_mutually_exclusive_group()
+    timing.add_argument(
         "--async",
         dest="asynchronous",
-        action="store_true",
-        help="--tlog/--ranges: the EKF takes every reading at its own time (sequential updates, its output predicted "
-        "to each frame time); the other estimators stay framed at --rate",
+        action="store_const",
+        const=True,
+        default=None,
+        help="--tlog/--ranges (the default there for one vehicle ranging to anchors): every estimator takes every "
+        "reading at its own time, the EKF by sequential updates, the others on a window of --window seconds brought "
+        "to each output time (--rate) with the motion model (estimators.aligned)",
+    )
+    timing.add_argument(
+        "--sync",
+        dest="asynchronous",
+        action="store_const",
+        const=False,
+        help="--tlog/--ranges: frame the readings at --rate, each frame's last reading per link taken as simultaneous",
+    )
+    p.add_argument(
+        "--window",
+        type=float,
+        default=None,
+        metavar="S",
+        help="asynchronous processing: seconds of readings each output brings to its time (default: one --rate "
+        "period, each reading used once); links too sparse for it are refused",
     )
     p.add_argument(
         "--calibrate",
@@ -207,10 +227,15 @@ def main(argv: list[str] | None = None) -> int:
         recorded = args.tlog is not None or args.ranges is not None
         if args.attack is None and not recorded:
             raise InputError("--attack", "", None, "required (a profile file, a library name, or 'none')")
-        if not recorded and (args.truth is not None or args.rate is not None or args.asynchronous):
-            raise InputError("--truth/--rate/--async", "", None, "only with --tlog or --ranges")
+        if not recorded and (args.truth is not None or args.rate is not None or args.asynchronous is not None
+                             or args.window is not None):  # fmt: skip
+            raise InputError("--truth/--rate/--async/--sync/--window", "", None, "only with --tlog or --ranges")
         if args.asynchronous and (is_formation(scenario) or is_wall(scenario)):
             raise InputError("--async", "", None, "needs one vehicle ranging to anchors (test case 1)")
+        if args.asynchronous is None:  # the default on a recording of one vehicle's anchor ranges
+            args.asynchronous = recorded and not (is_formation(scenario) or is_wall(scenario))
+        if args.window is not None and (not args.asynchronous or not 0 < args.window <= 60):
+            raise InputError("--window", "", args.window, "needs asynchronous processing and must lie in (0, 60] s")
         if args.rate is not None and not 0.1 <= args.rate <= 1000.0:
             raise InputError("--rate", "", args.rate, "must lie in 0.1..1000 Hz")
         profile = resolve_attack(args.attack or "none", parse_params(args.param))
@@ -300,9 +325,9 @@ def _main_tlog(
         return 2
     try:
         trial = evaluate(scenario, streams, engine, names, from_log=True, params=_params(args), dims=args.dims,
-                         asynchronous=args.asynchronous)  # fmt: skip
+                         asynchronous=args.asynchronous, window_s=args.window)  # fmt: skip
     except SparseReadings as err:
-        flag = "--calibrate" if err.option == CALIBRATION_PARAM else "--rate"
+        flag = {CALIBRATION_PARAM: "--calibrate", ASYNC_PARAM: "--window"}.get(err.option, "--rate")
         print(f"secuav-eval: {InputError(str(args.ranges or args.tlog), flag, err.value, err.reason)}", file=sys.stderr)
         return 2
     trial = _scored(trial, args)
@@ -326,8 +351,10 @@ def _main_tlog(
         "calibration_tail_dof": args.tail_dof,
         "score_from_s": trial.score_from_s,
         "rate_hz": round(rate, 6),
-        # Which estimators took every reading at its own time (--async) and which read the frames.
-        "processing": {n: "asynchronous" if args.asynchronous and n in ASYNCHRONOUS else "synchronous" for n in names},
+        # How each estimator took the readings: sequential updates or an aligned window (asynchronous, the
+        # default) or the frames (--sync); and the window.
+        "processing": {n: processing(n) if args.asynchronous else "synchronous" for n in names},
+        "async_window_s": async_window(trial.t_s, args.window) if args.asynchronous else None,
         "frames": int(trial.t_s.size),
         "boot_time_of_t0_s": boot_offset_s,
         "log": {
