@@ -30,13 +30,18 @@ prediction is exact under constant velocity:
     z_i(t) = z_i(t_i) + h_i(p) - h_i(p - v (t - t_i))
 
 with ``p`` the position at t and ``v`` the velocity: from the vehicle's own velocity when it reports one (the motion
-input, ``velocity=``), else from the wrapped estimator's last valid output (a filter's velocity; for a snapshot
-estimator a constant-velocity track of its outputs, ``attribution.Trail`` with the estimator's process noise). Until
-the first valid output, and when the last one is more than two windows (at least 1 s) old (after a gap, or while an
-attack beyond tolerance degrades the output), the readings go in unaligned: a velocity extrapolated that far would
-move them by what the estimator no longer knows and keep it from coming back (measured: SecEKF after a 7 s gap).
-RECON: the choice of the mean over a link's readings, the reuse of a link's newest reading, the track and the
-staleness rule are ours.
+input, ``velocity=``), else from a track: a constant-velocity EKF (the estimator's process noise) that takes the raw
+readings one at a time, each at its own time, but only those of the links the last valid output rested on
+(``Estimate.used``: the readings the secure method trusted), seeded at that output. Why not a track of the outputs
+themselves: the outputs come from the aligned readings, so a velocity error moves the readings, the readings move the
+output and the output the velocity, a loop that diverged (a hovering tag polled one anchor at a time, a 2.5 s window:
+LS went 5 m off within 10 s); the readings' own track has no such loop. An attacked link the output left out does
+not move the track; one it trusted (an attack within the noise) moves it no more than it moves the output. Until
+the first valid output, and when the track has not been corrected for more than two windows (at least 1 s; after a
+gap, or while an attack beyond tolerance degrades the output), the readings go in unaligned: a velocity extrapolated
+that far would move them by what the estimator no longer knows and keep it from coming back (measured: SecEKF after
+a 7 s gap). RECON: the choice of the mean over a link's readings, the reuse of a link's newest reading, the track
+and the staleness rule are ours.
 
 What the alignment cannot do, honestly: it moves a reading by the motion the estimator believes, so an error of that
 velocity ``dv`` leaves ``dv (t - t_i)`` in the reading (a reading 1 s old with the velocity 0.1 m/s off: 0.1 m). It
@@ -58,8 +63,8 @@ from typing import Any
 
 import numpy as np
 
-from estimators.attribution import Trail
 from estimators.base import Estimate, Estimator
+from estimators.ekf import ExtendedKalman
 from estimators.models import Known, MeasurementModel
 from estimators.registry import create as create_registered
 from estimators.registry import get as get_class
@@ -174,9 +179,10 @@ class _Async:
         self.model: MeasurementModel = inner.model
         self.name = inner.name
         self.window = _Window(inner.model.p, float(window_s))
-        self.track = Trail(inner.model.d, q_mps2=max(float(inner.q_mps2), 0.05))
-        self.velocity: np.ndarray | None = None  # the last valid output's velocity (a filter's), if it has one
-        self.valid_t = -math.inf  # the time of the last valid output
+        # The track the readings are moved with (module docstring): an EKF on the trusted links' raw readings.
+        self.track = ExtendedKalman(inner.model, q_mps2=max(float(inner.q_mps2), 0.05))
+        self.trusted = np.zeros(inner.model.p, dtype=bool)  # the links the last valid output rested on
+        self.valid_t = -math.inf  # the last time the track was corrected
         self.last_aligned: np.ndarray = np.full(inner.model.p, np.nan)  # the readings at the last output's time
 
     @property
@@ -195,25 +201,46 @@ class _Async:
         return {"processing": self.processing, **self.window.stats()}
 
     def _reference(self, t_s: float, velocity: np.ndarray | None) -> tuple[np.ndarray, np.ndarray] | None:
-        prior = self.track.predict_to(t_s)
-        if prior is None or t_s - self.valid_t > max(STALE_WINDOWS * self.window.window_s, STALE_MIN_S):
-            # No valid output for a while (a gap, an attack beyond tolerance): a velocity extrapolated that far
+        track = self.track
+        if track.t_s is None or not track.started or t_s - self.valid_t > max(
+            STALE_WINDOWS * self.window.window_s, STALE_MIN_S
+        ):
+            # No correction for a while (a gap, an attack beyond tolerance): a velocity extrapolated that far
             # would move the readings by what the estimator no longer knows, and keep it from coming back.
             return None
+        f, _ = self.track._cv(max(0.0, t_s - track.t_s))
+        x = f @ track.bank.x[0]
+        d = self.model.d
         vel = None if velocity is None else self.model.state_velocity(velocity)
-        if vel is None:
-            vel = self.velocity if self.velocity is not None else self.track.velocity()
-        return (prior[0], vel) if vel is not None else None
+        return x[:d], (x[d:] if vel is None else vel)
+
+    def _track_read(self, t_s: float, z: np.ndarray, known: Known) -> None:
+        """One time's raw readings into the track, those of the trusted links only, in time order."""
+        track = self.track
+        use = np.isfinite(z) & self.trusted
+        if not track.started or not use.any() or (track.t_s is not None and t_s < track.t_s):
+            return  # (a reading older than the track's time is left out of it: the track only moves forward)
+        out = track.step(t_s, np.where(use, z, np.nan), known)
+        if out.reinitialised or not out.ok:
+            self.valid_t = -math.inf  # the track lost itself: no alignment until the next valid output seeds it
+        else:
+            self.valid_t = t_s
 
     def _learn(self, est: Estimate) -> None:
-        """Feed a valid output to the track the readings are moved with."""
+        """A valid output says which links to trust, and seeds the track when it has none (or lost itself)."""
         if not (est.ok and est.valid):
+            return
+        self.trusted = np.zeros(self.model.p, dtype=bool)
+        self.trusted[list(est.used)] = True
+        if self.track.started and est.t_s - self.valid_t <= max(STALE_WINDOWS * self.window.window_s, STALE_MIN_S):
             return
         d = self.model.d
         cov = np.diag(self.model.sigma_m[:1].repeat(d) ** 2) if est.covariance is None else est.covariance[:d, :d]
-        self.track.correct(est.position_m, cov, est.t_s)
+        P0 = self.track._initial_cov()
+        P0[:d, :d] = cov + 1e-6 * np.eye(d)
+        vel = np.zeros(d) if est.velocity_mps is None else np.asarray(est.velocity_mps, dtype=float)
+        self.track.reset(np.concatenate([est.position_m, vel]), est.t_s, P0)
         self.valid_t = est.t_s
-        self.velocity = None if est.velocity_mps is None else np.array(est.velocity_mps, dtype=float)
 
     def _take(self, t_s: float, z: np.ndarray | None, times: np.ndarray | None) -> None:
         if z is None:
@@ -242,7 +269,9 @@ class Aligned(_Async):
     processing = "aligned"
 
     def read(self, t_s: float, z: np.ndarray, known: Known = None) -> None:
-        self.window.add(float(t_s), np.asarray(z, dtype=float).reshape(-1))
+        zv = np.asarray(z, dtype=float).reshape(-1)
+        self.window.add(float(t_s), zv)
+        self._track_read(float(t_s), zv, self.model.default_known if known is None else known)
 
     def step(
         self,
@@ -271,6 +300,21 @@ class Sequential(_Async):
         super().__init__(inner, window_s)
         self.ok = False  # the filter has an estimate: readings update it as they come
         self.spent_s = 0.0  # time spent on the readings since the last output
+
+    def _reference(self, t_s: float, velocity: np.ndarray | None) -> tuple[np.ndarray, np.ndarray] | None:
+        """The filter is its own track: its state predicted to ``t_s``."""
+        inner = self.inner
+        bank = getattr(inner, "bank", None)
+        if not self.ok or inner.t_s is None or bank is None:
+            return None
+        f, _ = inner._cv(max(0.0, t_s - inner.t_s))
+        x = f @ bank.x[0]
+        d = self.model.d
+        vel = None if velocity is None else self.model.state_velocity(velocity)
+        return x[:d], (x[d:] if vel is None else vel)
+
+    def _learn(self, est: Estimate) -> None:
+        return  # the filter is its own track
 
     def read(self, t_s: float, z: np.ndarray, known: Known = None) -> None:
         zv = np.asarray(z, dtype=float).reshape(-1)
