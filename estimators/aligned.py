@@ -88,8 +88,11 @@ class _Window:
         self.reused = 0  # link-steps that used a reading already used by an earlier output
         self.newest = -math.inf  # the latest time seen (a reading's or an output's)
 
-    def add(self, t_s: float, z: np.ndarray) -> None:
+    def add(self, t_s: float, z: np.ndarray) -> np.ndarray:
+        """Keep the finite readings of ``z`` taken at ``t_s``; returns which of them were new (not a repeat of a
+        reading already held, not older than the window)."""
         self.newest = max(self.newest, t_s)
+        new = np.zeros(z.shape[0], dtype=bool)
         for i in np.flatnonzero(np.isfinite(z)):
             ts, vs = self.t[i], self.v[i]
             if t_s <= self.newest - self.window_s:
@@ -101,6 +104,8 @@ class _Window:
             ts.insert(k, t_s)
             vs.insert(k, float(z[i]))
             self.readings += 1
+            new[i] = True
+        return new
 
     def take(self, t_s: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
         """Per link, the times and values to use at ``t_s`` (module docstring); readings too old are forgotten."""
@@ -184,6 +189,13 @@ class _Async:
         self.trusted = np.zeros(inner.model.p, dtype=bool)  # the links the last valid output rested on
         self.valid_t = -math.inf  # the last time the track was corrected
         self.last_aligned: np.ndarray = np.full(inner.model.p, np.nan)  # the readings at the last output's time
+
+    def __getattr__(self, name: str) -> Any:
+        """Anything else is the wrapped estimator's (its parameters, its filters' state): the wrapper adds only the
+        time handling."""
+        if name == "inner":
+            raise AttributeError(name)
+        return getattr(self.inner, name)
 
     @property
     def secure(self) -> bool:
@@ -270,8 +282,8 @@ class Aligned(_Async):
 
     def read(self, t_s: float, z: np.ndarray, known: Known = None) -> None:
         zv = np.asarray(z, dtype=float).reshape(-1)
-        self.window.add(float(t_s), zv)
-        self._track_read(float(t_s), zv, self.model.default_known if known is None else known)
+        new = self.window.add(float(t_s), zv)
+        self._track_read(float(t_s), np.where(new, zv, np.nan), self.model.default_known if known is None else known)
 
     def step(
         self,
@@ -318,8 +330,9 @@ class Sequential(_Async):
 
     def read(self, t_s: float, z: np.ndarray, known: Known = None) -> None:
         zv = np.asarray(z, dtype=float).reshape(-1)
-        self.window.add(float(t_s), zv)
-        if not self.ok or not np.isfinite(zv).any():
+        new = self.window.add(float(t_s), zv)
+        zv = np.where(new, zv, np.nan)  # a reading seen before updates the filter once
+        if not self.ok or not new.any():
             return
         at = float(t_s)
         if self.inner.t_s is not None and at < self.inner.t_s:
