@@ -254,16 +254,16 @@ class _Async:
         self.track.reset(np.concatenate([est.position_m, vel]), est.t_s, P0)
         self.valid_t = est.t_s
 
-    def _take(self, t_s: float, z: np.ndarray | None, times: np.ndarray | None) -> None:
+    def _take(self, t_s: float, z: np.ndarray | None, times: np.ndarray | None, known: Known) -> None:
         if z is None:
             return
         zv = np.asarray(z, dtype=float).reshape(-1)
         if times is None:
-            self.read(t_s, zv)
+            self.read(t_s, zv, known)
             return
         stamps = np.asarray(times, dtype=float).reshape(-1)
         for ts in np.unique(stamps[np.isfinite(zv) & np.isfinite(stamps)]):
-            self.read(float(ts), np.where(stamps == ts, zv, np.nan))
+            self.read(float(ts), np.where(stamps == ts, zv, np.nan), known)
 
     def read(self, t_s: float, z: np.ndarray, known: Known = None) -> None:
         raise NotImplementedError
@@ -294,7 +294,7 @@ class Aligned(_Async):
         times: np.ndarray | None = None,
     ) -> Estimate:
         t0 = time.perf_counter()
-        self._take(float(t_s), z, times)
+        self._take(float(t_s), z, times, known)
         za = self._aligned(float(t_s), known, velocity)
         spent = time.perf_counter() - t0
         est = self.inner.step(float(t_s), za, known, velocity=velocity)
@@ -356,7 +356,7 @@ class Sequential(_Async):
         times: np.ndarray | None = None,
     ) -> Estimate:
         t0 = time.perf_counter()
-        self._take(float(t_s), z, times)
+        self._take(float(t_s), z, times, known)
         za = self._aligned(float(t_s), known, velocity)  # also marks the window's readings used
         spent = time.perf_counter() - t0 + self.spent_s
         self.spent_s = 0.0
