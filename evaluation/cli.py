@@ -23,7 +23,10 @@ by ``scripts/datasets/``. ``--truth CSV`` (flightsim's ``secuav-sim --truth-csv`
 errors and detection against ground truth; without it errors are n/a and only
 alarms, the links named per sensor id, step times (and the distance from the
 autopilot's LOCAL_POSITION_NED) are reported. An ``--attack`` other than
-``none`` is applied on top of the logged readings.
+``none`` is applied on top of the logged readings. On a recording of one vehicle's anchor ranges every estimator
+takes each reading at its own time by default (estimators.aligned: the EKF by sequential updates, the others on a
+window of ``--window`` seconds brought to each output time; ``--sync`` frames them instead), and a window too short
+for the links' rates is refused in one line (docs/recorded-ranges.md).
 """
 
 from __future__ import annotations
