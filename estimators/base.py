@@ -128,6 +128,9 @@ class Estimator:
     # "suite v1 tuning split, 3 points"; empty: not declared.
     tuned_on: ClassVar[str] = ""
     motion_input: ClassVar[bool] = False  # reads the vehicle's own velocity (``step(..., velocity=)``)
+    # Takes readings one at a time as sequential updates (any subset of z per step; estimators.aligned): filters.
+    # The others take asynchronous readings through a window brought to a common time (estimators.aligned).
+    sequential: ClassVar[bool] = False
 
     def __init__(
         self,

@@ -13,11 +13,12 @@ computed with d x d algebra only (push-through identity; see ``bank.EkfBank``). 
 starts from a least-squares fix of the first readings. With ``velocity_std_mps`` the vehicle's own velocity
 (``step(..., velocity=)``) updates the velocity state after each prediction (``bank.EkfBank.update_velocity``).
 
-Asynchronous readings: ``step`` takes any subset of the readings (NaN = not read) at the time given, so the
-filter can take readings one at a time, each at its own timestamp (a sequential update: predict to the reading's
-time, update with it; readings sharing a timestamp are one update), and ``step(t, all NaN)`` predicts to ``t``
-without an update. ``secuav-eval --async`` feeds it that way (docs/recorded-ranges.md); framed, it reads one
-vector of readings per frame as if taken together.
+Asynchronous readings (``async_window_s``, estimators.aligned: sequential updates; the default on recorded ranges and
+in the secure stage): ``step`` takes any subset of the readings (NaN = not read) at the time given, so the filter
+takes readings one at a time, each at its own timestamp (predict to the reading's time, update with it; readings
+sharing a timestamp are one update; one older than the filter's time is brought forward with the motion model), and
+its output at an output time is its prediction to that time (``step(t, all NaN)``). Framed (``--sync``), it reads
+one vector of readings per frame as if taken together.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ class ExtendedKalman(Estimator):
     name = "ekf"
     tuned_on = TUNED_ON_BUNDLED
     motion_input = True
+    sequential = True
 
     def _reset(self, x0: np.ndarray | None, P0: np.ndarray) -> None:
         self.bank = EkfBank(self.model, np.ones((1, self.model.p), dtype=bool), self.q_axes)

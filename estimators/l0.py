@@ -22,6 +22,10 @@ is wrong), so the estimate is raised as an alarm (degraded, not to be trusted).
 Output: S*'s fix at the current step and its covariance ``(H^T W H)^-1``;
 attacked: sensors outside S* that fail the tests of ``attribution.py`` (family-wise alpha).
 Defaults: T = 10, alpha = 0.01; refuses more than ``max_subsets`` subsets.
+
+Asynchronous readings (``async_window_s``, estimators.aligned; the default on recorded ranges and in the secure
+stage): the exhaustive search reads one vector per step, the window's readings brought to the step's time
+(window alignment); its window of steps sums aligned steps.
 """
 
 from __future__ import annotations

@@ -34,6 +34,10 @@ kept readings must pass ``cost <= chi2.ppf(1 - alpha, kept - d)``, else alarm
 RECON: IRLS instead of an LP/SOCP solver (same minimiser; faster, no extra
 dependency), the per-step snapshot window, the decode threshold and the
 debiasing refit are ours. Defaults: n_irls = 2, eps = 0.5, alpha = 0.01.
+
+Asynchronous readings (``async_window_s``, estimators.aligned; the default on recorded ranges and in the secure
+stage): the decoder reads one vector per output time: the window's readings brought to that time (window alignment);
+its window of steps then holds aligned vectors, consecutive ones sharing a slow link's reading.
 """
 
 from __future__ import annotations

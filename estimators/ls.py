@@ -11,6 +11,11 @@ Each step, from the previous fix (or the model's starting point), iterate
 over the readings present (NaN readings are left out), projected on the
 model's box. Covariance ``(H^T W H)^-1``. With fewer readings than the model
 needs the previous fix is held. Never reports attacked sensors or alarms.
+
+Asynchronous readings (``async_window_s``, estimators.aligned; the default on recorded ranges and in the secure
+stage): one fix per output time from the window's readings brought to that time (window alignment): a reading taken
+before the output is moved by the motion the trusted links' track says, so the fix is of one time, not of a frame's
+readings of different ages.
 """
 
 from __future__ import annotations

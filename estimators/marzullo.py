@@ -19,6 +19,10 @@ covered by ``m - f`` intervals: more than f sensors lie, alarm, and the
 previous estimate is kept (degraded). Attacked: sensors whose interval does not
 meet the fused interval and that fail the tests of ``attribution.py``. Missing
 readings shrink m. Defaults: alpha = 0.01.
+
+Asynchronous readings (``async_window_s``, estimators.aligned; the default on recorded ranges and in the secure
+stage): the intervals are drawn around one vector per step, the window's readings brought to the step's
+time (window alignment).
 """
 
 from __future__ import annotations

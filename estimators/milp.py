@@ -29,6 +29,11 @@ that fail the tests of ``attribution.py``. A missing reading drops its rows.
 RECON: the window with free per-step positions (no dynamics), the objective's
 noise term and the re-linearisation are ours. Defaults: T = 5, k = 3, M = 100 m (capped at twice the largest
 innovation in the window plus 1 m, which keeps the relaxation tight), one pass.
+
+Asynchronous readings (``async_window_s``, estimators.aligned; the default on recorded ranges and in the secure
+stage): the program is written on one vector per step, the window's readings brought to the step's time
+(window alignment); its noise box is the readings' stated noise, the alignment's own error (module
+``estimators.aligned``) is not in it.
 """
 
 from __future__ import annotations

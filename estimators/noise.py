@@ -26,7 +26,6 @@ the window, and reads ``z - b``.
 It says what it did: the window must hold ``MIN_STEPS`` steps with a fix and, per link, ``MIN_LINK_READINGS``
 readings in them (:func:`count_window`); if not, it refuses (:meth:`WindowCount.refusal`, one line naming every
 link's count and what it needs) and the estimator goes on uncalibrated with :meth:`Calibrated.report` saying so.
-
 After the window (``calibration_track``, default on, secure estimators only) the offsets keep following the
 room within a drift bound a slow ramp cannot hide under (:mod:`estimators.offsets`), and a jump names a link
 only when ``CONFIRM_STEPS`` readings in a row fail it (:class:`estimators.attribution.Namer`): on the LIAS
@@ -50,11 +49,13 @@ import numpy as np
 from scipy.stats import norm
 from scipy.stats import t as student_t
 
+from estimators.aligned import ASYNC_PARAM, AsyncEstimator
+from estimators.aligned import create as create_estimator
 from estimators.base import EVIDENCE_STEPS, Estimate, Estimator
 from estimators.drift import InnovationWindow
 from estimators.models import Known, MeasurementModel
+from estimators.motion import ProcessNoiseFit, fit_process_noise
 from estimators.offsets import OffsetTracker
-from estimators.registry import create as create_estimator
 
 WARM_STEPS = 20  # readings replayed into the rebuilt estimator (2 s at 10 Hz) so it takes over converged
 MIN_STEPS = 20  # steps of the window with a fix (min_sensors readings) the fit needs
@@ -253,7 +254,10 @@ class Calibrated:
         self.model = model
         self.window_s = float(window_s)
         self.params = params
-        self.inner: Estimator = create_estimator(name, model, **params)
+        self.inner: Estimator | AsyncEstimator = create_estimator(name, model, **params)
+        self.process_noise: ProcessNoiseFit | None = None  # q fitted on the window (estimators.motion)
+        self.track = bool(track)
+        self.tracker: OffsetTracker | None = None  # estimators.offsets, from the end of the window on
         self.calibration: Calibration | None = None
         self._t0: float | None = None
         self._z: list[np.ndarray] = []
@@ -261,8 +265,6 @@ class Calibrated:
         self._t: list[float] = []
         self._velocity: list[np.ndarray | None] = []
         self._done = False
-        self.track = bool(track)
-        self.tracker: OffsetTracker | None = None  # estimators.offsets, from the end of the window on
         self.refused: str | None = None  # why the window could not be calibrated on (WindowCount.refusal)
         self.count: WindowCount | None = None
 
@@ -274,19 +276,43 @@ class Calibrated:
     def detects(self) -> bool | None:
         return self.inner.detects
 
-    def step(self, t_s: float, z: np.ndarray, known: Known = None, velocity: np.ndarray | None = None) -> Estimate:
+    @property
+    def core(self) -> Estimator:
+        """The estimator itself (inside an asynchronous wrapper, if any)."""
+        return self.inner.inner if isinstance(self.inner, AsyncEstimator) else self.inner
+
+    def read(self, t_s: float, z: np.ndarray, known: Known = None) -> None:
+        """Readings taken at ``t_s``, one at a time (asynchronous processing, estimators.aligned): corrected once
+        calibrated; the window fits on the readings each output brought to its time."""
+        if not isinstance(self.inner, AsyncEstimator):
+            raise TypeError(f"{self.name} was built without {ASYNC_PARAM}: it takes readings only with step()")
         zv = np.asarray(z, dtype=float).reshape(-1)
-        if self._done:
-            if self.calibration is None:
-                return self.inner.step(t_s, zv, known, velocity=velocity)
-            if self.tracker is None:
-                return self.inner.step(t_s, zv - self.calibration.offsets_m, known, velocity=velocity)
-            out = self.inner.step(t_s, zv - self.calibration.offsets_m - self.tracker.delta, known, velocity=velocity)
-            self._track(t_s, out)
-            return out
+        self.inner.read(t_s, zv if self.calibration is None else zv - self._offsets(), known)
+
+    def step(self, t_s: float, z: np.ndarray | None = None, known: Known = None, velocity: np.ndarray | None = None,
+             times: np.ndarray | None = None) -> Estimate:  # fmt: skip
+        zv = None if z is None else np.asarray(z, dtype=float).reshape(-1)
+        if isinstance(self.inner, AsyncEstimator):
+            if zv is not None and self.calibration is not None:
+                zv = zv - self._offsets()
+            out = self.inner.step(t_s, zv, known, velocity=velocity, times=times)
+            if self._done:
+                if self.tracker is not None:
+                    self._track(t_s, out)
+                return out
+            zv = self.inner.last_aligned  # what the window fits on: the readings at the output's time
+        else:
+            assert zv is not None, "a synchronous estimator takes its readings with each step"
+            if self._done:
+                if self.calibration is None:
+                    return self.inner.step(t_s, zv, known, velocity=velocity)
+                out = self.inner.step(t_s, zv - self._offsets(), known, velocity=velocity)
+                if self.tracker is not None:
+                    self._track(t_s, out)
+                return out
+            out = self.inner.step(t_s, zv, known, velocity=velocity)
         if self._t0 is None:
             self._t0 = float(t_s)
-        out = self.inner.step(t_s, zv, known, velocity=velocity)
         # Calibrating: the estimate is the estimator's, but nothing is tested yet (no alarm, nobody named) and
         # it is not claimed valid.
         out = replace(out, attacked=frozenset(), alarm=False, valid=False,
@@ -313,12 +339,19 @@ class Calibrated:
                 self.refused = f"calibration window {self.window_s:g} s: the fit found too few readings"
         if self.calibration is not None:
             tuned = replace(self.model, sigma_m=self.calibration.sigma_m)
-            self.inner = create_estimator(self.name, tuned, **self.params)
-            self.inner.namer.window_vif = self.calibration.window_vif
-            if self.track and self.inner.secure:
-                self.inner.namer.confirm_steps = CONFIRM_STEPS
+            params = dict(self.params)
+            if self.process_source() == "fitted":
+                # No motion input and no q given: the constant-velocity model's process noise from the window.
+                zc = z - self.calibration.offsets_m
+                self.process_noise = fit_process_noise(tuned, np.array(self._t), zc, self._known)
+                if self.process_noise is not None:
+                    params["q_mps2"] = self.process_noise.q_mps2
+            self.inner = create_estimator(self.name, tuned, **params)
+            self.core.namer.window_vif = self.calibration.window_vif
+            if self.track and self.core.secure:
+                self.core.namer.confirm_steps = CONFIRM_STEPS
                 self.tracker = OffsetTracker(self.model.p)
-            drift = getattr(self.inner, "drift", None)
+            drift = getattr(self.core, "drift", None)
             if isinstance(drift, InnovationWindow):
                 drift.vif = self.calibration.window_vif
             for k in range(max(0, len(self._t) - WARM_STEPS), len(self._t)):
@@ -326,16 +359,24 @@ class Calibrated:
                                 velocity=self._velocity[k])  # fmt: skip
         self._z, self._known, self._velocity = [], [], []
 
+    def _offsets(self) -> np.ndarray:
+        """What is subtracted from each link's readings: the window's offsets, plus how far they have followed the
+        room since (estimators.offsets)."""
+        assert self.calibration is not None
+        if self.tracker is None:
+            return self.calibration.offsets_m
+        return self.calibration.offsets_m + self.tracker.delta
+
     def _track(self, t_s: float, out: Estimate) -> None:
         """Let the offsets follow the room (estimators.offsets) from a step claimed valid, on links named neither
         now nor in the evidence window."""
         assert self.tracker is not None
-        inner = self.inner
+        core = self.core
         if not (out.ok and out.valid and not out.alarm):
             self.tracker.update(t_s, None, np.zeros(self.model.p, dtype=bool))
             return
-        trusted = ~inner.accused.any(axis=0)
-        self.tracker.update(t_s, inner.namer.last_resid, trusted)
+        trusted = ~core.accused.any(axis=0)
+        self.tracker.update(t_s, core.namer.last_resid, trusted)
 
     def report(self) -> dict[str, Any]:
         """What the window did, for results.json: ``status`` calibrated, refused (``reason``: the one line of
@@ -370,7 +411,25 @@ class Calibrated:
         else:
             out["tracking"] = None
         return {**out, "status": "calibrated", "tail_factor": round(cal.tail_factor, 4),
-                "window_vif": round(cal.window_vif, 4), "links": links}  # fmt: skip
+                "window_vif": round(cal.window_vif, 4), "links": links,
+                "process_noise": self.process_report()}  # fmt: skip
+
+    def process_source(self) -> str:
+        """Where the process noise comes from: ``motion input`` (the vehicle's velocity drives the prior),
+        ``given`` (``q_mps2`` set), else ``fitted`` on the window (estimators.motion)."""
+        if self.params.get("velocity_std_mps") is not None:
+            return "motion input"
+        return "given" if "q_mps2" in self.params else "fitted"
+
+    def process_report(self) -> dict[str, Any]:
+        """``q_mps2`` the estimator runs with and where it comes from (results.json ``calibration.process_noise``)."""
+        source = self.process_source()
+        if self.process_noise is not None:
+            return self.process_noise.report()
+        q = round(float(self.core.q_mps2), 4)
+        if source == "fitted":  # the window held too few fixes for the fit: said, not hidden
+            return {"q_mps2": q, "source": "default (too few fixes to fit)"}
+        return {"q_mps2": q, "source": source}
 
 
 def create(name: str, model: MeasurementModel, **params: Any) -> Estimator | Calibrated:

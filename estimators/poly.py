@@ -42,6 +42,10 @@ estimate (the lens the outer polygons leave is ~2 eps wide), which is why the
 seed's figures show RARSE noisier than the filters. Defaults: N = 16, k = 3,
 lam = 10, M from the model's box (just large enough that a dropped reading's
 rows never bind inside it).
+
+Asynchronous readings (``async_window_s``, estimators.aligned; the default on recorded ranges and in the secure
+stage): the polygons are drawn around one vector per step, the window's readings brought to the step's time
+(window alignment).
 """
 
 from __future__ import annotations

@@ -40,6 +40,10 @@ Each step:
    most s sensors fail) and reported. A single step cannot see a 3-sigma
    bias; the window can.
 Defaults: alpha = 0.01, T = 10, tau = 2 sigma, max_hypotheses = 128, q = 0.5 m/s^2.
+
+Asynchronous readings (``async_window_s``, estimators.aligned; the default on recorded ranges and in the secure
+stage): the hypotheses and the consensus are built from one vector per step, the window's readings brought to
+the step's time (window alignment); its EKF then updates once per step with the consensus.
 """
 
 from __future__ import annotations

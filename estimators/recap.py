@@ -46,6 +46,10 @@ Equations, all RECON (the paper could not be read; estimators/README.md#what-the
 - Attacked: named by ``attribution.py`` as for every secure estimator
   (outside Omega, failing the step or window test at a family-wise alpha).
 Defaults: alpha = 0.01, q = 0.5 m/s^2, reinit_after = 5, T = 10.
+
+Asynchronous readings (``async_window_s``, estimators.aligned; the default on recorded ranges and in the secure
+stage): the detector and its EKF read one vector per step, the window's readings brought to the step's time
+(window alignment), so the group's readings are compared at one time.
 """
 
 from __future__ import annotations

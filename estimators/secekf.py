@@ -41,6 +41,12 @@ box was not readable; estimators/README.md#what-the-sources-allow-us-to-check):
    by a velocity the vehicle does not report (``bank.EkfBank.update_velocity``).
 Defaults: alpha = 0.01, T = 10 steps, q = 0.5 m/s^2, no motion input. The full bank runs every
 step (no "lazy" single-filter mode), vectorised over subsets.
+
+Asynchronous readings (``async_window_s``, estimators.aligned; the default on recorded ranges and in the secure
+stage): the bank reads one vector per step, the window's readings brought to the step's time (window
+alignment), not each reading at its own time: the subset test compares readings of one time. Its NIS window sums
+steps; a link read more slowly than the steps is used again at the next step, and the calibration's ``window_vif``
+(fitted on the aligned stream) allows for the correlation that makes.
 """
 
 from __future__ import annotations

@@ -29,6 +29,11 @@ process-model coupling between the window's states that a full window MLE
 would have; the dynamics enter only through the output filter), the dof, the
 selection rule and the output filter are ours. Defaults: T = 5, n_iter = 6,
 alpha = 0.01.
+
+Asynchronous readings (``async_window_s``, estimators.aligned; the default on recorded ranges and in the secure
+stage): every subset fit reads one vector per step, the window's readings brought to the step's time
+(window alignment); the window sum of costs then sums aligned steps (a slow link's reading may enter two of them;
+the calibration's ``window_vif`` allows for it).
 """
 
 from __future__ import annotations

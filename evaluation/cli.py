@@ -23,7 +23,10 @@ by ``scripts/datasets/``. ``--truth CSV`` (flightsim's ``secuav-sim --truth-csv`
 errors and detection against ground truth; without it errors are n/a and only
 alarms, the links named per sensor id, step times (and the distance from the
 autopilot's LOCAL_POSITION_NED) are reported. An ``--attack`` other than
-``none`` is applied on top of the logged readings.
+``none`` is applied on top of the logged readings. On a recording of one vehicle's anchor ranges every estimator
+takes each reading at its own time by default (estimators.aligned: the EKF by sequential updates, the others on a
+window of ``--window`` seconds brought to each output time; ``--sync`` frames them instead), and a window too short
+for the links' rates is refused in one line (docs/recorded-ranges.md).
 """
 
 from __future__ import annotations
@@ -42,15 +45,16 @@ import estimators
 from attack_profiles import Engine
 from attack_profiles.profile import Profile
 from attack_profiles.resolve import resolve_profile
+from estimators.aligned import ASYNC_PARAM, processing
 from estimators.noise import CALIBRATION_PARAM, TAIL_PARAM, TRACK_PARAM
 from estimators.scenario_models import model_for
 from evaluation.recorded import load_recording
 from evaluation.report import BASELINES, compare_with_ls, plot, summarise, table, write_results
 from evaluation.trial import (
-    ASYNCHRONOUS,
     RATE_HZ,
     SparseReadings,
     TrialResult,
+    async_window,
     evaluate,
     run_trial,
 )
@@ -101,12 +105,31 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--rate", type=float, default=None, help="--tlog/--ranges framing rate in Hz (default: the ranges' own)"
     )
-    p.add_argument(
+    timing = p.add_mutually_exclusive_group()
+    timing.add_argument(
         "--async",
         dest="asynchronous",
-        action="store_true",
-        help="--tlog/--ranges: the EKF takes every reading at its own time (sequential updates, its output predicted "
-        "to each frame time); the other estimators stay framed at --rate",
+        action="store_const",
+        const=True,
+        default=None,
+        help="--tlog/--ranges (the default there for one vehicle ranging to anchors): every estimator takes every "
+        "reading at its own time, the EKF by sequential updates, the others on a window of --window seconds brought "
+        "to each output time (--rate) with the motion model (estimators.aligned)",
+    )
+    timing.add_argument(
+        "--sync",
+        dest="asynchronous",
+        action="store_const",
+        const=False,
+        help="--tlog/--ranges: frame the readings at --rate, each frame's last reading per link taken as simultaneous",
+    )
+    p.add_argument(
+        "--window",
+        type=float,
+        default=None,
+        metavar="S",
+        help="asynchronous processing: seconds of readings each output brings to its time (default: one --rate "
+        "period, each reading used once); links too sparse for it are refused",
     )
     p.add_argument(
         "--calibrate",
@@ -215,10 +238,15 @@ def main(argv: list[str] | None = None) -> int:
         recorded = args.tlog is not None or args.ranges is not None
         if args.attack is None and not recorded:
             raise InputError("--attack", "", None, "required (a profile file, a library name, or 'none')")
-        if not recorded and (args.truth is not None or args.rate is not None or args.asynchronous):
-            raise InputError("--truth/--rate/--async", "", None, "only with --tlog or --ranges")
+        if not recorded and (args.truth is not None or args.rate is not None or args.asynchronous is not None
+                             or args.window is not None):  # fmt: skip
+            raise InputError("--truth/--rate/--async/--sync/--window", "", None, "only with --tlog or --ranges")
         if args.asynchronous and scenario.kind != "anchors":
             raise InputError("--async", "", None, "needs one vehicle ranging to anchors (test case 1)")
+        if args.asynchronous is None:  # the default on a recording of one vehicle's anchor ranges
+            args.asynchronous = recorded and scenario.kind == "anchors"
+        if args.window is not None and (not args.asynchronous or not 0 < args.window <= 60):
+            raise InputError("--window", "", args.window, "needs asynchronous processing and must lie in (0, 60] s")
         if args.rate is not None and not 0.1 <= args.rate <= 1000.0:
             raise InputError("--rate", "", args.rate, "must lie in 0.1..1000 Hz")
         profile = resolve_attack(args.attack or "none", parse_params(args.param))
@@ -311,9 +339,9 @@ def _main_tlog(
         return 2
     try:
         trial = evaluate(scenario, streams, engine, names, from_log=True, params=_params(args), dims=args.dims,
-                         asynchronous=args.asynchronous)  # fmt: skip
+                         asynchronous=args.asynchronous, window_s=args.window)  # fmt: skip
     except SparseReadings as err:
-        flag = "--calibrate" if err.option == CALIBRATION_PARAM else "--rate"
+        flag = {CALIBRATION_PARAM: "--calibrate", ASYNC_PARAM: "--window"}.get(err.option, "--rate")
         print(f"secuav-eval: {InputError(str(args.ranges or args.tlog), flag, err.value, err.reason)}", file=sys.stderr)
         return 2
     trial = _scored(trial, args)
@@ -338,8 +366,10 @@ def _main_tlog(
         "calibration_track": None if args.calibrate is None else not args.fixed_offsets,
         "score_from_s": trial.score_from_s,
         "rate_hz": round(rate, 6),
-        # Which estimators took every reading at its own time (--async) and which read the frames.
-        "processing": {n: "asynchronous" if args.asynchronous and n in ASYNCHRONOUS else "synchronous" for n in names},
+        # How each estimator took the readings: sequential updates or an aligned window (asynchronous, the
+        # default) or the frames (--sync); and the window.
+        "processing": {n: processing(n) if args.asynchronous else "synchronous" for n in names},
+        "async_window_s": async_window(trial.t_s, args.window) if args.asynchronous else None,
         "frames": int(trial.t_s.size),
         "boot_time_of_t0_s": boot_offset_s,
         "log": {

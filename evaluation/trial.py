@@ -23,7 +23,8 @@ import numpy as np
 
 from attack_profiles import Engine
 from attack_profiles.profile import Profile
-from estimators import noise
+from estimators import aligned, noise
+from estimators.aligned import ASYNC_PARAM
 from estimators.base import Estimate, Estimator
 from estimators.models import AnchorRangesHeight, Known, MeasurementModel, TwoVehicleRanges
 from estimators.scenario_models import anchor_model, two_vehicle_model, wall_group_model
@@ -168,11 +169,14 @@ def evaluate(
     dims: int = 3,
     variants: Variants | None = None,
     asynchronous: bool = False,
+    window_s: float | None = None,
 ) -> TrialResult:
     """Run the estimators on framed streams (a headless flight, or a recorded log).
 
-    ``asynchronous`` (a recording of one vehicle's anchor ranges): the estimators of ``ASYNCHRONOUS`` take every
-    reading at its own time instead of the frames (:func:`_async_feed`); the others stay framed.
+    ``asynchronous`` (a recording of one vehicle's anchor ranges): every estimator takes every reading at its own
+    time instead of the frames (estimators.aligned: the EKF by sequential updates, the others on a window of
+    ``window_s`` seconds, default one frame period, brought to each frame time), and is scored at the frame times.
+    Links too sparse for that window at that rate are refused (``SparseReadings``, option ``async_window_s``).
 
     From a flight the attack is the only thing that changes readings, so the
     offsets it added are known exactly. From a log the readings may already be
@@ -187,12 +191,19 @@ def evaluate(
         return _wall_trial(scenario, s1, engine, names, from_log, params or {}, variants)
     inp = _inputs(scenario, streams, engine, dims)
     model, s1, z, clean, known, truth2 = inp.model, inp.s1, inp.z, inp.clean, inp.known, inp.truth2
-    _refuse_sparse(model, s1.t_s, z, params, variants, from_log)
     local = None if s1.local_ned_m is None else s1.local_ned_m[:, :2]
-    raw = _raw_inputs(inp, engine) if asynchronous else None
+    raw = None
+    if asynchronous:
+        raw = _raw_inputs(inp, engine)
+        window = async_window(s1.t_s, window_s)
+        _refuse_sparse_async(model, s1.t_s, raw, window)
+        params = {**(params or {}), ASYNC_PARAM: window}
+        # The calibration window is counted on what the estimators will fit on: the readings at the frame times.
+        _refuse_sparse(model, s1.t_s, _aligned_counts(raw, s1.t_s, window), params, variants, False)
+    else:
+        _refuse_sparse(model, s1.t_s, z, params, variants, from_log)
     traces = {
-        name: _run_estimator(name, model, s1, z, known, truth2, local, params or {}, variants,
-                             raw if _runs_async(name, variants) else None)
+        name: _run_estimator(name, model, s1, z, known, truth2, local, params or {}, variants, raw)
         for name in names
     }  # fmt: skip
     n_anchor = len(scenario.anchor_positions())
@@ -433,7 +444,7 @@ def _run_estimator(
             out = est.step(float(s1.t_s[k]), z[k], kn, velocity=vel)
             times[k] = out.step_time_s
         else:
-            out, times[k] = feed(float(s1.t_s[k]), z[k], kn)
+            out, times[k] = feed(float(s1.t_s[k]), z[k], kn, vel)
         alarm[k], degraded[k] = out.alarm, not out.valid
         named[k, list(out.attacked)] = True
         _record_own(out, k, own_named, own_alarm)
@@ -453,11 +464,40 @@ def _run_estimator(
                           _calibration(est))  # fmt: skip
 
 
-ASYNCHRONOUS = ("ekf",)  # estimators that take readings one at a time with their own timestamps (--async)
+def async_window(t_s: np.ndarray, window_s: float | None) -> float:
+    """The asynchronous window: as given, else one frame period (each reading used at one output only)."""
+    if window_s is not None:
+        return float(window_s)
+    return float(np.median(np.diff(t_s))) if t_s.size > 1 else 1.0
 
 
-def _runs_async(label: str, variants: Variants | None) -> bool:
-    return (variants or {}).get(label, (label, {}))[0] in ASYNCHRONOUS
+def _read_times(raw: tuple[np.ndarray, np.ndarray, np.ndarray]) -> list[np.ndarray]:
+    t, z, _ = raw
+    return [t[np.isfinite(z[:, i])] for i in range(z.shape[1])]
+
+
+def _refuse_sparse_async(
+    model: MeasurementModel, t_s: np.ndarray, raw: tuple[np.ndarray, np.ndarray, np.ndarray], window_s: float
+) -> None:
+    """``SparseReadings`` when windows of ``window_s`` at the frame times leave a link (or the fix) too often empty."""
+    cov = aligned.coverage(_read_times(raw), t_s, window_s, model.min_sensors)
+    reason = cov.refusal(model.ids())
+    if reason is not None:
+        raise SparseReadings(reason, ASYNC_PARAM, window_s)
+
+
+def _aligned_counts(raw: tuple[np.ndarray, np.ndarray, np.ndarray], t_s: np.ndarray, window_s: float) -> np.ndarray:
+    """(T, p): 1 where the window ending at frame k holds a reading of the link (what the aligned step reads), else
+    NaN: the calibration window's counts on the asynchronous input."""
+    out = np.full((t_s.size, raw[1].shape[1]), np.nan)
+    for i, ts in enumerate(_read_times(raw)):
+        if ts.size:
+            k = np.searchsorted(ts, t_s, side="right") - 1
+            ok = k >= 0
+            held = np.zeros(t_s.size, dtype=bool)
+            held[ok] = t_s[ok] - ts[k[ok]] < window_s
+            out[held, i] = 1.0
+    return out
 
 
 def _raw_inputs(inp: _Inputs, engine: Engine | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -487,29 +527,29 @@ def _raw_inputs(inp: _Inputs, engine: Engine | None) -> tuple[np.ndarray, np.nda
 
 
 def _async_feed(
-    est: Estimator | noise.Calibrated, t_raw: np.ndarray, z_raw: np.ndarray, known_raw: np.ndarray
-) -> Callable[[float, np.ndarray, Known], tuple[Estimate, float]]:
-    """Step ``est`` through every reading up to each frame time, each at its own time (a sequential update of
-    the readings that share a timestamp), then once at the frame time with no reading (a prediction to it): that
-    is the frame's output. Until the estimator has a first estimate the frame's readings start it instead (a
-    tag that polls one anchor at a time never has the readings of a fix at one timestamp)."""
-    nan_row = np.full(z_raw.shape[1], np.nan)
-    state = {"j": 0, "ok": False}
+    est: Estimator | noise.Calibrated | aligned.AsyncEstimator,
+    t_raw: np.ndarray,
+    z_raw: np.ndarray,
+    known_raw: np.ndarray,
+) -> Callable[[float, np.ndarray, Known, np.ndarray | None], tuple[Estimate, float]]:
+    """Hand ``est`` (built with ``async_window_s``) every reading up to each frame time at its own time
+    (``read``), then ask for the estimate at the frame time (``step`` without readings)."""
+    state = {"j": 0}
+    reader = getattr(est, "read", None)
+    if reader is None:
+        raise TypeError(f"{est.name} takes no asynchronous readings (built without async_window_s)")
 
     def known_at(j: int) -> Known:
         return None if known_raw.shape[1] == 0 else float(known_raw[j, 0]) if known_raw.shape[1] == 1 else known_raw[j]
 
-    def feed(t_s: float, framed: np.ndarray, kn: Known) -> tuple[Estimate, float]:
-        spent = 0.0
+    def feed(t_s: float, framed: np.ndarray, kn: Known, vel: np.ndarray | None) -> tuple[Estimate, float]:
         j = state["j"]
         while j < t_raw.size and t_raw[j] <= t_s + 1e-9:
-            if state["ok"]:
-                spent += est.step(float(t_raw[j]), z_raw[j], known_at(j)).step_time_s
+            reader(float(t_raw[j]), z_raw[j], known_at(j))
             j += 1
         state["j"] = j
-        out = est.step(t_s, nan_row if state["ok"] else framed, kn)
-        state["ok"] = state["ok"] or out.ok
-        return out, spent + out.step_time_s
+        out = est.step(t_s, None, kn, velocity=vel)
+        return out, out.step_time_s
 
     return feed
 

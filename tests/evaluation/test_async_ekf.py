@@ -1,5 +1,6 @@
-"""``secuav-eval --async`` (issue 34, item 1's first step): on recorded ranges the EKF takes every reading at its
-own time (sequential updates), its output predicted to each frame time; the other estimators stay framed."""
+"""Asynchronous processing of recorded ranges (issue 34, item 1; the default of ``secuav-eval --ranges``): the EKF
+takes every reading at its own time (sequential updates), the other estimators a window of readings brought to each
+output time with the motion model (estimators.aligned); ``--sync`` frames them as before."""
 
 from __future__ import annotations
 
@@ -44,22 +45,25 @@ def _eval(ranges: Path, truth: Path, out: Path, *extra: str) -> dict:
     return json.loads((out / "results.json").read_text())
 
 
-def test_the_ekf_reads_each_reading_at_its_own_time(tmp_path: Path) -> None:
+def test_every_estimator_reads_each_reading_at_its_own_time(tmp_path: Path) -> None:
     ranges, truth = _write(tmp_path, 60.0, 16.0)
-    sync = _eval(ranges, truth, tmp_path / "sync", "--attack", "none")
-    both = _eval(ranges, truth, tmp_path / "async", "--attack", "none", "--async")
-    assert both["processing"] == {"ls": "synchronous", "ekf": "asynchronous", "secekf": "synchronous"}
-    assert sync["processing"]["ekf"] == "synchronous"
-    # The framed estimators see the same frames either way: identical figures.
-    assert both["estimators"]["ls"]["rmse_m"] == sync["estimators"]["ls"]["rmse_m"]
-    assert both["estimators"]["secekf"]["rmse_m"] == sync["estimators"]["secekf"]["rmse_m"]
-    ekf = both["estimators"]["ekf"]
-    assert ekf["estimate_fraction"] == 1.0 and ekf["rmse_m"] < 0.2  # started from a frame, then reading by reading
-    # Framed at 1 Hz a frame holds readings up to 1 s (0.3 m of motion) old; read at their times they are not.
-    assert ekf["rmse_m"] < 0.9 * sync["estimators"]["ekf"]["rmse_m"]
-    # An attack injected here reaches the readings the EKF takes one at a time: +1.5 m on links 11 and 14.
-    attacked = _eval(ranges, truth, tmp_path / "a", "--attack", "anchors-constant", "--async")
-    assert attacked["estimators"]["ekf"]["rmse_m"] > ekf["rmse_m"] + 0.2
+    sync = _eval(ranges, truth, tmp_path / "sync", "--attack", "none", "--sync")
+    both = _eval(ranges, truth, tmp_path / "async", "--attack", "none")  # the default on recorded ranges
+    assert both["processing"] == {"ls": "aligned", "ekf": "sequential", "secekf": "aligned"}
+    assert both["async_window_s"] == 1.0 and sync["async_window_s"] is None
+    assert set(sync["processing"].values()) == {"synchronous"}
+    for name in ("ls", "ekf", "secekf"):
+        got, framed = both["estimators"][name], sync["estimators"][name]
+        assert got["estimate_fraction"] == 1.0
+        # Framed at 1 Hz a frame holds readings up to 1 s (0.3 m of motion) old; brought to the frame's time (or
+        # read at their own times, the EKF) they are not.
+        assert got["rmse_m"] < 0.9 * framed["rmse_m"], name
+    assert both["estimators"]["ekf"]["rmse_m"] < 0.2
+    # An attack injected here reaches the readings taken one at a time: +1.5 m on links 11 and 14.
+    attacked = _eval(ranges, truth, tmp_path / "a", "--attack", "anchors-constant")
+    assert attacked["estimators"]["ekf"]["rmse_m"] > both["estimators"]["ekf"]["rmse_m"] + 0.2
+    sec = attacked["estimators"]["secekf"]
+    assert sec["attack_detection_recall"] > 0.9 and sec["rmse_m"] < 0.2
 
 
 def test_async_is_for_recorded_ranges_only(tmp_path: Path) -> None:

@@ -119,13 +119,13 @@ def test_eval_refuses_a_window_too_sparse_to_calibrate(tmp_path: Path, capsys: p
 
 def test_eval_refuses_framing_faster_than_the_links_read(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     ranges, truth = _write(tmp_path, 60.0, 4.0, round_robin=True)  # each link at 0.5 Hz
-    assert main(_argv(ranges, truth, tmp_path / "o", "--rate", "4")) == 2
+    assert main(_argv(ranges, truth, tmp_path / "o", "--rate", "4", "--sync")) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "ranges.csv: --rate" in err
     assert "framing at 4 Hz: only 0% of the frames hold the 3 readings a fix needs" in err
     assert "10: 0.50" in err and "17: 0.50" in err and "frame at 1.3 Hz or slower" in err
     # Framed at 0.5 Hz every frame holds all eight links: it runs.
-    assert main(_argv(ranges, truth, tmp_path / "ok", "--rate", "0.5")) == 0
+    assert main(_argv(ranges, truth, tmp_path / "ok", "--rate", "0.5", "--sync")) == 0
 
 
 def test_eval_records_what_it_calibrated(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

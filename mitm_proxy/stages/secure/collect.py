@@ -158,4 +158,6 @@ class Readings:
         self.pending_since = None
         self.last_submit_s = now_s
         velocity = self.velocity if now_s - self.velocity_rx <= VELOCITY_MAX_AGE_S else None
-        return Job(t_s=now_s, z=z, known=known, sim_t_s=self.sim_t_s, rx_s=now_s, velocity=velocity, tilt=factors)
+        times = np.where(np.isfinite(z), self.rx, np.nan)  # when each reading arrived, for asynchronous processing
+        return Job(t_s=now_s, z=z, known=known, sim_t_s=self.sim_t_s, rx_s=now_s, velocity=velocity, tilt=factors,
+                   times=times)  # fmt: skip

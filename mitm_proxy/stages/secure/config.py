@@ -60,6 +60,12 @@ class SecureConfig(BaseModel):
     max_age_s: Annotated[float, Field(gt=0.0, le=10.0)] = Field(
         0.5, description="a reading older than this counts as missing (NaN)"
     )
+    asynchronous: bool = Field(
+        True,
+        description="each reading at its own arrival time: the EKF by sequential updates, the others on the "
+        "readings of the last max_age_s brought to the step's time with the motion model (estimators.aligned); "
+        "false: a set's readings are taken as simultaneous",
+    )
     peer_gate_m: Annotated[float, Field(gt=0.0)] = Field(
         0.5, description="an inter-vehicle range further than this from the secure positions' distance is flagged"
     )

@@ -33,6 +33,8 @@ from dataclasses import dataclass
 import numpy as np
 
 import estimators
+from estimators import aligned
+from estimators.aligned import ASYNC_PARAM
 from estimators.models import MeasurementModel
 from estimators.scenario_models import anchor_model, wall_group_model
 from mavframe.codec import BY_NAME
@@ -140,13 +142,18 @@ def build_layout(config: SecureConfig, scenario: Scenario, sysid: int, source: s
     )
 
 
-def build_estimator(config: SecureConfig, layout: Layout, source: str = "<secure>") -> estimators.Estimator:
+def build_estimator(
+    config: SecureConfig, layout: Layout, source: str = "<secure>"
+) -> estimators.Estimator | aligned.AsyncEstimator:
     """The configured estimator on the layout's model; bad name or parameter -> ``InputError``."""
     name = config.estimator
     if not estimators.known(name):  # a built-in, a plugin's entry point, or package.module:Class
         raise InputError(source, "estimator", name, f"unknown estimator; choose one of {', '.join(estimators.names())}")
+    params = dict(config.params)
+    if config.asynchronous:
+        params[ASYNC_PARAM] = config.max_age_s  # the window: the readings a step may use
     try:
-        return estimators.create(name, layout.model, **config.params)
+        return aligned.create(name, layout.model, **params)
     except TypeError as exc:
         raise InputError(source, "params", config.params, f"not accepted by {name}: {exc}") from None
     except ValueError as exc:

@@ -40,6 +40,7 @@ from typing import Literal
 import numpy as np
 
 from estimators import Estimate, Estimator
+from estimators.aligned import AsyncEstimator
 from estimators.models import Known, MeasurementModel
 
 log = logging.getLogger(__name__)
@@ -59,6 +60,7 @@ class Job:
     sim_t_s: float | None  # the vehicle's clock (time_boot_ms) of the newest reading, to join with truth
     rx_s: float  # proxy monotonic time the set was submitted
     velocity: np.ndarray | None = None  # the vehicle's own NED velocity (LOCAL_POSITION_NED), the motion input
+    times: np.ndarray | None = None  # per reading, the estimator time it arrived (asynchronous processing)
     tilt: np.ndarray | None = None  # per reading, the factor that projected it on the wall's normal (tilt.py)
 
 
@@ -72,8 +74,11 @@ class StepResult:
     attacked_idx: frozenset[int]
 
 
-def run_step(estimator: Estimator, model: MeasurementModel, job: Job) -> StepResult:
-    est = estimator.step(job.t_s, job.z, job.known, velocity=job.velocity)
+def run_step(estimator: Estimator | AsyncEstimator, model: MeasurementModel, job: Job) -> StepResult:
+    if isinstance(estimator, AsyncEstimator):  # each reading at its own time, brought to the step's (aligned.py)
+        est = estimator.step(job.t_s, job.z, job.known, velocity=job.velocity, times=job.times)
+    else:
+        est = estimator.step(job.t_s, job.z, job.known, velocity=job.velocity)
     if est.ok:
         implied = np.asarray(model.h(est.position_m, job.known), dtype=float).reshape(-1)
     else:
@@ -86,7 +91,7 @@ class Stepper:
 
     def __init__(
         self,
-        estimator: Estimator,
+        estimator: Estimator | AsyncEstimator,
         model: MeasurementModel,
         mode: Mode = "auto",
         budget_s: float = 0.002,

@@ -428,3 +428,28 @@ def test_a_no_target_frame_of_the_group_is_never_given_a_value(wall: Scenario) -
         stage.process(pkt, 3.0)
         assert wire_fields(pkt)["current_distance"] == cm
     stage.close()
+
+
+@pytest.mark.timeout(60)
+def test_readings_go_in_at_their_arrival_times_by_default(anchors8: Scenario) -> None:
+    """Issue 34: the stage takes each reading at its own arrival time (estimators.aligned), the EKF by sequential
+    updates, the others on a window of max_age_s brought to the step's time; asynchronous false as before."""
+    from estimators.aligned import Aligned, Sequential
+    from estimators.base import Estimator
+
+    built = {}
+    for name, asynchronous in (("secekf", True), ("ekf", True), ("secekf", False)):
+        stage = SecureStage(SecureConfig(estimator=name, executor="inline", dims=3, asynchronous=asynchronous),
+                            anchors8, 1)  # fmt: skip
+        outs = run(stage, StreamMaker(anchors8, seed=31, sway_m=0.3), 6.0)
+        stepper = stage._stepper
+        assert stepper is not None and stepper.steps > 20 and stepper.errors == 0
+        built[name, asynchronous] = stepper.estimator
+        lpn = [o for o in outs if o.msgid == LPN and o.changed and o.frame.t_s > 3.0]
+        err = [math.hypot(o.fields["x"] - o.frame.truth["n"], o.fields["y"] - o.frame.truth["e"]) for o in lpn]
+        assert lpn and float(np.sqrt(np.mean(np.square(err)))) < 0.2, (name, asynchronous)
+        stage.close()
+    assert isinstance(built["secekf", True], Aligned) and isinstance(built["ekf", True], Sequential)
+    assert isinstance(built["secekf", False], Estimator)
+    window = built["secekf", True].stats()
+    assert window["window_s"] == SecureConfig().max_age_s and window["readings"] > 100
