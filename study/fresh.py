@@ -15,7 +15,7 @@ Cells and rows travel as length-prefixed pickles on two pipes of their own
 (never stdout: a plugin may print); the child ends when its request pipe
 closes, so it never outlives the worker.
 
-    python -m study.fresh REQUEST_FD REPLY_FD
+    python -m study.fresh_child REQUEST_FD REPLY_FD
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ class _Child:
         rep_r, rep_w = os.pipe()
         self.log = tempfile.TemporaryFile()  # noqa: SIM115  (the child's stderr, for the error line; lives with it)
         env = {**os.environ, "PYTHONWARNINGS": "ignore::DeprecationWarning"}
-        self.proc = subprocess.Popen([sys.executable, "-m", "study.fresh", str(req_r), str(rep_w)],
+        self.proc = subprocess.Popen([sys.executable, "-m", "study.fresh_child", str(req_r), str(rep_w)],
                                      pass_fds=(req_r, rep_w), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                      stderr=self.log, env=env)  # fmt: skip
         os.close(req_r)
@@ -111,18 +111,3 @@ def run(cell: Any, variants: list[Any], expected: dict[str, Any]) -> list[dict[s
             _child = None
             raise
         return rows
-
-
-def serve(requests: IO[bytes], replies: IO[bytes]) -> int:
-    from study.cells import run_cell
-
-    while True:
-        try:
-            cell, variants, expected = _receive(requests)
-        except EOFError:  # the worker closed the pipe (or died): done
-            return 0
-        _send(replies, run_cell(cell, variants, expected, fresh=False))  # fresh=False: never a child of a child
-
-
-if __name__ == "__main__":
-    sys.exit(serve(os.fdopen(int(sys.argv[1]), "rb"), os.fdopen(int(sys.argv[2]), "wb")))

@@ -131,7 +131,10 @@ async def send_wall_sets(peer: Peer, port: int, seconds: float, hz: float = 20.0
     mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
     start = time.monotonic()
     n = 0
-    while time.monotonic() - start < seconds:
+    # At least ``seconds`` of wall time (the layout check's grace runs on the proxy's clock) AND at least
+    # ``seconds * hz`` sets: on a loaded machine the sleeps overshoot, and the counts the tests check must not
+    # depend on how busy it is.
+    while time.monotonic() - start < seconds or n < seconds * hz:
         for frame in wall_set(mav, int(n * 1000 / hz)):
             peer.send(frame, port)
         n += 1
