@@ -73,8 +73,8 @@ def build_parser() -> argparse.ArgumentParser:
                       "'{name: huber, params: {huber_k: [1.0, 1.345]}}' (YAML); repeatable")  # fmt: skip
     srun.add_argument("--only", action="append", default=[], metavar="STUDY", help="run only this study (repeatable)")
     srun.add_argument("--split", choices=("evaluation", "tuning"), default="evaluation",
-                      help="tuning: where a method's parameters are chosen (other seeds and hover points, "
-                      "OUT/tuning/); evaluation (default): the scored cells, where a method given with a grid "
+                      help="tuning: where a method's parameters are chosen (other seeds, anchor layouts and hover "
+                      "points, OUT/tuning/); evaluation (default): the scored cells, where a method given with a grid "
                       "runs only at its best tuning point")  # fmt: skip
     swhere = srun.add_mutually_exclusive_group()
     swhere.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes (default: cores)")

@@ -1,19 +1,19 @@
 """``secuav-study suite list|run|check``: the versioned benchmark suite (docs/bench.md).
 
-A suite version is a folder ``study/suite/vN/``: ``suite.yaml`` (the version, the tuning budget, the study
-files in order, each one's quick overrides and its tuning split's hover points) and the study files. ``run``
-writes one study directory per study file under ``OUT`` (the tuning split, ``--split tuning``: under
-``OUT/tuning/``; ``OUT/suite.json`` says which version and variant, what was added, what was chosen), adding
-the methods under test (``--add huber``, ``--add '{name: huber, params: {huber_k: [1.0, 1.345]}}'``) to every
-offline study whose scenario they run on. Every point a method is run at in ``OUT``, on either split, is
-charged to its tuning budget (``OUT/budget.json``); on the evaluation split a method given with a grid runs
-only at its best point on the tuning split. ``check`` reads ``OUT`` and prints the leaderboard, per split,
-study and method variant (a secure method's own output and its ``+attribution`` row): mean RMSE with its 95 %
-bootstrap CI, the valid fraction, detection (the method's own naming and the attribution's, one definition),
-where the parameters were tuned, the median wall time of a cell and the method's step time; each built-in's
-mean on the evaluation split is compared with its expected band (``expected-quick.yaml``,
-``expected-full.yaml``: measured, see there), and the provenance lines say what computed the rows and the
-budget each method used.
+A suite version is a folder ``study/suite/vN/``: ``suite.yaml`` (the version, the tuning budget, the study files in
+order, each one's quick overrides and its tuning split's anchor layout and hover points), the study files and the
+tuning split's layouts (``layouts/``). ``run`` writes one study directory per study file under ``OUT`` (the tuning
+split, ``--split tuning``: under ``OUT/tuning/``; ``OUT/suite.json`` says which version and variant, what was
+added, what was chosen, which layout each split flew), adding the methods under test (``--add huber``, ``--add
+'{name: huber, params: {huber_k: [1.0, 1.345]}}'``) to every offline study whose scenario they run on. Every point
+a method is run at in ``OUT``, on either split, is charged to its tuning budget (``OUT/budget.json``); on the
+evaluation split a method given with a grid runs only at its best point on the tuning split. ``check`` reads
+``OUT`` and prints the leaderboard, per split, study and method variant (a secure method's own output and its
+``+attribution`` row): mean RMSE with its 95 % bootstrap CI, the valid fraction, detection (the method's own naming
+and the attribution's, one definition), where the parameters were tuned, the median wall time of a cell and the
+method's step time; each built-in's mean on the evaluation split is compared with its expected band
+(``expected-quick.yaml``, ``expected-full.yaml``: measured, see there), and the provenance lines say what computed
+the rows and the budget each method used.
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ LATEST = "v1"
 
 
 SPLITS = ("evaluation", "tuning")
+LAYOUTS_LINE = "anchor layouts"  # the leaderboard's provenance lines naming each split's layouts start so
 
 
 @dataclass(frozen=True)
@@ -67,9 +68,47 @@ def study_doc(version: str, entry: Entry, quick: bool, split: str = "evaluation"
         head, _ = manifest(version)
         seeds = doc["seeds"]
         count = seeds if isinstance(seeds, int) else len(seeds)
-        doc.update(entry.tuning, name=f"{doc['name']}-tuning",
+        overrides = {k: v for k, v in entry.tuning.items() if k != "layout"}
+        doc.update(overrides, name=f"{doc['name']}-tuning", scenario=tuning_layout(version, entry),
                    seeds=[int(head["tuning_seed0"]) + i for i in range(count)])  # fmt: skip
     return doc
+
+
+def tuning_layout(version: str, entry: Entry) -> str:
+    """The entry's tuning-split scenario: a layout file of the suite version (``layouts/``, relative to it), the
+    evaluation scenario with its anchors moved, so that the splits share no anchor layout."""
+    layout = (entry.tuning or {}).get("layout")
+    if not isinstance(layout, str) or not (SUITES / version / layout).is_file():
+        raise InputError(str(SUITES / version / "suite.yaml"), f"{entry.file}: tuning.layout", layout,
+                         "a tuning split needs a layout file of its own (layouts/...yaml in the suite folder): "
+                         "the splits must not share anchor layouts")  # fmt: skip
+    return layout
+
+
+def _scenario_path(version: str, ref: str) -> str:
+    """A study's scenario as the suite's files name it: a file of the suite folder (a tuning layout), else as given
+    (a bundled or plugin scenario's name)."""
+    near = SUITES / version / ref
+    return str(near) if near.is_file() else ref
+
+
+def layouts(version: str, entries: list[Entry], quick: bool, split: str) -> dict[str, dict[str, str]]:
+    """Per study of this split: the scenario (anchor layout) it flies, by name and content hash (the hash a cell
+    key is made of), for ``OUT/suite.json`` and the leaderboard's provenance."""
+    import hashlib
+
+    from secuav_common.loading import dump_json
+    from secuav_common.scenario import load_scenario, resolve_scenario_path
+
+    out: dict[str, dict[str, str]] = {}
+    for entry in entries:
+        doc = study_doc(version, entry, quick, split)
+        if doc is None:
+            continue
+        scenario = load_scenario(resolve_scenario_path(_scenario_path(version, doc["scenario"])))
+        digest = hashlib.sha256(dump_json(scenario).encode()).hexdigest()[:16]
+        out[Path(entry.file).stem] = {"scenario": scenario.name, "file": str(doc["scenario"]), "hash": digest}
+    return out
 
 
 def list_text(version: str = LATEST) -> str:
@@ -95,7 +134,7 @@ def list_text(version: str = LATEST) -> str:
     return "\n".join(lines)
 
 
-def _with_added(doc: dict[str, Any], added: list[Any], budget: int) -> tuple[dict[str, Any], list[str]]:
+def _with_added(doc: dict[str, Any], added: list[Any], budget: int, version: str) -> tuple[dict[str, Any], list[str]]:
     """The study with the methods under test appended where they run; and the names left out (with why)."""
     import estimators
     from estimators.scenario_models import model_for
@@ -104,7 +143,8 @@ def _with_added(doc: dict[str, Any], added: list[Any], budget: int) -> tuple[dic
     doc = {**doc, "tuning_budget": budget}
     if doc.get("mode", "offline") != "offline" or not added:
         return doc, []
-    model = model_for(load_scenario(resolve_scenario_path(doc["scenario"])), int(doc.get("dims", 3)))
+    model = model_for(load_scenario(resolve_scenario_path(_scenario_path(version, doc["scenario"]))),
+                      int(doc.get("dims", 3)))  # fmt: skip
     keep, skipped = list(doc["estimators"]), []
     for entry in added:
         name = entry if isinstance(entry, str) else entry["name"]
@@ -244,7 +284,8 @@ def run(out: Path, *, quick: bool, version: str, added: list[Any], only: list[st
         added, chosen = best_points(out, added, version, before)
     _charge(out, added, int(head["tuning_budget"]), split)
     splits = meta.get("splits", {})
-    splits[split] = {"added": added, **({"chosen": chosen} if split == "evaluation" else {})}
+    splits[split] = {"added": added, **({"chosen": chosen} if split == "evaluation" else {}),
+                     "layouts": {**splits.get(split, {}).get("layouts", {}), **layouts(version, entries, quick, split)}}
     meta = {"suite": head["version"], "variant": variant, "smoke": smoke(), "added": added, "splits": splits}
     held.write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
     for name, c in chosen.items():
@@ -258,13 +299,17 @@ def run(out: Path, *, quick: bool, version: str, added: list[Any], only: list[st
         if smoke() and doc.get("mode", "offline") != "offline":
             print(f"suite: {entry.file}: real-time flights are not in a smoke run ({SMOKE_ENV})", flush=True)
             continue
-        doc, skipped = _with_added(doc, added, int(head["tuning_budget"]))
+        doc, skipped = _with_added(doc, added, int(head["tuning_budget"]), version)
         for s in skipped:
             print(f"suite: {entry.file}: {s}", flush=True)
         stem = Path(entry.file).stem
         where = out / stem if split == "evaluation" else out / "tuning" / stem
         path = out / "studies" / f"{stem}{'' if split == 'evaluation' else '-tuning'}.yaml"
         path.parent.mkdir(parents=True, exist_ok=True)
+        if split == "tuning":  # its layout file beside it, under the same relative name (OUT stays whole)
+            layout = path.parent / doc["scenario"]
+            layout.parent.mkdir(parents=True, exist_ok=True)
+            layout.write_bytes((SUITES / version / doc["scenario"]).read_bytes())
         path.write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
         print(f"suite: {stem} ({split} split)", flush=True)
         code = run_study(path, where, workers=workers, scheduler=scheduler, ports=ports, progress=progress)
@@ -336,7 +381,24 @@ def leaderboard(out: Path, version: str = LATEST) -> tuple[pd.DataFrame, list[st
     used = "; ".join(f"{name} {len(m['points'])} (splits: {', '.join(m['splits'])})"
                      for name, m in sorted(book.get("methods", {}).items()))  # fmt: skip
     budget = f"tuning budget {book.get('budget', '?')} points per method in this directory; used: {used or 'none'}"
-    return board, [head, budget, *sorted(prov)]
+    return board, [head, budget, *_layout_lines(board, meta), *sorted(prov)]
+
+
+def _layout_lines(board: pd.DataFrame, meta: dict[str, Any]) -> list[str]:
+    """Per split, the anchor layout (scenario) each study's rows were flown on, as the rows say, with the content
+    hash ``suite run`` recorded for it (``OUT/suite.json``)."""
+    lines = []
+    for split in SPLITS:
+        mine = board[board["split"] == split].drop_duplicates("study") if len(board) else board
+        recorded = meta.get("splits", {}).get(split, {}).get("layouts", {})
+        parts = []
+        for r in mine.itertuples(index=False):
+            held = recorded.get(r.study, {})
+            digest = held.get("hash") if held.get("scenario") == r.layout else None  # the rows' layout, as recorded
+            parts.append(f"{r.study} {r.layout}" + (f" ({digest})" if digest else ""))
+        if parts:
+            lines.append(f"{LAYOUTS_LINE}, {split} split: {'; '.join(parts)}")
+    return lines
 
 
 def _study_rows(frame: pd.DataFrame, stem: str, split: str, bands: dict[str, Any], chosen: dict[str, Any],
@@ -369,6 +431,7 @@ def _study_rows(frame: pd.DataFrame, stem: str, split: str, bands: dict[str, Any
         output = g["output"].dropna()
         out.append({
             "study": stem, "split": split, "method": label,
+            "layout": ", ".join(sorted(ok["scenario"].dropna().unique())),  # the anchor layout the rows flew
             "output": output.iloc[0] if len(output) else ("attributed" if "+attribution" in label else "own"),
             "origin": f"{dist} {version_}" if isinstance(dist, str) else "",
             "tuned_on": _tuned_on(name, label, chosen, split),
@@ -405,11 +468,13 @@ def _num(v: Any, digits: int = 3) -> str:
 
 
 def markdown(board: pd.DataFrame, provenance: list[str]) -> str:
-    lines = [f"# {provenance[0]}", "", f"- {provenance[1]}", *(f"- computed by: {p}" for p in provenance[2:]), ""]
+    lines = [f"# {provenance[0]}", "", f"- {provenance[1]}",
+             *(f"- {p}" if p.startswith(LAYOUTS_LINE) else f"- computed by: {p}" for p in provenance[2:]), ""]
     cols = ["method", "output", "from", "tuned on", "n", "RMSE [m] mean [95% CI]", "clean RMSE / LS", "valid",
             *DETECTION_COLUMNS, "cell [s]", "step [us]", "expected band", "check"]  # fmt: skip
     for (split, study), g in board.groupby(["split", "study"], sort=False):
-        lines += [f"## {study} ({split} split)", "", "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+        lines += [f"## {study} ({split} split)", "", f"Anchor layout (scenario): {g['layout'].iloc[0]}", "",
+                  "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
         for r in g.itertuples(index=False):
             ci = f"{_num(r.rmse_m)} [{_num(r.rmse_lo)}, {_num(r.rmse_hi)}]"
             vs = _num(r.clean_vs_ls, 2) or "n/a"
@@ -425,8 +490,8 @@ def markdown(board: pd.DataFrame, provenance: list[str]) -> str:
               "(the +attribution row of a secure method). own_* / attribution_*: recall, precision and false "
               "naming of the method's own naming and of the attribution's (docs/bench.md, \"Detection\"); "
               "empty where there is no such claim.",
-              "split: evaluation = the scored cells; tuning = where parameters are chosen (other seeds and hover "
-              "points), never a score."]  # fmt: skip
+              "split: evaluation = the scored cells; tuning = where parameters are chosen (other seeds, anchor "
+              "layouts and hover points), never a score."]  # fmt: skip
     return "\n".join(lines)
 
 

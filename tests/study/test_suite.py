@@ -12,6 +12,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from secuav_common.loading import InputError
 from study import store
 from study.suite import run as suite
 from tests.conftest import free_port_block
@@ -42,6 +43,34 @@ def test_expected_bands_name_built_ins_of_the_quick_suite_only() -> None:
     for bands in doc["bands"].values():
         for name, (lo, hi) in bands.items():
             assert "[" not in name and ":" not in name and 0 <= lo <= hi  # built-ins at their defaults
+
+
+def test_the_tuning_split_flies_other_anchor_layouts_of_the_same_shape() -> None:
+    """Every tuning study's scenario is its evaluation scenario with every anchor moved by a bounded displacement
+    (0.25-0.5 m horizontally, up to 0.25 m in height, rounded to 1 cm) and nothing else changed but the name."""
+    from secuav_common.scenario import load_scenario, resolve_scenario_path
+
+    _, entries = suite.manifest("v1")
+    tuned = [e for e in entries if e.tuning is not None]
+    assert len(tuned) == 5
+    for entry in tuned:
+        for quick in (True, False):
+            ev, tu = suite.study_doc("v1", entry, quick), suite.study_doc("v1", entry, quick, "tuning")
+            assert ev is not None and tu is not None
+            a = load_scenario(resolve_scenario_path(ev["scenario"]))
+            b = load_scenario(suite.SUITES / "v1" / tu["scenario"])
+            assert b.name == f"{a.name}-tuning"
+            assert [x.id for x in a.world.anchors] == [y.id for y in b.world.anchors]
+            for x, y in zip(a.world.anchors, b.world.anchors, strict=True):
+                shift = ((x.pos_ned_m[0] - y.pos_ned_m[0]) ** 2 + (x.pos_ned_m[1] - y.pos_ned_m[1]) ** 2) ** 0.5
+                assert 0.24 <= shift <= 0.51 and abs(x.pos_ned_m[2] - y.pos_ned_m[2]) <= 0.25, (entry.file, x.id)
+            same = {"name", "world"}
+            assert a.model_dump(exclude=same) == b.model_dump(exclude=same), entry.file  # vehicles, sensors, noise
+            assert a.world.model_dump(exclude={"anchors"}) == b.world.model_dump(exclude={"anchors"})
+    # A tuning split without a layout of its own is refused: the splits must not share one.
+    bare = suite.Entry("tc1.yaml", None, {"positions": [[1.5, 3.5]]})
+    with pytest.raises(InputError, match=r"tuning\.layout"):
+        suite.study_doc("v1", bare, False, "tuning")
 
 
 @pytest.mark.xdist_group("dask_study")
@@ -94,6 +123,7 @@ def test_tuning_split_budget_and_best_point_across_commands(tmp_path: Path) -> N
     assert tuned.returncode == 0, tuned.stderr
     tuning = pd.read_parquet(out / "tuning" / "beyond-tolerance" / "results.parquet")
     assert set(tuning["seed"]) == {1000} and set(tuning["position"]) == {"[3.5,1.0]"}  # disjoint from evaluation
+    assert set(tuning["scenario"]) == {"anchors8-tuning"}  # and on its own anchor layout
     evaluated = _smoke("suite", "run", *common, "--add", grid)
     assert evaluated.returncode == 0, evaluated.stderr
     meta = json.loads((out / "suite.json").read_text())
@@ -102,11 +132,27 @@ def test_tuning_split_budget_and_best_point_across_commands(tmp_path: Path) -> N
     assert chosen["of"] == 3 and scores[chosen["label"]] == min(scores.values())
     rows = pd.read_parquet(out / "beyond-tolerance" / "results.parquet")
     assert set(rows.loc[rows["estimator_name"] == "huber", "estimator"]) == {chosen["label"]}
-    assert set(rows["seed"]) == {0} and rows["position"].isna().all()
-    # More tuning later does not move the evaluation split's point: the choice made in this directory stands.
+    assert set(rows["seed"]) == {0} and rows["position"].isna().all() and set(rows["scenario"]) == {"anchors8"}
+    layouts = meta["splits"]["evaluation"]["layouts"]["beyond-tolerance"]
+    assert layouts["scenario"] == "anchors8" and meta["splits"]["tuning"]["layouts"]["beyond-tolerance"][
+        "scenario"] == "anchors8-tuning" and len(layouts["hash"]) == 16  # fmt: skip
+    # New tuning rows that make another point the best (rows of the chosen point re-run worse, superseding the
+    # first ones as a re-run's do) do not move the evaluation split's point: the choice made in this directory
+    # stands. Without that rule the recomputed choice below would differ and the evaluation rows would change.
+    first = store.load(out / "tuning" / "beyond-tolerance")
+    worse = first[first["estimator"] == chosen["label"]].assign(
+        rmse_m=100.0, started_at=first["started_at"].max() + pd.Timedelta(seconds=1))  # fmt: skip
+    worse = worse.astype(object).where(worse.notna(), None)  # the store's nulls, not pandas' NaN
+    store.Writer(out / "tuning" / "beyond-tolerance").write(worse.to_dict("records"))
+    now = store.load(out / "tuning" / "beyond-tolerance")
+    now = now[(now["estimator_name"] == "huber") & (now["status"] == "ok")].groupby("estimator")["rmse_m"].mean()
+    assert now.idxmin() != chosen["label"]  # a choice recomputed from today's tuning rows would be another point
     again = _smoke("suite", "run", *common, "--add", grid)
-    assert again.returncode == 0 and json.loads((out / "suite.json").read_text())["splits"]["evaluation"][
-        "chosen"]["huber"] == chosen  # fmt: skip
+    assert again.returncode == 0, again.stderr
+    assert json.loads((out / "suite.json").read_text())["splits"]["evaluation"]["chosen"]["huber"] == chosen
+    assert f"best of 3 points on the tuning split: {chosen['label']}" in again.stdout
+    rows = store.load(out / "beyond-tolerance")
+    assert set(rows.loc[rows["estimator_name"] == "huber", "estimator"]) == {chosen["label"]}
     # Two more points pass the budget of 4 in this directory: refused before anything runs, said once.
     over = _smoke("suite", "run", *common, "--split", "tuning", "--add", "{name: huber, params: {huber_k: [0.6, 0.8]}}")
     assert over.returncode == 2 and "exceed the suite's tuning budget of 4" in over.stderr
@@ -118,6 +164,11 @@ def test_tuning_split_budget_and_best_point_across_commands(tmp_path: Path) -> N
     assert ev["tuned_on"] == "tuning split: best of 3 points"
     assert board[board["method"] == "secekf"]["tuned_on"].str.contains("not held out").all()
     assert "tuning budget 4 points per method in this directory; used: huber 3" in board["provenance"].iloc[0]
+    assert set(board.loc[board["split"] == "tuning", "layout"]) == {"anchors8-tuning"}
+    assert set(board.loc[board["split"] == "evaluation", "layout"]) == {"anchors8"}
+    text = (out / "leaderboard.md").read_text()
+    assert f"- anchor layouts, evaluation split: beyond-tolerance anchors8 ({layouts['hash']})" in text
+    assert "- anchor layouts, tuning split: beyond-tolerance anchors8-tuning (" in text
 
 
 def test_a_method_added_twice_is_one_error_before_any_study(tmp_path: Path) -> None:
