@@ -20,7 +20,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from tests.study.test_study_run import dask_cluster  # noqa: F401  (the fixture: a real scheduler + 2 workers)
+from tests.support.clusters import dask_cluster  # noqa: F401  (the fixture: a real scheduler + 2 workers)
 
 BIN = Path(sys.executable).parent
 DIST = "secuav-example-plugin"

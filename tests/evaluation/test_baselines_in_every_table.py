@@ -14,7 +14,7 @@ from evaluation.cli import main
 from evaluation.report import compare_with_ls, table
 from study import store
 from study.suite.run import leaderboard, markdown
-from tests.evaluation.test_calibration_says import _write
+from tests.support.recorded import write_ranges
 
 
 def _row(rmse: float) -> dict:
@@ -37,7 +37,7 @@ def test_a_secure_method_worse_than_least_squares_on_clean_data_is_marked() -> N
 
 
 def test_the_evaluation_adds_the_baselines_it_was_not_given(tmp_path: Path) -> None:
-    ranges, truth = _write(tmp_path, 20.0, 10.0, round_robin=False)
+    ranges, truth = write_ranges(tmp_path, 20.0, 10.0, round_robin=False)
     out = tmp_path / "o"
     argv = ["--scenario", "anchors8", "--ranges", str(ranges), "--truth", str(truth), "--dims", "2",
             "--estimators", "secekf", "--attack", "none", "--rate", "10", "--out", str(out)]  # fmt: skip

@@ -5,7 +5,6 @@ for the framing rate is refused the same way. Never a silent no-op."""
 
 from __future__ import annotations
 
-import csv
 import json
 from pathlib import Path
 
@@ -16,36 +15,7 @@ from estimators import noise
 from estimators.scenario_models import anchor_model
 from evaluation.cli import main
 from secuav_common.scenario import load_scenario
-
-SIGMA = 0.1
-OFFSETS = np.array([0.10, 0.20, 0.05, 0.15, 0.25, 0.0, 0.12, 0.30])  # per anchor link, read long by this
-
-
-def _path(t: np.ndarray) -> np.ndarray:
-    return np.column_stack([2.5 + np.cos(0.2 * t), 2.5 + np.sin(0.2 * t), np.full(t.shape, -2.5)])
-
-
-def _write(folder: Path, seconds: float, poll_hz: float, round_robin: bool) -> tuple[Path, Path]:
-    """anchors8 ranges with per-link offsets. ``round_robin``: one anchor per poll (each link at poll_hz / 8, as a
-    tag that polls the anchors one at a time); else every anchor at every poll."""
-    anchors = load_scenario("anchors8").anchor_positions()
-    rng = np.random.default_rng(3)
-    t = np.arange(0.0, seconds, 1.0 / poll_hz)
-    pos = _path(t)
-    ranges, truth = folder / "ranges.csv", folder / "truth.csv"
-    with ranges.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["t_s", "sysid", "sensor_id", "range_m"])
-        for k, tk in enumerate(t):
-            for a in [k % 8] if round_robin else sorted(anchors):
-                value = float(np.linalg.norm(pos[k] - np.array(anchors[a]))) + OFFSETS[a] + rng.normal(0.0, SIGMA)
-                w.writerow([f"{tk:.3f}", 1, 10 + a, f"{value:.4f}"])
-    with truth.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["t_s", "sysid", "north_m", "east_m", "down_m"])
-        for tk, p in zip(t, pos, strict=True):
-            w.writerow([f"{tk:.3f}", 1, *(f"{v:.4f}" for v in p)])
-    return ranges, truth
+from tests.support.recorded import OFFSETS, SIGMA, path_at, write_ranges
 
 
 def _argv(ranges: Path, truth: Path, out: Path, *extra: str) -> list[str]:
@@ -76,7 +46,7 @@ def test_calibrated_reports_offsets_scales_and_readings_or_why_not() -> None:
 
     def feed(est: noise.Calibrated, steps: int, every: int) -> None:
         for k in range(steps):
-            pos = _path(np.array([0.1 * k]))[0]
+            pos = path_at(np.array([0.1 * k]))[0]
             z = model.h(pos[:2], pos[2]) + OFFSETS + rng.normal(0.0, SIGMA, model.p)
             if k % every:
                 z[0] = np.nan
@@ -108,7 +78,7 @@ def test_calibrated_reports_offsets_scales_and_readings_or_why_not() -> None:
 
 def test_eval_refuses_a_window_too_sparse_to_calibrate(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """The issue's case: a window of 8 framed steps silently did nothing while results.json said it calibrated."""
-    ranges, truth = _write(tmp_path, 60.0, 2.0, round_robin=False)
+    ranges, truth = write_ranges(tmp_path, 60.0, 2.0, round_robin=False)
     out = tmp_path / "o"
     assert main(_argv(ranges, truth, out, "--rate", "0.4", "--calibrate", "20")) == 2
     err = capsys.readouterr().err.strip()
@@ -118,7 +88,7 @@ def test_eval_refuses_a_window_too_sparse_to_calibrate(tmp_path: Path, capsys: p
 
 
 def test_eval_refuses_framing_faster_than_the_links_read(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    ranges, truth = _write(tmp_path, 60.0, 4.0, round_robin=True)  # each link at 0.5 Hz
+    ranges, truth = write_ranges(tmp_path, 60.0, 4.0, round_robin=True)  # each link at 0.5 Hz
     assert main(_argv(ranges, truth, tmp_path / "o", "--rate", "4", "--sync")) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "ranges.csv: --rate" in err
@@ -129,7 +99,7 @@ def test_eval_refuses_framing_faster_than_the_links_read(tmp_path: Path, capsys:
 
 
 def test_eval_records_what_it_calibrated(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    ranges, truth = _write(tmp_path, 40.0, 10.0, round_robin=False)
+    ranges, truth = write_ranges(tmp_path, 40.0, 10.0, round_robin=False)
     out = tmp_path / "o"
     assert main(_argv(ranges, truth, out, "--rate", "10", "--calibrate", "10")) == 0
     text = capsys.readouterr().out

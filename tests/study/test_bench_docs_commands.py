@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.study.test_study_run import dask_cluster  # noqa: F401  (the fixture: a real scheduler + 2 workers)
+from tests.support.clusters import dask_cluster  # noqa: F401  (the fixture: a real scheduler + 2 workers)
 
 ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent

@@ -19,7 +19,7 @@ import pytest
 from distributed import Client
 
 from study import provenance
-from tests.study.test_study_run import plain_cluster
+from tests.support.clusters import plain_cluster
 
 BIN = Path(sys.executable).parent
 

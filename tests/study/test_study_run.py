@@ -3,16 +3,13 @@ as processes on 127.0.0.1), a run killed half-way and resumed, and one closed-lo
 
 from __future__ import annotations
 
-import contextlib
 import json
 import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
 
 import pandas as pd
 import pytest
@@ -108,44 +105,6 @@ def test_a_run_killed_half_way_resumes_without_duplicates_or_gaps(tmp_path: Path
     assert len(rows) == 240 and not rows.duplicated(["cell", "estimator"]).any()  # ls, ekf, secekf twice
     kept = rows.merge(before, on=["cell", "estimator"], suffixes=("", "_before"))
     assert len(kept) == len(before) and (kept["rmse_m"] == kept["rmse_m_before"]).all()  # never rewritten
-
-
-@pytest.fixture
-def dask_cluster(tmp_path: Path) -> Iterator[tuple[str, list[str]]]:
-    """A real ``dask scheduler`` and two ``dask worker`` processes on 127.0.0.1."""
-    with plain_cluster() as cluster:
-        yield cluster
-
-
-@contextlib.contextmanager
-def plain_cluster(env: dict[str, str] | None = None) -> Iterator[tuple[str, list[str]]]:
-    """A real ``dask scheduler`` and two ``dask worker`` processes on 127.0.0.1 (``env``: theirs)."""
-    port = free_tcp_port()
-    address = f"tcp://127.0.0.1:{port}"
-    quiet: dict[str, Any] = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL, "env": env}
-    scheduler = [str(BIN / "dask"), "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"]
-    procs = [subprocess.Popen(scheduler, **quiet)]
-    try:
-        from distributed import Client
-
-        for name in ("w1", "w2"):
-            procs.append(subprocess.Popen(
-                [str(BIN / "dask"), "worker", address, "--host", "127.0.0.1", "--name", name, "--nworkers", "1",
-                 "--nthreads", "1", "--no-dashboard"], **quiet,
-            ))  # fmt: skip
-        with Client(address, timeout="60s") as client:
-            client.wait_for_workers(2, timeout=120)
-            workers = sorted(client.scheduler_info()["workers"])
-        yield address, workers
-    finally:
-        for proc in reversed(procs):
-            proc.send_signal(signal.SIGINT)
-        for proc in reversed(procs):
-            try:
-                proc.wait(20)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
 
 
 @pytest.mark.xdist_group("dask_study")

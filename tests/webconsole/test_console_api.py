@@ -5,121 +5,20 @@ from __future__ import annotations
 
 import asyncio
 import base64
-import contextlib
 import json
 import subprocess
 import sys
 import urllib.error
 import urllib.request
-from collections.abc import AsyncIterator
-from dataclasses import dataclass
 from typing import Any
 
 import pytest
-import uvicorn
 
-from mitm_proxy.control.attack import AttackSwitch
-from mitm_proxy.control.plane import ControlPlane
-from mitm_proxy.control.secure import SecureSwitch
-from mitm_proxy.control.switches import vehicle_controls
-from mitm_proxy.stages.attack import AttackStage
-from mitm_proxy.stages.attack_slot import AttackSlot
-from mitm_proxy.stages.secure.stage import OFF, SecureStage
-from secuav_common.broker import BrokerAddress, EmbeddedBroker
-from secuav_common.scenario import load_scenario
-from tests.conftest import free_tcp_port
-from webconsole.api import build_app
-from webconsole.connections import server_config
-from webconsole.fleet import Fleet, Session
+from secuav_common.broker import BrokerAddress
+from tests.support.console import Bench, call, serve
+from webconsole.fleet import Session
 
 pytestmark = pytest.mark.timeout(60)
-
-
-def _stats() -> dict[int, dict[str, Any]]:
-    return {1: {"downlink": {"frames_in": 10, "frames_out": 10}, "uplink": {}, "latency_ms": {"p50": 0.2}}}
-
-
-@dataclass
-class Bench:
-    base: str
-    fleet: Fleet
-    slots: dict[int, AttackSlot]
-    plane: ControlPlane
-
-
-def call(base: str, path: str, body: Any = None, auth: str | None = None) -> tuple[int, Any]:
-    """One HTTP request (in a worker thread: the server runs on this test's loop)."""
-    data = None if body is None else json.dumps(body).encode()
-    request = urllib.request.Request(base + path, data=data, method="GET" if body is None else "POST")
-    if data is not None:
-        request.add_header("Content-Type", "application/json")
-    if auth:
-        request.add_header("Authorization", auth)
-    try:
-        with urllib.request.urlopen(request, timeout=10) as response:
-            return response.status, json.loads(response.read() or b"null")
-    except urllib.error.HTTPError as exc:
-        raw = exc.read()
-        try:
-            return exc.code, json.loads(raw)
-        except ValueError:
-            return exc.code, raw.decode()
-
-
-@contextlib.asynccontextmanager
-async def serve(fleet: Fleet, session: Session, password: str | None = None, **options: Any) -> AsyncIterator[str]:
-    port = free_tcp_port()
-    served = {k: options.pop(k) for k in ("trusted_proxies", "limits") if k in options}
-    app = build_app(fleet, session, password, ack_timeout_s=2.0, **options)
-    server = uvicorn.Server(server_config(app, "127.0.0.1", port, **served))  # as secuav-console serves it
-    server.install_signal_handlers = lambda: None  # type: ignore[method-assign]
-    task = asyncio.create_task(server.serve())
-    while not server.started:
-        await asyncio.sleep(0.02)
-    try:
-        yield f"http://127.0.0.1:{port}"
-    finally:
-        server.should_exit = True
-        await task
-
-
-@contextlib.asynccontextmanager
-async def _bench(secure: dict[int, SecureSwitch] | None = None) -> AsyncIterator[Bench]:
-    port = free_tcp_port()
-    slots = {1: AttackSwitch(AttackSlot(1))}
-    async with EmbeddedBroker(port=port):
-        url = f"mqtt://127.0.0.1:{port}"
-        controls = vehicle_controls("lab", slots, {1: AttackStage(slots[1].slot)}, secure)
-        plane = ControlPlane(url, controls, stats=_stats)
-        fleet = Fleet([load_scenario("wall_hover")])
-        session = Session(BrokerAddress("127.0.0.1", port), fleet, "http://test/")
-        mqtt = asyncio.create_task(session.run())
-        async with plane, serve(fleet, session) as base:
-            await plane.wait_connected(10)
-            await asyncio.wait_for(session.connected.wait(), 10)
-            for _ in range(100):  # the retained states, then one stats message
-                if 1 in fleet.vehicles and fleet.summary()[0]["online"]:
-                    break
-                await asyncio.sleep(0.1)
-            yield Bench(base, fleet, slots, plane)
-        mqtt.cancel()
-
-
-@pytest.fixture
-async def bench() -> AsyncIterator[Bench]:
-    async with _bench() as b:
-        yield b
-
-
-@pytest.fixture
-async def secure_bench() -> AsyncIterator[Bench]:
-    """The bench with a real secure stage on vehicle 1 (the wall scenario's rangefinder group)."""
-    slot = SecureSwitch(SecureStage(OFF, load_scenario("wall_hover"), 1))
-    try:
-        async with _bench({1: slot}) as b:
-            yield b
-    finally:
-        slot.close()
 
 
 async def test_vehicles_library_and_a_profile_round_trip(bench: Bench) -> None:

@@ -13,14 +13,8 @@ from __future__ import annotations
 
 import asyncio
 import json
-import os
-import shutil
-import signal
 import socket
-import subprocess
-import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import aiomqtt
@@ -30,56 +24,9 @@ from pymavlink import mavutil
 from mavframe import tlog
 from secuav_common.broker import EmbeddedBroker
 from tests.conftest import free_tcp_port
+from tests.support.console import BAD_PROFILE, spawn, stop, until
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-CHROMEDRIVER = shutil.which("chromedriver")
-BAD_PROFILE = """name: typo
-rules:
-  - target: {message: DISTANCE_SENSOR, sensor_id: 0, field: current_distance}
-    kind: bias
-    offset_m: banana
-"""
-
-
-@pytest.fixture
-def browser() -> Iterator[object]:
-    if CHROMIUM is None or CHROMEDRIVER is None:
-        if os.environ.get("CI"):  # .ci/run installs them: missing there is a setup bug, not a reason to skip
-            pytest.fail("chromium and chromium-driver are not installed, but CI must test the page in a browser")
-        pytest.skip("chromium and chromium-driver are not installed (apt-get install chromium chromium-driver)")
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    options = webdriver.ChromeOptions()
-    options.binary_location = CHROMIUM
-    for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--window-size=1400,1200"):
-        options.add_argument(arg)
-    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
-    try:
-        yield driver
-    finally:
-        driver.quit()
-
-
-def _spawn(args: list[str], log: Path) -> subprocess.Popen[bytes]:
-    return subprocess.Popen([sys.executable, "-m", *args], stdout=log.open("wb"), stderr=subprocess.STDOUT,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1"})  # fmt: skip
-
-
-def _stop(procs: list[subprocess.Popen[bytes]]) -> list[int | None]:
-    for proc in procs:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-    codes = []
-    for proc in procs:
-        try:
-            codes.append(proc.wait(10))
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            codes.append(None)
-    return codes
 
 
 def _sensor0_cm(gcs: mavutil.mavfile, seconds: float) -> list[int]:
@@ -97,14 +44,6 @@ def _sensor0_cm(gcs: mavutil.mavfile, seconds: float) -> list[int]:
     return out
 
 
-async def _until(check: object, limit_s: float, what: str) -> None:
-    deadline = time.monotonic() + limit_s
-    while not check():  # type: ignore[operator]
-        if time.monotonic() > deadline:
-            raise AssertionError(f"{what}: not within {limit_s} s")
-        await asyncio.sleep(0.1)
-
-
 async def test_the_page_shows_steers_and_refuses_as_a_user_sees_it(
     browser: object, tmp_path: Path, udp_port: object
 ) -> None:
@@ -117,17 +56,17 @@ async def test_the_page_shows_steers_and_refuses_as_a_user_sees_it(
     broker = f"mqtt://127.0.0.1:{port}"
     async with EmbeddedBroker(port=port):
         procs = [
-            _spawn(["mitm_proxy", "--broker", broker, "--instance", "bench", "--vehicle",
+            spawn(["mitm_proxy", "--broker", broker, "--instance", "bench", "--vehicle",
                     f"udpin://127.0.0.1:{vehicle}", "--ground", f"udpout://127.0.0.1:{gcs_port}"], tmp_path / "p.log"),
-            _spawn(["flightsim", "wall_hover", "--mavlink", f"udpout://127.0.0.1:{vehicle}", "--broker", broker],
+            spawn(["flightsim", "wall_hover", "--mavlink", f"udpout://127.0.0.1:{vehicle}", "--broker", broker],
                    tmp_path / "sim.log"),
-            _spawn(["webconsole", "--broker", broker, "--listen", f"127.0.0.1:{web}", "--scenario", "wall_hover"],
+            spawn(["webconsole", "--broker", broker, "--listen", f"127.0.0.1:{web}", "--scenario", "wall_hover"],
                    tmp_path / "console.log"),
         ]  # fmt: skip
         gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{gcs_port}", source_system=255)
         sets: list[str] = []
         try:
-            await _until(lambda: b"console.ready" in (tmp_path / "console.log").read_bytes(), 30, "console up")
+            await until(lambda: b"console.ready" in (tmp_path / "console.log").read_bytes(), 30, "console up")
             baseline = await asyncio.to_thread(_sensor0_cm, gcs, 1.0)
             assert baseline and all(450 < v < 550 for v in baseline), baseline  # 5 m to the wall
 
@@ -139,7 +78,7 @@ async def test_the_page_shows_steers_and_refuses_as_a_user_sees_it(
                     "return [...document.querySelectorAll('#fleet tbody tr td')].map(td => td.textContent)")
                 return len(cells) > 3 and cells[0] == "v1" and cells[1] == "bench" and cells[2] == "online"
 
-            await _until(online, 30, "vehicle v1 online on the page")  # a deadline; the time is printed below
+            await until(online, 30, "vehicle v1 online on the page")  # a deadline; the time is printed below
             shown_after_s = time.monotonic() - started
 
             # Apply a library profile from its parameter form.
@@ -150,9 +89,9 @@ async def test_the_page_shows_steers_and_refuses_as_a_user_sees_it(
                 field.send_keys(value)
             driver.find_element(By.ID, "apply-library").click()  # type: ignore[attr-defined]
             ack = driver.find_element(By.ID, "ack")  # type: ignore[attr-defined]
-            await _until(lambda: "attack distance-wrong: ok" in ack.text, 30, "the proxy's acknowledgement")
+            await until(lambda: "attack distance-wrong: ok" in ack.text, 30, "the proxy's acknowledgement")
             title = driver.find_element(By.ID, "vehicle-title")  # type: ignore[attr-defined]
-            await _until(lambda: "changing frames toward the ground" in title.text, 30, "the profile's direction")
+            await until(lambda: "changing frames toward the ground" in title.text, 30, "the profile's direction")
             await asyncio.sleep(0.3)
             attacked = await asyncio.to_thread(_sensor0_cm, gcs, 1.0)
             assert attacked and all(700 < v < 800 for v in attacked), attacked  # 5 m * 1.5 on the ground
@@ -180,7 +119,7 @@ async def test_the_page_shows_steers_and_refuses_as_a_user_sees_it(
                 area.send_keys(BAD_PROFILE)
                 driver.find_element(By.ID, "apply-yaml").click()  # type: ignore[attr-defined]
                 error = driver.find_element(By.ID, "yaml-error")  # type: ignore[attr-defined]
-                await _until(lambda: error.is_displayed() and "rules[0]" in error.text, 30, "the field error")
+                await until(lambda: error.is_displayed() and "rules[0]" in error.text, 30, "the field error")
                 assert "banana" in error.text and error.get_attribute("data-field").startswith("rules[0]")
                 await asyncio.sleep(1.0)
                 collector.cancel()
@@ -192,7 +131,7 @@ async def test_the_page_shows_steers_and_refuses_as_a_user_sees_it(
             assert "true_copy" not in (box.get_attribute("textContent") or "") and not box.is_displayed()
 
             # The page draws: a plot per sensor seen, the top view, no errors in the browser's console.
-            await _until(lambda: len(driver.find_elements(By.CSS_SELECTOR, "#plots .plot")) >= 1, 30, "plots")  # type: ignore[attr-defined]
+            await until(lambda: len(driver.find_elements(By.CSS_SELECTOR, "#plots .plot")) >= 1, 30, "plots")  # type: ignore[attr-defined]
             logged = [e for e in driver.get_log("browser") if e["level"] in ("SEVERE", "WARNING")]  # type: ignore[attr-defined]
             script_errors = [e for e in logged if e["source"] != "network"]
             assert script_errors == [], script_errors
@@ -201,7 +140,7 @@ async def test_the_page_shows_steers_and_refuses_as_a_user_sees_it(
             assert refused == [True], logged
         finally:
             gcs.close()
-            codes = _stop(procs)
+            codes = stop(procs)
     assert codes == [0, 0, 0] or all(c in (0, 130) for c in codes), [
         (p, (tmp_path / p).read_text()[-2000:]) for p in ("p.log", "sim.log", "console.log")
     ]
@@ -235,23 +174,23 @@ async def test_the_page_shows_why_the_secure_stage_cannot_work(
 
     async with EmbeddedBroker(port=port):
         procs = [
-            _spawn(["mitm_proxy", "--broker", broker, "--instance", "bench", "--scenario", "wall_hover", "--secure",
+            spawn(["mitm_proxy", "--broker", broker, "--instance", "bench", "--scenario", "wall_hover", "--secure",
                     "secekf", "--vehicle", f"udpin://127.0.0.1:{vehicle}", "--ground", f"udpout://127.0.0.1:{gcs_port}"],
                    tmp_path / "p.log"),
-            _spawn(["webconsole", "--broker", broker, "--listen", f"127.0.0.1:{web}", "--scenario", "wall_hover"],
+            spawn(["webconsole", "--broker", broker, "--listen", f"127.0.0.1:{web}", "--scenario", "wall_hover"],
                    tmp_path / "console.log"),
         ]  # fmt: skip
         stop = asyncio.Event()
         sender = asyncio.create_task(stream(stop))
         try:
-            await _until(lambda: b"console.ready" in (tmp_path / "console.log").read_bytes(), 30, "console up")
+            await until(lambda: b"console.ready" in (tmp_path / "console.log").read_bytes(), 30, "console up")
             driver.get(f"http://127.0.0.1:{web}/")  # type: ignore[attr-defined]
 
             def shown() -> list[str]:
                 return driver.execute_script(  # type: ignore[attr-defined, no-any-return]
                     "return [...document.querySelectorAll('#vehicle-warnings li')].map(li => li.textContent)")
 
-            await _until(lambda: any("secure.layout_mismatch" in w for w in shown()), 30, "the warning on the page")
+            await until(lambda: any("secure.layout_mismatch" in w for w in shown()), 30, "the warning on the page")
             (text,) = shown()
             assert "0-4 forward (0)" in text and "down (25)" in text, text
             badge = driver.execute_script(  # one script: the table is redrawn ten times a second
@@ -263,7 +202,7 @@ async def test_the_page_shows_why_the_secure_stage_cannot_work(
         finally:
             stop.set()
             await sender
-            codes = _stop(procs)
+            codes = stop(procs)
     proxy_log = (tmp_path / "p.log").read_text()
     assert proxy_log.count("WARNING secure.layout_mismatch ") == 1, proxy_log[-3000:]  # the event, once
     assert all(c in (0, 130) for c in codes), codes

@@ -14,12 +14,12 @@ import time
 
 import pytest
 
-from tests.webconsole.test_console_api import Bench, bench, call  # noqa: F401  (bench: a fixture)
+from tests.support.console import Bench, call
 
 pytestmark = pytest.mark.timeout(60)
 
 
-async def test_after_a_proxy_stops_its_vehicle_is_404_not_500(bench: Bench) -> None:  # noqa: F811
+async def test_after_a_proxy_stops_its_vehicle_is_404_not_500(bench: Bench) -> None:
     """The review: ``GET /api/vehicles/1`` was a 500 (StopIteration) and a POST waited 5 s for a 504."""
     await bench.plane.aclose()  # a clean stop: the proxy's online record says offline
     for _ in range(100):

@@ -18,8 +18,7 @@ import time
 import pytest
 
 from secuav_common.broker import BrokerAddress
-from tests.webconsole.test_console_api import serve
-from tests.webconsole.test_console_security import _open_stream, raw
+from tests.support.console import open_stream, raw, serve
 from webconsole import api
 from webconsole.api import StreamSlots
 from webconsole.connections import ConnectionLimits
@@ -49,7 +48,7 @@ async def test_head_requests_never_take_an_event_stream_slot() -> None:
             status, headers, body = await asyncio.to_thread(raw, base, "HEAD", "/api/stream?vehicle=1")
             assert status == 200 and headers["content-type"].startswith("text/event-stream") and body == b""
         assert not slots.open, slots.open
-        status, conn = await asyncio.to_thread(_open_stream, base)  # the operator's own stream
+        status, conn = await asyncio.to_thread(open_stream, base)  # the operator's own stream
         try:
             assert status == 200
         finally:
@@ -76,7 +75,7 @@ async def test_a_stream_nobody_reads_gives_its_slot_back() -> None:
         try:
             await until(lambda: slots.open.get("127.0.0.1") == 2, 10, "both streams open")
             await until(lambda: not slots.open, 40, "the unread streams cut off")
-            status, conn = await asyncio.to_thread(_open_stream, base)
+            status, conn = await asyncio.to_thread(open_stream, base)
             conn.close()
             assert status == 200
         finally:

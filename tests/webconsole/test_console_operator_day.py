@@ -17,13 +17,13 @@ import pytest
 
 from secuav_common.broker import EmbeddedBroker
 from tests.conftest import free_tcp_port
-from tests.webconsole.test_console_browser import BAD_PROFILE, _spawn, _stop, _until, browser  # noqa: F401  (the fixture)
+from tests.support.console import BAD_PROFILE, spawn, stop, until
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
 
 
 async def test_radar_ticked_error_said_once_and_cleared_and_clear_empties_the_drop_down(
-    browser: object,  # noqa: F811
+    browser: object,
     tmp_path: Path,
     udp_port: object,
 ) -> None:
@@ -36,14 +36,14 @@ async def test_radar_ticked_error_said_once_and_cleared_and_clear_empties_the_dr
     broker = f"mqtt://127.0.0.1:{port}"
     async with EmbeddedBroker(port=port):
         procs = [
-            _spawn(["mitm_proxy", "--broker", broker, "--instance", "bench", "--vehicle",
+            spawn(["mitm_proxy", "--broker", broker, "--instance", "bench", "--vehicle",
                     f"udpin://127.0.0.1:{vehicle}", "--ground", f"udpout://127.0.0.1:{gcs_port}"], tmp_path / "p.log"),
-            _spawn(["flightsim", "wall_hover", "--mavlink", f"udpout://127.0.0.1:{vehicle}"], tmp_path / "sim.log"),
-            _spawn(["webconsole", "--broker", broker, "--listen", f"127.0.0.1:{web}", "--scenario", "wall_hover"],
+            spawn(["flightsim", "wall_hover", "--mavlink", f"udpout://127.0.0.1:{vehicle}"], tmp_path / "sim.log"),
+            spawn(["webconsole", "--broker", broker, "--listen", f"127.0.0.1:{web}", "--scenario", "wall_hover"],
                    tmp_path / "console.log"),
         ]  # fmt: skip
         try:
-            await _until(lambda: b"console.ready" in (tmp_path / "console.log").read_bytes(), 30, "console up")
+            await until(lambda: b"console.ready" in (tmp_path / "console.log").read_bytes(), 30, "console up")
             driver.get(f"http://127.0.0.1:{web}/")  # type: ignore[attr-defined]
 
             def ticked() -> dict[str, bool]:
@@ -51,7 +51,7 @@ async def test_radar_ticked_error_said_once_and_cleared_and_clear_empties_the_dr
                     "const o = {}; for (const b of document.querySelectorAll('#sensor-picker input'))"
                     " o[b.dataset.sensor] = b.checked; return o")
 
-            await _until(lambda: len(ticked()) == 6, 15, "all six sensors in the picker")
+            await until(lambda: len(ticked()) == 6, 15, "all six sensors in the picker")
             # the five the vehicle holds on (0-4, the radar is 4) are plotted; the downward laser is not
             assert ticked() == {"0": True, "1": True, "2": True, "3": True, "4": True, "5": False}, ticked()
 
@@ -65,7 +65,7 @@ async def test_radar_ticked_error_said_once_and_cleared_and_clear_empties_the_dr
             area.send_keys(BAD_PROFILE)
             driver.find_element(By.ID, "apply-yaml").click()  # type: ignore[attr-defined]
             error = driver.find_element(By.ID, "yaml-error")  # type: ignore[attr-defined]
-            await _until(lambda: error.is_displayed() and "banana" in error.text, 10, "the field error")
+            await until(lambda: error.is_displayed() and "banana" in error.text, 10, "the field error")
             field = error.get_attribute("data-field")
             assert field and field.startswith("rules[0]") and error.text.count(field) == 1, error.text
 
@@ -73,12 +73,12 @@ async def test_radar_ticked_error_said_once_and_cleared_and_clear_empties_the_dr
             library.select_by_value("distance-wrong")
             driver.find_element(By.ID, "apply-library").click()  # type: ignore[attr-defined]
             ack = driver.find_element(By.ID, "ack")  # type: ignore[attr-defined]
-            await _until(lambda: "attack distance-wrong: ok" in ack.text, 10, "the proxy's acknowledgement")
+            await until(lambda: "attack distance-wrong: ok" in ack.text, 10, "the proxy's acknowledgement")
             assert not error.is_displayed() and error.text == ""
 
             # Clear: the drop-down shows no profile (and the parameter form is empty).
             driver.find_element(By.ID, "clear-attack").click()  # type: ignore[attr-defined]
-            await _until(lambda: "attack cleared: ok" in ack.text, 10, "the clear acknowledged")
+            await until(lambda: "attack cleared: ok" in ack.text, 10, "the clear acknowledged")
             assert library.first_selected_option.get_attribute("value") == ""
             assert driver.find_elements(By.CSS_SELECTOR, "#params input") == []  # type: ignore[attr-defined]
 
@@ -90,14 +90,14 @@ async def test_radar_ticked_error_said_once_and_cleared_and_clear_empties_the_dr
             done = await asyncio.to_thread(attack, "apply", "distance-stuck")
             assert done.returncode == 0, done.stderr
             selected = lambda: library.first_selected_option.get_attribute("value")  # noqa: E731
-            await _until(lambda: selected() == "distance-stuck", 10, "the drop-down shows the profile in force")
+            await until(lambda: selected() == "distance-stuck", 10, "the drop-down shows the profile in force")
             done = await asyncio.to_thread(attack, "clear")
             assert done.returncode == 0, done.stderr
-            await _until(lambda: selected() == "", 10, "the drop-down shows no profile after a clear elsewhere")
+            await until(lambda: selected() == "", 10, "the drop-down shows no profile after a clear elsewhere")
 
             logged = [e for e in driver.get_log("browser") if e["level"] in ("SEVERE", "WARNING")]  # type: ignore[attr-defined]
             assert [e for e in logged if e["source"] != "network"] == [], logged
         finally:
-            codes = _stop(procs)
+            codes = stop(procs)
     logs = [(p, (tmp_path / p).read_text()[-2000:]) for p in ("p.log", "console.log")]
     assert all(c in (0, 130) for c in codes), logs

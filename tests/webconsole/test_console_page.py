@@ -19,9 +19,7 @@ import pytest
 
 from secuav_common.broker import BrokerAddress, EmbeddedBroker
 from tests.conftest import free_tcp_port
-from tests.webconsole.test_console_api import serve
-from tests.webconsole.test_console_browser import browser  # noqa: F401  (a fixture)
-from tests.webconsole.test_console_security import hostile_page  # noqa: F401  (a fixture)
+from tests.support.console import serve
 from webconsole.api import StreamSlots
 from webconsole.fleet import Fleet, Session
 
@@ -53,7 +51,7 @@ def _title(driver: Any) -> str:
     return str(driver.execute_script("return document.getElementById('vehicle-title').textContent"))
 
 
-async def test_a_fleet_row_held_150_ms_is_selected(browser: Any) -> None:  # noqa: F811
+async def test_a_fleet_row_held_150_ms_is_selected(browser: Any) -> None:
     """The review: with several vehicles, 0 of 9 clicks held 100 ms selected their row."""
     port = free_tcp_port()
     async with EmbeddedBroker(port=port):
@@ -83,7 +81,7 @@ async def test_a_fleet_row_held_150_ms_is_selected(browser: Any) -> None:  # noq
             await asyncio.gather(mqtt, return_exceptions=True)
 
 
-async def test_without_a_broker_the_page_says_so_and_shows_no_live_badge(browser: Any) -> None:  # noqa: F811
+async def test_without_a_broker_the_page_says_so_and_shows_no_live_badge(browser: Any) -> None:
     """The review: with no broker reachable the page showed a green "live" badge and "No vehicle yet"."""
     dead = free_tcp_port()  # nothing listens there
     fleet = Fleet([])
@@ -107,8 +105,8 @@ async def test_without_a_broker_the_page_says_so_and_shows_no_live_badge(browser
 
 
 async def test_head_requests_from_another_origin_take_no_stream_slot(
-    browser: Any,  # noqa: F811
-    hostile_page: tuple[int, list[str]],  # noqa: F811
+    browser: Any,
+    hostile_page: tuple[int, list[str]],
 ) -> None:
     """The review: four no-cors HEAD fetches from a page on another origin locked the operator's stream out."""
     port, pages = hostile_page

@@ -16,34 +16,18 @@ import socket
 import ssl
 import subprocess
 import sys
-import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from secuav_common.broker import BrokerAddress
 from tests.conftest import free_tcp_port
-from tests.webconsole.test_console_api import Bench, bench, call, serve  # noqa: F401  (bench: a fixture)
-from tests.webconsole.test_console_browser import browser  # noqa: F401  (a fixture)
+from tests.support.console import Bench, call, open_stream, raw, serve
 from webconsole.api import MAX_BODY, StreamSlots
 from webconsole.fleet import Fleet, Session
 
 pytestmark = pytest.mark.timeout(120)
-
-
-def raw(base: str, method: str, path: str, body: bytes = b"", headers: dict[str, str] | None = None,
-        ) -> tuple[int, dict[str, str], bytes]:  # fmt: skip
-    """One request with exactly the headers given (http.client adds only Host and Content-Length)."""
-    host, port = base.removeprefix("http://").split(":")
-    conn = http.client.HTTPConnection(host, int(port), timeout=10)
-    try:
-        conn.request(method, path, body=body or None, headers=headers or {})
-        response = conn.getresponse()
-        return response.status, {k.lower(): v for k, v in response.getheaders()}, response.read()
-    finally:
-        conn.close()
 
 
 def mode_of(base: str) -> str:
@@ -52,7 +36,7 @@ def mode_of(base: str) -> str:
     return rows[0]["mode"]
 
 
-async def test_a_cross_site_post_never_reaches_the_proxy(bench: Bench) -> None:  # noqa: F811
+async def test_a_cross_site_post_never_reaches_the_proxy(bench: Bench) -> None:
     body = b'{"mode":"bypass"}'
     path = "/api/vehicles/1/attack/mode"
     attempts = [
@@ -77,7 +61,7 @@ async def test_a_cross_site_post_never_reaches_the_proxy(bench: Bench) -> None: 
     assert status == 200 and await asyncio.to_thread(mode_of, bench.base) == "on"
 
 
-async def test_a_rebinding_name_gets_nothing(bench: Bench) -> None:  # noqa: F811
+async def test_a_rebinding_name_gets_nothing(bench: Bench) -> None:
     port = bench.base.rsplit(":", 1)[1]
     for host in (f"attacker.example:{port}", "attacker.example", f"127.0.0.1.nip.io:{port}"):
         status, _, answer = await asyncio.to_thread(raw, bench.base, "GET", "/api/vehicles", b"", {"Host": host})
@@ -112,7 +96,7 @@ def _chunked(base: str, total: int) -> bytes:
         return sock.recv(4096)
 
 
-async def test_a_huge_body_is_refused_before_it_is_read(bench: Bench) -> None:  # noqa: F811
+async def test_a_huge_body_is_refused_before_it_is_read(bench: Bench) -> None:
     t0 = time.monotonic()
     answer = await asyncio.to_thread(_declare_and_wait, bench.base, 500_000_000)
     assert answer.startswith(b"HTTP/1.1 413"), answer[:200]
@@ -121,7 +105,7 @@ async def test_a_huge_body_is_refused_before_it_is_read(bench: Bench) -> None:  
     assert answer.startswith(b"HTTP/1.1 413"), answer[:200]
 
 
-async def test_every_answer_carries_the_security_headers(bench: Bench) -> None:  # noqa: F811
+async def test_every_answer_carries_the_security_headers(bench: Bench) -> None:
     for path in ("/", "/api/vehicles", "/static/app.js"):
         status, headers, _ = await asyncio.to_thread(raw, bench.base, "GET", path)
         assert status == 200, path
@@ -131,19 +115,12 @@ async def test_every_answer_carries_the_security_headers(bench: Bench) -> None: 
         assert headers["x-content-type-options"] == "nosniff" and headers["x-frame-options"] == "DENY"
 
 
-def _open_stream(base: str) -> tuple[int, http.client.HTTPConnection]:
-    host, port = base.removeprefix("http://").split(":")
-    conn = http.client.HTTPConnection(host, int(port), timeout=10)
-    conn.request("GET", "/api/stream?vehicle=1")
-    return conn.getresponse().status, conn
-
-
 async def test_event_streams_are_capped_per_client_and_in_all() -> None:
     fleet = Fleet([])
     session = Session(BrokerAddress("127.0.0.1", 1), fleet, "http://test/")
     slots = StreamSlots(per_client=3, total=5)
     async with serve(fleet, session, streams=slots) as base:
-        opened = [await asyncio.to_thread(_open_stream, base) for _ in range(4)]
+        opened = [await asyncio.to_thread(open_stream, base) for _ in range(4)]
         assert [s for s, _ in opened] == [200, 200, 200, 429]
         for _, conn in opened:
             conn.close()
@@ -153,7 +130,7 @@ async def test_event_streams_are_capped_per_client_and_in_all() -> None:
             await asyncio.sleep(0.1)
         assert not slots.open
         assert slots.take("10.0.0.9") is None and slots.take("10.0.0.8") is None  # two held by other clients
-        opened = [await asyncio.to_thread(_open_stream, base) for _ in range(4)]
+        opened = [await asyncio.to_thread(open_stream, base) for _ in range(4)]
         assert [s for s, _ in opened] == [200, 200, 200, 429]  # 5 in all
         for _, conn in opened:
             conn.close()
@@ -223,37 +200,9 @@ def test_the_console_serves_https_with_a_given_certificate(tmp_path: Path) -> No
         proc.wait(10)
 
 
-@pytest.fixture
-def hostile_page() -> Iterator[tuple[int, list[str]]]:
-    """A plain HTTP server on another loopback port: another origin, as any page the operator visits."""
-    pages: list[str] = [""]
-
-    class Handler(http.server.BaseHTTPRequestHandler):
-        def do_GET(self) -> None:
-            body = pages[0].encode()
-            self.send_response(200)
-            self.send_header("Content-Type", "text/html")
-            self.send_header("Content-Length", str(len(body)))
-            self.end_headers()
-            self.wfile.write(body)
-
-        def log_message(self, *args: object) -> None:
-            pass
-
-    port = free_tcp_port()
-    server = http.server.ThreadingHTTPServer(("127.0.0.1", port), Handler)
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
-    try:
-        yield port, pages
-    finally:
-        server.shutdown()
-        server.server_close()
-
-
 async def test_a_page_in_the_browser_cannot_steer_a_vehicle(
-    bench: Bench,  # noqa: F811
-    browser: object,  # noqa: F811
+    bench: Bench,
+    browser: object,
     hostile_page: tuple[int, list[str]],
 ) -> None:
     """The review's two browser attacks: a no-cors fetch and a script-less text/plain form, from another origin."""
@@ -290,7 +239,7 @@ fetch("{target}", {{method: "POST", mode: "no-cors", headers: {{"Content-Type": 
     assert result == 200 and await asyncio.to_thread(mode_of, bench.base) == "bypass"
 
 
-async def test_a_malformed_stats_message_breaks_neither_the_session_nor_the_api(bench: Bench) -> None:  # noqa: F811
+async def test_a_malformed_stats_message_breaks_neither_the_session_nor_the_api(bench: Bench) -> None:
     """The review's two messages: one killed the console's broker session for good, the other every view."""
     for body in ({"downlink": {"frames_in": "x"}}, {"downlink": [1]}, {"downlink": {"latency_ms": {"p99": "slow"}}}):
         bench.plane.publish_nowait("secuav/v1/stats", body)
@@ -299,7 +248,7 @@ async def test_a_malformed_stats_message_breaks_neither_the_session_nor_the_api(
     assert status == 200 and rows[0]["online"], rows
     status, ack = await asyncio.to_thread(call, bench.base, "/api/vehicles/1/attack/mode", {"mode": "bypass"})
     assert status == 200 and ack["mode"] == "bypass"  # the session still sends and hears acknowledgements
-    status, conn = await asyncio.to_thread(_open_stream, bench.base)
+    status, conn = await asyncio.to_thread(open_stream, bench.base)
     try:
         assert status == 200
         first = await asyncio.to_thread(conn.sock.recv, 65536)  # type: ignore[union-attr]

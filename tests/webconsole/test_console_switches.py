@@ -32,9 +32,7 @@ from mitm_proxy.tools.watch import COLUMNS, Rates, table
 from secuav_common.broker import BrokerAddress, EmbeddedBroker
 from secuav_common.controlplane import switches
 from secuav_common.controlplane.contract import SwitchContract
-from tests.webconsole.test_console_api import call, serve
-from tests.webconsole.test_console_browser import browser  # noqa: F401  (a fixture)
-from tests.webconsole.test_console_security import raw
+from tests.support.console import call, raw, serve
 from webconsole.fleet import Fleet, Session
 
 pytestmark = pytest.mark.timeout(60)
@@ -229,7 +227,7 @@ async def test_the_watch_view_draws_a_column_for_the_new_switch(bench: Bench) ->
 
 async def test_the_page_lists_the_new_switch_in_the_vehicle_panel_and_sets_it(
     bench: Bench,
-    browser: object,  # noqa: F811
+    browser: object,
 ) -> None:
     from selenium.webdriver.common.by import By
 
