@@ -31,8 +31,9 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   if ! command -v cc >/dev/null || [ ! -f "$inc/Python.h" ]; then
     if command -v apt-get >/dev/null && { [ "$(id -u)" -eq 0 ] || command -v sudo >/dev/null; }; then
       echo "setup: installing gcc and the Python $pyver headers with apt (the proxy's compiled fast path)" >&2
-      ${SUDO:-$( [ "$(id -u)" -eq 0 ] || echo sudo )} apt-get update -qq
-      ${SUDO:-$( [ "$(id -u)" -eq 0 ] || echo sudo )} apt-get install -y -qq gcc libc6-dev "python$pyver-dev"
+      { ${SUDO:-$( [ "$(id -u)" -eq 0 ] || echo sudo )} apt-get update -qq &&
+        ${SUDO:-$( [ "$(id -u)" -eq 0 ] || echo sudo )} apt-get install -y -qq gcc libc6-dev "python$pyver-dev"; } ||
+        echo "setup: apt could not install them: the proxy will take its pure-Python path" >&2
     else
       echo "setup: no C compiler or Python headers: the proxy will take its pure-Python path" >&2
     fi

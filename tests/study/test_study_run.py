@@ -15,6 +15,7 @@ import pandas as pd
 import pytest
 
 from tests.conftest import free_tcp_port
+from tests.support.clusters import dask_cluster  # noqa: F401  (the fixture: a real scheduler + 2 workers)
 
 BIN = Path(sys.executable).parent
 STUDY = BIN / "secuav-study"
@@ -110,7 +111,7 @@ def test_a_run_killed_half_way_resumes_without_duplicates_or_gaps(tmp_path: Path
 @pytest.mark.xdist_group("dask_study")
 @pytest.mark.slow
 def test_a_real_scheduler_and_workers_run_the_cells_and_are_named_in_the_rows(
-    tmp_path: Path, dask_cluster: tuple[str, list[str]]
+    tmp_path: Path, dask_cluster: tuple[str, list[str]]  # noqa: F811  (the fixture imported above)
 ) -> None:
     address, workers = dask_cluster
     out = tmp_path / "out"

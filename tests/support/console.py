@@ -126,7 +126,7 @@ def spawn(args: list[str], log: Path) -> subprocess.Popen[bytes]:
                             env={**os.environ, "PYTHONUNBUFFERED": "1"})  # fmt: skip
 
 
-def stop(procs: list[subprocess.Popen[bytes]]) -> list[int | None]:
+def stop_all(procs: list[subprocess.Popen[bytes]]) -> list[int | None]:
     for proc in procs:
         if proc.poll() is None:
             proc.send_signal(signal.SIGINT)

@@ -24,7 +24,7 @@ from pymavlink import mavutil
 from mavframe import tlog
 from secuav_common.broker import EmbeddedBroker
 from tests.conftest import free_tcp_port
-from tests.support.console import BAD_PROFILE, spawn, stop, until
+from tests.support.console import BAD_PROFILE, spawn, stop_all, until
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 
@@ -140,7 +140,7 @@ async def test_the_page_shows_steers_and_refuses_as_a_user_sees_it(
             assert refused == [True], logged
         finally:
             gcs.close()
-            codes = stop(procs)
+            codes = stop_all(procs)
     assert codes == [0, 0, 0] or all(c in (0, 130) for c in codes), [
         (p, (tmp_path / p).read_text()[-2000:]) for p in ("p.log", "sim.log", "console.log")
     ]
@@ -202,7 +202,7 @@ async def test_the_page_shows_why_the_secure_stage_cannot_work(
         finally:
             stop.set()
             await sender
-            codes = stop(procs)
+            codes = stop_all(procs)
     proxy_log = (tmp_path / "p.log").read_text()
     assert proxy_log.count("WARNING secure.layout_mismatch ") == 1, proxy_log[-3000:]  # the event, once
     assert all(c in (0, 130) for c in codes), codes

@@ -17,7 +17,7 @@ import pytest
 
 from secuav_common.broker import EmbeddedBroker
 from tests.conftest import free_tcp_port
-from tests.support.console import BAD_PROFILE, spawn, stop, until
+from tests.support.console import BAD_PROFILE, spawn, stop_all, until
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
 
@@ -98,6 +98,6 @@ async def test_radar_ticked_error_said_once_and_cleared_and_clear_empties_the_dr
             logged = [e for e in driver.get_log("browser") if e["level"] in ("SEVERE", "WARNING")]  # type: ignore[attr-defined]
             assert [e for e in logged if e["source"] != "network"] == [], logged
         finally:
-            codes = stop(procs)
+            codes = stop_all(procs)
     logs = [(p, (tmp_path / p).read_text()[-2000:]) for p in ("p.log", "console.log")]
     assert all(c in (0, 130) for c in codes), logs
