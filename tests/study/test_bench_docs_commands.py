@@ -11,6 +11,7 @@ import shlex
 import shutil
 import subprocess
 import sys
+import textwrap
 from pathlib import Path
 
 import pytest
@@ -20,14 +21,15 @@ from tests.support.clusters import dask_cluster  # noqa: F401  (the fixture: a r
 ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
 PAGES = ("docs/bench.md", "docs/plugins.md")
-FENCE = re.compile(r"^```(\w*)\n(.*?)^```", re.S | re.M)
+FENCE = re.compile(r"^( *)```(\w*)\n(.*?)^\1```", re.S | re.M)  # a block indented in a list item too
 
 
 def commands(page: str) -> list[tuple[list[str], list[str]]]:
     """The page's commands in order: each ``sh`` block's lines (continuations joined, comments dropped) and each
     ``text`` block's ``$ `` lines; with, for the latter, the output lines printed under them in the page."""
     out: list[tuple[list[str], list[str]]] = []
-    for lang, body in FENCE.findall((ROOT / page).read_text()):
+    for indent, lang, body in FENCE.findall((ROOT / page).read_text()):
+        body = textwrap.dedent(body) if indent else body
         if lang == "sh":
             for line in body.replace("\\\n", " ").splitlines():
                 argv = shlex.split(line, comments=True)
@@ -64,10 +66,9 @@ def _same(line: str) -> str:
 @pytest.mark.parametrize("page", PAGES)
 def test_every_command_of_the_page_runs(page: str, tmp_path: Path, dask_cluster: tuple[str, list[str]]) -> None:  # noqa: F811
     scheduler, _ = dask_cluster
-    for rel in ("examples/plugin/study.yaml", "examples/plugin/tests"):
-        src, dst = ROOT / rel, tmp_path / rel
-        dst.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copytree(src, dst) if src.is_dir() else shutil.copy(src, dst)
+    # the example plugin's folder, as a user's checkout has it (its study, its tests, its project for --source)
+    shutil.copytree(ROOT / "examples/plugin", tmp_path / "examples/plugin",
+                    ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__"))  # fmt: skip
     env = {**os.environ, "SECUAV_STUDY_SMOKE": "1", "PYTHONWARNINGS": "ignore::DeprecationWarning"}
     ran = 0
     for argv, shown in commands(page):
