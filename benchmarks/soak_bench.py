@@ -28,6 +28,7 @@ import socket
 import struct
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -131,11 +132,14 @@ async def run(args: argparse.Namespace) -> int:
     gcs.bind(("127.0.0.1", gcs_port))
     gcs.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)
     seconds = args.minutes * 60.0
+    # The proxy's log goes to a file, never to a pipe nobody reads while it runs: a full pipe (64 KiB, about 465
+    # profile swaps of log lines) blocks the proxy's writes and with them its whole event loop.
+    log = tempfile.TemporaryFile()  # noqa: SIM115  (read and closed once the proxy has exited, below)
     async with EmbeddedBroker(port=mqtt, process=True):
         proxy = subprocess.Popen(
             [str(BIN / "secuav-proxy"), "--broker", f"mqtt://127.0.0.1:{mqtt}", "--loop", args.loop,
              "--vehicle", f"udpin://127.0.0.1:{veh}", "--ground", f"udpout://127.0.0.1:{gcs_port}"],
-            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+            stdout=subprocess.DEVNULL, stderr=log, env={**os.environ, "PYTHONUNBUFFERED": "1"},
         )  # fmt: skip
         try:
             await asyncio.sleep(3.0)  # binds its ports and connects to the broker
@@ -169,7 +173,10 @@ async def run(args: argparse.Namespace) -> int:
             alive = proxy.poll() is None
         finally:
             proxy.send_signal(signal.SIGINT)
-            _, err = proxy.communicate(timeout=20)
+            proxy.wait(timeout=20)
+            log.seek(0)
+            err = log.read()
+            log.close()
     sent = len(stream.sent_at)
     lost = sorted(set(stream.sent_at) - set(stream.got_at))
     lat = [(stream.got_at[k] - t) * 1e3 for k, t in stream.sent_at.items() if k in stream.got_at]
