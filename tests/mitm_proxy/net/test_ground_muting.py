@@ -17,6 +17,7 @@ from mitm_proxy.app import Proxy, stats_line
 from mitm_proxy.config import LinkConfig, ProxyConfig
 from mitm_proxy.net.endpoints import PROBE_INTERVAL_S, UdpEndpoint
 from mitm_proxy.tools.attack_cli import _stats_line
+from tests.conftest import require_fast_path
 from tests.support.udp_peers import Peer, heartbeat, packer
 
 pytestmark = [pytest.mark.timeout(40), pytest.mark.usefixtures("proxy_path")]
@@ -130,8 +131,7 @@ def test_on_uvloop_the_fast_path_mutes_a_closed_port(udp_port: Callable[[], int]
     from mitm_proxy.net import native_udp
     from secuav_common.urls import parse_endpoint
 
-    if not native_udp.available():
-        pytest.skip("the compiled fast path is not built here (no C compiler when the project was installed)")
+    require_fast_path()
 
     async def body() -> None:
         port = closed_port()
