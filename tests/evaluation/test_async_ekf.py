@@ -4,14 +4,13 @@ output time with the motion model (estimators.aligned); ``--sync`` frames them a
 
 from __future__ import annotations
 
-import csv
 import json
 from pathlib import Path
 
 import numpy as np
 
 from evaluation.cli import main
-from secuav_common.scenario import load_scenario
+from tests.support.recorded import write_polled
 
 SIGMA = 0.1
 
@@ -19,23 +18,9 @@ SIGMA = 0.1
 def _write(folder: Path, seconds: float, poll_hz: float) -> tuple[Path, Path]:
     """A tag that polls anchors8's eight anchors one at a time (each link at poll_hz / 8) while it circles at
     0.3 m/s: no two readings share a timestamp, and a frame's readings are up to a frame old."""
-    anchors = load_scenario("anchors8").anchor_positions()
-    rng = np.random.default_rng(11)
     t = np.arange(0.0, seconds, 1.0 / poll_hz)
     pos = np.column_stack([2.5 + 1.5 * np.cos(0.2 * t), 2.5 + 1.5 * np.sin(0.2 * t), np.full(t.shape, -2.5)])
-    ranges, truth = folder / "ranges.csv", folder / "truth.csv"
-    with ranges.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["t_s", "sensor_id", "range_m"])
-        for k, tk in enumerate(t):
-            a = k % 8
-            w.writerow([f"{tk:.4f}", 10 + a, f"{np.linalg.norm(pos[k] - anchors[a]) + rng.normal(0, SIGMA):.4f}"])
-    with truth.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["t_s", "sysid", "north_m", "east_m", "down_m"])
-        for tk, p in zip(t, pos, strict=True):
-            w.writerow([f"{tk:.4f}", 1, *(f"{v:.4f}" for v in p)])
-    return ranges, truth
+    return write_polled(folder, t, pos, SIGMA, seed=11)
 
 
 def _eval(ranges: Path, truth: Path, out: Path, *extra: str) -> dict:

@@ -3,7 +3,6 @@ for the links' rates is refused in one line naming each link and its numbers, ne
 
 from __future__ import annotations
 
-import csv
 import json
 from pathlib import Path
 
@@ -11,28 +10,13 @@ import numpy as np
 import pytest
 
 from evaluation.cli import main
-from secuav_common.scenario import load_scenario
+from tests.support.recorded import write_polled
 
 
 def _write(folder: Path, seconds: float, poll_hz: float) -> tuple[Path, Path]:
     """A tag polling anchors8's anchors one at a time (each link at poll_hz / 8), hovering with 0.05 m noise."""
-    anchors = load_scenario("anchors8").anchor_positions()
-    rng = np.random.default_rng(2)
     t = np.arange(0.0, seconds, 1.0 / poll_hz)
-    pos = np.array([2.0, 3.0, -2.5])
-    ranges, truth = folder / "ranges.csv", folder / "truth.csv"
-    with ranges.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["t_s", "sensor_id", "range_m"])
-        for k, tk in enumerate(t):
-            a = k % 8
-            w.writerow([f"{tk:.3f}", 10 + a, f"{np.linalg.norm(pos - anchors[a]) + rng.normal(0, 0.05):.4f}"])
-    with truth.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["t_s", "sysid", "north_m", "east_m", "down_m"])
-        for tk in t:
-            w.writerow([f"{tk:.3f}", 1, *(f"{v:.4f}" for v in pos)])
-    return ranges, truth
+    return write_polled(folder, t, np.tile([2.0, 3.0, -2.5], (t.size, 1)), 0.05, seed=2, t_format=".3f")
 
 
 def _argv(ranges: Path, truth: Path, out: Path, *extra: str) -> list[str]:

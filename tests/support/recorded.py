@@ -39,3 +39,26 @@ def write_ranges(folder: Path, seconds: float, poll_hz: float, round_robin: bool
         for tk, p in zip(t, pos, strict=True):
             w.writerow([f"{tk:.3f}", 1, *(f"{v:.4f}" for v in p)])
     return ranges, truth
+
+
+def write_polled(folder: Path, t: np.ndarray, pos: np.ndarray, sigma: float, seed: int,
+                 t_format: str = ".4f") -> tuple[Path, Path]:  # fmt: skip
+    """``ranges.csv`` and ``truth.csv`` of a tag that polls anchors8's eight anchors one at a time (reading k from
+    anchor k mod 8, so each link at a poll rate / 8 and no two readings at one time), at positions ``pos[k]``
+    (NED, one row per time of ``t``), with Gaussian noise ``sigma`` drawn from ``seed``."""
+    anchors = load_scenario("anchors8").anchor_positions()
+    rng = np.random.default_rng(seed)
+    ranges, truth = folder / "ranges.csv", folder / "truth.csv"
+    with ranges.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["t_s", "sensor_id", "range_m"])
+        for k, tk in enumerate(t):
+            a = k % 8
+            reading = np.linalg.norm(pos[k] - anchors[a]) + rng.normal(0, sigma)
+            w.writerow([f"{tk:{t_format}}", 10 + a, f"{reading:.4f}"])
+    with truth.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["t_s", "sysid", "north_m", "east_m", "down_m"])
+        for tk, pk in zip(t, pos, strict=True):
+            w.writerow([f"{tk:{t_format}}", 1, *(f"{v:.4f}" for v in pk)])
+    return ranges, truth
