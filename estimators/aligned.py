@@ -268,6 +268,15 @@ class _Async:
     def read(self, t_s: float, z: np.ndarray, known: Known = None) -> None:
         raise NotImplementedError
 
+    def _output_readings(self, t_s: float, z: np.ndarray | None, known: Known, velocity: np.ndarray | None,
+                         times: np.ndarray | None) -> tuple[np.ndarray, float]:  # fmt: skip
+        """The readings an output at ``t_s`` takes (``z`` added to the window first, then all brought to
+        ``t_s``), and the seconds that took, which count into the output's step time."""
+        t0 = time.perf_counter()
+        self._take(t_s, z, times, known)
+        za = self._aligned(t_s, known, velocity)
+        return za, time.perf_counter() - t0
+
     def _aligned(self, t_s: float, known: Known, velocity: np.ndarray | None) -> np.ndarray:
         kn = self.model.default_known if known is None else known
         times, values = self.window.take(t_s)
@@ -293,10 +302,7 @@ class Aligned(_Async):
         velocity: np.ndarray | None = None,
         times: np.ndarray | None = None,
     ) -> Estimate:
-        t0 = time.perf_counter()
-        self._take(float(t_s), z, times, known)
-        za = self._aligned(float(t_s), known, velocity)
-        spent = time.perf_counter() - t0
+        za, spent = self._output_readings(float(t_s), z, known, velocity, times)
         est = self.inner.step(float(t_s), za, known, velocity=velocity)
         self._learn(est)
         object.__setattr__(est, "step_time_s", est.step_time_s + spent)
@@ -355,10 +361,8 @@ class Sequential(_Async):
         velocity: np.ndarray | None = None,
         times: np.ndarray | None = None,
     ) -> Estimate:
-        t0 = time.perf_counter()
-        self._take(float(t_s), z, times, known)
-        za = self._aligned(float(t_s), known, velocity)  # also marks the window's readings used
-        spent = time.perf_counter() - t0 + self.spent_s
+        za, spent = self._output_readings(float(t_s), z, known, velocity, times)  # marks the window's readings used
+        spent += self.spent_s
         self.spent_s = 0.0
         if self.ok:
             est = self.inner.step(float(t_s), np.full(self.model.p, np.nan), known, velocity=velocity)
