@@ -45,7 +45,7 @@ import estimators
 from attack_profiles import Engine
 from attack_profiles.profile import Profile
 from attack_profiles.resolve import resolve_profile
-from estimators.aligned import ASYNC_PARAM, processing
+from estimators.aligned import ASYNC_PARAM
 from estimators.noise import CALIBRATION_PARAM, TAIL_PARAM, TRACK_PARAM
 from estimators.scenario_models import model_for
 from evaluation.recorded import load_recording
@@ -54,7 +54,7 @@ from evaluation.trial import (
     RATE_HZ,
     SparseReadings,
     TrialResult,
-    async_window,
+    asynchronous_by_default,
     evaluate,
     run_trial,
 )
@@ -241,10 +241,10 @@ def main(argv: list[str] | None = None) -> int:
         if not recorded and (args.truth is not None or args.rate is not None or args.asynchronous is not None
                              or args.window is not None):  # fmt: skip
             raise InputError("--truth/--rate/--async/--sync/--window", "", None, "only with --tlog or --ranges")
-        if args.asynchronous and scenario.kind != "anchors":
+        if args.asynchronous and not asynchronous_by_default(scenario):
             raise InputError("--async", "", None, "needs one vehicle ranging to anchors (test case 1)")
         if args.asynchronous is None:  # the default on a recording of one vehicle's anchor ranges
-            args.asynchronous = recorded and scenario.kind == "anchors"
+            args.asynchronous = recorded and asynchronous_by_default(scenario)
         if args.window is not None and (not args.asynchronous or not 0 < args.window <= 60):
             raise InputError("--window", "", args.window, "needs asynchronous processing and must lie in (0, 60] s")
         if args.rate is not None and not 0.1 <= args.rate <= 1000.0:
@@ -368,8 +368,8 @@ def _main_tlog(
         "rate_hz": round(rate, 6),
         # How each estimator took the readings: sequential updates or an aligned window (asynchronous, the
         # default) or the frames (--sync); and the window.
-        "processing": {n: processing(n) if args.asynchronous else "synchronous" for n in names},
-        "async_window_s": async_window(trial.t_s, args.window) if args.asynchronous else None,
+        "processing": trial.processing,
+        "async_window_s": trial.async_window_s,
         "frames": int(trial.t_s.size),
         "boot_time_of_t0_s": boot_offset_s,
         "log": {

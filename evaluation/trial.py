@@ -98,6 +98,10 @@ class TrialResult:
     # Steps at or before this time are not scored (the start-up transient; a calibration window, which is
     # not under test and must not count as attack-free time). See score_from().
     score_from_s: float = WARMUP_S
+    # How each estimator (by label) took the readings: "sequential" or "aligned" (asynchronous, evaluate's
+    # ``asynchronous``) or "synchronous" (the frames); and the asynchronous window (None when framed).
+    processing: dict[str, str] | None = None
+    async_window_s: float | None = None
 
 
 def score_from(params: dict[str, Any] | None) -> float:
@@ -188,20 +192,13 @@ def evaluate(
     if scenario.kind == "wall":
         s1 = _attacked_height(engine, streams[first])
         check_readings(scenario, streams, dims, params, variants, from_log=from_log)
-        return _wall_trial(scenario, s1, engine, names, from_log, params or {}, variants)
+        wall = _wall_trial(scenario, s1, engine, names, from_log, params or {}, variants)
+        return replace(wall, processing=processing_of(names, variants, None))
     inp = _inputs(scenario, streams, engine, dims)
     model, s1, z, clean, known, truth2 = inp.model, inp.s1, inp.z, inp.clean, inp.known, inp.truth2
     local = None if s1.local_ned_m is None else s1.local_ned_m[:, :2]
-    raw = None
-    if asynchronous:
-        raw = _raw_inputs(inp, engine)
-        window = async_window(s1.t_s, window_s)
-        _refuse_sparse_async(model, s1.t_s, raw, window)
-        params = {**(params or {}), ASYNC_PARAM: window}
-        # The calibration window is counted on what the estimators will fit on: the readings at the frame times.
-        _refuse_sparse(model, s1.t_s, _aligned_counts(raw, s1.t_s, window), params, variants, False)
-    else:
-        _refuse_sparse(model, s1.t_s, z, params, variants, from_log)
+    raw, params = _checked_inputs(inp, engine, params, variants, from_log, asynchronous, window_s)
+    window = None if raw is None else float(params[ASYNC_PARAM])
     traces = {
         name: _run_estimator(name, model, s1, z, known, truth2, local, params or {}, variants, raw)
         for name in names
@@ -227,7 +224,26 @@ def evaluate(
         truth_down_m=s1.truth_ned_m[:, 2],
         added_m=z - clean,
         score_from_s=score_from(params),
+        processing=processing_of(names, variants, window),
+        async_window_s=window,
     )
+
+
+def processing_of(names: list[str], variants: Variants | None, window_s: float | None) -> dict[str, str]:
+    """Per label, how the estimator took the readings: ``sequential`` or ``aligned`` with an asynchronous window
+    (estimators.aligned.processing), else ``synchronous`` (the frames)."""
+    out = {}
+    for label in names:
+        name = (variants or {}).get(label, (label, {}))[0]
+        out[label] = "synchronous" if window_s is None else aligned.processing(name)
+    return out
+
+
+def asynchronous_by_default(scenario: Scenario) -> bool:
+    """Whether a recording of ``scenario`` is taken asynchronously unless framing is asked for (``secuav-eval``
+    without ``--sync``, a study's recording without ``sync: true``): one vehicle ranging to anchors (test case 1).
+    The formation and the wall group are framed."""
+    return scenario.kind == "anchors"
 
 
 @dataclass(frozen=True, eq=False)
@@ -357,9 +373,12 @@ def check_readings(
     variants: Variants | None = None,
     *,
     from_log: bool = True,
+    asynchronous: bool = False,
+    window_s: float | None = None,
 ) -> None:
     """Refuse (``SparseReadings``, one line naming the link and the numbers) streams too sparse for the asked
-    calibration window or framing rate, before any estimator runs (``secuav-eval``, a study's validation)."""
+    calibration window, framing rate or (``asynchronous``) window, before any estimator runs (``secuav-eval``,
+    a study's validation): the same checks :func:`evaluate` makes."""
     first = scenario.vehicles[0].sysid
     if scenario.kind == "wall":
         s1 = streams[first]
@@ -368,8 +387,31 @@ def check_readings(
         assert isinstance(target, WallDistanceTarget)
         _refuse_sparse(model, s1.t_s, _matrix(s1, list(target.sensor_ids)), params, variants, from_log)
         return
-    inp = _inputs(scenario, streams, None, dims)
-    _refuse_sparse(inp.model, inp.s1.t_s, inp.z, params, variants, from_log)
+    _checked_inputs(_inputs(scenario, streams, None, dims), None, params, variants, from_log, asynchronous, window_s)
+
+
+def _checked_inputs(
+    inp: _Inputs,
+    engine: Engine | None,
+    params: dict[str, Any] | None,
+    variants: Variants | None,
+    from_log: bool,
+    asynchronous: bool,
+    window_s: float | None,
+) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray] | None, dict[str, Any] | None]:
+    """``SparseReadings`` when the readings are too sparse for what was asked; else the readings one at a time
+    (``asynchronous``; None when framed) and ``params`` with the asynchronous window the estimators are built with."""
+    model, t_s = inp.model, inp.s1.t_s
+    if not asynchronous:
+        _refuse_sparse(model, t_s, inp.z, params, variants, from_log)
+        return None, params
+    raw = _raw_inputs(inp, engine)
+    window = async_window(t_s, window_s)
+    _refuse_sparse_async(model, t_s, raw, window)
+    params = {**(params or {}), ASYNC_PARAM: window}
+    # The calibration window is counted on what the estimators will fit on: the readings at the frame times.
+    _refuse_sparse(model, t_s, _aligned_counts(raw, t_s, window), params, variants, False)
+    return raw, params
 
 
 def _height(stream: VehicleStream) -> np.ndarray:

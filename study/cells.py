@@ -60,7 +60,8 @@ def as_variants(given: list[Variant] | list[str], mode: str = "offline") -> list
 
 def run_offline(cell: Cell, variants: list[Variant] | list[str]) -> dict[str, dict[str, Any]]:
     """Every estimator variant (or plain name) on the same attacked streams of one seeded headless flight,
-    or of the cell's recording (recorded ranges: the seed seeds the attack engine only)."""
+    or of the cell's recording (recorded ranges: the seed seeds the attack engine only; each reading at its own
+    time unless the recording is framed, ``Cell.asynchronous``, as ``secuav-eval --ranges`` takes it)."""
     from evaluation.trial import evaluate, run_trial
     from study.metrics import trial_rows
 
@@ -73,7 +74,7 @@ def run_offline(cell: Cell, variants: list[Variant] | list[str]) -> dict[str, di
         engine = None if cell.profile is None else Engine(cell.profile, seed=cell.seed, scenario=cell.scenario)
         trial = evaluate(
             cell.scenario, cell.recording.streams, engine, labels, from_log=True, params=cell.estimator_params,
-            dims=cell.dims, variants=own,
+            dims=cell.dims, variants=own, asynchronous=cell.asynchronous, window_s=cell.window_s,
         )  # fmt: skip
         return trial_rows(trial)
     trial = run_trial(cell.scenario, cell.profile, labels, cell.seed, cell.duration_s, cell.leg,

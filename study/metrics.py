@@ -148,6 +148,8 @@ def trial_rows(trial: TrialResult) -> dict[str, dict[str, Any]]:
             "step_time_us_median": row["step_time_us_median"],
             "step_time_us_p99": row["step_time_us_p99"],
             "calibration": None if row.get("calibration") is None else row["calibration"][0],
+            "processing": (trial.processing or {}).get(name),
+            "async_window_s": trial.async_window_s,
             **detection_figures(trial, name),
         }
     return rows

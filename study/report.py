@@ -320,6 +320,27 @@ def _label(name: str, params: str | None) -> str:
     return name + " " + " ".join(f"{k}={v}" for k, v in json.loads(params).items())
 
 
+def readings(rows: pd.DataFrame) -> list[str]:
+    """Per recording in ``rows`` (study file order as given), how its readings were taken, from the rows'
+    ``processing`` and ``async_window_s``: ``lias-mid asynchronous (window 0.1 s; sequential updates: ekf; aligned:
+    ls, secekf)`` or ``lias-mid framed``. Empty for flights (framed by construction, docs/recorded-ranges.md)."""
+    if "recording" not in rows or "processing" not in rows:
+        return []
+    out = []
+    for name, g in rows[rows["recording"].notna()].groupby("recording", sort=False):
+        modes = set(g["processing"].dropna())
+        if not modes or modes == {"synchronous"}:  # no processing column: rows from before it, all framed
+            out.append(f"{name} framed")
+            continue
+        windows = ", ".join(f"{w:g} s" for w in sorted(set(g["async_window_s"].dropna())))
+        said = {"sequential": "sequential updates", "aligned": "aligned", "synchronous": "framed"}
+        kinds = [f"{said[kind]}: {', '.join(sorted(set(g.loc[g['processing'] == kind, 'estimator_name'])))}"
+                 for kind in said if kind in modes]  # fmt: skip
+        word = "asynchronous" if "synchronous" not in modes else "asynchronous and framed rows"
+        out.append(f"{name} {word} (window {windows}; {'; '.join(kinds)})")
+    return out
+
+
 def labelled(frame: pd.DataFrame) -> pd.DataFrame:
     """The estimator column with its grid point of ``estimator_params`` (``secekf alpha=0.001``), if any; and
     ``ls_label``, the least-squares baseline's label at the same grid point (what the row is compared with)."""
@@ -336,10 +357,12 @@ def write_report(out: Path) -> Path:
     study = saved_study(out) or {}
     listed = [r.get("name") for r in study.get("recordings") or [] if isinstance(r, dict)]
     recordings = [r for r in dict.fromkeys([*listed, *frame["recording"].dropna()]) if r in set(frame["recording"])]
+    rank = {r: i for i, r in enumerate(recordings)}
+    taken = readings(frame[frame["status"] == "ok"].sort_values("recording", key=lambda c: c.map(rank),
+                                                                  kind="stable"))  # fmt: skip
     if len(recordings) < 2:  # one recording (or flights): its tables read as before, with no recording to name
         frame = frame.assign(recording=None)
     else:  # tables in the study file's order of recordings, not the order their cells finished in
-        rank = {r: i for i, r in enumerate(recordings)}
         frame = frame.sort_values("recording", key=lambda c: c.map(rank), kind="stable").reset_index(drop=True)
     ok = frame[frame["status"] == "ok"]
     failed = frame[frame["status"] != "ok"]
@@ -354,6 +377,7 @@ def write_report(out: Path) -> Path:
         "- a secure method has two rows: `name`, its own output, and `name+attribution`, its output with SecUAV's "
         "shared attribution; detection: `own_*` the method's own naming, `attribution_*` the attribution's, one "
         "definition (docs/bench.md, \"Detection\")",
+        *([f"- recorded readings (docs/recorded-ranges.md): {'; '.join(taken)}"] if taken else []),
         "",
     ]
     if len(failed):

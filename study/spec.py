@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, StrictBool, field_validator, model_validator
 
 import estimators
 from attack_profiles import library
@@ -56,7 +56,21 @@ class RecordingSpec(_Strict):
 
     ranges: str = Field(description="recorded-ranges CSV (t_s, sysid, sensor_id, range_m), relative to the study")
     truth: str | None = Field(None, description="truth CSV (t_s, sysid, north_m, east_m, down_m); None: unscored")
-    rate_hz: PositiveFloat | None = Field(None, description="framing rate (default: the ranges' own)")
+    rate_hz: PositiveFloat | None = Field(
+        None, description="output rate: the steps that are scored, and the frames with sync (default: the ranges' own)"
+    )
+    sync: StrictBool = Field(
+        False,
+        description="frame the readings at rate_hz, each frame's last reading per link taken as simultaneous "
+        "(secuav-eval --sync); default false: every reading at its own time (estimators.aligned: the EKF by "
+        "sequential updates, the others on a window brought to each output time) where the recording is one "
+        "vehicle ranging to anchors (a wall or formation recording is framed)",
+    )
+    window_s: float | None = Field(
+        None, gt=0, le=60,
+        description="asynchronous processing: seconds of readings each output brings to its time (secuav-eval "
+        "--window; default one output period); links too sparse for it are refused",
+    )  # fmt: skip
     name: str | None = Field(
         None, pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]*$",
         description="what the rows' and the report's recording column call it (default: the ranges file as "
@@ -65,6 +79,13 @@ class RecordingSpec(_Strict):
     scenario: str | None = Field(
         None, description="its own scenario (anchor layout), bundled name or file; default the study's scenario"
     )
+
+    @model_validator(mode="after")
+    def _window_needs_async(self) -> RecordingSpec:
+        if self.sync and self.window_s is not None:
+            raise ValueError(f"window_s: {self.window_s} is the asynchronous window; framed readings (sync: true) "
+                             "have none, so leave one of them out")  # fmt: skip
+        return self
 
 
 AttackEntry = Annotated[Literal["none"] | AttackSpec, Field(description="'none' (clean runs) or a profile")]
@@ -305,6 +326,10 @@ class Cell:
     recording: Any = None  # evaluation.recorded.Recorded: framed recorded streams instead of a flight
     noise_scale: float = 1.0  # the flight's range noise over what the estimators are told (Study.noise_scales)
     recording_name: str | None = None  # the rows' recording column (Study.recordings); None for flights
+    # A recording's readings each at its own time (RecordingSpec.sync false, one vehicle ranging to anchors),
+    # with the asynchronous window (None: one output period); False: framed, as every flight is.
+    asynchronous: bool = False
+    window_s: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -318,6 +343,8 @@ class _Source:
     keyed_name: str | None = None  # a name the study gave (part of the key: renaming makes new rows)
     field: str = "recording"  # the study field errors name
     file: str | None = None  # the ranges file as written
+    asynchronous: bool = False  # Cell.asynchronous
+    window_s: float | None = None
 
 
 def load_study(path: str | Path) -> Study:
@@ -470,12 +497,15 @@ def expand(study: Study, source: str) -> list[Cell]:
                 **({"recording": src.recording_hash} if src.recording_hash else {}),
                 **({"recording_name": src.keyed_name} if src.keyed_name else {}),  # only when named: old keys stay
                 **({"noise_scale": noise_scale} if noise_scale != 1.0 else {}),  # only when set: old keys stay
+                # Asynchronous rows are other numbers than the framed rows recordings had before: keyed apart.
+                **({"processing": "asynchronous", "window_s": src.window_s} if src.asynchronous else {}),
             )  # fmt: skip
             if key in seen:  # two attack entries that resolve to the same profile: one cell
                 continue
             seen.add(key)
             cells.append(Cell(key, study.name, study.mode, scen, duration, leg, pos, name, ref, values, profile, seed,
-                              study.settle_s, tuning, study.dims, src.recording, noise_scale, src.name))  # fmt: skip
+                              study.settle_s, tuning, study.dims, src.recording, noise_scale, src.name,
+                              src.asynchronous, src.window_s))  # fmt: skip
     return cells
 
 
@@ -486,6 +516,7 @@ def _sources(study: Study, scenario: Scenario, base: Path, source: str) -> list[
     if not specs:
         return [_Source(scenario)]
     from evaluation.recorded import load_recording
+    from evaluation.trial import asynchronous_by_default
 
     out = []
     for i, spec in enumerate(specs):
@@ -498,26 +529,33 @@ def _sources(study: Study, scenario: Scenario, base: Path, source: str) -> list[
             rec = load_recording(scen, ranges=ranges, truth=truth, rate_hz=spec.rate_hz)
         except InputError as err:
             raise InputError(source, field, spec.ranges, str(err)) from None
+        asynchronous = not spec.sync and asynchronous_by_default(scen)
+        if spec.window_s is not None and not asynchronous:
+            reason = f"scenario {scen.name!r} is framed (asynchronous processing needs one vehicle ranging to anchors)"
+            raise InputError(source, f"{field}.window_s", spec.window_s, reason)
         digest = hashlib.sha256(ranges.read_bytes())
         if truth is not None:
             digest.update(truth.read_bytes())
         out.append(_Source(scen, rec, f"{digest.hexdigest()[:16]}@{rec.rate_hz:.6g}", name, spec.name, field,
-                           spec.ranges))  # fmt: skip
+                           spec.ranges, asynchronous, spec.window_s))  # fmt: skip
     return out
 
 
 def _check_sparse(study: Study, tunings: list[dict[str, Any]], src: _Source, source: str) -> None:
-    """A recording too sparse for a calibration window or the framing rate fails the study file with one line
-    naming the recording, its file, the link and the numbers (evaluation.trial.check_readings), not every cell."""
+    """A recording too sparse for a calibration window, the asynchronous window or the framing rate fails the
+    study file with the line ``secuav-eval`` gives (evaluation.trial.check_readings), naming the recording, its
+    file, the link and the numbers, not every cell."""
+    from estimators.aligned import ASYNC_PARAM
     from evaluation.trial import SparseReadings, check_readings
 
     own = {v.label: (v.name, v.build_params()) for v in study.variants()}
     for tuning in tunings:
         try:
-            check_readings(src.scenario, src.recording.streams, study.dims, tuning, own)
+            check_readings(src.scenario, src.recording.streams, study.dims, tuning, own,
+                           asynchronous=src.asynchronous, window_s=src.window_s)  # fmt: skip
         except SparseReadings as err:
-            if err.option == "rate_hz":
-                field = f"{src.field}.rate_hz"
+            if err.option in ("rate_hz", ASYNC_PARAM):
+                field = f"{src.field}.{'rate_hz' if err.option == 'rate_hz' else 'window_s'}"
             else:
                 field = f"estimator_params.{err.option}"
                 if study.recordings is not None:  # which recording was too sparse for the study-wide option

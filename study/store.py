@@ -52,6 +52,10 @@ SCHEMA = pa.schema([
     # JSON: what the calibration window did (estimators.noise.Calibrated.report: status, per link the readings
     # used, the offset and the scale); null without calibration_s
     ("calibration", _S),
+    # How the estimator took the readings (evaluation.trial.TrialResult.processing): "sequential" or "aligned"
+    # (a recording's readings each at its own time, with the window async_window_s) or "synchronous" (frames:
+    # flights, and recordings with sync: true); null in older rows (framed)
+    ("processing", _S), ("async_window_s", _F),
     ("step_time_us_median", _F), ("step_time_us_p99", _F),
     ("collided", pa.bool_()), ("min_distance_m", _F), ("flagged", _S),  # closed loop
     ("worker", _S), ("started_at", pa.timestamp("ms", tz="UTC")), ("wall_s", _F),

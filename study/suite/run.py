@@ -35,6 +35,7 @@ LATEST = "v1"
 
 SPLITS = ("evaluation", "tuning")
 LAYOUTS_LINE = "anchor layouts"  # the leaderboard's provenance lines naming each split's layouts start so
+READINGS_LINE = "recorded readings"  # ... and those saying how a study's recorded ranges were taken
 
 
 @dataclass(frozen=True)
@@ -354,7 +355,7 @@ def _tuned_on(name: Any, label: str, chosen: dict[str, Any], split: str) -> str:
 def leaderboard(out: Path, version: str = LATEST) -> tuple[pd.DataFrame, list[str]]:
     """One row per (study, split, method variant) over ``out``; and the provenance lines."""
     from study import store
-    from study.report import BASELINE, mean_ci, secure_names
+    from study.report import BASELINE, mean_ci, readings, secure_names
 
     meta = json.loads((out / "suite.json").read_text(encoding="utf-8"))
     bands = {} if meta.get("smoke") else _expected(version, meta["variant"])
@@ -370,6 +371,9 @@ def leaderboard(out: Path, version: str = LATEST) -> tuple[pd.DataFrame, list[st
                 continue
             rows += _study_rows(frame, stem, split, bands if split == "evaluation" else {}, chosen, prov,
                                 BASELINE, mean_ci, secure_names)  # fmt: skip
+            taken = readings(frame[frame["status"] == "ok"])
+            if taken:
+                prov.add(f"{READINGS_LINE}, {split} split: {stem}: {'; '.join(taken)}")
     board = pd.DataFrame(rows)
     if len(board):
         order = {s: i for i, s in enumerate(SPLITS)}
@@ -405,7 +409,7 @@ def _study_rows(frame: pd.DataFrame, stem: str, split: str, bands: dict[str, Any
                 prov: set[str], baseline: str, mean_ci: Any, secure_names: Any) -> list[dict[str, Any]]:  # fmt: skip
     ok = frame[frame["status"] == "ok"]
     for col in ("secuav_version", "secuav_commit", "secuav_dirty", "python_version", "numpy_version",
-                "scipy_version", "output", *DETECTION_COLUMNS):  # fmt: skip
+                "scipy_version", "output", "processing", *DETECTION_COLUMNS):  # fmt: skip
         if col not in ok:
             ok = ok.assign(**{col: None})
     for r in ok[["secuav_version", "secuav_commit", "secuav_dirty", "python_version", "numpy_version",
@@ -433,6 +437,8 @@ def _study_rows(frame: pd.DataFrame, stem: str, split: str, bands: dict[str, Any
             "study": stem, "split": split, "method": label,
             "layout": ", ".join(sorted(ok["scenario"].dropna().unique())),  # the anchor layout the rows flew
             "output": output.iloc[0] if len(output) else ("attributed" if "+attribution" in label else "own"),
+            # how it took the readings (the rows' processing: synchronous for flights, framed by construction)
+            "processing": ", ".join(sorted(set(g["processing"].dropna()))),
             "origin": f"{dist} {version_}" if isinstance(dist, str) else "",
             "tuned_on": _tuned_on(name, label, chosen, split),
             "n": n, "rmse_m": mean, "rmse_lo": lo, "rmse_hi": hi,
@@ -469,7 +475,8 @@ def _num(v: Any, digits: int = 3) -> str:
 
 def markdown(board: pd.DataFrame, provenance: list[str]) -> str:
     lines = [f"# {provenance[0]}", "", f"- {provenance[1]}",
-             *(f"- {p}" if p.startswith(LAYOUTS_LINE) else f"- computed by: {p}" for p in provenance[2:]), ""]
+             *(f"- {p}" if p.startswith((LAYOUTS_LINE, READINGS_LINE)) else f"- computed by: {p}"
+               for p in provenance[2:]), ""]  # fmt: skip
     cols = ["method", "output", "from", "tuned on", "n", "RMSE [m] mean [95% CI]", "clean RMSE / LS", "valid",
             *DETECTION_COLUMNS, "cell [s]", "step [us]", "expected band", "check"]  # fmt: skip
     for (split, study), g in board.groupby(["split", "study"], sort=False):

@@ -84,10 +84,16 @@ def test_a_missing_or_sparse_recording_is_named_with_its_file_and_numbers(conver
         _expand(converted, STUDY_TEXT.replace("NLOS/ranges.csv", "NLOS/gone.csv"))
     line = str(err.value)
     assert "\n" not in line and "recordings[1] (hy-nlos-3)" in line and "gone.csv" in line and "no such file" in line
-    # Framed too fast for one recording: that recording, its rate and the share of frames.
+    # Outputs too fast for one recording's links: that recording, its window (the asynchronous default) or, framed,
+    # its rate, and the numbers.
     fast = STUDY_TEXT.replace("truth: NLOS/truth.csv, rate_hz: 10", "truth: NLOS/truth.csv, rate_hz: 200")
     with pytest.raises(InputError) as err:
         _expand(converted, fast)
+    line = str(err.value)
+    assert "\n" not in line and "recordings[1] (hy-nlos-3).window_s" in line and "window 0.005 s at 200 Hz" in line
+    assert "(file NLOS/ranges.csv)" in line
+    with pytest.raises(InputError) as err:
+        _expand(converted, fast.replace("rate_hz: 200", "rate_hz: 200, sync: true"))
     line = str(err.value)
     assert "\n" not in line and "recordings[1] (hy-nlos-3).rate_hz" in line and "framing at 200 Hz" in line
     # A study-wide calibration window too short: the first recording that cannot fill it, its file and counts.
