@@ -199,7 +199,8 @@ def _attack_section(name: str, s: pd.DataFrame, closed_loop: bool) -> list[str]:
 def _claimed(g: pd.DataFrame, figure: str) -> str:
     """A detection figure of these rows (study.metrics, one definition), the attribution's in ``+attribution``
     rows and the method's own otherwise, averaged over the recordings."""
-    who = "attribution" if str(g["estimator"].iloc[0]).endswith("+attribution") else "own"
+    # The label may carry the study's grid point after a space (labelled): "secekf+attribution calibration_s=20.0".
+    who = "attribution" if str(g["estimator"].iloc[0]).split(" ", 1)[0].endswith("+attribution") else "own"
     return _fmt(_mean_or_none(g[f"{who}_{figure}"].astype(float)))
 
 

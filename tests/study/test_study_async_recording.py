@@ -169,3 +169,14 @@ def test_the_report_says_how_each_recording_was_taken(tmp_path: Path) -> None:
     report = (out / "report.md").read_text()
     assert ("- recorded readings (docs/recorded-ranges.md): async asynchronous (window 1 s; sequential updates: "
             "ekf; aligned: ls, secekf); framed framed") in report  # fmt: skip
+
+
+def test_the_across_table_scores_an_attributed_row_with_a_grid_point_by_the_attribution() -> None:
+    """With estimator_params the labels carry the grid point (``secekf+attribution calibration_s=20.0``): such a
+    row's recall in the across-recordings table is still the attribution's, not the method's own."""
+    from study.report import _claimed
+
+    label = "secekf+attribution calibration_s=20.0"
+    rows = pd.DataFrame({"estimator": [label, label], "own_recall": [0.0, 0.0], "attribution_recall": [0.2, 0.4]})
+    assert _claimed(rows, "recall") == "0.300"
+    assert _claimed(rows.assign(estimator="secekf calibration_s=20.0"), "recall") == "0.000"
