@@ -194,8 +194,9 @@ class Study(_Strict):
     )
     recordings: list[RecordingSpec] | None = Field(
         None, min_length=1,
-        description="offline: several recordings, each {name, ranges, truth, rate_hz, scenario}; every cell runs "
-        "on each, and the report gives each recording's tables and one across them (instead of recording)",
+        description="offline: several recordings, each {name, ranges, truth, rate_hz, sync, window_s, scenario}; "
+        "every cell runs on each, and the report gives each recording's tables and one across them (instead of "
+        "recording)",
     )  # fmt: skip
 
     @field_validator("estimators", mode="before")
