@@ -14,7 +14,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from mitm_proxy.stages.secure.collect import Readings
+from mitm_proxy.stages.secure.config import SecureConfig
+from mitm_proxy.stages.secure.layout import build_layout
 from mitm_proxy.stages.secure.stamps import JUMP_S, StampClock
+from secuav_common.scenario import load_scenario
 
 SRC = (1, 1)
 C_S = 1000.0  # the proxy's clock when the sender booted
@@ -99,6 +103,27 @@ def test_a_reboot_reanchors_with_a_log_line_and_then_maps_as_before(caplog: pyte
     assert clock.stats()["clock_reanchors"] == 1
 
 
+@settings(max_examples=150, deadline=None)
+@given(uptime_s=st.floats(2.0, 600.0), down_s=st.floats(0.0, 30.0), restart_ms=st.integers(1, 400),
+       delay=st.tuples(st.floats(0.0, 0.2), st.floats(0.0, 0.2)), jitter=st.floats(0.0, JUMP_S * 0.9),
+       seed=st.integers(0, 2**16))  # fmt: skip
+def test_any_reboot_reanchors_once_and_the_bound_holds_on_both_sides(
+    uptime_s: float, down_s: float, restart_ms: int, delay: tuple[float, float], jitter: float, seed: int
+) -> None:
+    """Up for ``uptime_s``, down ``down_s``, its clock restarting at ``restart_ms``; another least delay after."""
+    rng = np.random.default_rng(seed)
+    clock = StampClock()
+    last_ms = round(uptime_s * 1000)
+    before = [last_ms - 50 * k for k in range(30, -1, -1)]
+    after = [restart_ms + 50 * k for k in range(30)]
+    c_after = C_S + last_ms / 1000.0 + down_s - restart_ms / 1000.0
+    for stamps, d0, c_s in ((before, delay[0], C_S), (after, delay[1], c_after)):
+        out = deliver(clock, stamps, list(d0 + jitter * rng.random(len(stamps))), c_s=c_s)
+        for taken, arrival, mapped in out:
+            assert mapped <= arrival and d0 - 1e-9 <= mapped - taken <= d0 + jitter + 1e-9
+    assert clock.reanchors == {"stamp_backwards": 1} and clock.unstamped == 0
+
+
 def test_a_reading_a_little_out_of_order_is_no_reboot() -> None:
     clock = StampClock()
     deliver(clock, [1000, 1050, 1100, 1150], [0.01, 0.01, 0.20, 0.01])  # 1100 arrives after 1150
@@ -142,3 +167,27 @@ def test_each_sender_has_its_own_clock() -> None:
     assert clock.time_of((1, 197), 500, 100.01) == 100.01  # a companion booted later: no reboot of the autopilot
     assert clock.time_of((1, 1), 10_050, 100.20) == pytest.approx(100.05)
     assert clock.reanchors == {} and clock.stats()["clock_sources"] == 2
+
+
+def test_the_stage_collects_each_reading_at_its_stamp_and_judges_its_age_by_it() -> None:
+    """Readings (collect.py): a set's times are the readings' stamps on the proxy's clock; one held back 0.6 s is
+    too old for max_age_s 0.5 by its stamp, though it just arrived (timed by arrival, it would count as fresh)."""
+    def frame(sid: int, stamp_ms: int) -> dict[str, int]:
+        return {"id": sid, "time_boot_ms": stamp_ms, "current_distance": 250, "min_distance": 10,
+                "max_distance": 4000, "signal_quality": 100}  # fmt: skip
+
+    jobs = {}
+    for mode in ("stamp", "arrival"):
+        cfg = SecureConfig(estimator="ekf", reading_time=mode)
+        layout = build_layout(cfg, load_scenario("wall_hover"), 1)
+        readings = Readings(layout, StampClock(mode))
+        for sid in range(5):
+            readings.take_range(layout, frame(sid, 1000), 100.01, SRC)  # on time: 10 ms
+        readings.job(cfg, layout, 100.01)
+        for sid in range(4):
+            readings.take_range(layout, frame(sid, 1300), 100.41, SRC)  # 100 ms late
+        readings.take_range(layout, frame(4, 1000 + 50), 100.66, SRC)  # 600 ms late
+        jobs[mode] = readings.job(cfg, layout, 100.66)
+    assert jobs["stamp"].times[:4] == pytest.approx([100.31] * 4)
+    assert np.isnan(jobs["stamp"].z[4])  # taken 0.56 s before the step
+    assert jobs["arrival"].times[:4] == pytest.approx([100.41] * 4) and jobs["arrival"].times[4] == 100.66
