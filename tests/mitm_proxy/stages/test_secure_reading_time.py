@@ -26,7 +26,9 @@ from mavframe.frames import split
 from mavframe.layout import DISTANCE_SENSOR
 from mitm_proxy.app import Proxy
 from mitm_proxy.config import LinkConfig, ProxyConfig
+from mitm_proxy.stages.secure.config import config_from_payload
 from mitm_proxy.stages.secure.stage import SecureConfig, SecureStage
+from secuav_common.loading import InputError
 from secuav_common.scenario import load_scenario
 from tests.support.secure_streams import StreamMaker, packet_of, wire_fields
 from tests.support.udp_peers import Peer
@@ -159,13 +161,23 @@ def stage_errors(estimator: str, mode: str) -> np.ndarray:
     return np.asarray(out)
 
 
-@pytest.mark.parametrize(("estimator", "stamp_rmse_m", "arrival_rmse_m"), [("ekf", 0.048, 0.134),
-                                                                          ("secekf", 0.058, 0.151)])
-def test_the_same_link_without_the_network_gives_the_figures(estimator: str, stamp_rmse_m: float,
-                                                             arrival_rmse_m: float) -> None:  # fmt: skip
-    """The schedule of the end-to-end test with no wake-up of a loop in it: the figures docs/interfaces.md quotes."""
-    rmse = {mode: float(np.sqrt(np.mean(stage_errors(estimator, mode) ** 2))) for mode in ("stamp", "arrival")}
-    assert rmse == {"stamp": pytest.approx(stamp_rmse_m, abs=5e-4), "arrival": pytest.approx(arrival_rmse_m, abs=5e-4)}
+@pytest.mark.parametrize("estimator", ["ekf", "secekf"])
+def test_the_same_link_without_the_network_gives_the_documented_margin(estimator: str) -> None:
+    """The schedule of the end-to-end test with no wake-up of a loop in it. With ``-s`` it prints the figures
+    docs/interfaces.md quotes (measured: ekf 0.048 / 0.127 m against 0.134 / 0.329, secekf 0.058 / 0.129 against
+    0.151 / 0.374, RMSE / max)."""
+    err = {mode: stage_errors(estimator, mode) for mode in ("stamp", "arrival")}
+    rmse = {mode: float(np.sqrt(np.mean(e**2))) for mode, e in err.items()}
+    worst = {mode: float(np.max(np.abs(e))) for mode, e in err.items()}
+    print(estimator, "RMSE / max [m]", {m: f"{rmse[m]:.3f} / {worst[m]:.3f}" for m in err})
+    assert rmse["stamp"] < 0.5 * rmse["arrival"] and worst["stamp"] < 0.5 * worst["arrival"], (rmse, worst)
+    assert rmse["stamp"] < 0.08, rmse  # the sensors' own noise and the filter's lag on a 2 m/s^2 turn
+
+
+def test_the_choice_is_a_field_of_secure_set() -> None:
+    assert config_from_payload({"estimator": "ekf", "reading_time": "arrival"}).reading_time == "arrival"
+    with pytest.raises(InputError, match="reading_time"):
+        config_from_payload({"estimator": "ekf", "reading_time": "gps"})
 
 
 @pytest.mark.timeout(60)
