@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from mitm_proxy.stages.secure.collect import Readings
 from mitm_proxy.stages.secure.config import SecureConfig
 from mitm_proxy.stages.secure.layout import build_layout
-from mitm_proxy.stages.secure.stamps import JUMP_S, StampClock
+from mitm_proxy.stages.secure.stamps import CONFIRM, JUMP_S, StampClock
 from secuav_common.scenario import load_scenario
 
 SRC = (1, 1)
@@ -92,14 +92,14 @@ def test_a_reboot_reanchors_with_a_log_line_and_then_maps_as_before(caplog: pyte
     before = deliver(clock, [10_000 + 50 * k for k in range(40)], [0.01] * 40)
     # It rebooted: 3 s down, then its clock starts again from 0, with a new delay
     after = deliver(clock, [20 + 50 * k for k in range(40)], [0.05] * 40, c_s=before[-1][0] + 3.0)
-    assert clock.reanchors == {"stamp_backwards": 1}
-    assert after[0][2] == after[0][1]  # the reading that showed it: at its arrival
+    assert clock.reanchors == {"stamp_backwards": 1} and clock.off_clock == CONFIRM - 1
+    assert [m == a for _t, a, m in after[: CONFIRM - 1]] == [True] * (CONFIRM - 1)  # until confirmed: at arrival
     assert all(m - t == pytest.approx(0.05) for t, _a, m in after)
     recs = [r for r in caplog.records if r.getMessage() == "secure.clock_anchor"]
     assert [r.reason for r in recs] == ["first", "stamp_backwards"]  # type: ignore[attr-defined]
     rec = recs[1]
     assert rec.levelno == logging.WARNING and rec.sysid == 1 and rec.compid == 1  # type: ignore[attr-defined]
-    assert rec.stage == "secure-v1" and rec.stamp_ms == 20  # type: ignore[attr-defined]
+    assert rec.stage == "secure-v1" and rec.stamp_ms == 20 + 50 * (CONFIRM - 1)  # type: ignore[attr-defined]
     assert clock.stats()["clock_reanchors"] == 1
 
 
@@ -124,6 +124,48 @@ def test_any_reboot_reanchors_once_and_the_bound_holds_on_both_sides(
     assert clock.reanchors == {"stamp_backwards": 1} and clock.unstamped == 0
 
 
+def test_replayed_frames_among_the_real_ones_do_not_move_the_clock() -> None:
+    """An attacker replays frames recorded 5 s earlier between the vehicle's own: each is timed at its arrival and
+    counted, the vehicle's readings keep their stamps."""
+    clock = StampClock()
+    genuine = []
+    for k in range(200):  # 10 s at 20 Hz, each real reading 10 ms late
+        t = 10.0 + 0.05 * k
+        genuine.append(clock.time_of(SRC, round(t * 1000), C_S + t + 0.01) - (C_S + t))
+        if k % 2 == 0:  # a replay after every other one
+            clock.time_of(SRC, round((t - 5.0) * 1000), C_S + t + 0.02)
+    assert genuine == pytest.approx([0.01] * 200) and clock.reanchors == {} and clock.off_clock == 100
+
+
+def test_runs_of_replayed_frames_take_the_clock_only_while_they_last(caplog: pytest.LogCaptureFixture) -> None:
+    """Runs of CONFIRM replayed frames look like a reboot: the clock follows them and the vehicle's own readings are
+    timed at their arrival (as with ``reading_time: arrival``, never newer); when the replay stops, CONFIRM of its
+    readings bring the clock back. The log says so at most once a second per sender, counting what it left out."""
+    caplog.set_level(logging.INFO)
+    clock = StampClock()
+    for k in range(40):
+        t = 10.0 + 0.05 * k
+        clock.time_of(SRC, round(t * 1000), C_S + t + 0.01)
+    for k in range(40):  # 2 s of runs of replayed frames, one real reading after each run
+        t = 12.0 + 0.05 * k
+        for j in range(CONFIRM):
+            clock.time_of(SRC, round((t - 5.0 + 0.01 * j) * 1000), C_S + t + 0.001 * j)
+        assert clock.time_of(SRC, round(t * 1000), C_S + t + 0.01) == C_S + t + 0.01  # at its arrival
+    assert clock.reanchors == {"stamp_backwards": 1}
+    after = [clock.time_of(SRC, round(t * 1000), C_S + t + 0.01) - (C_S + t) for t in 14.0 + 0.05 * np.arange(20)]
+    assert clock.reanchors == {"stamp_backwards": 1, "stamp_ahead": 1}
+    assert after[CONFIRM:] == pytest.approx([0.01] * (20 - CONFIRM))
+    for k in range(40):  # 2 s of runs of either: the clock flaps, the log does not
+        t = 15.0 + 0.05 * k
+        for j in range(CONFIRM):
+            clock.time_of(SRC, round((t - 5.0 + 0.01 * j) * 1000), C_S + t + 0.001 * j)
+        for j in range(CONFIRM):
+            clock.time_of(SRC, round((t + 0.01 * j) * 1000), C_S + t + 0.01 + 0.001 * j)
+    assert sum(clock.reanchors.values()) > 60
+    lines = [r for r in caplog.records if r.getMessage() == "secure.clock_anchor"]
+    assert len(lines) <= 6 and lines[-1].unlogged > 10  # type: ignore[attr-defined]
+
+
 def test_a_reading_a_little_out_of_order_is_no_reboot() -> None:
     clock = StampClock()
     deliver(clock, [1000, 1050, 1100, 1150], [0.01, 0.01, 0.20, 0.01])  # 1100 arrives after 1150
@@ -133,8 +175,9 @@ def test_a_reading_a_little_out_of_order_is_no_reboot() -> None:
 def test_a_clock_that_jumps_ahead_reanchors() -> None:
     clock = StampClock()
     deliver(clock, [1000 + 50 * k for k in range(20)], [0.01] * 20)
-    _t, arrival, mapped = deliver(clock, [60_000], [0.01], c_s=C_S + 1.0 - 59.0)[0]  # its stamp jumped 58 s ahead
-    assert clock.reanchors == {"stamp_ahead": 1} and mapped == arrival
+    out = deliver(clock, [60_000 + 50 * k for k in range(5)], [0.01] * 5, c_s=C_S + 1.0 - 59.0)  # 58 s ahead
+    assert clock.reanchors == {"stamp_ahead": 1}
+    assert [m - t for t, _a, m in out] == pytest.approx([0.01] * 5)  # at arrival until confirmed: the same here
 
 
 def test_a_clock_that_falls_behind_for_good_reanchors_after_the_bound() -> None:
@@ -154,7 +197,8 @@ def test_no_stamp_is_arrival_counted_and_arrival_mode_ignores_stamps() -> None:
     clock = StampClock()
     assert clock.time_of(SRC, 0, 5.0) == 5.0 and clock.time_of(SRC, None, 6.0) == 6.0
     assert clock.stats() == {"reading_time": "stamp", "readings_stamped": 0, "readings_unstamped": 2,
-                             "clock_sources": 0, "clock_reanchors": 0, "clock_reanchor_reasons": {}}  # fmt: skip
+                             "readings_off_clock": 0, "clock_sources": 0, "clock_reanchors": 0,
+                             "clock_reanchor_reasons": {}}  # fmt: skip
     arrival = StampClock("arrival")
     deliver(arrival, [1000, 1050, 1100], [0.3, 0.0, 0.1])
     assert arrival.time_of(SRC, 1200, 9.0) == 9.0
