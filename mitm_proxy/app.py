@@ -308,7 +308,7 @@ class Proxy:
             if secure is not None:
                 counters = asdict(secure.stage.counters)
                 counters["readings"] = counters.pop("readings_taken")  # the snapshot's key (docs/interfaces.md)
-                snap["secure"] = {"estimator": secure.stage.config.estimator, **counters}
+                snap["secure"] = {"estimator": secure.stage.config.estimator, **counters, **secure.stage.clock_stats()}
                 warnings = [*warnings, *secure.stage.warnings]
             snap["warnings"] = warnings  # what keeps the attack or the secure stage from working, "code: text"
             out[link.sysid] = snap

@@ -63,6 +63,11 @@ async def test_secure_stage_runs_on_live_ranges_and_publishes(udp_port: Callable
     assert snap["downlink"]["rewritten"] >= secure["substituted_frames"] > 0
     assert len(estimates) > 10
     assert snap["warnings"] == []  # flightsim's wall sensors are the scenario's: no layout warning
+    # Readings timed by flightsim's time_boot_ms (sim time) on the proxy's clock (measured: 360 of 360, no re-anchor)
+    assert secure["reading_time"] == "stamp" and secure["clock_sources"] == 1, secure
+    timed = secure["readings_stamped"] + secure["readings_unstamped"] + secure["readings_off_clock"]
+    assert timed == secure["readings"], secure
+    assert secure["readings_stamped"] > 0.9 * secure["readings"], secure
 
 
 def test_secure_without_a_scenario_or_with_an_unknown_estimator_is_refused(capsys: pytest.CaptureFixture[str]) -> None:

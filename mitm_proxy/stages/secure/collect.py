@@ -25,6 +25,11 @@ flagged as attacks). So a complete set also waits, up to ``max_wait_s``, for a
 sensor whose next reading is due at the newest reading's time, by the vehicle's
 clock (``time_boot_ms``; each sensor's period is the spacing of its last two
 stamps). A reading older than ``max_age_s`` goes into the step as NaN.
+
+Each reading's time is when the vehicle took it, not when it arrived: its ``time_boot_ms`` mapped onto the proxy's
+clock per sender (:mod:`mitm_proxy.stages.secure.stamps`; ``reading_time: arrival`` keeps the arrival). That time
+is what the asynchronous estimators get with the reading and what its age is judged by; when a set is due is
+still a matter of arrivals (a reading is news when it comes).
 """
 
 from __future__ import annotations
@@ -37,6 +42,7 @@ import numpy as np
 from mitm_proxy.stages.secure import tilt
 from mitm_proxy.stages.secure.config import SecureConfig
 from mitm_proxy.stages.secure.layout import Layout
+from mitm_proxy.stages.secure.stamps import Source, StampClock
 from mitm_proxy.stages.secure.worker import Job
 from secuav_common.sensor_ids import QUALITY_UNKNOWN
 
@@ -60,10 +66,12 @@ def no_target(fields: dict[str, Any]) -> bool:
 class Readings:
     """The reading vector of one layout and the clock of its sets (proxy monotonic time)."""
 
-    def __init__(self, layout: Layout) -> None:
+    def __init__(self, layout: Layout, clock: StampClock | None = None) -> None:
         p = layout.p
+        self.clock = clock if clock is not None else StampClock()
         self.z = np.full(p, np.nan)
-        self.rx = np.full(p, -math.inf)  # proxy time of each sensor's latest reading
+        self.rx = np.full(p, -math.inf)  # proxy time of each sensor's latest reading's arrival
+        self.taken_s = np.full(p, -math.inf)  # proxy time it was taken at (its stamp mapped: stamps.py)
         self.fresh = np.zeros(p, dtype=bool)  # reported since the last step
         self.stamp_ms = np.full(p, np.nan)  # the vehicle's time_boot_ms of each sensor's latest reading
         self.period_ms = np.full(p, np.nan)  # the spacing of its last two readings' stamps
@@ -78,8 +86,9 @@ class Readings:
         self.factors: np.ndarray | None = None  # each reading's projection at the latest ATTITUDE (tilt.py)
         self.factors_rx = -math.inf
 
-    def take_range(self, layout: Layout, fields: dict[str, Any], now_s: float) -> bool:
-        """A DISTANCE_SENSOR frame's fields; True when it was one of the group's readings."""
+    def take_range(self, layout: Layout, fields: dict[str, Any], now_s: float, source: Source = (0, 0)) -> bool:
+        """A DISTANCE_SENSOR frame's fields from ``source`` (sysid, compid); True when it was one of the group's
+        readings."""
         sid = fields.get("id")
         distance_m = fields.get("current_distance", 0) / 100.0
         valid = not no_target(fields)
@@ -92,6 +101,7 @@ class Readings:
         self.rx[i] = now_s
         self.fresh[i] = True
         boot_ms = fields.get("time_boot_ms")
+        self.taken_s[i] = self.clock.time_of(source, boot_ms, now_s)
         if isinstance(boot_ms, int):
             self.sim_t_s = boot_ms / 1000.0 if self.sim_t_s is None else max(self.sim_t_s, boot_ms / 1000.0)
             if boot_ms > self.stamp_ms[i]:
@@ -146,7 +156,7 @@ class Readings:
 
     def job(self, cfg: SecureConfig, layout: Layout, now_s: float) -> Job:
         """The set to step now (stale readings as NaN); the next set starts empty."""
-        z = np.where(now_s - self.rx <= cfg.max_age_s, self.z, np.nan)
+        z = np.where(now_s - self.taken_s <= cfg.max_age_s, self.z, np.nan)
         factors = self.tilt_factors(now_s)
         if factors is not None:
             z = z * factors  # along the wall's normal; a beam past 60 degrees off it is missing (NaN)
@@ -158,6 +168,6 @@ class Readings:
         self.pending_since = None
         self.last_submit_s = now_s
         velocity = self.velocity if now_s - self.velocity_rx <= VELOCITY_MAX_AGE_S else None
-        times = np.where(np.isfinite(z), self.rx, np.nan)  # when each reading arrived, for asynchronous processing
+        times = np.where(np.isfinite(z), self.taken_s, np.nan)  # when each was taken, for asynchronous processing
         return Job(t_s=now_s, z=z, known=known, sim_t_s=self.sim_t_s, rx_s=now_s, velocity=velocity, tilt=factors,
                    times=times)  # fmt: skip

@@ -62,9 +62,15 @@ class SecureConfig(BaseModel):
     )
     asynchronous: bool = Field(
         True,
-        description="each reading at its own arrival time: the EKF by sequential updates, the others on the "
+        description="each reading at its own time (reading_time): the EKF by sequential updates, the others on the "
         "readings of the last max_age_s brought to the step's time with the motion model (estimators.aligned); "
         "false: a set's readings are taken as simultaneous",
+    )
+    reading_time: Literal["stamp", "arrival"] = Field(
+        "stamp",
+        description="when a reading counts as taken: stamp = its time_boot_ms mapped onto the proxy's clock per "
+        "sender (least offset over 2 s; a reboot or a time jump re-anchors; no stamp: its arrival), so delays, "
+        "batching and replays cannot make it look newer; arrival = when it reached the proxy",
     )
     peer_gate_m: Annotated[float, Field(gt=0.0)] = Field(
         0.5, description="an inter-vehicle range further than this from the secure positions' distance is flagged"

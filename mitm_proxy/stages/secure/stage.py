@@ -29,8 +29,14 @@ sees the readings *after* the attack stage, as the ground side would, and:
 
 The estimator's clock is the proxy's monotonic clock, not the frames'
 ``time_boot_ms``: an attacker who delays or replays frames cannot make the
-filter run backwards. The vehicle's time of the newest reading still rides
-along in each published estimate (``sim_t_s``) to join with truth.
+filter run backwards. Each reading is placed on that clock at the time the
+vehicle stamped it (``reading_time: stamp``, the default: its ``time_boot_ms``
+mapped per sender by :mod:`mitm_proxy.stages.secure.stamps`, never later than
+its arrival), so link jitter, batching and replays do not misplace it; the
+stats say how many readings were timed so, how many had no stamp (timed at
+arrival) and how often a sender's clock was re-anchored. The vehicle's time of
+the newest reading still rides along in each published estimate (``sim_t_s``)
+to join with truth.
 
 When the vehicle's DISTANCE_SENSOR ids or orientations do not fit the layout
 (:mod:`mitm_proxy.stages.secure.match`), the stage logs ``secure.layout_mismatch``
@@ -93,6 +99,7 @@ from mitm_proxy.stages.secure.layout import (
 from mitm_proxy.stages.secure.match import LayoutCheck
 from mitm_proxy.stages.secure.peers import PeerBoard
 from mitm_proxy.stages.secure.report import Counters, estimate_payload, stage_stats
+from mitm_proxy.stages.secure.stamps import StampClock
 from mitm_proxy.stages.secure.substitute import FLAGGED_QUALITY, Substitution
 from mitm_proxy.stages.secure.worker import Stepper, StepResult
 from secuav_common.loading import InputError
@@ -168,7 +175,7 @@ class SecureStage:
         estimator = build_estimator(config, layout, source)
         stepper = Stepper(estimator, layout.model, config.executor, config.step_budget_s, name=f"secure-v{self.sysid}")
         old = self._stepper
-        self.readings = Readings(layout)
+        self.readings = Readings(layout, StampClock(config.reading_time, name=f"secure-v{self.sysid}"))
         self.check, self.signed_warning = LayoutCheck(layout), None
         self.substitution.reset()
         self.config, self.layout, self._stepper = config, layout, stepper
@@ -223,7 +230,7 @@ class SecureStage:
                 self._fed.add(sid)  # type: ignore[arg-type]  # a uint8: at most 256 ids
             if not (downlink and sid in self._fed):  # on both, the autopilot's echo of a fed id is not a reading
                 self._check_layout(fields, now_s)
-                if readings.take_range(layout, fields, now_s):
+                if readings.take_range(layout, fields, now_s, (pkt.header.sysid, pkt.header.compid)):
                     self.counters.readings_taken += 1
         elif msgid == LOCAL_POSITION_NED and layout.height_sensor_id is None:
             z = fields.get("z")
@@ -319,7 +326,14 @@ class SecureStage:
     def stats(self) -> dict[str, Any]:
         """Counters for ``secuav/v<sysid>/stats`` and the logs."""
         return {**stage_stats(self.active, self.config.estimator, self.config.executor, self.layout, self._stepper,
-                              self.counters, self.substitution.peer_flagged), "warnings": self.warnings}  # fmt: skip
+                              self.counters, self.substitution.peer_flagged), **self.clock_stats(),
+                "warnings": self.warnings}  # fmt: skip
+
+    def clock_stats(self) -> dict[str, Any]:
+        """How readings are timed and what the senders' clocks did (stamps.py); in the stats and the proxy's
+        ``secuav/v<sysid>/stats``."""
+        clock = self.readings.clock if self.readings is not None else StampClock(self.config.reading_time)
+        return clock.stats()
 
     def wait_idle(self, timeout_s: float = 5.0) -> bool:
         """Block until submitted sets are stepped (tests, shutdown; never on the forwarding path)."""
