@@ -351,6 +351,7 @@ class Calibrated:
             if self.track and self.core.secure:
                 self.core.namer.confirm_steps = CONFIRM_STEPS
                 self.tracker = OffsetTracker(self.model.p)
+                self.core.namer.band = self.tracker.beyond
             drift = getattr(self.core, "drift", None)
             if isinstance(drift, InnovationWindow):
                 drift.vif = self.calibration.window_vif
@@ -407,7 +408,7 @@ class Calibrated:
             for sid, drift, most in zip(ids, tracker.delta, tracker.most, strict=True):
                 links[str(sid)].update(drift_m=round(float(drift), 4), drift_max_m=round(float(most), 4))
             out["tracking"] = {"tau_s": tracker.tau_s, "rate_mps": tracker.rate_mps, "bound_m": tracker.bound_m,
-                               "confirm_steps": CONFIRM_STEPS}  # fmt: skip
+                               "band_m": tracker.band_m, "confirm_steps": CONFIRM_STEPS}  # fmt: skip
         else:
             out["tracking"] = None
         return {**out, "status": "calibrated", "tail_factor": round(cal.tail_factor, 4),
