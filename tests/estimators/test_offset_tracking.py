@@ -103,7 +103,7 @@ def test_wandering_offsets_name_honest_links_unless_followed() -> None:
 @given(seed=st.integers(0, 10_000), wander=st.floats(0.0, 0.02))
 def test_honest_noise_names_no_link_above_the_rate(seed: int, wander: float) -> None:
     # White errors about wandering offsets; with 30-78 % of the variance correlated over 2 s (LIAS) the synthetic
-    # rate reaches 2-3 % on some seeds (on the recordings themselves 0-1.6 %, estimators/README.md).
+    # rate reaches 2-3 % on some seeds (on the recordings themselves 0-0.1 %, estimators/README.md).
     z = _honest(700, seed, wander, share=0.0)
     named, alarm = _run(z)
     scored = slice(int(WINDOW_S * RATE_HZ) + 10, None)
