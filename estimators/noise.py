@@ -31,8 +31,8 @@ room within a drift bound a slow ramp cannot hide under (:mod:`estimators.offset
 what no offset within that bound of the window's explains (``OffsetTracker.beyond``, ``Namer.band``), and a jump
 names a link only when ``CONFIRM_STEPS`` readings in a row fail it (:class:`estimators.attribution.Namer`): on the
 LIAS recordings these took the honest links named from 49-59 % of the clean steps of the mid run to 0-0.1 % on
-the tags the settings were chosen on and 0 % on the held-out tag, for a naming floor of about 0.45 m
-(estimators/README.md, "Real noise").
+the tags the settings were chosen on and 0 % on the held-out tag, at a price: a one-link bias is named on every
+step only from 0.8 m, not 0.5 m (estimators/README.md, "Real noise").
 
 What it cannot do: an offset pattern that a shift of the position explains (its projection on
 the span of the range Jacobian at the window's positions) stays in the position, as it would with

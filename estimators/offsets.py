@@ -36,8 +36,10 @@ estimate); beyond it both tests (two failed readings in a row, the window's mean
 The band is fixed about the window's offset, so the tracker cannot carry it along after an attacker's ramp.
 
 What it costs, plainly: an attacker can move any link by up to ``band_m`` plus the tests' margin from the window's
-offset (on LIAS about 0.25 + 0.2 m), at any speed and for as long as they like, without it being named; before the
-band a jump of that size was named within two readings and only a ramp under the rate bound got as far. How far
+offset (on LIAS 0.25 m plus about 0.2 m), at any speed and for as long as they like, without it being named; before
+the band a jump of that size was named within two readings and only a ramp under the rate bound got as far. On the
+LIAS tuning tags a constant bias on one link is named on every attacked step from 0.8 m (before: 0.5 m), at 0.3 m on
+at most 18 % (docs/recorded-ranges.md, "After the window"). How far
 that moves the estimate is bounded separately: the readings are corrected by the tracked offset, which follows an
 unnamed attacker at most ``rate_mps`` and never past ``bound_m``; what is left the estimator's own tests see
 or do not (at most the l0 bound of ``estimators.bounds`` for a box of ``band_m`` plus the margin, as an honest
