@@ -250,3 +250,6 @@ def test_the_band_outlives_a_restart() -> None:
     core._guard(far)
     assert far.reinitialised
     assert core.namer.band == est.tracker.beyond and core.namer.confirm_steps == noise.CONFIRM_STEPS
+    # results.json says what the tests were told: the band beside the bounds.
+    tracking = est.report()["tracking"]
+    assert tracking["band_m"] == BAND_M and tracking["bound_m"] == est.tracker.bound_m
