@@ -66,6 +66,7 @@ the usual one is a per-sensor chi-square test at each step.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -121,6 +122,10 @@ class Namer:
         # named once the offsets were followed (estimators/offsets.py).
         self.confirm_steps = 1
         self.jumped = np.zeros(model.p, dtype=int)  # consecutive readings of each link that failed the step test
+        # The part of each residual that no honest offset change explains (estimators.offsets.OffsetTracker.beyond);
+        # None: all of it. Both tests judge only that part: an offset that moves inside the band is the room, not an
+        # attack, and names nobody (it can still be left out of the estimate by the estimator's own tests).
+        self.band: Callable[[np.ndarray], np.ndarray] | None = None
 
     def name(
         self, z: np.ndarray, used: np.ndarray, start: np.ndarray, cov_pos: np.ndarray, known: Known
@@ -145,6 +150,8 @@ class Namer:
         hcov = np.einsum("pd,de,pe->p", jac, cov, jac)
         seen = ~np.isnan(resid)
         self.last_resid = resid
+        if self.band is not None:
+            resid = self.band(resid)
         slot = self.k % self.resid.shape[0]
         self.k += 1
         self.resid[slot] = np.where(seen, resid, 0.0)

@@ -326,12 +326,13 @@ class Estimator:
         object.__setattr__(est, "reinitialised", True)
         last = (env.last_pos, env.last_t)
         # What a calibration told the tests (estimators.noise) outlives the restart.
-        vif, confirm, drift = self.namer.window_vif, self.namer.confirm_steps, getattr(self, "drift", None)
+        vif, confirm, band = self.namer.window_vif, self.namer.confirm_steps, self.namer.band
+        drift = getattr(self, "drift", None)
         drift_vif = getattr(drift, "vif", None)
         self.reset()  # from the next readings, as at the first step; the motion bound keeps its anchor point
         self.t_s = est.t_s
         env.last_pos, env.last_t = last
-        self.namer.window_vif, self.namer.confirm_steps = vif, confirm
+        self.namer.window_vif, self.namer.confirm_steps, self.namer.band = vif, confirm, band
         if drift_vif is not None and hasattr(getattr(self, "drift", None), "vif"):
             self.drift.vif = drift_vif
 

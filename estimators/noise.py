@@ -27,10 +27,12 @@ It says what it did: the window must hold ``MIN_STEPS`` steps with a fix and, pe
 readings in them (:func:`count_window`); if not, it refuses (:meth:`WindowCount.refusal`, one line naming every
 link's count and what it needs) and the estimator goes on uncalibrated with :meth:`Calibrated.report` saying so.
 After the window (``calibration_track``, default on, secure estimators only) the offsets keep following the
-room within a drift bound a slow ramp cannot hide under (:mod:`estimators.offsets`), and a jump names a link
-only when ``CONFIRM_STEPS`` readings in a row fail it (:class:`estimators.attribution.Namer`): on the LIAS
-recordings those two together took the honest links named from 49-58 % of the clean steps of the mid run to
-0-1.6 % on the tags the bounds were chosen on and 4-8 % on the held-out tag (estimators/README.md, "Real noise").
+room within a drift bound a slow ramp cannot hide under (:mod:`estimators.offsets`), the naming tests judge only
+what no offset within that bound of the window's explains (``OffsetTracker.beyond``, ``Namer.band``), and a jump
+names a link only when ``CONFIRM_STEPS`` readings in a row fail it (:class:`estimators.attribution.Namer`): on the
+LIAS recordings these took the honest links named from 49-59 % of the clean steps of the mid run to 0-0.1 % on
+the tags the settings were chosen on and 0 % on the held-out tag, at a price: a one-link bias is named on every
+step only from 0.8 m, not 0.5 m (estimators/README.md, "Real noise").
 
 What it cannot do: an offset pattern that a shift of the position explains (its projection on
 the span of the range Jacobian at the window's positions) stays in the position, as it would with
@@ -351,6 +353,7 @@ class Calibrated:
             if self.track and self.core.secure:
                 self.core.namer.confirm_steps = CONFIRM_STEPS
                 self.tracker = OffsetTracker(self.model.p)
+                self.core.namer.band = self.tracker.beyond
             drift = getattr(self.core, "drift", None)
             if isinstance(drift, InnovationWindow):
                 drift.vif = self.calibration.window_vif
@@ -407,7 +410,7 @@ class Calibrated:
             for sid, drift, most in zip(ids, tracker.delta, tracker.most, strict=True):
                 links[str(sid)].update(drift_m=round(float(drift), 4), drift_max_m=round(float(most), 4))
             out["tracking"] = {"tau_s": tracker.tau_s, "rate_mps": tracker.rate_mps, "bound_m": tracker.bound_m,
-                               "confirm_steps": CONFIRM_STEPS}  # fmt: skip
+                               "band_m": tracker.band_m, "confirm_steps": CONFIRM_STEPS}  # fmt: skip
         else:
             out["tracking"] = None
         return {**out, "status": "calibrated", "tail_factor": round(cal.tail_factor, 4),
