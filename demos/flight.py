@@ -25,7 +25,7 @@ from secuav_common.controlplane.topics import CONSOLES_ONLINE, parse, vehicle_to
 
 if TYPE_CHECKING:
     from demos.px4 import Px4Options
-    from demos.sitl import SitlOptions
+    from demos.sitl import SitlOptions, Truth
 
 
 @dataclass(frozen=True, slots=True)
@@ -198,6 +198,42 @@ def check_window(window: Window, truth: dict[int, list[tuple[float, dict[str, An
                 f" (scored from {window.start_s:.2f}, first landing at {window.end_s:.2f}), {len(samples)} truth"
                 f" samples in all; see {out}"
             )
+
+
+@dataclass
+class SitlHold:
+    """What :func:`hold_on_sitl` leaves: the times of :func:`hold_and_attack` (wall-clock s), the acks, the proxy's
+    estimates, the controller's log entries, and the true heights since arming with the ground's altitude."""
+
+    hold_s: float
+    t_scored: float
+    landing: float
+    acks: dict[int, dict[str, Any]]
+    estimates: list[tuple[float, dict[str, Any]]]
+    entries: list[dict[str, Any]]
+    heights: list[tuple[float, float]]
+    ground_m: float
+
+
+async def hold_on_sitl(bar: FlightProgress, tap: Tap, procs: Processes, log: Path, case: Case, opts: Options,
+                       truth: Truth, sysid: int, armed_timeout_s: float, arming: str = "waiting to arm, taking off",
+                       ) -> SitlHold:  # fmt: skip
+    """An ArduPilot SITL flight whose controller is started and whose ``truth`` follows SITL's state: arm, take off,
+    hold under the case's attack and land (:func:`hold_and_attack`), then stop ``truth`` and read its heights from
+    the controller's ``armed`` event on (from the scored window when it logged none)."""
+    try:
+        hold_s, t_scored, landing, acks = await hold_and_attack(
+            bar, tap, procs, log, case, opts, sysid, armed_timeout_s, arming=arming
+        )
+    finally:
+        truth.stop()
+    estimates = [(x.wall_s, x.payload) for x in tap.on(vehicle_topic(sysid, "estimate"))]
+    if truth.error:
+        raise RuntimeError(truth.error)
+    entries = read_jsonl(log)
+    armed_s = next((float(e["wall_s"]) for e in entries if e.get("event") == "armed"), t_scored)
+    heights, ground = truth.heights(armed_s)
+    return SitlHold(hold_s, t_scored, landing, acks, estimates, entries, heights, ground)
 
 
 def dump_jsonl(path: Path, rows: list[tuple[float, dict[str, Any]]]) -> None:
