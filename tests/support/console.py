@@ -121,6 +121,18 @@ rules:
 """
 
 
+def paste_profile(driver: Any, text: str) -> Any:
+    """Paste ``text`` into the page's custom-profile box and apply it, as a user does; the page's error element."""
+    from selenium.webdriver.common.by import By
+
+    driver.find_element(By.CSS_SELECTOR, "#custom summary").click()
+    area = driver.find_element(By.ID, "yaml")
+    area.clear()
+    area.send_keys(text)
+    driver.find_element(By.ID, "apply-yaml").click()
+    return driver.find_element(By.ID, "yaml-error")
+
+
 def spawn(args: list[str], log: Path) -> subprocess.Popen[bytes]:
     return subprocess.Popen([sys.executable, "-m", *args], stdout=log.open("wb"), stderr=subprocess.STDOUT,
                             env={**os.environ, "PYTHONUNBUFFERED": "1"})  # fmt: skip

@@ -22,7 +22,7 @@ import pytest
 from pymavlink import mavutil
 
 from mavframe import tlog
-from tests.support.console import BAD_PROFILE, console_services, until
+from tests.support.console import BAD_PROFILE, console_services, paste_profile, until
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 
@@ -101,12 +101,7 @@ async def test_the_page_shows_steers_and_refuses_as_a_user_sees_it(
                             sets.append(bytes(message.payload).decode())  # type: ignore[arg-type]
 
                 collector = asyncio.create_task(collect())
-                driver.find_element(By.CSS_SELECTOR, "#custom summary").click()  # type: ignore[attr-defined]
-                area = driver.find_element(By.ID, "yaml")  # type: ignore[attr-defined]
-                area.clear()
-                area.send_keys(BAD_PROFILE)
-                driver.find_element(By.ID, "apply-yaml").click()  # type: ignore[attr-defined]
-                error = driver.find_element(By.ID, "yaml-error")  # type: ignore[attr-defined]
+                error = paste_profile(driver, BAD_PROFILE)
                 await until(lambda: error.is_displayed() and "rules[0]" in error.text, 30, "the field error")
                 assert "banana" in error.text and error.get_attribute("data-field").startswith("rules[0]")
                 await asyncio.sleep(1.0)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.support.console import BAD_PROFILE, console_services, until
+from tests.support.console import BAD_PROFILE, console_services, paste_profile, until
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
 
@@ -47,12 +47,7 @@ async def test_radar_ticked_error_said_once_and_cleared_and_clear_empties_the_dr
         assert library.first_selected_option.get_attribute("value") == ""  # nothing in force yet
 
         # A bad pasted profile: its field named once, not "field: source: field: ..."
-        driver.find_element(By.CSS_SELECTOR, "#custom summary").click()  # type: ignore[attr-defined]
-        area = driver.find_element(By.ID, "yaml")  # type: ignore[attr-defined]
-        area.clear()
-        area.send_keys(BAD_PROFILE)
-        driver.find_element(By.ID, "apply-yaml").click()  # type: ignore[attr-defined]
-        error = driver.find_element(By.ID, "yaml-error")  # type: ignore[attr-defined]
+        error = paste_profile(driver, BAD_PROFILE)
         await until(lambda: error.is_displayed() and "banana" in error.text, 10, "the field error")
         field = error.get_attribute("data-field")
         assert field and field.startswith("rules[0]") and error.text.count(field) == 1, error.text
