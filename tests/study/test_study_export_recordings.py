@@ -17,34 +17,10 @@ from secuav_common.loading import InputError
 from study.bundle import export, save_inputs
 from study.spec import load_study
 from study.store import load
+from tests.support.hanyang import TWO_RECORDINGS, convert
 
-ROOT = Path(__file__).resolve().parents[2]
-CONVERT = ROOT / "scripts" / "datasets" / "hanyang_outdoor_uwb.py"
-EXCERPT = ROOT / "tests" / "data" / "hanyang_uwb"
 STUDY = Path(sys.executable).parent / "secuav-study"
-
-STUDY_TEXT = """
-name: exported-recordings
-scenario: LOS/scenario.yaml
-dims: 2
-recordings:
-  - {name: hy-los-4, ranges: LOS/ranges.csv, truth: LOS/truth.csv, rate_hz: 10}
-  - {name: hy-nlos-3, ranges: NLOS/ranges.csv, truth: NLOS/truth.csv, rate_hz: 10, scenario: NLOS/scenario.yaml}
-estimators: [secekf]
-seeds: 1
-attacks:
-  - none
-  - profile: anchors-constant
-    params: {offset_m: 1.5, start_s: 15.0, links: [11, 13]}
-"""
-
-
-def _convert(folder: Path) -> Path:
-    for env, case in (("LOS", 4), ("NLOS", 3)):
-        argv = [sys.executable, str(CONVERT), "convert", "--source", str(EXCERPT), "--env", env, "--case", str(case),
-                "--out", str(folder / env)]  # fmt: skip
-        subprocess.run(argv, check=True, capture_output=True, timeout=120)
-    return folder
+STUDY_TEXT = "name: exported-recordings\n" + TWO_RECORDINGS
 
 
 def _run(study: Path, out: Path, cwd: Path) -> None:
@@ -56,7 +32,7 @@ def _run(study: Path, out: Path, cwd: Path) -> None:
 @pytest.mark.xdist_group("dask_study")
 @pytest.mark.slow
 def test_a_bundle_of_a_recordings_study_reproduces_its_rows_without_the_originals(tmp_path: Path) -> None:
-    author = _convert(tmp_path / "author")
+    author = convert(tmp_path / "author")
     (author / "study.yaml").write_text(STUDY_TEXT)
     out, bundle = tmp_path / "out", tmp_path / "bundle"
     _run(author / "study.yaml", out, cwd=author)
@@ -79,7 +55,7 @@ def test_a_bundle_of_a_recordings_study_reproduces_its_rows_without_the_original
 def test_an_unnamed_recording_keeps_its_path_when_it_can(tmp_path: Path) -> None:
     """Its rows' recording column is the ranges path as written: kept inside the study's folder; a file from
     elsewhere goes to recordings/recording/ (the study's own bundle names are never overwritten)."""
-    data = _convert(tmp_path / "data")
+    data = convert(tmp_path / "data")
     study_dir = tmp_path / "study"
     study_dir.mkdir()
     shutil.copytree(data / "LOS", study_dir / "LOS")
