@@ -111,7 +111,7 @@ def _save_recording(spec: RecordingSpec, key: str, base: Path, inputs: Path) -> 
         target = Path(written) if inside else Path("recordings", key, f"{role}.csv")
         (inputs / target).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(_resolve_near(written, base), inputs / target)
-        entry[role] = target.as_posix()
+        entry[role] = written if inside else target.as_posix()  # inside: the same file from the copy's folder
     if spec.scenario is not None:
         scenario = load_scenario(resolve_scenario_path(_resolve_near(spec.scenario, base)))
         target = Path("recordings", key, "scenario.yaml")
