@@ -25,7 +25,7 @@ from secuav_common.controlplane.topics import CONSOLES_ONLINE, parse, vehicle_to
 
 if TYPE_CHECKING:
     from demos.px4 import Px4Options
-    from demos.sitl import SitlOptions
+    from demos.sitl import SitlOptions, Truth
 
 
 @dataclass(frozen=True, slots=True)
@@ -188,6 +188,54 @@ async def hold_and_attack(bar: FlightProgress, tap: Tap, procs: Processes, log: 
     return hold_s, t_scored, landing, acks
 
 
+def check_window(window: Window, truth: dict[int, list[tuple[float, dict[str, Any]]]], out: Path) -> None:
+    """Refuse to score a flight whose scored window holds no ground truth of some vehicle (its figures would be
+    NaN), saying why: the window's bounds, or a truth stream that stopped."""
+    for sysid, samples in truth.items():
+        if not any(window.start_s <= t <= window.end_s for t, _ in samples):
+            raise RuntimeError(
+                f"no ground truth of vehicle {sysid} in the scored window: it ran {window.end_s - window.start_s:.2f} s"
+                f" (scored from {window.start_s:.2f}, first landing at {window.end_s:.2f}), {len(samples)} truth"
+                f" samples in all; see {out}"
+            )
+
+
+@dataclass
+class SitlHold:
+    """What :func:`hold_on_sitl` leaves: the times of :func:`hold_and_attack` (wall-clock s), the acks, the proxy's
+    estimates, the controller's log entries, and the true heights since arming with the ground's altitude."""
+
+    hold_s: float
+    t_scored: float
+    landing: float
+    acks: dict[int, dict[str, Any]]
+    estimates: list[tuple[float, dict[str, Any]]]
+    entries: list[dict[str, Any]]
+    heights: list[tuple[float, float]]
+    ground_m: float
+
+
+async def hold_on_sitl(bar: FlightProgress, tap: Tap, procs: Processes, log: Path, case: Case, opts: Options,
+                       truth: Truth, sysid: int, armed_timeout_s: float, arming: str = "waiting to arm, taking off",
+                       ) -> SitlHold:  # fmt: skip
+    """An ArduPilot SITL flight whose controller is started and whose ``truth`` follows SITL's state: arm, take off,
+    hold under the case's attack and land (:func:`hold_and_attack`), then stop ``truth`` and read its heights from
+    the controller's ``armed`` event on (from the scored window when it logged none)."""
+    try:
+        hold_s, t_scored, landing, acks = await hold_and_attack(
+            bar, tap, procs, log, case, opts, sysid, armed_timeout_s, arming=arming
+        )
+    finally:
+        truth.stop()
+    estimates = [(x.wall_s, x.payload) for x in tap.on(vehicle_topic(sysid, "estimate"))]
+    if truth.error:
+        raise RuntimeError(truth.error)
+    entries = read_jsonl(log)
+    armed_s = next((float(e["wall_s"]) for e in entries if e.get("event") == "armed"), t_scored)
+    heights, ground = truth.heights(armed_s)
+    return SitlHold(hold_s, t_scored, landing, acks, estimates, entries, heights, ground)
+
+
 def dump_jsonl(path: Path, rows: list[tuple[float, dict[str, Any]]]) -> None:
     path.write_text("".join(json.dumps({"wall_s": t, **d}) + "\n" for t, d in rows), encoding="utf-8")
 
@@ -208,6 +256,8 @@ async def fly(
     logs = {c.sysid: out / f"controller{c.sysid}.jsonl" for c in controllers}
     for path in logs.values():
         path.unlink(missing_ok=True)
+    all_holding = out / "all-holding"  # the controllers' --hold-from: their holds end together
+    all_holding.unlink(missing_ok=True)
     bar = FlightProgress(case.slug, opts.settle_s + opts.seconds, opts.progress)
     async with bar, EmbeddedBroker(port=p.mqtt), Tap("127.0.0.1", p.mqtt, topics) as tap, Processes(out) as procs:
         proxy = [tool("secuav-proxy"), "--scenario", scenario, "--secure", case.secure, "--broker", p.broker_url,
@@ -223,11 +273,12 @@ async def fly(
         for i, c in enumerate(controllers):
             await procs.start(f"controller{c.sysid}", [
                 sys.executable, "-m", c.module, "--url", f"udpin://127.0.0.1:{p.api + i}",
-                "--seconds", str(opts.seconds), "--log", str(logs[c.sysid]), *c.args,
+                "--seconds", str(opts.seconds), "--hold-from", str(all_holding), "--log", str(logs[c.sysid]), *c.args,
             ])  # fmt: skip
         announce_consoles(tap)
         bar.phase("taking off")
         holds = [await wait_for_event(logs[s], "holding", procs, f"controller{s}", 120.0) for s in sysids]
+        all_holding.write_text(f"{time.time()}\n", encoding="utf-8")
         bar.holding_since(max(holds))
         bar.phase("settling")
         await asyncio.sleep(opts.settle_s)
@@ -246,5 +297,6 @@ async def fly(
         dump_jsonl(out / f"truth{s}.jsonl", truth[s])
         dump_jsonl(out / f"estimates{s}.jsonl", estimates[s])
     window = Window(start_s=t_scored, end_s=min(landings), hold_s=max(holds))
+    check_window(window, truth, out)
     steps = {s: [e for e in read_jsonl(logs[s]) if e.get("kind") == "step"] for s in sysids}
     return Record(window, truth, estimates, steps, acks)

@@ -19,7 +19,7 @@ from __future__ import annotations
 import sys
 from typing import Any
 
-from demos.flight import Case, FlightProgress, Options, dump_jsonl, hold_and_attack, read_jsonl
+from demos.flight import Case, FlightProgress, Options, dump_jsonl, hold_on_sitl
 from demos.mqtt_tap import Tap
 from demos.scoring import Window, height_metrics, held_summary
 from demos.sitl import Sitl, Truth, tcp_port
@@ -70,24 +70,16 @@ async def run_case(case: Case, opts: Options) -> dict[str, Any]:
             sys.executable, "-m", CONTROLLER, "--url", f"udpin://127.0.0.1:{p.api}", "--seconds", str(opts.seconds),
             "--log", str(log), "--altitude", str(target_m), "--target", str(target_m),
         ])  # fmt: skip
-        try:
-            hold_s, t_scored, landing, acks = await hold_and_attack(
-                bar, tap, procs, log, case, opts, SYSID, ARMED_S, arming="waiting for ArduPilot to arm, taking off")
-        finally:
-            truth.stop()
-        estimates = [(x.wall_s, x.payload) for x in tap.on(vehicle_topic(SYSID, "estimate"))]
-    if truth.error:
-        raise RuntimeError(truth.error)
-    entries = read_jsonl(log)
-    armed_s = next((float(e["wall_s"]) for e in entries if e.get("event") == "armed"), t_scored)
-    heights, ground = truth.heights(armed_s)
+        flown = await hold_on_sitl(bar, tap, procs, log, case, opts, truth, SYSID, ARMED_S,
+                                   arming="waiting for ArduPilot to arm, taking off")  # fmt: skip
+    heights, estimates = flown.heights, flown.estimates
     dump_jsonl(out / f"truth{SYSID}.jsonl", [(t, {"height_m": h}) for t, h in heights])
     dump_jsonl(out / f"estimates{SYSID}.jsonl", estimates)
-    window = Window(start_s=t_scored, end_s=landing, hold_s=hold_s)
-    steps = [e for e in entries if e.get("kind") == "step"]
+    window = Window(start_s=flown.t_scored, end_s=flown.landing, hold_s=flown.hold_s)
+    steps = [e for e in flown.entries if e.get("kind") == "step"]
     figures = height_metrics(heights, target_m, steps, estimates, window)
-    figures.update(case=case.slug, attack=case.attack, secure=case.secure, attack_ack=acks.get(SYSID),
-                   ground_alt_m=round(ground, 3), truth_samples=len(heights))  # fmt: skip
+    figures.update(case=case.slug, attack=case.attack, secure=case.secure, attack_ack=flown.acks.get(SYSID),
+                   ground_alt_m=round(flown.ground_m, 3), truth_samples=len(heights))  # fmt: skip
     return figures
 
 

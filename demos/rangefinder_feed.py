@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from demos.flight import Case, FlightProgress, Options, dump_jsonl, hold_and_attack, read_jsonl
+from demos.flight import Case, FlightProgress, Options, dump_jsonl, hold_and_attack, hold_on_sitl, read_jsonl
 from demos.mqtt_tap import Tap
 from demos.scoring import Window, _in, _rms_max, height_metrics, held_summary
 from demos.sitl import Sitl, Truth, tcp_port
@@ -94,18 +94,10 @@ async def _fly_ardupilot(case: Case, opts: Options, out: Path, log: Path, target
             sys.executable, "-m", "demos.controllers.vehicle_hold", "--url", f"udpin://127.0.0.1:{p.api}",
             "--seconds", str(opts.seconds), "--log", str(log), "--altitude", str(target_m),
         ])  # fmt: skip
-        try:
-            hold_s, t_scored, landing, acks = await hold_and_attack(bar, tap, procs, log, case, opts, SYSID, ARMED_S)
-        finally:
-            truth.stop()
-        estimates = [(x.wall_s, x.payload) for x in tap.on(vehicle_topic(SYSID, "estimate"))]
-    if truth.error:
-        raise RuntimeError(truth.error)
-    entries = read_jsonl(log)
-    armed_s = next((float(e["wall_s"]) for e in entries if e.get("event") == "armed"), t_scored)
-    heights, ground = truth.heights(armed_s)
-    return _score(case, out, heights, entries, estimates, Window(t_scored, landing, hold_s), target_m, acks,
-                  ground_alt_m=round(ground, 3))  # fmt: skip
+        flown = await hold_on_sitl(bar, tap, procs, log, case, opts, truth, SYSID, ARMED_S)
+    window = Window(flown.t_scored, flown.landing, flown.hold_s)
+    return _score(case, out, flown.heights, flown.entries, flown.estimates, window, target_m, flown.acks,
+                  ground_alt_m=round(flown.ground_m, 3))  # fmt: skip
 
 
 async def _fly_flightsim(case: Case, opts: Options, out: Path, log: Path, target_m: float) -> dict[str, Any]:

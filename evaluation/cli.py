@@ -8,7 +8,9 @@
 ``--attack`` takes a profile file, a library name (``secuav-attack list``) or
 ``none``; ``--param k=v`` fills a library profile's parameters. Each trial flies
 the scenario headless in flightsim (seed = ``--seed`` + trial index), attacks the
-framed UWB streams with the attack_profiles engine and runs every estimator.
+framed UWB streams with the attack_profiles engine and runs every estimator; a secure
+one gives two rows, as in a study's tables: ``name``, its own output (the shared
+attribution off), and ``name+attribution`` (results.json: ``output`` own / attributed).
 Writes ``OUT/results.json``, ``OUT/table.txt`` and the plots ``attack.png``,
 ``errors.png``, ``trajectory.png`` (first trial); prints the table. Same seed,
 same numbers (except the measured step times). Bad input: one line naming the
@@ -58,6 +60,7 @@ from evaluation.trial import (
     evaluate,
     run_trial,
 )
+from evaluation.variants import Variant, with_attribution
 from secuav_common.loading import InputError, parse_params
 from secuav_common.logs import add_common_flags
 from secuav_common.scenario import Scenario, load_scenario, resolve_scenario_path
@@ -206,9 +209,20 @@ def _estimators(given: str | None, model: Any) -> list[str]:
     return names
 
 
-def _trial(args: tuple[Scenario, Profile | None, list[str], int, float, str, int, dict[str, Any]]) -> TrialResult:
-    scenario, profile, names, seed, duration_s, leg, dims, params = args
-    return run_trial(scenario, profile, names, seed, duration_s, leg, params, dims=dims)  # type: ignore[arg-type]
+def _rows(names: list[str]) -> list[Variant]:
+    """The table's rows, as a study has them (evaluation.variants): a secure method twice, ``name`` (its own
+    output) and ``name+attribution``."""
+    return [v for name in names for v in with_attribution(name, name, {}, "offline")]
+
+
+Job = tuple[Scenario, Profile | None, list[Variant], int, float, str, int, dict[str, Any]]
+
+
+def _trial(args: Job) -> TrialResult:
+    scenario, profile, rows, seed, duration_s, leg, dims, params = args
+    labels, own = [v.label for v in rows], {v.label: (v.name, v.build_params()) for v in rows}
+    leg_: Any = leg
+    return run_trial(scenario, profile, labels, seed, duration_s, leg_, params, dims=dims, variants=own)
 
 
 def _scored(trial: TrialResult, args: argparse.Namespace) -> TrialResult:
@@ -269,8 +283,8 @@ def main(argv: list[str] | None = None) -> int:
     if recorded:
         return _main_tlog(args, scenario, scenario_path, profile, names)
     duration = args.duration or scenario.duration_s
-    jobs = [
-        (scenario, profile, names, args.seed + i, duration, args.leg, args.dims, _params(args))
+    jobs: list[Job] = [
+        (scenario, profile, _rows(names), args.seed + i, duration, args.leg, args.dims, _params(args))
         for i in range(args.trials)
     ]
     signal.signal(signal.SIGTERM, _terminate)
@@ -287,7 +301,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"secuav-eval: {InputError('--calibrate', '', err.value, err.reason)}", file=sys.stderr)
         return 2
     trials = [_scored(t, args) for t in trials]
-    summary = summarise(trials)
+    summary = _outputs(summarise(trials), _rows(names))
     compare_with_ls(summary, clean=profile is None)
     args.out.mkdir(parents=True, exist_ok=True)
     meta = {
@@ -311,6 +325,13 @@ def main(argv: list[str] | None = None) -> int:
     }
     _write(args.out, meta, summary, trials[0])
     return 0
+
+
+def _outputs(summary: dict[str, dict[str, Any]], rows: list[Variant]) -> dict[str, dict[str, Any]]:
+    """Each row says what it scores, under the study's column name: ``output`` own or attributed."""
+    for v in rows:
+        summary[v.label] = {"output": v.output, **summary[v.label]}
+    return summary
 
 
 def _write(out: Path, meta: dict[str, Any], summary: dict[str, dict[str, Any]], first: TrialResult) -> None:
@@ -337,15 +358,17 @@ def _main_tlog(
     except InputError as err:
         print(f"secuav-eval: {err}", file=sys.stderr)
         return 2
+    rows = _rows(names)
     try:
-        trial = evaluate(scenario, streams, engine, names, from_log=True, params=_params(args), dims=args.dims,
+        trial = evaluate(scenario, streams, engine, [v.label for v in rows], from_log=True, params=_params(args),
+                         dims=args.dims, variants={v.label: (v.name, v.build_params()) for v in rows},
                          asynchronous=args.asynchronous, window_s=args.window)  # fmt: skip
     except SparseReadings as err:
         flag = {CALIBRATION_PARAM: "--calibrate", ASYNC_PARAM: "--window"}.get(err.option, "--rate")
         print(f"secuav-eval: {InputError(str(args.ranges or args.tlog), flag, err.value, err.reason)}", file=sys.stderr)
         return 2
     trial = _scored(trial, args)
-    summary = summarise([trial])
+    summary = _outputs(summarise([trial]), rows)
     # A log recorded behind an attack is not clean even without --attack: only an evaluation that injects
     # nothing and has truth calls a method's loss to least squares a clean-data loss.
     compare_with_ls(summary, clean=profile is None and trial.scored_errors)

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from evaluation.trial import TrialResult
+from evaluation.variants import ATTRIBUTED, is_secure
 
 RECALL_SIGMAS = 5.0  # an attack counts for recall once it exceeds five noise deviations (issue 6 target)
 
@@ -166,17 +167,12 @@ BASELINES = ("ls", "ekf")  # undefended: the snapshot least-squares fix and the 
 def compare_with_ls(summary: dict[str, dict[str, Any]], clean: bool) -> None:
     """Add ``rmse_vs_ls`` (RMSE over the least-squares baseline's) and, on a clean run, ``loses_to_ls_clean``
     (a secure method whose RMSE exceeds the undefended least-squares fix's) to every row."""
-    import estimators
-
     base = (summary.get("ls") or {}).get("rmse_m")
     for name, row in summary.items():
         rmse = row.get("rmse_m")
         ratio = rmse / base if rmse is not None and base else None
         row["rmse_vs_ls"] = ratio
-        try:
-            secure = bool(estimators.registry.get(name).secure)
-        except (ValueError, ImportError):
-            secure = False
+        secure = is_secure(name.removesuffix(ATTRIBUTED))  # both rows of a secure method (evaluation.variants)
         row["loses_to_ls_clean"] = bool(clean and secure and ratio is not None and ratio > 1.0) if clean else None
 
 
@@ -191,7 +187,8 @@ def _cell(value: float | None, width: int, scale: float = 1.0) -> str:
 def table(summary: dict[str, dict[str, Any]]) -> str:
     """The summary table: absolute errors and time per step."""
     two = any(row.get("inter_vehicle_range") for row in summary.values())
-    head = f"{'Estimator':<10} | {'Mean abs. error [m]':>19} | {'Max abs. error [m]':>18}"
+    w = max([10, *(len(name) + 1 for name in summary)])  # secekf+attribution and a loser's mark fit
+    head = f"{'Estimator':<{w}} | {'Mean abs. error [m]':>19} | {'Max abs. error [m]':>18}"
     if two:
         head += f" | {'Range mean [m]':>14} | {'Range max [m]':>13}"
     head += f" | {'False alarms /h':>15} | {'False accus. /h':>15}"
@@ -199,7 +196,7 @@ def table(summary: dict[str, dict[str, Any]]) -> str:
     lines = [head, "-" * len(head)]
     for name, row in summary.items():
         mark = "*" if row.get("loses_to_ls_clean") else ""
-        line = f"{name + mark:<10} | {_cell(row['mean_error_m'], 19)} | {_cell(row['max_error_m'], 18)}"
+        line = f"{name + mark:<{w}} | {_cell(row['mean_error_m'], 19)} | {_cell(row['max_error_m'], 18)}"
         if two:
             rng = row["inter_vehicle_range"]
             line += f" | {_cell(rng['mean_error_m'], 14)} | {_cell(rng['max_error_m'], 13)}"
@@ -213,6 +210,12 @@ def table(summary: dict[str, dict[str, Any]]) -> str:
         lines.append(
             f"n/a for {', '.join(silent)}: no estimate on any step (alarm throughout: more sensors attacked"
             " than the estimator tolerates, so it refuses to guess)."
+        )
+    if any(name.endswith(ATTRIBUTED) for name in summary):
+        lines.append(
+            "A secure method has two rows, as in a study's tables: `name`, its own output with the shared "
+            "attribution off, and `name+attribution`, its output with SecUAV's shared attribution (results.json: "
+            "output own / attributed)."
         )
     lines.append(
         "False alarms /h: alarms on steps the attack left untouched; false accus. /h: steps naming an untouched"

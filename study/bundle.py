@@ -2,15 +2,16 @@
 
 ``run`` keeps a self-contained copy of its inputs in ``DIR/inputs/``: the study
 file with its references made local (``scenario.yaml``, ``profiles/*.yaml``),
-the scenario as validated, and every attack profile's document as read (a
-library profile's text, a file's), so that a library or a file that changes
-later does not change what the bundle means. The cells of the copy have the
+the scenario as validated, every attack profile's document as read (a
+library profile's text, a file's) and, for a study on recordings, each
+recording's ranges and truth files and its own scenario, so that a library or a
+file that changes later does not change what the bundle means. The cells of the copy have the
 same keys as the original's (a key hashes the scenario's and the resolved
 profile's content, never a path), so ``secuav-study run BUNDLE/study.yaml --out
 NEW`` computes the same cells, and where the code is the same (compare
 ``environment.json``), the same rows.
 
-The bundle: ``study.yaml``, ``scenario.yaml``, ``profiles/``, ``environment.json``
+The bundle: ``study.yaml``, ``scenario.yaml``, ``profiles/``, the recordings' files, ``environment.json``
 (this machine's secuav version, commit and dirty flag, python/numpy/scipy, every
 installed distribution and version, the plugins found, and the provenance the
 rows recorded), ``results.csv`` and ``results.parquet/`` (the rows, newest per
@@ -42,7 +43,7 @@ from secuav_common import plugins
 from secuav_common.loading import InputError
 from secuav_common.scenario import load_scenario, resolve_scenario_path
 from study import provenance, store
-from study.spec import AttackSpec, Study, _resolve_near
+from study.spec import AttackSpec, RecordingSpec, Study, _resolve_near
 
 INPUTS = "inputs"
 
@@ -80,7 +81,43 @@ def save_inputs(out: Path, study: Study, source: Path) -> None:
         attacks.append({"profile": f"profiles/{name}.yaml", **({"params": entry.params} if entry.params else {})})
     doc = study.model_dump(mode="json", exclude_defaults=True)
     doc.update(scenario="scenario.yaml", attacks=attacks)
+    if study.recording is not None:
+        doc["recording"] = _save_recording(study.recording, "recording", base, inputs)
+    if study.recordings is not None:
+        doc["recordings"] = [_save_recording(r, str(r.name), base, inputs) for r in study.recordings]
     _write(inputs / "study.yaml", yaml.safe_dump(doc, sort_keys=False))
+
+
+# The bundle's own names: a recording's file is never copied over one of them.
+OWN = frozenset({"study.yaml", "scenario.yaml", "profiles", "plugins", "environment.json", "results.csv",
+                 "results.parquet", "report.md", "recordings"})  # fmt: skip
+
+
+def _save_recording(spec: RecordingSpec, key: str, base: Path, inputs: Path) -> dict[str, Any]:
+    """Copy one recording's files into ``inputs`` and return its entry with the copies' paths.
+
+    Ranges and truth keep the path as written when it is a plain relative one inside the study's folder (an unnamed
+    recording's rows show its ranges path as written, and still do); otherwise, and for a name of the bundle's own,
+    they go to ``recordings/<key>/ranges.csv`` and ``truth.csv``. Its own scenario is written as validated to
+    ``recordings/<key>/scenario.yaml``, as the study's is. The keys of the cells hash the files' content, never
+    a path, so the copy computes the same cells."""
+    entry = spec.model_dump(mode="json", exclude_defaults=True)
+    for role in ("ranges", "truth"):
+        written = getattr(spec, role)
+        if written is None:
+            continue
+        parts = Path(written).parts
+        inside = not Path(written).is_absolute() and ".." not in parts and parts[0] not in OWN
+        target = Path(written) if inside else Path("recordings", key, f"{role}.csv")
+        (inputs / target).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(_resolve_near(written, base), inputs / target)
+        entry[role] = written if inside else target.as_posix()  # inside: the same file from the copy's folder
+    if spec.scenario is not None:
+        scenario = load_scenario(resolve_scenario_path(_resolve_near(spec.scenario, base)))
+        target = Path("recordings", key, "scenario.yaml")
+        _write(inputs / target, yaml.safe_dump(scenario.model_dump(mode="json"), sort_keys=False))
+        entry["scenario"] = target.as_posix()
+    return entry
 
 
 def _plugins_found() -> dict[str, list[dict[str, str]]]:
@@ -225,6 +262,21 @@ def install_plugins(study: Path) -> list[str]:
     return said
 
 
+def _check_recordings(inputs: Path) -> None:
+    """Runs before recordings were copied into ``inputs`` left their paths as written: one line, not a bundle
+    that cannot run."""
+    doc = yaml.safe_load((inputs / "study.yaml").read_text(encoding="utf-8")) or {}
+    entries = [doc["recording"]] if doc.get("recording") else list(doc.get("recordings") or [])
+    for i, entry in enumerate(entries):
+        for role in ("ranges", "truth", "scenario"):
+            ref = entry.get(role)
+            if ref is not None and (role != "scenario" or is_file_ref(ref)) and not (inputs / ref).is_file():
+                field = "recording" if doc.get("recording") else f"recordings[{i}]"
+                raise InputError(str(inputs / "study.yaml"), f"{field}.{role}", ref,
+                                 "not among the run's inputs: run the study again with this secuav version, "
+                                 "which copies recordings there, then export")  # fmt: skip
+
+
 def export(out: Path, bundle: Path, *, with_sources: bool = False, sources: list[Path] | None = None) -> Path:
     """Write the bundle of study directory ``out`` to ``bundle`` (a new or empty directory); with ``with_sources``
     (or ``sources``) the plugins' sources too."""
@@ -233,6 +285,7 @@ def export(out: Path, bundle: Path, *, with_sources: bool = False, sources: list
         raise InputError(str(out), "inputs/study.yaml", None, "missing: run the study with this secuav version first")
     if bundle.exists() and any(bundle.iterdir()):
         raise InputError(str(bundle), "", None, "exists and is not empty; export into a new directory")
+    _check_recordings(inputs)
     shutil.copytree(inputs, bundle, dirs_exist_ok=True)
     rows = store.load(out)
     cols = ["secuav_version", "secuav_commit", "secuav_dirty", "python_version", "numpy_version", "scipy_version"]

@@ -31,6 +31,7 @@ import numpy as np
 
 from evaluation.report import summarise
 from evaluation.trial import TrialResult
+from evaluation.variants import ATTRIBUTED
 
 SIGMA_BINS = (0.0, 1.0, 3.0, 5.0, 10.0, float("inf"))
 
@@ -96,8 +97,6 @@ def naming_figures(
 def detection_figures(trial: TrialResult, name: str, attributed: bool | None = None) -> dict[str, Any]:
     """A row's figures beyond the pooled ones; ``attributed``: the row's output is the shared attribution's
     (None: as its label says, ``+attribution``)."""
-    from study.spec import ATTRIBUTED
-
     attributed = name.endswith(ATTRIBUTED) if attributed is None else attributed
     trace = trial.traces[name]
     keep = trial.t_s > trial.score_from_s

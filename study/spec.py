@@ -31,12 +31,12 @@ from attack_profiles import library
 from attack_profiles.profile import Profile
 from attack_profiles.resolve import resolve_profile
 from estimators import noise
+from evaluation.variants import SECURE_OFF, Variant, with_attribution
 from secuav_common.loading import InputError, dump_json, load_model, parse_document, validate
 from secuav_common.scenario import HoldTarget, Scenario, load_scenario, resolve_scenario_path
 
 Mode = Literal["offline", "closed-loop"]
 Leg = Literal["hover", "moving"]
-SECURE_OFF = "off"  # closed loop: fly with the secure stage bypassed
 BASELINES = ("ls", "ekf")  # undefended: the snapshot least-squares fix and the EKF, in every offline study
 
 
@@ -99,48 +99,6 @@ class EstimatorSpec(_Strict):
 
 
 EstimatorEntry = Annotated[str | EstimatorSpec, Field(description="a name, or {name, params}")]
-
-
-ATTRIBUTED = "+attribution"  # the label suffix of a secure method's row with the shared attribution on its output
-
-
-@dataclass(frozen=True, slots=True)
-class Variant:
-    """One estimator at one point of its own parameter grid, with or without the shared attribution on its
-    output: what a row's ``estimator`` column names."""
-
-    label: str  # the name, or name[k=v,...] when it has parameters of its own; + "+attribution" when attributed
-    name: str
-    params: dict[str, Any]  # its own parameters (the grid point)
-    # The shared attribution on its output (estimators.base, ``attribution``): None = the class's default
-    # (closed loop, where the secure stage always attributes); False for a secure method's own row.
-    attribution: bool | None = None
-
-    @property
-    def output(self) -> str:
-        """What the row scores: ``own`` (the method's own output) or ``attributed`` (with the attribution)."""
-        return "attributed" if self.label.endswith(ATTRIBUTED) else "own"
-
-    def build_params(self) -> dict[str, Any]:
-        """Its own parameters as the estimator's constructor takes them (the attribution switched off or not)."""
-        return self.params if self.attribution is None else {**self.params, "attribution": self.attribution}
-
-
-def with_attribution(name: str, label: str, params: dict[str, Any], mode: str) -> list[Variant]:
-    """A secure method's two rows offline (its own output, then with the shared attribution); one row otherwise.
-    Closed loop flies the secure stage, which always attributes: its one row is labelled ``+attribution``."""
-    if name == SECURE_OFF or not _is_secure(name):
-        return [Variant(label, name, params)]
-    if mode != "offline":
-        return [Variant(label + ATTRIBUTED, name, params)]
-    return [Variant(label, name, params, attribution=False), Variant(label + ATTRIBUTED, name, params, True)]
-
-
-def _is_secure(name: str) -> bool:
-    try:
-        return bool(estimators.registry.get(name).secure)
-    except (ValueError, ImportError):
-        return False
 
 
 def variant_label(name: str, params: dict[str, Any]) -> str:

@@ -14,6 +14,7 @@ import math
 import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.action import ActionAsync, ActionError
@@ -23,7 +24,7 @@ from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
 from demos.controllers.ranging import STALE_S, Log, Ranges, clip
 
-__all__ = ["LAND_TIMEOUT_S", "RATE_HZ", "STALE_S", "Log", "Ranges", "Vehicle", "arguments",
+__all__ = ["LAND_TIMEOUT_S", "RATE_HZ", "STALE_S", "HoldClock", "Log", "Ranges", "Vehicle", "arguments",
            "clip", "run"]  # fmt: skip
 
 RATE_HZ = 20.0
@@ -41,10 +42,32 @@ class Vehicle:
     pos_ned_m: list[float]
 
 
+class HoldClock:
+    """When a hold ends: ``seconds`` after it began, or, with ``--hold-from FILE``, after that file appeared.
+
+    The file is for flights of several vehicles. Each controller takes off on its own, and on a loaded machine
+    one can reach its hold many seconds after another; counted from each vehicle's own hold, the first would
+    land before the last had settled, and the part of the flight where all of them hold (the scored one) could
+    be empty. Counted from the file the demo writes once all of them hold, they land together."""
+
+    def __init__(self, seconds: float, start_file: str | None, now: float) -> None:
+        self._seconds = seconds
+        self._file = None if start_file is None else Path(start_file)
+        self._end = now + seconds if self._file is None else None
+
+    def running(self, now: float) -> bool:
+        if self._end is None and self._file is not None and self._file.exists():
+            self._end = now + self._seconds
+        return self._end is None or now < self._end
+
+
 def arguments(description: str) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=description)
     p.add_argument("--url", default="udpin://0.0.0.0:14540", help="MAVSDK connection URL")
     p.add_argument("--seconds", type=float, default=40.0, help="how long to hold before landing")
+    p.add_argument("--hold-from", metavar="FILE",
+                   help="count --seconds from when FILE appears, not from this vehicle's own hold (a flight of "
+                        "several vehicles: the demo writes it once every vehicle holds)")  # fmt: skip
     p.add_argument("--altitude", type=float, default=2.5, help="hover altitude, metres")
     p.add_argument("--gain", type=float, default=0.8, help="metres per second per metre of error")
     p.add_argument("--connect-timeout", type=float, default=20.0)

@@ -26,7 +26,7 @@ import time
 import numpy as np
 from mavsdk.asyncio.plugins.offboard import VelocityNedYaw
 
-from demos.controllers.common import RATE_HZ, Log, Vehicle, arguments, clip, run
+from demos.controllers.common import RATE_HZ, HoldClock, Log, Vehicle, arguments, clip, run
 from secuav_common.scenario import load_scenario
 from secuav_common.sensor_ids import ANCHOR_BASE
 
@@ -70,8 +70,8 @@ def main(argv: list[str] | None = None) -> None:
         await v.offboard.start()
         log.write("event", event="holding")
         fix = np.array(v.pos_ned_m[:2])
-        t_end = time.monotonic() + args.seconds
-        while (now := time.monotonic()) < t_end:
+        clock = HoldClock(args.seconds, args.hold_from, time.monotonic())
+        while clock.running(now := time.monotonic()):
             readings, flagged = v.ranges.fresh(now, anchor_ids)
             peer = None
             if args.peer_range is not None:

@@ -30,7 +30,7 @@ import time
 
 from mavsdk.asyncio.plugins.offboard import VelocityBodyYawspeed
 
-from demos.controllers.common import RATE_HZ, Log, Vehicle, arguments, clip, run
+from demos.controllers.common import RATE_HZ, HoldClock, Log, Vehicle, arguments, clip, run
 
 MAX_SPEED_M_S = 1.0
 ON_TARGET_M = 0.15  # the approach is over once the distance is this close to the target...
@@ -50,8 +50,8 @@ def main(argv: list[str] | None = None) -> None:
         await v.offboard.start()
         t_start = time.monotonic()
         on_since: float | None = None
-        t_end: float | None = None  # set when the hold begins
-        while t_end is None or time.monotonic() < t_end:
+        clock: HoldClock | None = None  # set when the hold begins
+        while clock is None or clock.running(time.monotonic()):
             now = time.monotonic()
             readings, flagged = v.ranges.fresh(now, group)
             distance = sum(readings.values()) / len(readings) if readings else None
@@ -59,12 +59,12 @@ def main(argv: list[str] | None = None) -> None:
             down = clip(-args.gain * (v.pos_ned_m[2] + args.altitude), 0.5)  # below the altitude: climb (down < 0)
             await v.offboard.set_velocity_body(VelocityBodyYawspeed(forward, 0.0, down, 0.0))
             log.write("step", distance_m=distance, readings_m=readings, flagged=flagged, forward_m_s=round(forward, 3))
-            if t_end is None:
+            if clock is None:
                 near = distance is not None and abs(distance - args.target) <= ON_TARGET_M
                 on_since = (now if on_since is None else on_since) if near else None
                 if (on_since is not None and now - on_since >= ON_TARGET_S) or now - t_start >= APPROACH_MAX_S:
                     log.write("event", event="holding", on_target=near)
-                    t_end = now + args.seconds
+                    clock = HoldClock(args.seconds, args.hold_from, now)
             await asyncio.sleep(1.0 / RATE_HZ)
 
     run(args, hold)

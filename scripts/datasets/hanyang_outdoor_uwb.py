@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import math
 import sys
 import urllib.request
@@ -51,7 +50,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # the shared fitting module beside this script
-from uwb_fit import fit_noise, sample_last
+from converter_cli import converter_parser, print_fit
+from uwb_fit import sample_last
 
 NAME = "Comprehensive outdoor UWB dataset (ADIP lab, Hanyang University), Dynamic_measurements"
 REPO_URL = "https://github.com/cucudasluv/UWB-dataset"
@@ -395,18 +395,13 @@ def _cases(text: str) -> list[tuple[str, int]]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    sub = p.add_subparsers(dest="cmd", required=True)
-    for name in ("convert", "fit"):
-        c = sub.add_parser(name)
-        c.add_argument("--source", type=Path, default=None, help="a local copy of the repository (its root)")
-        c.add_argument("--cache", type=Path, default=Path("out/datasets/hanyang-uwb"), help="download folder")
-    conv = sub.choices["convert"]
+    p, conv, fit = converter_parser(
+        __doc__.split("\n")[0], "a local copy of the repository (its root)", Path("out/datasets/hanyang-uwb")
+    )
     conv.add_argument("--env", choices=ENVS, default="LOS")
     conv.add_argument("--case", type=int, choices=sorted(TRAJECTORY), default=1)
     conv.add_argument("--sigma", type=float, default=0.1, help="the noise std the scenario states (m)")
     conv.add_argument("--out", type=Path, required=True)
-    fit = sub.choices["fit"]
     fit.add_argument("--cases", default="LOS:1,LOS:2,LOS:3,LOS:4", help="comma-separated ENV:CASE")
     args = p.parse_args(argv)
     try:
@@ -423,9 +418,7 @@ def main(argv: list[str] | None = None) -> int:
             runs[run.name] = {**describe(run, lag), "clock_lag_s": lag}
             series.append(link_series(run, lag))
         result = {"dataset": NAME, "url": REPO_URL, "commit": COMMIT, "licence": LICENCE, "doi": DOI, "runs": runs}
-        result.update(fit_noise(series))
-        print(json.dumps(result, indent=2))
-        return 0
+        return print_fit(result, series)
     except (DatasetError, OSError) as err:
         print(f"hanyang_outdoor_uwb: {err}", file=sys.stderr)
         return 2

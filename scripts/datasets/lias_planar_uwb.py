@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import math
 import sys
 import urllib.request
@@ -45,7 +44,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # the shared fitting module beside this script
-from uwb_fit import fit_noise, sample_last
+from converter_cli import converter_parser, print_fit
+from uwb_fit import fit_noise as fit_noise  # the fit, also from this module (as its tests call it)
+from uwb_fit import sample_last
 
 NAME = "LIAS-CUHKSZ planar UWB dataset (Jiang et al., ICRA 2023), Planar_Dataset/Dynamic"
 REPO_URL = "https://github.com/LIAS-CUHKSZ/Efficient-Pose-Estimation-via-UWB-measurements"
@@ -291,17 +292,12 @@ def _source(args: argparse.Namespace, run: str) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    sub = p.add_subparsers(dest="cmd", required=True)
-    for name in ("convert", "fit"):
-        c = sub.add_parser(name)
-        c.add_argument("--source", type=Path, default=None, help="a local copy of Planar_Dataset/Dynamic")
-        c.add_argument("--cache", type=Path, default=Path("out/datasets/lias-planar"), help="download folder")
-    conv = sub.choices["convert"]
+    p, conv, fit = converter_parser(
+        __doc__.split("\n")[0], "a local copy of Planar_Dataset/Dynamic", Path("out/datasets/lias-planar")
+    )
     conv.add_argument("--run", choices=RUNS, default="fast")
     conv.add_argument("--tag", type=int, choices=range(N_TAGS), default=0)
     conv.add_argument("--out", type=Path, required=True)
-    fit = sub.choices["fit"]
     fit.add_argument("--runs", default="fast,mid", help="comma-separated runs")
     args = p.parse_args(argv)
     try:
@@ -318,9 +314,7 @@ def main(argv: list[str] | None = None) -> int:
             lags[run] = best_lag_s(rec, np.round(np.arange(-0.3, 0.301, 0.02), 3))
             series.append(link_series(rec, lags[run]))
         result = {"dataset": NAME, "url": REPO_URL, "commit": COMMIT, "licence": LICENCE, "clock_lag_s": lags}
-        result.update(fit_noise(series))
-        print(json.dumps(result, indent=2))
-        return 0
+        return print_fit(result, series)
     except (DatasetError, OSError) as err:
         print(f"lias_planar_uwb: {err}", file=sys.stderr)
         return 2

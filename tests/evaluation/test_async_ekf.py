@@ -37,7 +37,7 @@ def test_every_estimator_reads_each_reading_at_its_own_time(tmp_path: Path) -> N
     assert both["processing"] == {"ls": "aligned", "ekf": "sequential", "secekf": "aligned"}
     assert both["async_window_s"] == 1.0 and sync["async_window_s"] is None
     assert set(sync["processing"].values()) == {"synchronous"}
-    for name in ("ls", "ekf", "secekf"):
+    for name in ("ls", "ekf", "secekf+attribution"):  # the rows read before secure methods had two
         got, framed = both["estimators"][name], sync["estimators"][name]
         assert got["estimate_fraction"] == 1.0
         # Framed at 1 Hz a frame holds readings up to 1 s (0.3 m of motion) old; brought to the frame's time (or
@@ -47,7 +47,7 @@ def test_every_estimator_reads_each_reading_at_its_own_time(tmp_path: Path) -> N
     # An attack injected here reaches the readings taken one at a time: +1.5 m on links 11 and 14.
     attacked = _eval(ranges, truth, tmp_path / "a", "--attack", "anchors-constant")
     assert attacked["estimators"]["ekf"]["rmse_m"] > both["estimators"]["ekf"]["rmse_m"] + 0.2
-    sec = attacked["estimators"]["secekf"]
+    sec = attacked["estimators"]["secekf+attribution"]
     assert sec["attack_detection_recall"] > 0.9 and sec["rmse_m"] < 0.2
 
 

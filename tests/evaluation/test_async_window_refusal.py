@@ -37,7 +37,7 @@ def test_a_window_shorter_than_the_links_need_is_refused(tmp_path: Path, capsys:
     assert main(_argv(ranges, truth, out, "--rate", "4", "--window", "2.5")) == 0
     res = json.loads((out / "results.json").read_text())
     assert res["async_window_s"] == 2.5 and res["processing"]["secekf"] == "aligned"
-    assert res["estimators"]["secekf"]["rmse_m"] < 0.1 and res["estimators"]["ekf"]["rmse_m"] < 0.1
+    assert res["estimators"]["secekf+attribution"]["rmse_m"] < 0.1 and res["estimators"]["ekf"]["rmse_m"] < 0.1
 
 
 def test_window_needs_asynchronous_processing(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

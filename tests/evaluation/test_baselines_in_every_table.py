@@ -43,10 +43,11 @@ def test_the_evaluation_adds_the_baselines_it_was_not_given(tmp_path: Path) -> N
             "--estimators", "secekf", "--attack", "none", "--rate", "10", "--out", str(out)]  # fmt: skip
     assert main(argv) == 0
     res = json.loads((out / "results.json").read_text())["estimators"]
-    assert list(res) == ["ls", "ekf", "secekf"]
+    assert list(res) == ["ls", "ekf", "secekf", "secekf+attribution"]  # a secure method's two rows
     assert res["ls"]["rmse_vs_ls"] == pytest.approx(1.0)
-    secekf = res["secekf"]
-    assert secekf["loses_to_ls_clean"] == (secekf["rmse_vs_ls"] > 1.0)
+    for label in ("secekf", "secekf+attribution"):
+        secekf = res[label]
+        assert secekf["loses_to_ls_clean"] == (secekf["rmse_vs_ls"] > 1.0)
     lines = (out / "table.txt").read_text().splitlines()
     assert any(line.startswith("ls ") for line in lines) and any(line.startswith("ekf ") for line in lines)
 

@@ -19,6 +19,8 @@ FIELDS = {
     "attack_detection_precision",
     "attack_detection_recall",
 }
+# A secure method's two rows, as a study's tables have them: its own output, and with the shared attribution.
+SECURE_ROWS = ("secekf", "secekf+attribution", "rarse", "rarse+attribution")
 
 
 def _run(out: Path, *extra: str) -> int:
@@ -31,10 +33,16 @@ def test_test_case_1_outputs_and_same_seed_same_numbers(tmp_path: Path, capsys: 
     printed = capsys.readouterr().out
     assert "Mean abs. error [m]" in printed and "Time per step [ms]" in printed
     res = json.loads((tmp_path / "a" / "results.json").read_text())
-    assert res["test_case"] == 1 and set(res["estimators"]) == {"ls", "ekf", "secekf", "rarse"}  # ls: baseline
+    assert res["test_case"] == 1 and set(res["estimators"]) == {"ls", "ekf", *SECURE_ROWS}  # ls: baseline
     for row in res["estimators"].values():
         assert set(row) >= FIELDS
-    sec, ekf = res["estimators"]["secekf"], res["estimators"]["ekf"]
+    assert {label: row["output"] for label, row in res["estimators"].items()} == {
+        "ls": "own", "ekf": "own", "secekf": "own", "secekf+attribution": "attributed", "rarse": "own",
+        "rarse+attribution": "attributed",
+    }  # fmt: skip
+    labels = [line.split(" | ")[0].strip() for line in printed.splitlines()[2:8]]
+    assert labels == ["ls", "ekf", *SECURE_ROWS]
+    sec, ekf = res["estimators"]["secekf+attribution"], res["estimators"]["ekf"]
     assert sec["rmse_m"] < 0.15 and ekf["rmse_m"] > 2 * sec["rmse_m"]
     assert sec["attack_detection_recall"] >= 0.9 and sec["attack_detection_precision"] >= 0.9
     assert ekf["attack_detection_recall"] == 0.0 and ekf["attack_detection_precision"] is None
@@ -51,7 +59,7 @@ def test_test_case_2_reports_the_inter_vehicle_range(tmp_path: Path) -> None:
     assert _run(tmp_path, "--scenario", "formation", "--attack", "none", "--estimators", "ekf,secopt") == 0
     res = json.loads((tmp_path / "results.json").read_text())
     assert res["test_case"] == 2
-    rng = res["estimators"]["secopt"]["inter_vehicle_range"]
+    rng = res["estimators"]["secopt+attribution"]["inter_vehicle_range"]
     assert rng["rmse_m"] < 0.3
 
 
@@ -77,7 +85,7 @@ def test_wall_hover_group(tmp_path: Path) -> None:
     assert _run(tmp_path, *args, "--estimators", "ekf,recap") == 0
     res = json.loads((tmp_path / "results.json").read_text())
     assert res["test_case"] == "wall"
-    recap, ekf = res["estimators"]["recap"], res["estimators"]["ekf"]
+    recap, ekf = res["estimators"]["recap+attribution"], res["estimators"]["ekf"]
     assert recap["max_error_m"] < 0.1 and ekf["max_error_m"] > 0.5
     assert recap["attack_detection_recall"] >= 0.9
 
@@ -90,10 +98,10 @@ def test_moving_leg_type_b_in_parallel_gives_the_serial_numbers(tmp_path: Path) 
     par = json.loads((tmp_path / "par" / "results.json").read_text())
     ser = json.loads((tmp_path / "ser" / "results.json").read_text())
     assert par["leg"] == "moving" and par["trials"] == 2
-    for name in ("ekf", "rarse"):
+    for name in ("ekf", "rarse", "rarse+attribution"):
         for key in ("rmse_m", "max_error_m", "attack_detection_recall", "attack_detection_precision"):
             assert par["estimators"][name][key] == ser["estimators"][name][key], (name, key)
-    rarse, ekf = par["estimators"]["rarse"], par["estimators"]["ekf"]
+    rarse, ekf = par["estimators"]["rarse+attribution"], par["estimators"]["ekf"]
     assert rarse["rmse_m"] < 0.12 and ekf["max_error_m"] > 2 * rarse["max_error_m"]
     assert rarse["attack_detection_recall"] >= 0.9
 
@@ -104,7 +112,7 @@ def test_each_formation_vehicle_tolerates_two_of_its_own_anchors(tmp_path: Path)
     args = ("--scenario", "formation", "--attack", "type-a", "--estimators", "ekf,secekf,rarse", "--duration", "8")
     assert main(["--trials", "1", "--out", str(tmp_path), *args]) == 0
     rows = json.loads((tmp_path / "results.json").read_text())["estimators"]
-    for name in ("secekf", "rarse"):
+    for name in ("secekf+attribution", "rarse+attribution"):
         assert rows[name]["estimate_fraction"] == 1.0 and rows[name]["rmse_m"] < 0.1, name
     assert rows["ekf"]["rmse_m"] > 0.2  # confidently wrong
 
@@ -116,8 +124,9 @@ def test_over_attacked_formation_alarms_instead_of_guessing(tmp_path: Path, caps
     assert main(["--trials", "1", "--out", str(tmp_path), *args, *params]) == 0
     assert "refuses to guess" in capsys.readouterr().out
     rows = json.loads((tmp_path / "results.json").read_text())["estimators"]
-    assert rows["secekf"]["alarm_fraction"] == 1.0 and rows["secekf"]["estimate_fraction"] == 0.0
-    assert rows["secekf"]["rmse_m"] is None
+    sec = rows["secekf+attribution"]
+    assert sec["alarm_fraction"] == 1.0 and sec["estimate_fraction"] == 0.0
+    assert sec["rmse_m"] is None
     assert rows["ekf"]["estimate_fraction"] == 1.0 and rows["ekf"]["rmse_m"] > 0.2  # confidently wrong
 
 

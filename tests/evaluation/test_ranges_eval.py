@@ -88,7 +88,7 @@ def test_clean_recording_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixtur
     assert res["rate_hz"] == 10.0 and res["frames"] == SECONDS * 10
     ekf = res["estimators"]["ekf"]
     assert ekf["rmse_m"] < 0.15  # white noise of the stated sigma: the EKF tracks the circle
-    sec = res["estimators"]["secekf"]
+    sec = res["estimators"]["secekf+attribution"]
     assert sec["attack_free_hours"] == pytest.approx((SECONDS - 1.0) / 3600, rel=0.02)  # all but the warm-up
     for key in ("false_alarm_per_step", "false_alarms_per_run", "false_alarms_per_hour", "false_accusations_per_hour"):
         assert sec[key] is not None and sec[key] >= 0
@@ -96,7 +96,7 @@ def test_clean_recording_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixtur
 
 def test_attack_injected_on_recorded_ranges(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     res = _run(tmp_path, "anchors-constant", capsys)  # links 11 and 14 +1.5 m from 5 s
-    sec, ekf = res["estimators"]["secekf"], res["estimators"]["ekf"]
+    sec, ekf = res["estimators"]["secekf+attribution"], res["estimators"]["ekf"]
     named = sec["named_fraction_by_sensor_id"]
     assert named["11"] > 0.5 and named["14"] > 0.5 and max(named[k] for k in named if k not in ("11", "14")) < 0.2
     assert sec["rmse_m"] < ekf["rmse_m"]
@@ -147,7 +147,7 @@ def test_calibration_flags_reach_the_estimators_and_the_scoring(
     assert main([*argv, "--out", str(out)]) == 0
     res = json.loads((out / "results.json").read_text())
     assert res["calibration_s"] == 5.0 and res["calibration_tail_dof"] == 6.2 and res["score_from_s"] == 6.0
-    sec = res["estimators"]["secekf"]
+    sec = res["estimators"]["secekf+attribution"]
     assert sec["attack_free_hours"] == pytest.approx((SECONDS - 6.0) / 3600, rel=0.02)
     assert sec["false_accusation_per_step"] < 0.02  # white noise of the stated sigma, widened for the tails
     assert main([*argv[:-4], "--tail-dof", "6.2", "--out", str(tmp_path / "x")]) == 2

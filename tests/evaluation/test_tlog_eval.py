@@ -84,7 +84,7 @@ def test_attacked_log_with_truth_scores_errors_and_names_the_links(logs: dict[st
     assert res["log"]["sysids"] == [1] and abs(res["rate_hz"] - 10.0) < 0.1
     assert res["frames"] >= DURATION_S * 10 - 2
     rows = res["estimators"]
-    for name in ("secekf", "rarse"):
+    for name in ("secekf+attribution", "rarse+attribution"):
         row = rows[name]
         assert row["rmse_m"] < 0.15, name
         assert row["attack_detection_recall"] >= 0.9 and row["attack_detection_precision"] >= 0.9, name
@@ -92,7 +92,7 @@ def test_attacked_log_with_truth_scores_errors_and_names_the_links(logs: dict[st
         assert named["11"] > 0.6 and named["14"] > 0.6, name  # attacked from 5 s of 20
         # Every other reading, the downward laser (id 0) too: the filters follow the take-off climb.
         assert max(v for k, v in named.items() if k not in ("11", "14")) < 0.05, name
-    assert rows["ekf"]["rmse_m"] > 3 * rows["secekf"]["rmse_m"]  # the undefended filter is dragged
+    assert rows["ekf"]["rmse_m"] > 3 * rows["secekf+attribution"]["rmse_m"]  # the undefended filter is dragged
     assert rows["ekf"]["attack_detection_recall"] == 0.0
     for png in ("attack.png", "errors.png", "trajectory.png"):
         assert (tmp_path / png).stat().st_size > 1000
@@ -117,7 +117,7 @@ def test_log_without_truth_reports_alarms_links_and_step_times_only(
     assert "n/a" in capsys.readouterr().out
     res = json.loads((tmp_path / "results.json").read_text())
     assert not res["errors_scored"] and not res["detection_scored"]
-    sec = res["estimators"]["secekf"]
+    sec = res["estimators"]["secekf+attribution"]
     assert sec["rmse_m"] is None and sec["max_error_m"] is None
     assert sec["attack_detection_recall"] is None and sec["attack_detection_precision"] is None
     assert sec["named_fraction_by_sensor_id"]["11"] > 0.6 and sec["step_time_us_median"] > 0
@@ -132,13 +132,14 @@ def test_clean_log_with_an_attack_added_offline(logs: dict[str, Path], tmp_path:
     assert _eval(tmp_path / "a", *args) == 0
     res = json.loads((tmp_path / "a" / "results.json").read_text())
     assert res["attack"] == "type-a" and not res["errors_scored"] and res["detection_scored"]
-    sec = res["estimators"]["secekf"]
+    sec = res["estimators"]["secekf+attribution"]
     assert sec["attack_detection_recall"] >= 0.95 and sec["attack_detection_precision"] >= 0.9
     assert sec["named_fraction_by_sensor_id"]["12"] > 0.9
     # Same log, same attack, same numbers.
     assert _eval(tmp_path / "b", *args) == 0
     again = json.loads((tmp_path / "b" / "results.json").read_text())
-    assert again["estimators"]["secekf"]["named_fraction_by_sensor_id"] == sec["named_fraction_by_sensor_id"]
+    named = again["estimators"]["secekf+attribution"]["named_fraction_by_sensor_id"]
+    assert named == sec["named_fraction_by_sensor_id"]
 
 
 @pytest.mark.timeout(60)
@@ -248,7 +249,7 @@ def test_two_vehicles_on_two_ports_score_the_inter_vehicle_range(tmp_path: Path)
     assert main([*args, "--tlog", str(tlog), "--truth", str(truth)]) == 0
     res = json.loads((out / "results.json").read_text())
     assert res["test_case"] == 2 and res["log"]["sysids"] == [1, 2]
-    sec, ekf = res["estimators"]["secekf"], res["estimators"]["ekf"]
+    sec, ekf = res["estimators"]["secekf+attribution"], res["estimators"]["ekf"]
     assert sec["rmse_m"] < 0.15 and sec["inter_vehicle_range"]["rmse_m"] < 0.2
     assert ekf["rmse_m"] > 2 * sec["rmse_m"]
     assert sec["attack_detection_recall"] >= 0.9

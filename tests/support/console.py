@@ -121,6 +121,18 @@ rules:
 """
 
 
+def paste_profile(driver: Any, text: str) -> Any:
+    """Paste ``text`` into the page's custom-profile box and apply it, as a user does; the page's error element."""
+    from selenium.webdriver.common.by import By
+
+    driver.find_element(By.CSS_SELECTOR, "#custom summary").click()
+    area = driver.find_element(By.ID, "yaml")
+    area.clear()
+    area.send_keys(text)
+    driver.find_element(By.ID, "apply-yaml").click()
+    return driver.find_element(By.ID, "yaml-error")
+
+
 def spawn(args: list[str], log: Path) -> subprocess.Popen[bytes]:
     return subprocess.Popen([sys.executable, "-m", *args], stdout=log.open("wb"), stderr=subprocess.STDOUT,
                             env={**os.environ, "PYTHONUNBUFFERED": "1"})  # fmt: skip
@@ -138,6 +150,61 @@ def stop_all(procs: list[subprocess.Popen[bytes]]) -> list[int | None]:
             proc.kill()
             codes.append(None)
     return codes
+
+
+@dataclass
+class Services:
+    """The real services of a page test (:func:`console_services`): their ports and processes, and the processes'
+    exit codes once stopped."""
+
+    tmp_path: Path
+    port: int  # the broker's
+    web: int  # the console's
+    vehicle: int  # where the proxy listens for the vehicle
+    gcs_port: int  # where the proxy sends to the ground
+    procs: list[subprocess.Popen[bytes]]
+    codes: list[int | None] | None = None
+
+    @property
+    def broker(self) -> str:
+        return f"mqtt://127.0.0.1:{self.port}"
+
+    async def console_up(self) -> None:
+        await until(lambda: b"console.ready" in (self.tmp_path / "console.log").read_bytes(), 30, "console up")
+
+
+@contextlib.asynccontextmanager
+async def console_services(
+    tmp_path: Path,
+    udp_port: Any,
+    *,
+    proxy_args: tuple[str, ...] = (),
+    flightsim: bool = True,
+    flightsim_on_broker: bool = False,
+) -> AsyncIterator[Services]:
+    """A real broker, then ``secuav-proxy`` (``p.log``; ``proxy_args`` after its instance name), ``secuav-sim
+    wall_hover`` sending to it (``sim.log``; on the broker too with ``flightsim_on_broker``) unless not
+    ``flightsim``, and ``secuav-console --scenario wall_hover`` (``console.log``), in that order; on exit the
+    processes are stopped (``codes``), then the broker."""
+    port, web = free_tcp_port(), free_tcp_port()
+    vehicle, gcs_port = udp_port(), udp_port()
+    services = Services(tmp_path, port, web, vehicle, gcs_port, [])
+    broker = services.broker
+    async with EmbeddedBroker(port=port):
+        procs = services.procs
+        procs.append(spawn(["mitm_proxy", "--broker", broker, "--instance", "bench", *proxy_args, "--vehicle",
+                            f"udpin://127.0.0.1:{vehicle}", "--ground", f"udpout://127.0.0.1:{gcs_port}"],
+                           tmp_path / "p.log"))  # fmt: skip
+        if flightsim:
+            on_broker = ["--broker", broker] if flightsim_on_broker else []
+            procs.append(spawn(["flightsim", "wall_hover", "--mavlink", f"udpout://127.0.0.1:{vehicle}", *on_broker],
+                               tmp_path / "sim.log"))  # fmt: skip
+        procs.append(spawn(["webconsole", "--broker", broker, "--listen", f"127.0.0.1:{web}", "--scenario",
+                            "wall_hover"], tmp_path / "console.log"))  # fmt: skip
+        try:
+            yield services
+        finally:
+            services.codes = stop_all(procs)
 
 
 async def until(check: object, limit_s: float, what: str) -> None:

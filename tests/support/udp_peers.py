@@ -54,5 +54,20 @@ class Peer:
                 return out, sender
             out.extend(f for _h, f in split(data).frames)
 
+    async def take(self, count: int, bound_s: float = 20.0) -> tuple[list[bytes], tuple[str, int] | None]:
+        """The first ``count`` frames to arrive, however slowly a loaded machine delivers them, and the last
+        sender. ``bound_s`` only bounds a failure: when fewer arrive, what did is returned for the assertion."""
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + bound_s
+        out: list[bytes] = []
+        sender = None
+        while len(out) < count:
+            try:
+                data, sender = await asyncio.wait_for(loop.sock_recvfrom(self.sock, 65535), deadline - loop.time())
+            except TimeoutError:
+                break
+            out.extend(f for _h, f in split(data).frames)
+        return out, sender
+
     def close(self) -> None:
         self.sock.close()

@@ -22,9 +22,7 @@ import pytest
 from pymavlink import mavutil
 
 from mavframe import tlog
-from secuav_common.broker import EmbeddedBroker
-from tests.conftest import free_tcp_port
-from tests.support.console import BAD_PROFILE, spawn, stop_all, until
+from tests.support.console import BAD_PROFILE, console_services, paste_profile, until
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 
@@ -51,22 +49,12 @@ async def test_the_page_shows_steers_and_refuses_as_a_user_sees_it(
     from selenium.webdriver.support.ui import Select
 
     driver = browser
-    port, web = free_tcp_port(), free_tcp_port()
-    vehicle, gcs_port = udp_port(), udp_port()  # type: ignore[operator]
-    broker = f"mqtt://127.0.0.1:{port}"
-    async with EmbeddedBroker(port=port):
-        procs = [
-            spawn(["mitm_proxy", "--broker", broker, "--instance", "bench", "--vehicle",
-                    f"udpin://127.0.0.1:{vehicle}", "--ground", f"udpout://127.0.0.1:{gcs_port}"], tmp_path / "p.log"),
-            spawn(["flightsim", "wall_hover", "--mavlink", f"udpout://127.0.0.1:{vehicle}", "--broker", broker],
-                   tmp_path / "sim.log"),
-            spawn(["webconsole", "--broker", broker, "--listen", f"127.0.0.1:{web}", "--scenario", "wall_hover"],
-                   tmp_path / "console.log"),
-        ]  # fmt: skip
-        gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{gcs_port}", source_system=255)
+    async with console_services(tmp_path, udp_port, flightsim_on_broker=True) as services:
+        port, web = services.port, services.web
+        gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{services.gcs_port}", source_system=255)
         sets: list[str] = []
         try:
-            await until(lambda: b"console.ready" in (tmp_path / "console.log").read_bytes(), 30, "console up")
+            await services.console_up()
             baseline = await asyncio.to_thread(_sensor0_cm, gcs, 1.0)
             assert baseline and all(450 < v < 550 for v in baseline), baseline  # 5 m to the wall
 
@@ -113,12 +101,7 @@ async def test_the_page_shows_steers_and_refuses_as_a_user_sees_it(
                             sets.append(bytes(message.payload).decode())  # type: ignore[arg-type]
 
                 collector = asyncio.create_task(collect())
-                driver.find_element(By.CSS_SELECTOR, "#custom summary").click()  # type: ignore[attr-defined]
-                area = driver.find_element(By.ID, "yaml")  # type: ignore[attr-defined]
-                area.clear()
-                area.send_keys(BAD_PROFILE)
-                driver.find_element(By.ID, "apply-yaml").click()  # type: ignore[attr-defined]
-                error = driver.find_element(By.ID, "yaml-error")  # type: ignore[attr-defined]
+                error = paste_profile(driver, BAD_PROFILE)
                 await until(lambda: error.is_displayed() and "rules[0]" in error.text, 30, "the field error")
                 assert "banana" in error.text and error.get_attribute("data-field").startswith("rules[0]")
                 await asyncio.sleep(1.0)
@@ -140,7 +123,7 @@ async def test_the_page_shows_steers_and_refuses_as_a_user_sees_it(
             assert refused == [True], logged
         finally:
             gcs.close()
-            codes = stop_all(procs)
+    codes = services.codes
     assert codes == [0, 0, 0] or all(c in (0, 130) for c in codes), [
         (p, (tmp_path / p).read_text()[-2000:]) for p in ("p.log", "sim.log", "console.log")
     ]
@@ -154,13 +137,10 @@ async def test_the_page_shows_why_the_secure_stage_cannot_work(
     rangefinders 0-2, tests/data): the page marks the vehicle's row and shows ``secure.layout_mismatch`` above its
     view (issue 27, item 2)."""
     driver = browser
-    port, web = free_tcp_port(), free_tcp_port()
-    vehicle, gcs_port = udp_port(), udp_port()  # type: ignore[operator]
-    broker = f"mqtt://127.0.0.1:{port}"
     recorded = tlog.TlogReader((Path(__file__).resolve().parents[1] / "data/ardupilot-copter-guided.tlog").read_bytes())
     frames = [e.raw for e in recorded if e.header.sysid == 1][2000:4000]  # after boot: rangefinders streaming
 
-    async def stream(stop: asyncio.Event) -> None:
+    async def stream(stop: asyncio.Event, vehicle: int) -> None:
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             while not stop.is_set():
@@ -172,19 +152,13 @@ async def test_the_page_shows_why_the_secure_stage_cannot_work(
         finally:
             sock.close()
 
-    async with EmbeddedBroker(port=port):
-        procs = [
-            spawn(["mitm_proxy", "--broker", broker, "--instance", "bench", "--scenario", "wall_hover", "--secure",
-                    "secekf", "--vehicle", f"udpin://127.0.0.1:{vehicle}", "--ground", f"udpout://127.0.0.1:{gcs_port}"],
-                   tmp_path / "p.log"),
-            spawn(["webconsole", "--broker", broker, "--listen", f"127.0.0.1:{web}", "--scenario", "wall_hover"],
-                   tmp_path / "console.log"),
-        ]  # fmt: skip
+    proxy_args = ("--scenario", "wall_hover", "--secure", "secekf")
+    async with console_services(tmp_path, udp_port, proxy_args=proxy_args, flightsim=False) as services:
         stop = asyncio.Event()
-        sender = asyncio.create_task(stream(stop))
+        sender = asyncio.create_task(stream(stop, services.vehicle))
         try:
-            await until(lambda: b"console.ready" in (tmp_path / "console.log").read_bytes(), 30, "console up")
-            driver.get(f"http://127.0.0.1:{web}/")  # type: ignore[attr-defined]
+            await services.console_up()
+            driver.get(f"http://127.0.0.1:{services.web}/")  # type: ignore[attr-defined]
 
             def shown() -> list[str]:
                 return driver.execute_script(  # type: ignore[attr-defined, no-any-return]
@@ -202,7 +176,7 @@ async def test_the_page_shows_why_the_secure_stage_cannot_work(
         finally:
             stop.set()
             await sender
-            codes = stop_all(procs)
+    codes = services.codes
     proxy_log = (tmp_path / "p.log").read_text()
     assert proxy_log.count("WARNING secure.layout_mismatch ") == 1, proxy_log[-3000:]  # the event, once
     assert all(c in (0, 130) for c in codes), codes

@@ -15,9 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from secuav_common.broker import EmbeddedBroker
-from tests.conftest import free_tcp_port
-from tests.support.console import BAD_PROFILE, spawn, stop_all, until
+from tests.support.console import BAD_PROFILE, console_services, paste_profile, until
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
 
@@ -31,73 +29,57 @@ async def test_radar_ticked_error_said_once_and_cleared_and_clear_empties_the_dr
     from selenium.webdriver.support.ui import Select
 
     driver = browser
-    port, web = free_tcp_port(), free_tcp_port()
-    vehicle, gcs_port = udp_port(), udp_port()  # type: ignore[operator]
-    broker = f"mqtt://127.0.0.1:{port}"
-    async with EmbeddedBroker(port=port):
-        procs = [
-            spawn(["mitm_proxy", "--broker", broker, "--instance", "bench", "--vehicle",
-                    f"udpin://127.0.0.1:{vehicle}", "--ground", f"udpout://127.0.0.1:{gcs_port}"], tmp_path / "p.log"),
-            spawn(["flightsim", "wall_hover", "--mavlink", f"udpout://127.0.0.1:{vehicle}"], tmp_path / "sim.log"),
-            spawn(["webconsole", "--broker", broker, "--listen", f"127.0.0.1:{web}", "--scenario", "wall_hover"],
-                   tmp_path / "console.log"),
-        ]  # fmt: skip
-        try:
-            await until(lambda: b"console.ready" in (tmp_path / "console.log").read_bytes(), 30, "console up")
-            driver.get(f"http://127.0.0.1:{web}/")  # type: ignore[attr-defined]
+    async with console_services(tmp_path, udp_port) as services:
+        broker = services.broker
+        await services.console_up()
+        driver.get(f"http://127.0.0.1:{services.web}/")  # type: ignore[attr-defined]
 
-            def ticked() -> dict[str, bool]:
-                return driver.execute_script(  # type: ignore[attr-defined, no-any-return]
-                    "const o = {}; for (const b of document.querySelectorAll('#sensor-picker input'))"
-                    " o[b.dataset.sensor] = b.checked; return o")
+        def ticked() -> dict[str, bool]:
+            return driver.execute_script(  # type: ignore[attr-defined, no-any-return]
+                "const o = {}; for (const b of document.querySelectorAll('#sensor-picker input'))"
+                " o[b.dataset.sensor] = b.checked; return o")
 
-            await until(lambda: len(ticked()) == 6, 15, "all six sensors in the picker")
-            # the five the vehicle holds on (0-4, the radar is 4) are plotted; the downward laser is not
-            assert ticked() == {"0": True, "1": True, "2": True, "3": True, "4": True, "5": False}, ticked()
+        await until(lambda: len(ticked()) == 6, 15, "all six sensors in the picker")
+        # the five the vehicle holds on (0-4, the radar is 4) are plotted; the downward laser is not
+        assert ticked() == {"0": True, "1": True, "2": True, "3": True, "4": True, "5": False}, ticked()
 
-            library = Select(driver.find_element(By.ID, "library"))  # type: ignore[attr-defined]
-            assert library.first_selected_option.get_attribute("value") == ""  # nothing in force yet
+        library = Select(driver.find_element(By.ID, "library"))  # type: ignore[attr-defined]
+        assert library.first_selected_option.get_attribute("value") == ""  # nothing in force yet
 
-            # A bad pasted profile: its field named once, not "field: source: field: ..."
-            driver.find_element(By.CSS_SELECTOR, "#custom summary").click()  # type: ignore[attr-defined]
-            area = driver.find_element(By.ID, "yaml")  # type: ignore[attr-defined]
-            area.clear()
-            area.send_keys(BAD_PROFILE)
-            driver.find_element(By.ID, "apply-yaml").click()  # type: ignore[attr-defined]
-            error = driver.find_element(By.ID, "yaml-error")  # type: ignore[attr-defined]
-            await until(lambda: error.is_displayed() and "banana" in error.text, 10, "the field error")
-            field = error.get_attribute("data-field")
-            assert field and field.startswith("rules[0]") and error.text.count(field) == 1, error.text
+        # A bad pasted profile: its field named once, not "field: source: field: ..."
+        error = paste_profile(driver, BAD_PROFILE)
+        await until(lambda: error.is_displayed() and "banana" in error.text, 10, "the field error")
+        field = error.get_attribute("data-field")
+        assert field and field.startswith("rules[0]") and error.text.count(field) == 1, error.text
 
-            # A later success (a library profile) takes the stale error away.
-            library.select_by_value("distance-wrong")
-            driver.find_element(By.ID, "apply-library").click()  # type: ignore[attr-defined]
-            ack = driver.find_element(By.ID, "ack")  # type: ignore[attr-defined]
-            await until(lambda: "attack distance-wrong: ok" in ack.text, 10, "the proxy's acknowledgement")
-            assert not error.is_displayed() and error.text == ""
+        # A later success (a library profile) takes the stale error away.
+        library.select_by_value("distance-wrong")
+        driver.find_element(By.ID, "apply-library").click()  # type: ignore[attr-defined]
+        ack = driver.find_element(By.ID, "ack")  # type: ignore[attr-defined]
+        await until(lambda: "attack distance-wrong: ok" in ack.text, 10, "the proxy's acknowledgement")
+        assert not error.is_displayed() and error.text == ""
 
-            # Clear: the drop-down shows no profile (and the parameter form is empty).
-            driver.find_element(By.ID, "clear-attack").click()  # type: ignore[attr-defined]
-            await until(lambda: "attack cleared: ok" in ack.text, 10, "the clear acknowledged")
-            assert library.first_selected_option.get_attribute("value") == ""
-            assert driver.find_elements(By.CSS_SELECTOR, "#params input") == []  # type: ignore[attr-defined]
+        # Clear: the drop-down shows no profile (and the parameter form is empty).
+        driver.find_element(By.ID, "clear-attack").click()  # type: ignore[attr-defined]
+        await until(lambda: "attack cleared: ok" in ack.text, 10, "the clear acknowledged")
+        assert library.first_selected_option.get_attribute("value") == ""
+        assert driver.find_elements(By.CSS_SELECTOR, "#params input") == []  # type: ignore[attr-defined]
 
-            # Another operator applies, then clears, from the command line: the drop-down follows both.
-            def attack(*argv: str) -> subprocess.CompletedProcess[str]:
-                return subprocess.run([sys.executable, "-m", "mitm_proxy.tools.attack_cli", *argv, "--broker", broker],
-                                      capture_output=True, text=True, timeout=30)  # fmt: skip
+        # Another operator applies, then clears, from the command line: the drop-down follows both.
+        def attack(*argv: str) -> subprocess.CompletedProcess[str]:
+            return subprocess.run([sys.executable, "-m", "mitm_proxy.tools.attack_cli", *argv, "--broker", broker],
+                                  capture_output=True, text=True, timeout=30)  # fmt: skip
 
-            done = await asyncio.to_thread(attack, "apply", "distance-stuck")
-            assert done.returncode == 0, done.stderr
-            selected = lambda: library.first_selected_option.get_attribute("value")  # noqa: E731
-            await until(lambda: selected() == "distance-stuck", 10, "the drop-down shows the profile in force")
-            done = await asyncio.to_thread(attack, "clear")
-            assert done.returncode == 0, done.stderr
-            await until(lambda: selected() == "", 10, "the drop-down shows no profile after a clear elsewhere")
+        done = await asyncio.to_thread(attack, "apply", "distance-stuck")
+        assert done.returncode == 0, done.stderr
+        selected = lambda: library.first_selected_option.get_attribute("value")  # noqa: E731
+        await until(lambda: selected() == "distance-stuck", 10, "the drop-down shows the profile in force")
+        done = await asyncio.to_thread(attack, "clear")
+        assert done.returncode == 0, done.stderr
+        await until(lambda: selected() == "", 10, "the drop-down shows no profile after a clear elsewhere")
 
-            logged = [e for e in driver.get_log("browser") if e["level"] in ("SEVERE", "WARNING")]  # type: ignore[attr-defined]
-            assert [e for e in logged if e["source"] != "network"] == [], logged
-        finally:
-            codes = stop_all(procs)
+        logged = [e for e in driver.get_log("browser") if e["level"] in ("SEVERE", "WARNING")]  # type: ignore[attr-defined]
+        assert [e for e in logged if e["source"] != "network"] == [], logged
+    codes = services.codes
     logs = [(p, (tmp_path / p).read_text()[-2000:]) for p in ("p.log", "console.log")]
     assert all(c in (0, 130) for c in codes), logs
