@@ -34,7 +34,8 @@ def test_every_estimator_reads_each_reading_at_its_own_time(tmp_path: Path) -> N
     ranges, truth = _write(tmp_path, 60.0, 16.0)
     sync = _eval(ranges, truth, tmp_path / "sync", "--attack", "none", "--sync")
     both = _eval(ranges, truth, tmp_path / "async", "--attack", "none")  # the default on recorded ranges
-    assert both["processing"] == {"ls": "aligned", "ekf": "sequential", "secekf": "aligned"}
+    assert both["processing"] == {
+        "ls": "aligned", "ekf": "sequential", "secekf": "aligned", "secekf+attribution": "aligned"}
     assert both["async_window_s"] == 1.0 and sync["async_window_s"] is None
     assert set(sync["processing"].values()) == {"synchronous"}
     for name in ("ls", "ekf", "secekf+attribution"):  # the rows read before secure methods had two
