@@ -194,6 +194,9 @@ class Estimator:
     def reset(self, x0: np.ndarray | None = None, t_s: float = 0.0, P0: np.ndarray | None = None) -> None:
         """Forget the past. ``x0``: position (d) or position+velocity (2d); None = bootstrap from data."""
         self.t_s = None if x0 is None else float(t_s)
+        # Where a snapshot fix's cold start begins after the envelope restarted the estimator (``_guard``): the
+        # last position claimed valid; None (a fresh start): the model's own guess.
+        self.restart_pos: np.ndarray | None = None
         self.namer = Namer(self.model, self.alpha)  # naming attacked readings at a family-wise alpha
         self.trail = Trail(self.model.d)  # where the vehicle can be, for judging alarms and explanations
         self.accused = np.zeros((EVIDENCE_STEPS, self.model.p), dtype=bool)  # ring: who was named, last steps
@@ -332,6 +335,11 @@ class Estimator:
         self.reset()  # from the next readings, as at the first step; the motion bound keeps its anchor point
         self.t_s = est.t_s
         env.last_pos, env.last_t = last
+        # The next cold fix starts its search at the last valid position, not amid the anchors: outside a
+        # small anchor box the ranges' near-mirror image across the anchors is a second minimum, and a search
+        # from the box's middle can land there and stay (Hanyang: least squares and the EKF 10-18 m off for
+        # 4-7 s after one restart). The vehicle is within the motion bound of that position; its mirror is not.
+        self.restart_pos = None if last[0] is None else np.array(last[0], dtype=float)
         self.namer.window_vif, self.namer.confirm_steps, self.namer.band = vif, confirm, band
         if drift_vif is not None and hasattr(getattr(self, "drift", None), "vif"):
             self.drift.vif = drift_vif
@@ -392,8 +400,9 @@ class Estimator:
         self, z: np.ndarray, use: np.ndarray, start: np.ndarray | None, known: Known, n_iter: int | None = None
     ) -> tuple[np.ndarray, np.ndarray, float]:
         """Weighted LS fix on the sensors in ``use``: (position, covariance, cost)."""
-        begin = self.model.initial_guess(z, known) if start is None else start
-        res = gauss_newton(self.model, z, use[None, :], begin, known, self.n_iter if n_iter is None else n_iter)
+        if start is None:  # a cold start: after a restart, from the last valid position (``_guard``)
+            start = self.model.initial_guess(z, known) if self.restart_pos is None else self.restart_pos
+        res = gauss_newton(self.model, z, use[None, :], start, known, self.n_iter if n_iter is None else n_iter)
         cov = inv_small(res.info[0])
         return res.pos[0], cov, float(res.cost[0])
 

@@ -15,7 +15,7 @@ recorded log (:func:`evaluate` with ``from_log``, streams from
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -179,7 +179,8 @@ def evaluate(
 
     ``asynchronous`` (a recording of one vehicle's anchor ranges): every estimator takes every reading at its own
     time instead of the frames (estimators.aligned: the EKF by sequential updates, the others on a window of
-    ``window_s`` seconds, default one frame period, brought to each frame time), and is scored at the frame times.
+    ``window_s`` seconds, default ``aligned.default_window``, one frame period or the slowest link's reading interval
+    when longer, brought to each frame time), and is scored at the frame times.
     Links too sparse for that window at that rate are refused (``SparseReadings``, option ``async_window_s``).
 
     From a flight the attack is the only thing that changes readings, so the
@@ -406,7 +407,7 @@ def _checked_inputs(
         _refuse_sparse(model, t_s, inp.z, params, variants, from_log)
         return None, params
     raw = _raw_inputs(inp, engine)
-    window = async_window(t_s, window_s)
+    window = async_window(t_s, window_s, _read_times(raw))
     _refuse_sparse_async(model, t_s, raw, window)
     params = {**(params or {}), ASYNC_PARAM: window}
     # The calibration window is counted on what the estimators will fit on: the readings at the frame times.
@@ -506,11 +507,12 @@ def _run_estimator(
                           _calibration(est))  # fmt: skip
 
 
-def async_window(t_s: np.ndarray, window_s: float | None) -> float:
-    """The asynchronous window: as given, else one frame period (each reading used at one output only)."""
+def async_window(t_s: np.ndarray, window_s: float | None, read_times: Sequence[np.ndarray] = ()) -> float:
+    """The asynchronous window: as given, else :func:`estimators.aligned.default_window` (one output period, or
+    the slowest link's reading interval when that is longer, up to ``aligned.COVER_MAX_S``)."""
     if window_s is not None:
         return float(window_s)
-    return float(np.median(np.diff(t_s))) if t_s.size > 1 else 1.0
+    return aligned.default_window(t_s, read_times)
 
 
 def _read_times(raw: tuple[np.ndarray, np.ndarray, np.ndarray]) -> list[np.ndarray]:

@@ -69,7 +69,8 @@ class RecordingSpec(_Strict):
     window_s: float | None = Field(
         None, gt=0, le=60,
         description="asynchronous processing: seconds of readings each output brings to its time (secuav-eval "
-        "--window; default one output period); links too sparse for it are refused",
+        "--window; default one output period, or the slowest link's reading interval when longer); links too sparse "
+        "for it are refused",
     )  # fmt: skip
     name: str | None = Field(
         None, pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]*$",

@@ -84,11 +84,12 @@ def test_a_missing_or_sparse_recording_is_named_with_its_file_and_numbers(conver
         _expand(converted, STUDY_TEXT.replace("NLOS/ranges.csv", "NLOS/gone.csv"))
     line = str(err.value)
     assert "\n" not in line and "recordings[1] (hy-nlos-3)" in line and "gone.csv" in line and "no such file" in line
-    # Outputs too fast for one recording's links: that recording, its window (the asynchronous default) or, framed,
-    # its rate, and the numbers.
+    # Outputs too fast for one recording's links: that recording, its window (asynchronous; the default window
+    # covers the links' 0.1 s reading interval, so one is given) or, framed, its rate, and the numbers.
     fast = STUDY_TEXT.replace("truth: NLOS/truth.csv, rate_hz: 10", "truth: NLOS/truth.csv, rate_hz: 200")
+    _expand(converted, fast)  # the default window, 0.1 s, holds every link at 200 Hz
     with pytest.raises(InputError) as err:
-        _expand(converted, fast)
+        _expand(converted, fast.replace("rate_hz: 200", "rate_hz: 200, window_s: 0.005"))
     line = str(err.value)
     assert "\n" not in line and "recordings[1] (hy-nlos-3).window_s" in line and "window 0.005 s at 200 Hz" in line
     assert "(file NLOS/ranges.csv)" in line

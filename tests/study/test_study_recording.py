@@ -120,10 +120,13 @@ def test_a_window_too_sparse_to_calibrate_fails_the_study_file(tmp_path: Path) -
     line = str(err.value)
     assert "\n" not in line and "estimator_params.calibration_s" in line
     assert "11 of 11 steps have a fix (needs 20)" in line and "10: 11, 11: 11" in line and "each link needs 20" in line
-    # Outputs too fast for the links (the asynchronous default): the window is named; framed: the rate.
+    # Outputs too fast for the links: asynchronously the window is named (the default window covers the links'
+    # reading interval, so a window of one period is given); framed: the rate.
     fast = STUDY_TEXT.replace("truth: truth.csv}", "truth: truth.csv, rate_hz: 100}")
+    assert expand(parse_study(fast, source), source)  # the default window holds every link at 100 Hz
+    short = STUDY_TEXT.replace("truth: truth.csv}", "truth: truth.csv, rate_hz: 100, window_s: 0.01}")
     with pytest.raises(InputError, match=r"recording.window_s: asynchronous window 0.01 s at 100 Hz: 8 link"):
-        expand(parse_study(fast, source), source)
+        expand(parse_study(short, source), source)
     framed = STUDY_TEXT.replace("truth: truth.csv}", "truth: truth.csv, rate_hz: 100, sync: true}")
     with pytest.raises(InputError, match=r"recording.rate_hz: framing at 100 Hz: only 10% of the frames"):
         expand(parse_study(framed, source), source)
