@@ -28,17 +28,18 @@ clean, type-a on two links and a relay on three.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, replace
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 import yaml
@@ -361,6 +362,22 @@ def _commit() -> str:
     return done.stdout.strip() or "unknown"
 
 
+@contextlib.contextmanager
+def _markdown_out() -> Iterator[TextIO]:
+    """The report's stream, the process's stdout, while file descriptor 1 points at stderr: a solver's C code (HiGHS,
+    in milp) prints to descriptor 1, in the worker processes too, and must not land in the markdown."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    os.dup2(2, 1)
+    out = os.fdopen(os.dup(saved), "w")
+    try:
+        yield out
+    finally:
+        out.close()
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("recordings", nargs="*", type=Path, help="folders written by a converter in scripts/datasets")
@@ -392,7 +409,7 @@ def main(argv: list[str] | None = None) -> int:
                      args.fixed_offsets, args.window)  # fmt: skip
     links = None if args.links is None else tuple(int(s) for s in args.links.split(","))
     modes = ["sync", "async"] if args.mode == "both" else [args.mode]
-    with tempfile.TemporaryDirectory(prefix="r-report-") as tmp:
+    with _markdown_out() as out, tempfile.TemporaryDirectory(prefix="r-report-") as tmp:
         work = args.work or Path(tmp)
         folders = [*args.recordings, *convert(work, args.lias_source, args.lias_runs.split(","),
                                               args.hanyang_source, args.hanyang_runs.split(","))]  # fmt: skip
@@ -412,24 +429,29 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"Measured on {_commit()} by `scripts/recorded_alarms.py` (protocol: output at {proto.rate_hz:g} Hz, "
             f"--dims 2, calibrated on the first {proto.calibrate_s:g} s, scored from {proto.score_from_s:g} s, "
-            f"attacks from {proto.onset_s:g} s; offsets {'fixed' if proto.fixed_offsets else 'followed'}).\n"
+            f"attacks from {proto.onset_s:g} s; offsets {'fixed' if proto.fixed_offsets else 'followed'}).\n",
+            file=out,
         )
         for label, (their, members, names) in groups.items():
-            print("\n".join(dataset_table(label, their, members, names, modes, results, proto)) + "\n")
-    if args.heldout:
-        layouts = [1, 2, 3]
-        names = estimator_names(heldout_scenario(1, 0.3), args.heldout_estimators, dims=3)
-        flights = [Flight(layout, cell, 200 + i, name, args.heldout_duration) for layout in layouts
-                   for cell in HELDOUT_CELLS for i in range(args.heldout_seeds) for name in names]  # fmt: skip
-        flights.sort(key=lambda f: SLOW.get(f.estimator, len(SLOW)))
-        done = _run_all(flights, run_flight, 0.3, args.jobs)
-        print(
-            f"**Held-out layouts at sigma 0.3 m** (hover, onset 8 s, seeds 200-{199 + args.heldout_seeds} pooled, "
-            f"{args.heldout_duration:g} s each, framed; RMSE over the EKF's on the same flights)\n"
-        )
-        print("\n".join(heldout_table(done, layouts, names)) + "\n")
+            print("\n".join(dataset_table(label, their, members, names, modes, results, proto)) + "\n", file=out)
+        if args.heldout:
+            heldout(args, out)
     print(f"recorded_alarms: {time.monotonic() - began:.0f} s, {os.cpu_count()} cores", file=sys.stderr)
     return 0
+
+
+def heldout(args: argparse.Namespace, out: TextIO) -> None:
+    """The held-out layouts' table (``--heldout``): every flight, then the table on ``out``."""
+    layouts = [1, 2, 3]
+    names = estimator_names(heldout_scenario(1, 0.3), args.heldout_estimators, dims=3)
+    flights = [Flight(layout, cell, 200 + i, name, args.heldout_duration) for layout in layouts
+               for cell in HELDOUT_CELLS for i in range(args.heldout_seeds) for name in names]  # fmt: skip
+    flights.sort(key=lambda f: SLOW.get(f.estimator, len(SLOW)))
+    done = _run_all(flights, run_flight, 0.3, args.jobs)
+    seeds = f"seeds 200-{199 + args.heldout_seeds} pooled, {args.heldout_duration:g} s each"
+    print(f"**Held-out layouts at sigma 0.3 m** (hover, onset 8 s, {seeds}, framed; RMSE over the EKF's on the same "
+          "flights)\n", file=out)  # fmt: skip
+    print("\n".join(heldout_table(done, layouts, names)) + "\n", file=out)
 
 
 if __name__ == "__main__":

@@ -44,6 +44,8 @@ def test_report_on_both_datasets_and_held_out_layouts(tmp_path: Path) -> None:
     # flights: 3 layouts x 3 cells x 1 seed x 3 estimators
     assert len(re.findall(r"^\[\d+/48\] ", done.stderr, re.M)) == 48
     assert len(re.findall(r"^\[\d+/27\] ", done.stderr, re.M)) == 27
+    # stdout is the markdown and nothing else (what a solver prints goes to stderr)
+    assert all(re.match(r"(\||\*\*|Measured on |$)", line) for line in done.stdout.splitlines())
     lias, hanyang, heldout = _tables(done.stdout)
     for table, links, recording in ((lias, "11, 14", "lias-mid-0"), (hanyang, "11, 13", "hy-los-4")):
         header, rows = table[0], table[1:]
