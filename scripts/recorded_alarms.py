@@ -197,8 +197,9 @@ def _run_all(
 
 def clean_figures(trials: list[TrialResult], name: str) -> dict[str, float | None]:
     row = summarise(trials)[name]
-    keys = ("rmse_m", "max_error_m", "false_accusation_per_step", "false_accusations_per_hour",
-            "false_alarm_per_step", "false_alarms_per_hour")  # fmt: skip
+    keys = ("rmse_m", "max_error_m", "false_accusation_per_step", "false_accusations_per_run",
+            "false_accusations_per_hour", "false_alarm_per_step", "false_alarms_per_run",
+            "false_alarms_per_hour")  # fmt: skip
     return {k: row[k] for k in keys}
 
 
