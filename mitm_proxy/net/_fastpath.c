@@ -639,5 +639,6 @@ PyMODINIT_FUNC PyInit__fastpath(void) {
     }
     PyModule_AddIntConstant(m, "BATCH", BATCH);
     PyModule_AddIntConstant(m, "IDS", IDS);
+    PyModule_AddIntConstant(m, "MAX_FILTERS", MAX_FILTERS);
     return m;
 }

@@ -44,7 +44,7 @@ try:
 except ImportError:  # not built (no C compiler at install time, or not Linux/macOS): the Python path
     _fastpath = None
 
-__all__ = ["FORCE_PYTHON_ENV", "NativeUdpEndpoint", "available", "enabled", "filter_specs", "id_bits"]
+__all__ = ["FORCE_PYTHON_ENV", "NativeUdpEndpoint", "available", "enabled", "filter_specs", "id_bits", "route_wants"]
 
 FORCE_PYTHON_ENV = "SECUAV_PROXY_PYTHON"
 _IDS = 65536  # the route's id bitmap; higher ids are never forwarded by it (none is in the dialect)
@@ -70,6 +70,16 @@ def id_bits(ids: frozenset[int] | set[int]) -> bytes:
 
 
 _NONE = id_bits(frozenset())
+
+
+def route_wants(ids: frozenset[int], filters: dict[int, tuple[int, frozenset[int]]]) -> tuple[bytes, list[Any]]:
+    """What the route takes for the pipeline's wanted ids and field filters (:meth:`Pipeline.fast_wanted`): the
+    bitmap of the ids wanted whole and the filters (:func:`filter_specs`); beyond the route's ``MAX_FILTERS``,
+    the ids of the last filters are wanted whole."""
+    if len(filters) > _fastpath.MAX_FILTERS:
+        filters = dict(sorted(filters.items())[: _fastpath.MAX_FILTERS])
+    whole = ids - filters.keys() if filters else ids  # a filtered id is the filter's to decide
+    return id_bits(whole), filter_specs(filters)
 
 
 def filter_specs(filters: dict[int, tuple[int, frozenset[int]]]) -> list[tuple[int, int, bytes]]:
@@ -296,9 +306,8 @@ class NativeUdpEndpoint(UdpEndpoint):
             return
         peer, (ids, filters), targets, self._skipped = state
         self._targets = tuple(ep for ep, _ in targets)
-        whole = ids - filters.keys() if filters else ids  # a filtered id is the filter's to decide
         self._route.configure(False, self._family, peer, [(ep._fd, ep._family, p) for ep, p in targets],
-                              id_bits(whole), filter_specs(filters))  # fmt: skip
+                              *route_wants(ids, filters))  # fmt: skip
 
     def _readable(self) -> None:
         route = self._route

@@ -171,6 +171,17 @@ def test_a_field_filter_reads_0_past_a_truncated_payload() -> None:
         _fastpath.check(short, NOBODY, [(132, 256, bytes(32))])
 
 
+@needs_native
+def test_more_filters_than_the_route_holds_leave_the_rest_wanted_whole() -> None:
+    from mitm_proxy.net import _fastpath  # type: ignore[attr-defined]
+
+    many = {msgid: (0, frozenset({1})) for msgid in range(200, 200 + _fastpath.MAX_FILTERS + 4)}
+    whole, specs = native_udp.route_wants(frozenset(many) | {0}, many)
+    assert [msgid for msgid, _, _ in specs] == sorted(many)[: _fastpath.MAX_FILTERS]
+    assert whole == native_udp.id_bits(frozenset(sorted(many)[_fastpath.MAX_FILTERS :]) | {0})
+    _fastpath.check(b"", whole, specs)  # the route takes them
+
+
 # -- whole proxies on loopback, both paths ------------------------------------------------------------------
 
 
