@@ -342,6 +342,39 @@ async def test_a_sensor_filter_rewrites_its_sensor_passes_the_others_and_moves_w
 
 
 @pytest.mark.usefixtures("proxy_path")
+async def test_two_grounds_get_the_same_stream_with_a_filtered_sensor_rewritten_in_place(
+    udp_port: Callable[[], int],
+) -> None:
+    """The default configuration's shape, two ground endpoints, and a bias on sensor 0: each ground gets every
+    datagram, in order, sensor 0's rewritten and identical on both, the other sensors' byte for byte."""
+    from attack_profiles.profile import parse_profile
+
+    profile = {"name": "s0", "rules": [{"target": {"message": "DISTANCE_SENSOR", "sensor_id": 0},
+                                        "kind": "bias", "offset_m": 1.0}]}  # fmt: skip
+    gcs, mavsdk, port = _Gcs(), _Gcs(), udp_port()
+    vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    vehicle.bind(("127.0.0.1", 0))
+    m = mav()
+    sent = [pack(distance(cm=500, sensor_id=i % 3), m) if i % 5 else pack(heartbeat(), m) for i in range(300)]
+    link = LinkConfig(sysid=1, vehicle=f"udpin://127.0.0.1:{port}",
+                      ground=[f"udpout://127.0.0.1:{gcs.port}", f"udpout://127.0.0.1:{mavsdk.port}"])  # fmt: skip
+    try:
+        async with Proxy(ProxyConfig(links=[link], broker="none")) as proxy:
+            assert proxy.slots[1].offer(parse_profile(profile, "t.yaml")).ok
+            await _send_paced(vehicle, sent, port)
+            one, two = await gcs.datagrams(len(sent)), await mavsdk.datagrams(len(sent))
+            assert one == two
+            changed = [i for i, (a, b) in enumerate(zip(sent, one, strict=True)) if a != b]
+            assert changed == [i for i in range(300) if i % 5 and i % 3 == 0]
+            assert all(parse_all(one[i])[0].current_distance == 600 for i in changed)
+            assert [ep.tx for ep in proxy.links[0].grounds] == [len(sent), len(sent)]
+    finally:
+        vehicle.close()
+        gcs.sock.close()
+        mavsdk.sock.close()
+
+
+@pytest.mark.usefixtures("proxy_path")
 async def test_hostile_input_is_counted_and_over_budget_while_valid_frames_pass(udp_port: Callable[[], int]) -> None:
     """More garbage than the per-second budget (pipeline.HOSTILE_BYTES_PER_S) between valid datagrams: the
     garbage is counted and, once over budget, dropped unsplit; every valid datagram still leaves as it came."""
