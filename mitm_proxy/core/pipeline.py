@@ -188,7 +188,11 @@ class Pipeline:
         active = [s for s in self.stages if s.active]
         if not active:
             return active, _NOTHING, _NO_FILTERS
-        key = tuple(x for s in active for x in (s.message_ids, getattr(s, "field_filters", None)))
+        if len(active) == 1:  # the usual case, per datagram: no generator
+            one = active[0]
+            key: tuple[object, ...] = (one.message_ids, getattr(one, "field_filters", None))
+        else:
+            key = tuple(x for s in active for x in (s.message_ids, getattr(s, "field_filters", None)))
         if key != self._union_key:
             self._union_key = key
             self._union = frozenset().union(*key[::2])
