@@ -249,6 +249,37 @@ class Engine:
             ids |= self.frame_ops.message_ids
         self.message_ids: frozenset[int] = frozenset(ids)
         self._live = self._new_state()
+        self.field_filters: dict[int, tuple[str, frozenset[int]]] = self._field_filters()
+
+    def _field_filters(self) -> dict[int, tuple[str, frozenset[int]]]:
+        """For the ids in :attr:`message_ids` whose untargeted frames :meth:`process` forwards without a trace:
+        ``msgid -> (id field, the ids targeted)``. A frame of such a message whose id field holds none of them
+        may skip the engine altogether (the proxy's fast route keeps it in C: mitm_proxy/README.md), and the
+        engine behaves exactly as if it had seen it.
+
+        That holds when every rule on the message names its sensor ids, and nothing the engine keeps is
+        learnt from other sensors' frames: not the primary rangefinder (a RANGEFINDER rule reads every
+        DISTANCE_SENSOR), not the position (LOCAL_POSITION_NED has no id), not a frame operation's (they
+        take whole messages), and not the vehicle's clock unless nothing reads it back (under ``clock:
+        vehicle`` a message without a boot time of its own takes the last one any frame brought)."""
+        ops = frozenset() if self.frame_ops is None else self.frame_ops.message_ids
+        clock_read = self.profile.clock == "vehicle" and any(
+            m.time_field != "time_boot_ms" for m in self._msg_by_id.values())  # fmt: skip
+        if clock_read:
+            return {}
+        out: dict[int, tuple[str, frozenset[int]]] = {}
+        for msgid, rules in self._live.plans.items():
+            msg = self._msg_by_id.get(msgid)
+            if msg is None or msg.id_field is None or not rules or msgid in ops:
+                continue
+            if self._tracks_rangefinders and msgid == validity.DISTANCE_SENSOR_ID:
+                continue
+            if self._tracks_position and msgid == LOCAL_POSITION_NED_ID:
+                continue
+            if any(r.ids is None for r in rules):
+                continue
+            out[msgid] = (msg.id_field, frozenset().union(*(r.ids for r in rules)))  # type: ignore[arg-type]
+        return out
 
     def _extend_specs(self) -> None:
         """Add to each targeted message the fields outside its typed table that rules rewrite, and note the

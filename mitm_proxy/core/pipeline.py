@@ -26,7 +26,13 @@ none the fast path has nothing to call and pays one truth test.
 
 A stage sees a frame only when it is active, the frame's message id is in its
 ``message_ids``, and the frame is not signed, unless the pipeline has the link's
-signing key. A signed frame a stage wanted and did not get (no key) is counted
+signing key. A stage may narrow some of its ids to a few values of a one-byte id field
+(``field_filters``, optional: ``msgid -> (field, values)``, e.g. the attack profile's
+DISTANCE_SENSOR sensor ids): while every active stage that wants such an id narrows it on the
+same field, an unsigned frame of it whose field holds none of the values is not wanted at all:
+it passes as it came, byte for byte, undecoded, on the fast path (a field beyond a MAVLink 2
+zero-truncated payload reads 0, as it decodes). A signed frame of such an id is wanted whole
+(counted and told as below). A signed frame a stage wanted and did not get (no key) is counted
 under ``signed_untouched``, handed to the stage's optional ``signed_untouched(header)``
 (so its state can say it is inert) and logged once per stage and sending
 system as ``<stage>.signed_no_key``. A stage that raises does not stop forwarding: the frame leaves as it
@@ -51,7 +57,7 @@ from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
 from mavframe import codec
-from mavframe.frames import TEXT, split, tiles
+from mavframe.frames import TEXT, V1_HEADER_LEN, V2_HEADER_LEN, split, tiles
 from mavframe.packet import Direction, Header, Packet
 from mavframe.signing import SIGNATURE_LEN, Signer
 from mitm_proxy.core.sequence import Sequencer
@@ -62,6 +68,7 @@ __all__ = ["Observer", "Outgoing", "Pipeline", "Stage"]
 log = logging.getLogger(__name__)
 
 _NOTHING: frozenset[int] = frozenset()
+_NO_FILTERS: dict[int, tuple[int, frozenset[int]]] = {}
 STAGE_ERROR = "stage_error"
 ENCODE_ERROR = "encode_error"
 OVER_BUDGET = "over_budget"
@@ -81,7 +88,9 @@ class Stage(Protocol):
     (changed or not), extra packets are injected after it.
 
     Optional (see the module doc): ``next_due_s()``, ``due(now_s, link)`` for frames made on a
-    clock, and ``forges`` (the directions it may add frames to, so their sequence numbers are watched).
+    clock, ``forges`` (the directions it may add frames to, so their sequence numbers are watched), and
+    ``field_filters`` (``msgid -> (field, values)``: of ``message_ids``, those wanted only when a
+    frame's one-byte field holds one of the values; the same object while it stays the same).
     """
 
     name: str
@@ -156,8 +165,9 @@ class Pipeline:
         self.signer = signer
         self._logged: set[str] = set()
         self._said_signed: set[tuple[str, int]] = set()  # (stage, sysid) told about a signed stream without the key
-        self._union_key: tuple[frozenset[int], ...] = ()
+        self._union_key: tuple[object, ...] = ()
         self._union: frozenset[int] = _NOTHING
+        self._filters: dict[int, tuple[int, frozenset[int]]] = _NO_FILTERS
         self._budget = {d: _HostileBudget() for d in Direction}
         # Directions whose sequence numbers are watched (a stage forges there, or did): none, the usual case,
         # costs the fast path one truth test.
@@ -171,28 +181,34 @@ class Pipeline:
     def detach(self, observer: Observer) -> None:
         self.observers = tuple(o for o in self.observers if o is not observer)
 
-    def _wanted(self) -> tuple[list[Stage], frozenset[int]]:
-        """Active stages and the union of their message ids, asked afresh per datagram (bypass and
-        profile swaps take effect between two datagrams); the union is cached while the sets stay the same."""
+    def _wanted(self) -> tuple[list[Stage], frozenset[int], dict[int, tuple[int, frozenset[int]]]]:
+        """Active stages, the union of their message ids and the field filters that narrow some of them
+        (``msgid -> (payload offset, values)``), asked afresh per datagram (bypass and profile swaps take
+        effect between two datagrams); union and filters are cached while the stages' sets stay the same."""
         active = [s for s in self.stages if s.active]
         if not active:
-            return active, _NOTHING
-        if len(active) == 1:
-            return active, active[0].message_ids
-        sets = tuple(s.message_ids for s in active)
-        if sets != self._union_key:
-            self._union_key = sets
-            self._union = frozenset().union(*sets)
-        return active, self._union
+            return active, _NOTHING, _NO_FILTERS
+        if len(active) == 1:  # the usual case, per datagram: no generator
+            one = active[0]
+            key: tuple[object, ...] = (one.message_ids, getattr(one, "field_filters", None))
+        else:
+            key = tuple(x for s in active for x in (s.message_ids, getattr(s, "field_filters", None)))
+        if key != self._union_key:
+            self._union_key = key
+            self._union = frozenset().union(*key[::2])
+            self._filters = _merge_filters(active)
+        return active, self._union, self._filters
 
-    def fast_ids(self, direction: Direction) -> frozenset[int] | None:
+    def fast_wanted(self, direction: Direction) -> tuple[frozenset[int], dict[int, tuple[int, frozenset[int]]]] | None:
         """For the compiled fast path (:mod:`mitm_proxy.net.native_udp`): the message ids whose frames must come
-        through :meth:`feed` on ``direction``, or None when every frame must (an observer is attached, the link
-        has a signing key, or the direction's sequence numbers are watched). Frames of other ids in datagrams
-        of nothing but valid frames are what :meth:`feed` would pass as they came, only counted."""
+        through :meth:`feed` on ``direction`` and the field filters narrowing some of them (see the module doc:
+        ``msgid -> (payload offset, values)``), or None when every frame must (an observer is attached, the link
+        has a signing key, or the direction's sequence numbers are watched). Other frames, in datagrams of
+        nothing but valid frames, are what :meth:`feed` would pass as they came, only counted."""
         if self.observers or self.signer is not None or direction in self._seqs:
             return None
-        return self._wanted()[1]
+        _, ids, filters = self._wanted()
+        return ids, filters
 
     def _log_once(self, key: str, event: str, **extra: object) -> None:
         """Faults are counted per frame but logged once per kind, so a flood cannot flood the log."""
@@ -254,10 +270,10 @@ class Pipeline:
             if TEXT in res.bad:  # the sender prints (an autopilot's console): its short runs are text too
                 budget.printing_until_s = now_s + PRINTING_S
             self._spend(budget, len(datagram), direction, now_s)
-        active, wanted = self._wanted()
+        active, wanted, filters = self._wanted()
         signer = self.signer
         slow = bool(res.bad) or bool(self.observers)
-        for header, _raw in frames:
+        for header, raw in frames:
             if header.signed:
                 st.signed += 1
                 if signer is not None:
@@ -265,7 +281,8 @@ class Pipeline:
                 elif header.msgid in wanted:
                     st.signed_untouched += 1
                     self._signed_untouched(header, direction, active)
-            elif header.msgid in wanted:
+            elif header.msgid in wanted and (not filters or header.msgid not in filters or
+                                             _selected(header, raw, filters[header.msgid])):  # fmt: skip
                 slow = True
         if self._seqs and not slow:
             seqr = self._seqs.get(direction)
@@ -277,7 +294,7 @@ class Pipeline:
             st.frames_out += len(frames)
             st.bytes_out += len(datagram)
             return [Outgoing(datagram, now_s, now_s, len(frames))]
-        return self._slow(frames, direction, now_s, st, active, wanted)
+        return self._slow(frames, direction, now_s, st, active, wanted, filters)
 
     def _slow(
         self,
@@ -287,6 +304,7 @@ class Pipeline:
         st: DirectionStats,
         active: list[Stage],
         wanted: frozenset[int],
+        filters: dict[int, tuple[int, frozenset[int]]],
     ) -> list[Outgoing]:
         signer = self.signer
         observers = self.observers
@@ -301,7 +319,9 @@ class Pipeline:
                 if reason is not None:
                     st.add_bad(reason)
                     continue
-            if header.msgid not in wanted or (header.signed and signer is None):
+            if (header.msgid not in wanted or (header.signed and signer is None) or
+                    (filters and not header.signed and header.msgid in filters and
+                     not _selected(header, raw, filters[header.msgid]))):  # fmt: skip
                 data = raw if seqr is None else self._renumber(header, raw, raw, seqr, st)
                 now_parts.append(data)
                 for o in observers:
@@ -488,3 +508,36 @@ class Pipeline:
         self._log_once(f"forge_no_key:{p.direction}", f"{stage.name}.forge_no_key", direction=str(p.direction),
                        detail=f"the {p.direction} of this link is signed and this proxy has no signing key: frames "
                        "it would forge there are not sent (start secuav-proxy with --signing-key FILE)")  # fmt: skip
+
+
+def _selected(header: Header, raw: bytes, flt: tuple[int, frozenset[int]]) -> bool:
+    """Whether a frame's filtered one-byte field holds a wanted value (past a truncated payload it reads 0)."""
+    offset, values = flt
+    return (raw[(V2_HEADER_LEN if header.version == 2 else V1_HEADER_LEN) + offset]
+            if offset < header.payload_len else 0) in values  # fmt: skip
+
+
+def _merge_filters(active: Sequence[Stage]) -> dict[int, tuple[int, frozenset[int]]]:
+    """The filters that hold for the pipeline: an id every active stage wanting it narrows on the same field,
+    with the union of their values; an id one of them wants whole (or a field no one byte holds) is wanted whole."""
+    merged: dict[int, tuple[int, frozenset[int]]] = {}
+    whole: set[int] = set()
+    for stage in active:
+        found = getattr(stage, "field_filters", None) or {}
+        for msgid in stage.message_ids:
+            flt = found.get(msgid)
+            offset = None if flt is None else codec.byte_field(msgid, flt[0])
+            if offset is None:
+                whole.add(msgid)
+                continue
+            values = frozenset(v for v in flt[1] if 0 <= v < 256)  # type: ignore[index]
+            had = merged.get(msgid)
+            if had is None:
+                merged[msgid] = (offset, values)
+            elif had[0] != offset:
+                whole.add(msgid)
+            else:
+                merged[msgid] = (offset, had[1] | values)
+    for msgid in whole:
+        merged.pop(msgid, None)
+    return merged or _NO_FILTERS

@@ -7,6 +7,12 @@
  * (sendmmsg). Everything else - garbage, unknown ids, a wanted frame, a stranger's datagram - goes up to
  * Python unchanged, where the pure-Python path handles it exactly as without this module.
  *
+ * A wanted id may be narrowed by a field filter (mitm_proxy/core/pipeline.py, the module doc): a one-byte
+ * payload field and the values that make a frame wanted (e.g. DISTANCE_SENSOR's sensor id: an attack on a
+ * few sensors does not want the others). An unsigned frame of such an id whose byte holds none of them
+ * stays here like an unwanted one; a payload MAVLink 2 truncated before the byte reads 0 there, as the
+ * decoder pads it. A signed frame of a filtered id goes up (the pipeline counts it as wanted).
+ *
  * Order is kept: drain() stops at the first datagram that goes up, after sending the ones before it, and
  * returns it; the rest of the batch waits in the route for the next drain() call.
  *
@@ -33,12 +39,27 @@
 #define MAX_TARGETS 16
 #define IDS 65536                    /* ids at or above this are never fast (none is in the dialect today) */
 #define SIGNATURE_LEN 13
+#define MAX_FILTERS 16
 
 static uint8_t crc_extra[IDS];
 static uint8_t known_ids[IDS / 8];
 static uint8_t v1_max[256];
 
 #define BIT(map, id) ((map)[(id) >> 3] & (1u << ((id) & 7)))
+
+typedef struct {
+    uint32_t msgid;
+    uint32_t offset;                 /* in the payload */
+    uint8_t values[32];              /* bitmap of the byte values that make a frame wanted */
+} Filter;
+
+/* What Python wants from one route: whole ids, and ids wanted only for some values of one payload byte. */
+typedef struct {
+    uint8_t wanted[IDS / 8];
+    uint8_t filtered[IDS / 8];
+    int n_filters;
+    Filter filters[MAX_FILTERS];
+} Wants;
 
 typedef struct {
     PyObject_HEAD
@@ -50,7 +71,7 @@ typedef struct {
     int tfd[MAX_TARGETS];
     struct sockaddr_storage taddr[MAX_TARGETS];
     socklen_t tlen[MAX_TARGETS];
-    uint8_t wanted[IDS / 8];
+    Wants wants;
     int n, next;                     /* received datagrams in the batch, the next one to look at */
     double rx_s;
     struct mmsghdr msgs[BATCH];
@@ -73,15 +94,28 @@ static double monotonic_s(void) {
     return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
 }
 
-/* Frames in d[0:n] if it is nothing but valid frames of known ids outside the wanted set, else -1. */
-static int fast_frames(const uint8_t *wanted, const uint8_t *d, Py_ssize_t n, int *n_signed) {
+/* Whether a frame of filtered id msgid with this payload is wanted (its byte holds one of the values). */
+static int filter_wants(const Wants *w, uint32_t msgid, const uint8_t *payload, uint8_t len) {
+    for (int k = 0; k < w->n_filters; k++) {
+        const Filter *f = &w->filters[k];
+        if (f->msgid != msgid)
+            continue;
+        uint8_t v = f->offset < len ? payload[f->offset] : 0;  /* MAVLink 2 truncates trailing zero bytes */
+        return BIT(f->values, v) != 0;
+    }
+    return 1;
+}
+
+/* Frames in d[0:n] if it is nothing but valid frames of known ids nobody wants, else -1. */
+static int fast_frames(const Wants *w, const uint8_t *d, Py_ssize_t n, int *n_signed) {
     Py_ssize_t i = 0;
     int frames = 0, sgn = 0;
     if (n == 0)
         return -1;
     while (i < n) {
         uint32_t msgid;
-        Py_ssize_t crc_at, end;
+        Py_ssize_t crc_at, end, payload;
+        int is_signed = 0;
         if (d[i] == 0xFD) {
             if (n - i < 10)
                 return -1;
@@ -89,7 +123,9 @@ static int fast_frames(const uint8_t *wanted, const uint8_t *d, Py_ssize_t n, in
             if (incompat > 1)
                 return -1;  /* an incompatibility flag other than signing: bad_flags */
             msgid = (uint32_t)d[i + 7] | (uint32_t)d[i + 8] << 8 | (uint32_t)d[i + 9] << 16;
-            crc_at = i + 10 + d[i + 1];
+            payload = i + 10;
+            crc_at = payload + d[i + 1];
+            is_signed = incompat;
             end = crc_at + 2 + (incompat ? SIGNATURE_LEN : 0);
             if (end > n)
                 return -1;
@@ -106,14 +142,17 @@ static int fast_frames(const uint8_t *wanted, const uint8_t *d, Py_ssize_t n, in
             msgid = d[i + 5];
             if (BIT(known_ids, msgid) && d[i + 1] > v1_max[msgid])
                 return -1;  /* MAVLink 1 has no extensions: bad_length */
-            crc_at = i + 6 + d[i + 1];
+            payload = i + 6;
+            crc_at = payload + d[i + 1];
             end = crc_at + 2;
             if (end > n)
                 return -1;
         } else {
             return -1;
         }
-        if (msgid >= IDS || !BIT(known_ids, msgid) || BIT(wanted, msgid))
+        if (msgid >= IDS || !BIT(known_ids, msgid) || BIT(w->wanted, msgid))
+            return -1;
+        if (BIT(w->filtered, msgid) && (is_signed || filter_wants(w, msgid, d + payload, d[i + 1])))
             return -1;
         uint16_t crc = 0xFFFF;
         for (Py_ssize_t j = i + 1; j < crc_at; j++)
@@ -209,24 +248,67 @@ static int Route_init(Route *self, PyObject *args, PyObject *kw) {
     self->has_peer = 0;
     self->n_targets = 0;
     self->n = self->next = 0;
-    memset(self->wanted, 0, sizeof(self->wanted));
+    memset(&self->wants, 0, sizeof(self->wants));
     return 0;
 }
 
-/* configure(all_up, family, peer or None, [(fd, addr), ...], wanted: 8192-byte bitmap) */
+/* wanted: an 8192-byte bitmap of whole ids; filters: [(msgid, payload offset, 32-byte bitmap of values)]. */
+static int parse_wants(Wants *w, Py_buffer *wanted, PyObject *filters) {
+    if (wanted->len != IDS / 8) {
+        PyErr_Format(PyExc_ValueError, "wanted must be %d bytes", IDS / 8);
+        return -1;
+    }
+    PyObject *seq = PySequence_Fast(filters, "filters must be a sequence");
+    if (seq == NULL)
+        return -1;
+    Py_ssize_t nf = PySequence_Fast_GET_SIZE(seq);
+    if (nf > MAX_FILTERS) {
+        Py_DECREF(seq);
+        PyErr_Format(PyExc_ValueError, "at most %d filters", MAX_FILTERS);
+        return -1;
+    }
+    Wants fresh;
+    memset(&fresh, 0, sizeof(fresh));
+    memcpy(fresh.wanted, wanted->buf, IDS / 8);
+    for (Py_ssize_t k = 0; k < nf; k++) {
+        unsigned int msgid, offset;
+        Py_buffer values;
+        if (!PyArg_ParseTuple(PySequence_Fast_GET_ITEM(seq, k), "IIy*", &msgid, &offset, &values)) {
+            Py_DECREF(seq);
+            return -1;
+        }
+        int bad = values.len != 32 || msgid >= IDS || offset > 255;
+        if (!bad)
+            memcpy(fresh.filters[k].values, values.buf, 32);
+        PyBuffer_Release(&values);
+        if (bad) {
+            Py_DECREF(seq);
+            PyErr_Format(PyExc_ValueError, "a filter is (msgid < %d, offset < 256, 32-byte bitmap)", IDS);
+            return -1;
+        }
+        fresh.filters[k].msgid = msgid;
+        fresh.filters[k].offset = offset;
+        fresh.filtered[msgid >> 3] |= (uint8_t)(1u << (msgid & 7));
+    }
+    Py_DECREF(seq);
+    fresh.n_filters = (int)nf;
+    memcpy(w, &fresh, sizeof(fresh));
+    return 0;
+}
+
+/* configure(all_up, family, peer or None, [(fd, family, addr), ...], wanted: 8192-byte bitmap,
+ *           filters: [(msgid, payload offset, 32-byte bitmap of values)]) */
 static PyObject *Route_configure(Route *self, PyObject *args) {
     int all_up, family;
-    PyObject *peer, *targets;
+    PyObject *peer, *targets, *filters;
     Py_buffer wanted;
-    if (!PyArg_ParseTuple(args, "piOOy*", &all_up, &family, &peer, &targets, &wanted))
+    if (!PyArg_ParseTuple(args, "piOOy*O", &all_up, &family, &peer, &targets, &wanted, &filters))
         return NULL;
-    if (wanted.len != IDS / 8) {
-        PyBuffer_Release(&wanted);
-        return PyErr_Format(PyExc_ValueError, "wanted must be %d bytes", IDS / 8);
-    }
-    memcpy(self->wanted, wanted.buf, IDS / 8);
-    PyBuffer_Release(&wanted);
     self->all_up = 1;  /* until the whole configuration is in */
+    int rc = parse_wants(&self->wants, &wanted, filters);
+    PyBuffer_Release(&wanted);
+    if (rc < 0)
+        return NULL;
     self->has_peer = 0;
     if (peer != Py_None) {
         socklen_t len;
@@ -367,7 +449,7 @@ static PyObject *Route_drain(Route *self, PyObject *args) {
         int s = 0, f = -1;
         if (!self->all_up && !(h->msg_flags & MSG_TRUNC) && len <= MAX_DATAGRAM &&
             addr_equal(&self->addrs[i], &self->peer))
-            f = fast_frames(self->wanted, self->bufs[i], len, &s);
+            f = fast_frames(&self->wants, self->bufs[i], len, &s);
         if (f < 0) {
             /* Up to Python, after the fast ones before it. */
             PyObject *data;
@@ -462,20 +544,31 @@ static PyObject *Route_drain(Route *self, PyObject *args) {
                          self->next < self->n ? Py_True : Py_False);
 }
 
-/* check(data, wanted) -> frames or -1: the fast path's verdict on one datagram, for tests. */
+/* check(data, wanted[, filters]) -> frames or -1: the fast path's verdict on one datagram, for tests. */
 static PyObject *fp_check(PyObject *mod, PyObject *args) {
     Py_buffer data, wanted;
-    if (!PyArg_ParseTuple(args, "y*y*", &data, &wanted))
+    PyObject *filters = NULL;
+    if (!PyArg_ParseTuple(args, "y*y*|O", &data, &wanted, &filters))
         return NULL;
-    if (wanted.len != IDS / 8) {
+    Wants *w = PyMem_Malloc(sizeof(Wants));
+    if (w == NULL) {
         PyBuffer_Release(&data);
         PyBuffer_Release(&wanted);
-        return PyErr_Format(PyExc_ValueError, "wanted must be %d bytes", IDS / 8);
+        return PyErr_NoMemory();
     }
-    int s = 0;
-    int f = fast_frames(wanted.buf, data.buf, data.len, &s);
+    PyObject *none = NULL;
+    if (filters == NULL)
+        filters = none = PyTuple_New(0);
+    int rc = filters == NULL ? -1 : parse_wants(w, &wanted, filters);
+    Py_XDECREF(none);
+    int s = 0, f = -1;
+    if (rc == 0)
+        f = fast_frames(w, data.buf, data.len, &s);
+    PyMem_Free(w);
     PyBuffer_Release(&data);
     PyBuffer_Release(&wanted);
+    if (rc < 0)
+        return NULL;
     return PyLong_FromLong(f);
 }
 
@@ -546,5 +639,6 @@ PyMODINIT_FUNC PyInit__fastpath(void) {
     }
     PyModule_AddIntConstant(m, "BATCH", BATCH);
     PyModule_AddIntConstant(m, "IDS", IDS);
+    PyModule_AddIntConstant(m, "MAX_FILTERS", MAX_FILTERS);
     return m;
 }

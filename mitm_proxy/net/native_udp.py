@@ -6,11 +6,12 @@ for byte, to the link's other side with ``sendmmsg`` and counted; every other da
 order, and takes the pure-Python path (:meth:`UdpEndpoint._arrived`, the link, the pipeline) unchanged.
 
 Who wants what is Python's to say: before each batch the endpoint asks the link's pipeline
-(:meth:`Pipeline.fast_ids`: the message ids of the active stages, or None while an observer, a signing
-key or a sequence watch needs every frame), its own inbound rules and the targets' outbound rules, and
-reconfigures the route when that changed. A profile swap, a stage switched off, a recorder attached or a
-route rule set therefore take effect from the next batch on, as they do between two datagrams on the
-Python path.
+(:meth:`Pipeline.fast_wanted`: the message ids of the active stages and the field filters narrowing some
+of them, e.g. an attack on a few DISTANCE_SENSOR sensor ids leaves the other sensors' frames in C; or None
+while an observer, a signing key or a sequence watch needs every frame), its own inbound rules and the
+targets' outbound rules, and reconfigures the route when that changed. A profile swap, a stage switched
+off, a recorder attached or a route rule set therefore take effect from the next batch on, as they do
+between two datagrams on the Python path.
 
 ``SECUAV_PROXY_PYTHON=1`` in the environment (or a build without a C compiler) gives the pure-Python
 endpoints (:func:`enabled`).
@@ -43,7 +44,7 @@ try:
 except ImportError:  # not built (no C compiler at install time, or not Linux/macOS): the Python path
     _fastpath = None
 
-__all__ = ["FORCE_PYTHON_ENV", "NativeUdpEndpoint", "available", "enabled", "id_bits"]
+__all__ = ["FORCE_PYTHON_ENV", "NativeUdpEndpoint", "available", "enabled", "filter_specs", "id_bits", "route_wants"]
 
 FORCE_PYTHON_ENV = "SECUAV_PROXY_PYTHON"
 _IDS = 65536  # the route's id bitmap; higher ids are never forwarded by it (none is in the dialect)
@@ -69,6 +70,28 @@ def id_bits(ids: frozenset[int] | set[int]) -> bytes:
 
 
 _NONE = id_bits(frozenset())
+
+
+def route_wants(ids: frozenset[int], filters: dict[int, tuple[int, frozenset[int]]]) -> tuple[bytes, list[Any]]:
+    """What the route takes for the pipeline's wanted ids and field filters (:meth:`Pipeline.fast_wanted`): the
+    bitmap of the ids wanted whole and the filters (:func:`filter_specs`); beyond the route's ``MAX_FILTERS``,
+    the ids of the last filters are wanted whole."""
+    if len(filters) > _fastpath.MAX_FILTERS:
+        filters = dict(sorted(filters.items())[: _fastpath.MAX_FILTERS])
+    whole = ids - filters.keys() if filters else ids  # a filtered id is the filter's to decide
+    return id_bits(whole), filter_specs(filters)
+
+
+def filter_specs(filters: dict[int, tuple[int, frozenset[int]]]) -> list[tuple[int, int, bytes]]:
+    """The pipeline's field filters (``msgid -> (payload offset, values)``) as the route takes them:
+    ``(msgid, offset, 32-byte bitmap of the values)``, ids in order."""
+    out = []
+    for msgid, (offset, values) in sorted(filters.items()):
+        bits = bytearray(32)
+        for v in values:
+            bits[v >> 3] |= 1 << (v & 7)
+        out.append((msgid, offset, bytes(bits)))
+    return out
 
 
 def _load_dialect() -> None:
@@ -245,12 +268,12 @@ class NativeUdpEndpoint(UdpEndpoint):
 
     # -- receiving -------------------------------------------------------------------------------------
     def _fast_state(self) -> tuple[Any, ...] | None:
-        """What the route needs now: ``(peer, wanted ids, targets and their peers, muted targets left out)``,
-        or None: all up."""
+        """What the route needs now: ``(peer, (wanted ids, field filters), targets and their peers, muted targets
+        left out)``, or None: all up."""
         b = self._binding
         if b is None or self.receiver is not b.receiver or self.peer is None or self._gated_in or not b.targets:
             return None
-        ids = b.link.pipeline.fast_ids(b.direction)
+        ids = b.link.pipeline.fast_wanted(b.direction)
         if ids is None:
             return None
         targets = []
@@ -279,11 +302,12 @@ class NativeUdpEndpoint(UdpEndpoint):
         self._state = state
         if state is None:
             self._targets = self._skipped = ()
-            self._route.configure(True, self._family, None, (), _NONE)
+            self._route.configure(True, self._family, None, (), _NONE, ())
             return
-        peer, ids, targets, self._skipped = state
+        peer, (ids, filters), targets, self._skipped = state
         self._targets = tuple(ep for ep, _ in targets)
-        self._route.configure(False, self._family, peer, [(ep._fd, ep._family, p) for ep, p in targets], id_bits(ids))
+        self._route.configure(False, self._family, peer, [(ep._fd, ep._family, p) for ep, p in targets],
+                              *route_wants(ids, filters))  # fmt: skip
 
     def _readable(self) -> None:
         route = self._route

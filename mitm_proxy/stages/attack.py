@@ -98,6 +98,11 @@ class AttackStage:
     def message_ids(self) -> frozenset[int]:
         return self.slot.message_ids
 
+    @property
+    def field_filters(self) -> dict[int, tuple[str, frozenset[int]]]:
+        """Of ``message_ids``, the ones wanted only for a few values of an id field (the pipeline's module doc)."""
+        return self.slot.field_filters
+
     def signed_untouched(self, header: Header) -> None:
         """The pipeline left a signed frame the profile targets alone (no key): the slot's state says so.
 

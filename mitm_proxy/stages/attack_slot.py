@@ -78,6 +78,7 @@ class AttackSlot:
         self._sent: set[str] = set()  # message names the vehicle was seen sending (the true-copy carriers)
         self._watch: TrueCopyWatch | None = None
         self._ids: frozenset[int] = frozenset()  # the engine's message ids and the watched carriers'
+        self._filters: dict[int, tuple[str, frozenset[int]]] = {}  # the engine's, less the watched carriers
         self._directions: tuple[str, ...] = ()  # of the engine's profile, kept with it as the hash is
         self.on_install: list[Callable[[AttackSlot], None]] = []  # told after each install or clear (the recorder)
         # False while the proxy is built (its log says warnings only then): it calls say_notes() once it runs
@@ -92,6 +93,13 @@ class AttackSlot:
     def message_ids(self) -> frozenset[int]:
         """What the attack stage wants: the profile's messages, and the true-copy carriers not yet seen."""
         return self._ids
+
+    @property
+    def field_filters(self) -> dict[int, tuple[str, frozenset[int]]]:
+        """Of :attr:`message_ids`, those the stage wants only when a frame's id field holds one of a few values:
+        ``msgid -> (field, values)`` (:attr:`attack_profiles.engine.Engine.field_filters`); a carrier still
+        watched is wanted whole."""
+        return self._filters
 
     @property
     def watching(self) -> frozenset[int]:
@@ -137,6 +145,7 @@ class AttackSlot:
             log.warning("attack.true_copy", extra={"sysid": self.sysid, "profile": engine.profile.name,
                                                    "warning": warning})  # fmt: skip
         self._ids = engine.message_ids | watch.message_ids
+        self._filters = _filters(engine, watch)
 
     def signed_untouched(self, sysid: int, msgid: int) -> None:
         """A signed frame of ``sysid`` the profile targets passed unchanged: the proxy has no signing key."""
@@ -220,10 +229,11 @@ class AttackSlot:
     def _watch_carriers(self, engine: Engine | None) -> None:
         self._directions = tuple(directions_of(None if engine is None else engine.profile))
         if engine is None:
-            self._watch, self._ids = None, frozenset()
+            self._watch, self._ids, self._filters = None, frozenset(), {}
             return
         watch = self._watch = TrueCopyWatch(findings(engine.profile), self._sent)
         self._ids = engine.message_ids | watch.message_ids
+        self._filters = _filters(engine, watch)
         for warning in watch.warnings:
             log.warning("attack.true_copy", extra={"sysid": self.sysid, "profile": engine.profile.name,
                                                    "warning": warning})  # fmt: skip
@@ -236,6 +246,13 @@ class AttackSlot:
         for note in () if engine is None else vehicle_reports(engine.profile):
             log.info("attack.vehicle_reports", extra={"sysid": self.sysid, "profile": engine.profile.name,
                                                       "note": note})  # fmt: skip
+
+
+def _filters(engine: Engine, watch: TrueCopyWatch) -> dict[int, tuple[str, frozenset[int]]]:
+    found = engine.field_filters
+    if not found or not watch.message_ids & found.keys():
+        return found
+    return {msgid: f for msgid, f in found.items() if msgid not in watch.message_ids}
 
 
 def signed_no_key(sysid: int, msgid: int) -> str:

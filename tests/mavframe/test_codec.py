@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from mavframe import codec
 from mavframe.frames import CRC_EXTRA, crc_of, split
-from mavframe.packet import Direction, Packet
+from mavframe.packet import Direction, Header, Packet
 from mavframe.signing import Signer
 from tests.support.frames_support import (
     TEST_KEY,
@@ -259,3 +259,36 @@ def test_unknown_ids_cannot_be_encoded_or_signed() -> None:
         codec.encode(p)
     with pytest.raises(codec.EncodeError, match="not in the dialect"):
         codec.sign_injected(unknown_frame(), Signer(TEST_KEY))
+
+
+_BYTE_FIELDS = sorted(
+    (msgid, name)
+    for msgid, cls in codec.MAVLINK_MAP.items()
+    for i, name in enumerate(cls.fieldnames)
+    if cls.fieldtypes[i] == "uint8_t" and cls.lengths[cls.orders[i]] == 1
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.sampled_from(_BYTE_FIELDS), st.data())
+def test_byte_field_is_the_byte_decode_reads(field: tuple[int, str], data: st.DataObject) -> None:
+    """The fast route's field filter reads one payload byte (codec.byte_field): for every one-byte unsigned field
+    of the dialect, that byte is the field's decoded value, in any payload, truncated or not."""
+    msgid, name = field
+    offset = codec.byte_field(msgid, name)
+    size = codec._layout(codec.message_class(msgid)).size
+    assert offset is not None and 0 <= offset < size
+    payload = data.draw(st.binary(min_size=0, max_size=size))
+    plen = len(payload)
+    raw = struct.pack("<BBBBBBBHB", 0xFD, plen, 0, 0, 0, 1, 1, msgid & 0xFFFF, msgid >> 16) + payload + b"\0\0"
+    header = Header(2, msgid, 1, 1, 0, plen)  # the CRC is not the point here
+    decoded = codec.decode(Packet(raw, header, Direction.DOWNLINK, 0, 0.0))[name]
+    assert (payload[offset] if offset < plen else 0) == decoded
+
+
+def test_byte_field_is_none_for_what_is_not_one_unsigned_byte() -> None:
+    assert codec.byte_field(132, "id") == 11
+    assert codec.byte_field(132, "current_distance") is None  # uint16
+    assert codec.byte_field(132, "quaternion") is None  # an array
+    assert codec.byte_field(132, "nope") is None
+    assert codec.byte_field(0xABCDE, "id") is None  # not in the dialect

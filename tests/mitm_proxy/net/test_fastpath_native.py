@@ -13,19 +13,47 @@ import asyncio
 import socket
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from mavframe import tlog
+from mavframe import codec, tlog
 from mavframe.frames import CRC_EXTRA, split
+from mavframe.packet import Direction, Packet
 from mitm_proxy.app import Proxy
 from mitm_proxy.config import LinkConfig, ProxyConfig
+from mitm_proxy.core.pipeline import _selected
 from mitm_proxy.net import native_udp
-from tests.support.frames_support import distance, frames, garbage, heartbeat, mav, pack, unknown_frame
+from tests.support.frames_support import (
+    distance,
+    frames,
+    garbage,
+    heartbeat,
+    mav,
+    mavlink,
+    pack,
+    parse_all,
+    signed_mav,
+    unknown_frame,
+)
 
 pytestmark = pytest.mark.timeout(60)
+
+
+@st.composite
+def ds_frames(draw: st.DrawFn) -> bytes:
+    """A DISTANCE_SENSOR of a few sensor ids: v1, v2 (often truncated before the id), or signed."""
+    sid = draw(st.integers(0, 7))
+    tail = draw(st.integers(0, 1))  # orientation and what follows: 0 lets MAVLink 2 truncate down to the id
+    msg = mavlink.MAVLink_distance_sensor_message(draw(st.integers(0, 2**32 - 1)), 10, 4000,
+                                                  draw(st.integers(0, 65535)), draw(st.integers(0, 1)), sid,
+                                                  tail * 25, tail * 255)  # fmt: skip
+    kind = draw(st.sampled_from(["v1", "v2", "v2", "signed"]))
+    m = signed_mav() if kind == "signed" else mav()
+    m.seq = draw(st.integers(0, 255))
+    return pack(msg, m, v1=kind == "v1")
 TLOG = Path(__file__).resolve().parents[2] / "data" / "ardupilot-copter-guided.tlog"
 NOBODY = native_udp.id_bits(frozenset())
 needs_native = pytest.mark.usefixtures("fast_path")  # skipped where it is not built, a failure under CI
@@ -83,6 +111,75 @@ def test_fast_verdict_leaves_unknown_ids_and_wanted_ids_to_python() -> None:
     assert _fastpath.check(b"", NOBODY) == -1
     assert _fastpath.check(pack(heartbeat(), mav(v1=True), v1=True), NOBODY) == 1
     assert max(CRC_EXTRA) < 65536  # the route's id bitmap covers the whole dialect
+
+
+FILTER_IDS = st.sets(st.integers(0, 7), max_size=3)
+
+
+def _python_filtered_verdict(data: bytes, wanted: frozenset[int], values: frozenset[int]) -> int:
+    """As :func:`_python_verdict`, with DISTANCE_SENSOR narrowed to sensor ids ``values`` (the pipeline's rule)."""
+    res = split(data)
+    if res.bad or res.unknown or not res.frames:
+        return -1
+    for h, raw in res.frames:
+        if h.msgid in wanted or (h.msgid == 132 and (h.signed or _selected(h, raw, (11, values)))):
+            return -1
+    return len(res.frames)
+
+
+@needs_native
+@given(st.lists(st.one_of(frames(), ds_frames(), garbage), min_size=1, max_size=6), FILTER_IDS, st.data())
+def test_a_field_filter_never_forwards_what_python_would_not(parts: list[bytes], values: set[int],
+                                                             data: st.DataObject) -> None:  # fmt: skip
+    from mitm_proxy.net import _fastpath  # type: ignore[attr-defined]
+
+    datagram = b"".join(parts)
+    if data.draw(st.booleans()) and datagram:
+        i = data.draw(st.integers(0, len(datagram) - 1))
+        datagram = datagram[:i] + bytes([datagram[i] ^ (1 << data.draw(st.integers(0, 7)))]) + datagram[i + 1 :]
+    wanted = frozenset(data.draw(st.sets(st.sampled_from([0, 30, 33]), max_size=1)))
+    spec = native_udp.filter_specs({132: (11, frozenset(values))})
+    fast = _fastpath.check(datagram, native_udp.id_bits(wanted), spec)
+    python = _python_filtered_verdict(datagram, wanted, frozenset(values))
+    assert fast == -1 or fast == python, (datagram.hex(), fast, python)
+
+
+@needs_native
+@given(st.lists(ds_frames(), min_size=1, max_size=5), FILTER_IDS)
+def test_a_field_filter_keeps_untargeted_sensors_in_c(parts: list[bytes], values: set[int]) -> None:
+    """Unsigned DISTANCE_SENSOR frames (v1, v2, payloads truncated before the id) of sensors outside the
+    filter stay in C; one of a targeted sensor, or a signed one, sends the datagram up."""
+    from mitm_proxy.net import _fastpath  # type: ignore[attr-defined]
+
+    datagram = b"".join(parts)
+    frames_in = split(datagram).frames
+    up = any(h.signed or _selected(h, raw, (11, frozenset(values))) for h, raw in frames_in)
+    want = -1 if up else len(parts)
+    assert _fastpath.check(datagram, NOBODY, native_udp.filter_specs({132: (11, frozenset(values))})) == want
+
+
+@needs_native
+def test_a_field_filter_reads_0_past_a_truncated_payload() -> None:
+    from mitm_proxy.net import _fastpath  # type: ignore[attr-defined]
+
+    short = pack(mavlink.MAVLink_distance_sensor_message(1000, 10, 4000, 500, 0, 0, 0, 0))
+    assert short[1] <= 11  # the id byte is not on the wire
+    assert _fastpath.check(short, NOBODY, native_udp.filter_specs({132: (11, frozenset({1}))})) == 1
+    assert _fastpath.check(short, NOBODY, native_udp.filter_specs({132: (11, frozenset({0}))})) == -1
+    assert _fastpath.check(short, NOBODY, native_udp.filter_specs({132: (255, frozenset({0}))})) == -1
+    with pytest.raises(ValueError):
+        _fastpath.check(short, NOBODY, [(132, 256, bytes(32))])
+
+
+@needs_native
+def test_more_filters_than_the_route_holds_leave_the_rest_wanted_whole() -> None:
+    from mitm_proxy.net import _fastpath  # type: ignore[attr-defined]
+
+    many = {msgid: (0, frozenset({1})) for msgid in range(200, 200 + _fastpath.MAX_FILTERS + 4)}
+    whole, specs = native_udp.route_wants(frozenset(many) | {0}, many)
+    assert [msgid for msgid, _, _ in specs] == sorted(many)[: _fastpath.MAX_FILTERS]
+    assert whole == native_udp.id_bits(frozenset(sorted(many)[_fastpath.MAX_FILTERS :]) | {0})
+    _fastpath.check(b"", whole, specs)  # the route takes them
 
 
 # -- whole proxies on loopback, both paths ------------------------------------------------------------------
@@ -179,6 +276,102 @@ async def test_rewritten_frames_keep_their_place_among_forwarded_ones(
     finally:
         vehicle.close()
         gcs.sock.close()
+
+
+@pytest.mark.usefixtures("proxy_path")
+async def test_a_sensor_filter_rewrites_its_sensor_passes_the_others_and_moves_with_a_swap(
+    udp_port: Callable[[], int],
+) -> None:
+    """A bias on DISTANCE_SENSOR sensor 3: its frames are rewritten, the other sensors' leave byte for byte (on the
+    fast path without going up to Python); a swap to sensor 0, acknowledged, moves that from the next datagram
+    on, and no frame is lost or reordered on the way."""
+    from attack_profiles.profile import parse_profile
+
+    def bias_on(sid: int) -> Any:
+        return parse_profile({"name": f"s{sid}", "rules": [{"target": {"message": "DISTANCE_SENSOR", "sensor_id": sid},
+                                                            "kind": "bias", "offset_m": 1.0}]}, "t.yaml")  # fmt: skip
+
+    gcs, port = _Gcs(), udp_port()
+    vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    vehicle.bind(("127.0.0.1", 0))
+    m = mav()
+
+    def batch(n: int) -> list[bytes]:  # sensors 0..3 in turn, a heartbeat now and then; sensor 0 truncated
+        out = []
+        for i in range(n):
+            sid = i % 4
+            msg = mavlink.MAVLink_distance_sensor_message(1000 + i, 10, 4000, 500, 0, sid, 0, 0)
+            out.append(pack(heartbeat(), m) if i % 10 == 9 else pack(msg, m))
+        return out
+
+    def check(sent: list[bytes], got: list[bytes], target: int) -> int:
+        rewritten = 0
+        for before, after in zip(sent, got, strict=True):
+            h, raw = split(before).frames[0]
+            sid = codec.decode(Packet(raw, h, Direction.DOWNLINK, 0, 0.0))["id"] if h.msgid == 132 else None
+            if sid == target:
+                assert after != before and parse_all(after)[0].current_distance == 600
+                assert split(after).frames[0][0].seq == h.seq
+                rewritten += 1
+            else:
+                assert after == before  # byte for byte
+        return rewritten
+
+    link = LinkConfig(sysid=1, vehicle=f"udpin://127.0.0.1:{port}", ground=[f"udpout://127.0.0.1:{gcs.port}"])
+    try:
+        async with Proxy(ProxyConfig(links=[link], broker="none")) as proxy:
+            assert proxy.slots[1].offer(bias_on(3)).ok
+            first = batch(200)
+            await _send_paced(vehicle, first, port)
+            assert check(first, await gcs.datagrams(len(first)), 3) == 40  # i % 4 == 3, but no heartbeat
+            ep = proxy.links[0].vehicle
+            fast = ep.fast_datagrams if isinstance(ep, native_udp.NativeUdpEndpoint) else None
+            if fast is not None:  # all but sensor 3's frames and the first datagram stayed in C
+                assert fast == 200 - 40 - 1
+            assert proxy.slots[1].offer(bias_on(0)).ok
+            second = batch(200)
+            await _send_paced(vehicle, second, port)
+            assert check(second, await gcs.datagrams(len(second)), 0) == 50
+            down = proxy.stats_snapshot()[1]["downlink"]
+            assert down["frames_in"] == down["frames_out"] == 400 and down["rewritten"] == 90
+            if fast is not None:
+                assert ep.fast_datagrams - fast == 200 - 50
+    finally:
+        vehicle.close()
+        gcs.sock.close()
+
+
+@pytest.mark.usefixtures("proxy_path")
+async def test_two_grounds_get_the_same_stream_with_a_filtered_sensor_rewritten_in_place(
+    udp_port: Callable[[], int],
+) -> None:
+    """The default configuration's shape, two ground endpoints, and a bias on sensor 0: each ground gets every
+    datagram, in order, sensor 0's rewritten and identical on both, the other sensors' byte for byte."""
+    from attack_profiles.profile import parse_profile
+
+    profile = {"name": "s0", "rules": [{"target": {"message": "DISTANCE_SENSOR", "sensor_id": 0},
+                                        "kind": "bias", "offset_m": 1.0}]}  # fmt: skip
+    gcs, mavsdk, port = _Gcs(), _Gcs(), udp_port()
+    vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    vehicle.bind(("127.0.0.1", 0))
+    m = mav()
+    sent = [pack(distance(cm=500, sensor_id=i % 3), m) if i % 5 else pack(heartbeat(), m) for i in range(300)]
+    link = LinkConfig(sysid=1, vehicle=f"udpin://127.0.0.1:{port}",
+                      ground=[f"udpout://127.0.0.1:{gcs.port}", f"udpout://127.0.0.1:{mavsdk.port}"])  # fmt: skip
+    try:
+        async with Proxy(ProxyConfig(links=[link], broker="none")) as proxy:
+            assert proxy.slots[1].offer(parse_profile(profile, "t.yaml")).ok
+            await _send_paced(vehicle, sent, port)
+            one, two = await gcs.datagrams(len(sent)), await mavsdk.datagrams(len(sent))
+            assert one == two
+            changed = [i for i, (a, b) in enumerate(zip(sent, one, strict=True)) if a != b]
+            assert changed == [i for i in range(300) if i % 5 and i % 3 == 0]
+            assert all(parse_all(one[i])[0].current_distance == 600 for i in changed)
+            assert [ep.tx for ep in proxy.links[0].grounds] == [len(sent), len(sent)]
+    finally:
+        vehicle.close()
+        gcs.sock.close()
+        mavsdk.sock.close()
 
 
 @pytest.mark.usefixtures("proxy_path")
