@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from estimators import noise, offsets
+from tests.support.markdown import tables
 
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = ROOT / "scripts" / "naming_sweep.py"
@@ -29,19 +30,6 @@ def _sweep():
     spec.loader.exec_module(module)
     return module
 
-
-def _rows(markdown: str) -> list[list[list[str]]]:
-    """Every markdown table's rows (header first, the separator dropped), each a list of cells."""
-    tables: list[list[list[str]]] = []
-    current: list[list[str]] = []
-    for line in [*markdown.splitlines(), ""]:
-        if line.startswith("|"):
-            if not line.startswith("|---"):
-                current.append([c.strip() for c in line.strip("|").split("|")])
-        elif current:
-            tables.append(current)
-            current = []
-    return tables
 
 
 def _numbers(cell: str) -> list[float]:
@@ -66,7 +54,7 @@ def test_sweep_prints_excursions_and_a_row_per_band_and_estimator(
     band, tracker = offsets.BAND_M, noise.OffsetTracker
     assert _sweep().main([str(recording), "--bands", "off,0.25", *SHORT]) == 0
     assert (offsets.BAND_M, noise.OffsetTracker) == (band, tracker)  # the band is put back
-    excursions, sweep = _rows(capsys.readouterr().out)
+    excursions, sweep = tables(capsys.readouterr().out)
     assert [r[0] for r in excursions[1:]] == ["lias-mid-0"]
     largest, p99 = (_numbers(c) for c in excursions[1][1:])
     assert len(largest) == 8 + 1 and len(p99) == 8  # eight links (and the largest of them)
@@ -87,7 +75,7 @@ def test_sweep_prints_excursions_and_a_row_per_band_and_estimator(
 def test_floor_prints_each_bias_and_sign(recording: Path, capsys: pytest.CaptureFixture[str]) -> None:
     argv = [str(recording), "--bands", "0.25", "--links", "1", "--no-excursions", "--floor", "0.5", *SHORT]
     assert _sweep().main(argv) == 0
-    (table,) = _rows(capsys.readouterr().out)
+    (table,) = tables(capsys.readouterr().out)
     assert table[0] == ["band [m]", "recording", "estimator", "+0.5 m", "-0.5 m"]
     assert [r[:3] for r in table[1:]] == [["0.25", "lias-mid-0", "secekf"]]
     assert all(0.0 <= float(c) <= 1.0 for c in table[1][3:])

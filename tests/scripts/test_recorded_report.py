@@ -10,25 +10,14 @@ import subprocess
 import sys
 from pathlib import Path
 
+from tests.support.markdown import tables
+
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = ROOT / "scripts" / "recorded_alarms.py"
 DATA = ROOT / "tests" / "data"
 RECORDED_COLUMNS = 14
 NUMBER = re.compile(r"^-?\d+(\.\d+)?( %)?( \(\d+/h\))?x?$")
 
-
-def _tables(markdown: str) -> list[list[list[str]]]:
-    """Every markdown table: its rows (header first, the separator dropped), each a list of cells."""
-    tables: list[list[list[str]]] = []
-    current: list[list[str]] = []
-    for line in [*markdown.splitlines(), ""]:
-        if line.startswith("|"):
-            if not line.startswith("|---"):
-                current.append([c.strip() for c in line.strip("|").split("|")])
-        elif current:
-            tables.append(current)
-            current = []
-    return tables
 
 
 def test_report_on_both_datasets_and_held_out_layouts(tmp_path: Path) -> None:
@@ -46,7 +35,7 @@ def test_report_on_both_datasets_and_held_out_layouts(tmp_path: Path) -> None:
     assert len(re.findall(r"^\[\d+/27\] ", done.stderr, re.M)) == 27
     # stdout is the markdown and nothing else (what a solver prints goes to stderr)
     assert all(re.match(r"(\||\*\*|Measured on |$)", line) for line in done.stdout.splitlines())
-    lias, hanyang, heldout = _tables(done.stdout)
+    lias, hanyang, heldout = tables(done.stdout)
     for table, links, recording in ((lias, "11, 14", "lias-mid-0"), (hanyang, "11, 13", "hy-los-4")):
         header, rows = table[0], table[1:]
         assert len(header) == RECORDED_COLUMNS

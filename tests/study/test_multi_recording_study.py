@@ -15,37 +15,17 @@ import pytest
 
 from secuav_common.loading import InputError
 from study.spec import expand, parse_study
+from tests.support.hanyang import TWO_RECORDINGS, convert
 
 ROOT = Path(__file__).resolve().parents[2]
-CONVERT = ROOT / "scripts" / "datasets" / "hanyang_outdoor_uwb.py"
-EXCERPT = ROOT / "tests" / "data" / "hanyang_uwb"
 STUDY = Path(sys.executable).parent / "secuav-study"
-
-STUDY_TEXT = """
-name: two-recordings
-scenario: LOS/scenario.yaml
-dims: 2
-recordings:
-  - {name: hy-los-4, ranges: LOS/ranges.csv, truth: LOS/truth.csv, rate_hz: 10}
-  - {name: hy-nlos-3, ranges: NLOS/ranges.csv, truth: NLOS/truth.csv, rate_hz: 10, scenario: NLOS/scenario.yaml}
-estimators: [secekf]
-seeds: 1
-attacks:
-  - none
-  - profile: anchors-constant
-    params: {offset_m: 1.5, start_s: 15.0, links: [11, 13]}
-"""
+STUDY_TEXT = "\nname: two-recordings" + TWO_RECORDINGS
 
 
 @pytest.fixture(scope="module")
 def converted(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The two excerpts in the recorded-ranges format, as a user would make them (docs/datasets.md)."""
-    folder = tmp_path_factory.mktemp("hanyang")
-    for env, case in (("LOS", 4), ("NLOS", 3)):
-        argv = [sys.executable, str(CONVERT), "convert", "--source", str(EXCERPT), "--env", env, "--case", str(case),
-                "--out", str(folder / env)]  # fmt: skip
-        subprocess.run(argv, check=True, capture_output=True, timeout=120)
-    return folder
+    return convert(tmp_path_factory.mktemp("hanyang"))
 
 
 def _expand(folder: Path, text: str = STUDY_TEXT) -> list:
