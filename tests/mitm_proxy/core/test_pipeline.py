@@ -9,15 +9,11 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from attack_profiles.profile import parse_profile
 from mavframe import codec
 from mavframe.frames import CRC_EXTRA, split
 from mavframe.packet import Direction, Packet
 from mitm_proxy.control.attack import AttackSwitch
-from mitm_proxy.core.pipeline import HOSTILE_BYTES_PER_S, Outgoing, Pipeline
-from mitm_proxy.core.stats import LinkStats
-from mitm_proxy.stages.attack import AttackStage
-from mitm_proxy.stages.attack_slot import AttackSlot
+from mitm_proxy.core.pipeline import HOSTILE_BYTES_PER_S, Outgoing
 from tests.support.frames_support import (
     DISTANCE_SENSOR,
     HEARTBEAT,
@@ -31,30 +27,10 @@ from tests.support.frames_support import (
     parse_all,
     unknown_frame,
 )
+from tests.support.pipelines import bias, make, profile
 
 DOWN = Direction.DOWNLINK
 UP = Direction.UPLINK
-
-
-def profile(*rules: dict[str, Any]) -> Any:
-    return parse_profile({"name": "t", "rules": list(rules)}, "t.yaml")
-
-
-def bias(sensor_id: int = 0, offset_m: float = 2.0, **kw: Any) -> dict[str, Any]:
-    return {
-        "target": {"message": "DISTANCE_SENSOR", "sensor_id": sensor_id, **kw},
-        "kind": "bias",
-        "offset_m": offset_m,
-    }
-
-
-def make(*rules: dict[str, Any], extra: list[Any] | None = None) -> tuple[Pipeline, LinkStats, AttackStage]:
-    slot = AttackSwitch(AttackSlot(1))
-    if rules:
-        slot.offer(profile(*rules))
-    stage = AttackStage(slot.slot)
-    stats = LinkStats(1)
-    return Pipeline(0, [stage, *(extra or [])], stats=stats), stats, stage
 
 
 def test_untargeted_datagram_leaves_as_the_same_object() -> None:

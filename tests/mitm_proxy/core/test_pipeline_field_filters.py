@@ -22,7 +22,6 @@ from mitm_proxy.core.pipeline import Pipeline, _selected
 from mitm_proxy.core.stats import LinkStats
 from mitm_proxy.stages.attack import AttackStage
 from mitm_proxy.stages.attack_slot import AttackSlot
-from tests.mitm_proxy.core.test_pipeline import bias, make, profile
 from tests.support.frames_support import (
     DISTANCE_SENSOR,
     distance,
@@ -34,6 +33,7 @@ from tests.support.frames_support import (
     parse_all,
     signed_mav,
 )
+from tests.support.pipelines import bias, make, profile
 
 DOWN = Direction.DOWNLINK
 
