@@ -281,8 +281,7 @@ class Pipeline:
                 elif header.msgid in wanted:
                     st.signed_untouched += 1
                     self._signed_untouched(header, direction, active)
-            elif header.msgid in wanted and (not filters or header.msgid not in filters or
-                                             _selected(header, raw, filters[header.msgid])):  # fmt: skip
+            elif header.msgid in wanted and not (filters and _filtered_out(header, raw, filters)):
                 slow = True
         if self._seqs and not slow:
             seqr = self._seqs.get(direction)
@@ -320,8 +319,7 @@ class Pipeline:
                     st.add_bad(reason)
                     continue
             if (header.msgid not in wanted or (header.signed and signer is None) or
-                    (filters and not header.signed and header.msgid in filters and
-                     not _selected(header, raw, filters[header.msgid]))):  # fmt: skip
+                    (filters and _filtered_out(header, raw, filters))):  # fmt: skip
                 data = raw if seqr is None else self._renumber(header, raw, raw, seqr, st)
                 now_parts.append(data)
                 for o in observers:
@@ -515,6 +513,13 @@ def _selected(header: Header, raw: bytes, flt: tuple[int, frozenset[int]]) -> bo
     offset, values = flt
     return (raw[(V2_HEADER_LEN if header.version == 2 else V1_HEADER_LEN) + offset]
             if offset < header.payload_len else 0) in values  # fmt: skip
+
+
+def _filtered_out(header: Header, raw: bytes, filters: dict[int, tuple[int, frozenset[int]]]) -> bool:
+    """Whether a field filter leaves this frame unwanted: unsigned (a signed one is wanted whole) and its
+    filtered field holding none of the wanted values."""
+    flt = filters.get(header.msgid)
+    return flt is not None and not header.signed and not _selected(header, raw, flt)
 
 
 def _merge_filters(active: Sequence[Stage]) -> dict[int, tuple[int, frozenset[int]]]:
