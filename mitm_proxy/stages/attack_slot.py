@@ -144,6 +144,11 @@ class AttackSlot:
         for warning in watch.see(msgid):
             log.warning("attack.true_copy", extra={"sysid": self.sysid, "profile": engine.profile.name,
                                                    "warning": warning})  # fmt: skip
+        self._want(engine, watch)
+
+    def _want(self, engine: Engine, watch: TrueCopyWatch) -> None:
+        """What the stage wants while ``watch`` waits: the engine's ids and the carriers', the engine's field
+        filters less the carriers (a carrier still watched is wanted whole)."""
         self._ids = engine.message_ids | watch.message_ids
         self._filters = _filters(engine, watch)
 
@@ -232,8 +237,7 @@ class AttackSlot:
             self._watch, self._ids, self._filters = None, frozenset(), {}
             return
         watch = self._watch = TrueCopyWatch(findings(engine.profile), self._sent)
-        self._ids = engine.message_ids | watch.message_ids
-        self._filters = _filters(engine, watch)
+        self._want(engine, watch)
         for warning in watch.warnings:
             log.warning("attack.true_copy", extra={"sysid": self.sysid, "profile": engine.profile.name,
                                                    "warning": warning})  # fmt: skip
