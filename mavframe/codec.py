@@ -40,6 +40,7 @@ __all__ = [
     "byte_field",
     "decode",
     "encode",
+    "field_span",
     "message_class",
     "message_id",
     "restamp",
@@ -182,6 +183,35 @@ def byte_field(msgid: int, name: str) -> int | None:
                     found = offset
                     break
     _BYTE_FIELDS[key] = found
+    return found
+
+
+_SPANS: dict[tuple[int, str], tuple[int, int] | None] = {}
+
+
+def field_span(msgid: int, name: str) -> tuple[int, int] | None:
+    """``(payload offset, length in bytes)`` of ``name``, a scalar (not array) field of message ``msgid`` (e.g.
+    DISTANCE_SENSOR ``time_boot_ms``: ``(0, 4)``), or None when it is not one."""
+    key = (msgid, name)
+    if key in _SPANS:
+        return _SPANS[key]
+    found = None
+    cls = MAVLINK_MAP.get(msgid)
+    if cls is not None and name in cls.fieldnames:
+        lay = _layout(cls)
+        entry = next(f for f in lay.fields if f[0] == name)
+        if entry[3] != _ARRAY:
+            tip = entry[1]
+            zero = lay.unpacker.unpack(bytes(lay.size))[tip]
+            moved = []
+            for offset in range(lay.size):  # the bytes that move this field
+                probe = bytearray(lay.size)
+                probe[offset] = 1
+                if lay.unpacker.unpack(bytes(probe))[tip] != zero:
+                    moved.append(offset)
+            if moved and moved == list(range(moved[0], moved[-1] + 1)):
+                found = (moved[0], len(moved))
+    _SPANS[key] = found
     return found
 
 

@@ -38,6 +38,15 @@ under ``signed_untouched``, handed to the stage's optional ``signed_untouched(he
 system as ``<stage>.signed_no_key``. A stage that raises does not stop forwarding: the frame leaves as it
 came, the error is counted under ``bad["stage_error"]`` and logged once.
 
+A stage may also let the compiled fast path repeat its rewrites (``memo_fields``, optional: ``msgid ->`` the
+name of the field a frame's key leaves out, its time field, or None; with ``memo_token``, an object that changes
+whenever what it learnt may no longer hold). For an id that every active stage wanting it offers so, a frame
+the stages passed on alone and undelayed, unsigned, whose packet a stage marked ``steady_until_s`` (monotonic)
+is told, with the bytes it left as, to the direction's ``learners`` (the fast route's ``learn``:
+mitm_proxy/README.md, "The fast path"); the route then rewrites frames with the same key, received before that
+time, itself. Nothing is learnt while an observer is attached, the link has a signing key or the direction's
+sequence numbers are watched.
+
 Time-driven frames (an injection at a rate, a replayed recording) do not wait for traffic: a stage
 that has them answers ``next_due_s()`` (monotonic, or None) and ``due(now_s, link)``, and the edge
 calls :meth:`Pipeline.tick` when :meth:`Pipeline.next_tick_s` says, and only then (no timer while
@@ -52,7 +61,7 @@ frames are not sent (a receiver that checks signatures would drop them): they ar
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
@@ -69,6 +78,8 @@ log = logging.getLogger(__name__)
 
 _NOTHING: frozenset[int] = frozenset()
 _NO_FILTERS: dict[int, tuple[int, frozenset[int]]] = {}
+_NO_MEMO: dict[int, tuple[int, int]] = {}
+Learner = Callable[[bytes, bytes, float, bool], object]  # (frame in, bytes out, until monotonic s, counted a rewrite)
 STAGE_ERROR = "stage_error"
 ENCODE_ERROR = "encode_error"
 OVER_BUDGET = "over_budget"
@@ -88,9 +99,10 @@ class Stage(Protocol):
     (changed or not), extra packets are injected after it.
 
     Optional (see the module doc): ``next_due_s()``, ``due(now_s, link)`` for frames made on a
-    clock, ``forges`` (the directions it may add frames to, so their sequence numbers are watched), and
+    clock, ``forges`` (the directions it may add frames to, so their sequence numbers are watched),
     ``field_filters`` (``msgid -> (field, values)``: of ``message_ids``, those wanted only when a
-    frame's one-byte field holds one of the values; the same object while it stays the same).
+    frame's one-byte field holds one of the values; the same object while it stays the same), and
+    ``memo_fields`` / ``memo_token`` (rewrites the fast path may repeat: the module doc).
     """
 
     name: str
@@ -146,6 +158,21 @@ class Outgoing(NamedTuple):
     frames: int = 1
 
 
+class FastWants(NamedTuple):
+    """What the compiled fast path takes from the pipeline for one direction (:meth:`Pipeline.fast_wanted`).
+
+    ``ids``: the message ids whose frames must come through :meth:`Pipeline.feed`; ``filters``: those of
+    them wanted only for a few values of a one-byte field (``msgid -> (payload offset, values)``); ``memo``:
+    the ids whose rewrites the route may repeat (``msgid -> (offset, length)`` of the payload span a frame's
+    key leaves out, ``(0, 0)``: none); ``token``: changes whenever what the route learnt may no longer hold.
+    """
+
+    ids: frozenset[int]
+    filters: dict[int, tuple[int, frozenset[int]]]
+    memo: dict[int, tuple[int, int]]
+    token: tuple[object, ...]
+
+
 class Pipeline:
     """Frames of one link (one vehicle) through ``stages``; see the module doc."""
 
@@ -168,6 +195,9 @@ class Pipeline:
         self._union_key: tuple[object, ...] = ()
         self._union: frozenset[int] = _NOTHING
         self._filters: dict[int, tuple[int, frozenset[int]]] = _NO_FILTERS
+        self._memo: dict[int, tuple[int, int]] = _NO_MEMO  # msgid -> the payload span its key leaves out
+        # Direction -> the fast routes that repeat what the stages rewrite there (mitm_proxy.net.native_udp)
+        self.learners: dict[Direction, list[Learner]] = {}
         self._budget = {d: _HostileBudget() for d in Direction}
         # Directions whose sequence numbers are watched (a stage forges there, or did): none, the usual case,
         # costs the fast path one truth test.
@@ -190,25 +220,29 @@ class Pipeline:
             return active, _NOTHING, _NO_FILTERS
         if len(active) == 1:  # the usual case, per datagram: no generator
             one = active[0]
-            key: tuple[object, ...] = (one.message_ids, getattr(one, "field_filters", None))
+            key: tuple[object, ...] = (one.message_ids, getattr(one, "field_filters", None),
+                                       getattr(one, "memo_fields", None))  # fmt: skip
         else:
-            key = tuple(x for s in active for x in (s.message_ids, getattr(s, "field_filters", None)))
+            key = tuple(x for s in active for x in (s.message_ids, getattr(s, "field_filters", None),
+                                                     getattr(s, "memo_fields", None)))  # fmt: skip
         if key != self._union_key:
             self._union_key = key
-            self._union = frozenset().union(*key[::2])
+            self._union = frozenset().union(*key[::3])
             self._filters = _merge_filters(active)
+            self._memo = _merge_memo(active)
         return active, self._union, self._filters
 
-    def fast_wanted(self, direction: Direction) -> tuple[frozenset[int], dict[int, tuple[int, frozenset[int]]]] | None:
-        """For the compiled fast path (:mod:`mitm_proxy.net.native_udp`): the message ids whose frames must come
-        through :meth:`feed` on ``direction`` and the field filters narrowing some of them (see the module doc:
-        ``msgid -> (payload offset, values)``), or None when every frame must (an observer is attached, the link
-        has a signing key, or the direction's sequence numbers are watched). Other frames, in datagrams of
-        nothing but valid frames, are what :meth:`feed` would pass as they came, only counted."""
+    def fast_wanted(self, direction: Direction) -> FastWants | None:
+        """For the compiled fast path (:mod:`mitm_proxy.net.native_udp`): what must come through :meth:`feed` on
+        ``direction`` and what the route may repeat (:class:`FastWants`), or None when every frame must (an
+        observer is attached, the link has a signing key, or the direction's sequence numbers are watched).
+        Other frames, in datagrams of nothing but valid frames, are what :meth:`feed` would pass as they came,
+        only counted."""
         if self.observers or self.signer is not None or direction in self._seqs:
             return None
-        _, ids, filters = self._wanted()
-        return ids, filters
+        active, ids, filters = self._wanted()
+        token = tuple(getattr(s, "memo_token", None) for s in active) if self._memo else ()
+        return FastWants(ids, filters, self._memo, token)
 
     def _log_once(self, key: str, event: str, **extra: object) -> None:
         """Faults are counted per frame but logged once per kind, so a flood cannot flood the log."""
@@ -308,6 +342,7 @@ class Pipeline:
         signer = self.signer
         observers = self.observers
         seqr = self._seqs.get(direction)
+        learn = None if observers or seqr is not None or signer is not None else self.learners.get(direction)
         for o in observers:
             o.frames_in(direction, frames)
         now_parts: list[bytes] = []
@@ -354,6 +389,8 @@ class Pipeline:
                     later.append(Outgoing(data, p.release_s, p.rx_s, 1))
                 else:
                     now_parts.append(data)
+                    if learn and p is pkt and len(pkts) == 1:
+                        self._learn(learn, p, data, now_s)
                 for o in observers:
                     o.frame_out(direction, pos, header, raw, data, p, delay_s)
         out: list[Outgoing] = []
@@ -364,6 +401,16 @@ class Pipeline:
             out.append(Outgoing(joined, now_s, now_s, len(now_parts)))
         out.extend(later)
         return out
+
+    def _learn(self, learners: list[Learner], p: Packet, data: bytes, now_s: float) -> None:
+        """Tell the fast routes how this frame left, when the stages said it may be repeated (the module doc)."""
+        until = p.steady_until_s
+        if until is None or until <= now_s or p.header.msgid not in self._memo or p.header.signed:
+            return
+        if p.changed and data is p.raw:  # the re-pack failed (encode_error): that is Python's to count
+            return
+        for learner in learners:
+            learner(p.raw, data, until, p.changed)
 
     def _run_stages(self, pkt: Packet, active: list[Stage], now_s: float) -> list[Packet]:
         signer = self.signer
@@ -546,3 +593,24 @@ def _merge_filters(active: Sequence[Stage]) -> dict[int, tuple[int, frozenset[in
     for msgid in whole:
         merged.pop(msgid, None)
     return merged or _NO_FILTERS
+
+
+def _merge_memo(active: Sequence[Stage]) -> dict[int, tuple[int, int]]:
+    """The ids whose rewrites the fast path may repeat: wanted by at least one active stage, and every active
+    stage that wants one offers it in ``memo_fields`` with the same field left out of the key; each with that
+    field's payload span (``(0, 0)``: the whole payload is the key)."""
+    offered: dict[int, str | None] = {}
+    refused: set[int] = set()
+    for stage in active:
+        found = getattr(stage, "memo_fields", None) or {}
+        for msgid in stage.message_ids:
+            if msgid not in found or offered.setdefault(msgid, found[msgid]) != found[msgid]:
+                refused.add(msgid)
+    out: dict[int, tuple[int, int]] = {}
+    for msgid, name in offered.items():
+        if msgid in refused:
+            continue
+        span = (0, 0) if name is None else codec.field_span(msgid, name)
+        if span is not None:
+            out[msgid] = span
+    return out or _NO_MEMO

@@ -13,6 +13,15 @@
  * stays here like an unwanted one; a payload MAVLink 2 truncated before the byte reads 0 there, as the
  * decoder pads it. A signed frame of a filtered id goes up (the pipeline counts it as wanted).
  *
+ * A wanted frame may still be answered here from the route's rewrite memory (a megaflow cache, as Open
+ * vSwitch's datapath keeps): after Python rewrote a frame of an id it allows (the stages' memo_fields,
+ * mitm_proxy/core/pipeline.py), learn() keeps "a frame of this msgid, version, sysid and compid whose
+ * payload, less one span (its time field), is exactly this, leaves with these payload bytes changed",
+ * until a monotonic time the stage gave. A later frame with the same key, valid and unsigned, arriving
+ * before then, is rewritten here the way codec.encode re-packs (MAVLink 2: the patched payload with its
+ * trailing zeros cut, at least one byte kept; MAVLink 1: the same length), with a fresh CRC, and sent in
+ * its datagram; anything else goes up. learn() only keeps a rewrite it reproduces byte for byte.
+ *
  * Order is kept: drain() stops at the first datagram that goes up, after sending the ones before it, and
  * returns it; the rest of the batch waits in the route for the next drain() call.
  *
@@ -40,6 +49,12 @@
 #define IDS 65536                    /* ids at or above this are never fast (none is in the dialect today) */
 #define SIGNATURE_LEN 13
 #define MAX_FILTERS 16
+#define MAX_MEMO_IDS 16              /* ids the rewrite memory may answer for */
+#define MEMO_SLOTS 1024              /* entries per route (a power of two) */
+#define MEMO_PROBE 8                 /* slots looked at per key */
+#define MEMO_PATCH 32                /* payload bytes one remembered rewrite may change */
+#define MAX_PAYLOAD 255
+#define MAX_HITS 64                  /* remembered rewrites in one datagram; more go up */
 
 static uint8_t crc_extra[IDS];
 static uint8_t known_ids[IDS / 8];
@@ -53,13 +68,42 @@ typedef struct {
     uint8_t values[32];              /* bitmap of the byte values that make a frame wanted */
 } Filter;
 
-/* What Python wants from one route: whole ids, and ids wanted only for some values of one payload byte. */
+typedef struct {
+    uint32_t msgid;
+    uint32_t skip_off, skip_len;     /* the payload span left out of the key (the time field), or 0, 0 */
+} MemoSpec;
+
+/* What Python wants from one route: whole ids, ids wanted only for some values of one payload byte, and
+ * the wanted ids whose rewrites the memory may repeat. */
 typedef struct {
     uint8_t wanted[IDS / 8];
     uint8_t filtered[IDS / 8];
     int n_filters;
     Filter filters[MAX_FILTERS];
+    uint8_t memo_ids[IDS / 8];
+    int n_memo;
+    MemoSpec memo[MAX_MEMO_IDS];
 } Wants;
+
+/* One remembered rewrite; hash 0 marks an empty slot. */
+typedef struct {
+    uint64_t hash;
+    double until_s;                  /* monotonic: not used for frames received at or after it */
+    uint32_t msgid;
+    uint8_t version, sysid, compid, key_len;
+    uint8_t n_patch;
+    uint8_t repack;                  /* Python re-packed the frame (else it left as it came) */
+    uint8_t rewritten;               /* ... and counted a rewrite (stats.rewritten) */
+    uint8_t key[MAX_PAYLOAD];
+    uint8_t patch_off[MEMO_PATCH];
+    uint8_t patch_val[MEMO_PATCH];
+} Memo;
+
+/* A remembered rewrite found for a frame of a datagram: where the frame is and what to do with it. */
+typedef struct {
+    Py_ssize_t at, end;
+    const Memo *memo;
+} Hit;
 
 typedef struct {
     PyObject_HEAD
@@ -80,6 +124,8 @@ typedef struct {
     struct mmsghdr out[BATCH];
     /* calloc'd apart from the object: only the pages datagrams were written to count in the RSS */
     uint8_t (*bufs)[BUF_LEN];
+    Memo *memos;                     /* MEMO_SLOTS, calloc'd at the first learn() */
+    uint8_t obuf[BUF_LEN + MAX_PAYLOAD];  /* a datagram with remembered rewrites, built before it is sent */
 } Route;
 
 static inline uint16_t crc_acc(uint16_t crc, uint8_t b) {
@@ -106,10 +152,102 @@ static int filter_wants(const Wants *w, uint32_t msgid, const uint8_t *payload, 
     return 1;
 }
 
-/* Frames in d[0:n] if it is nothing but valid frames of known ids nobody wants, else -1. */
-static int fast_frames(const Wants *w, const uint8_t *d, Py_ssize_t n, int *n_signed) {
+/* -- the rewrite memory --------------------------------------------------------------------------- */
+
+static const MemoSpec *memo_spec(const Wants *w, uint32_t msgid) {
+    for (int k = 0; k < w->n_memo; k++)
+        if (w->memo[k].msgid == msgid)
+            return &w->memo[k];
+    return NULL;
+}
+
+/* The key of a payload: its bytes with the spec's span zeroed and trailing zeros cut (a MAVLink 2 payload
+ * decodes as if padded with zeros, so a truncated and a full one with the same values share a key). */
+static int memo_key(const MemoSpec *spec, const uint8_t *payload, int len, uint8_t *key) {
+    memcpy(key, payload, (size_t)len);
+    if (spec->skip_len) {
+        for (uint32_t j = spec->skip_off; j < spec->skip_off + spec->skip_len && j < (uint32_t)len; j++)
+            key[j] = 0;
+    }
+    while (len > 0 && key[len - 1] == 0)
+        len--;
+    return len;
+}
+
+static uint64_t memo_hash(uint32_t msgid, uint8_t version, uint8_t sysid, uint8_t compid, const uint8_t *key,
+                          int len) {
+    uint64_t h = 1469598103934665603ULL;  /* FNV-1a */
+    uint8_t head[7] = {(uint8_t)msgid, (uint8_t)(msgid >> 8), (uint8_t)(msgid >> 16), version, sysid, compid,
+                       (uint8_t)len};
+    for (int j = 0; j < 7; j++)
+        h = (h ^ head[j]) * 1099511628211ULL;
+    for (int j = 0; j < len; j++)
+        h = (h ^ key[j]) * 1099511628211ULL;
+    return h ? h : 1;
+}
+
+/* The slot holding this key, or (insert) the slot to write it to; find: NULL when it is not there. */
+static Memo *memo_slot(Memo *memos, uint64_t h, uint32_t msgid, uint8_t version, uint8_t sysid, uint8_t compid,
+                       const uint8_t *key, int len, int insert) {
+    for (int k = 0; k < MEMO_PROBE; k++) {
+        Memo *m = &memos[(h + (uint64_t)k) & (MEMO_SLOTS - 1)];
+        if (m->hash == 0)
+            return insert ? m : NULL;
+        if (m->hash == h && m->msgid == msgid && m->version == version && m->sysid == sysid &&
+            m->compid == compid && m->key_len == len && !memcmp(m->key, key, (size_t)len))
+            return m;
+    }
+    return insert ? &memos[h & (MEMO_SLOTS - 1)] : NULL;  /* a full neighbourhood: the oldest guess goes */
+}
+
+/* The remembered rewrite for the frame at f (valid, unsigned), or NULL. */
+static const Memo *memo_find(const Memo *memos, const Wants *w, uint32_t msgid, const uint8_t *f) {
+    const MemoSpec *spec = memo_spec(w, msgid);
+    if (memos == NULL || spec == NULL)
+        return NULL;
+    int v2 = f[0] == 0xFD;
+    uint8_t key[MAX_PAYLOAD];
+    int len = memo_key(spec, f + (v2 ? 10 : 6), f[1], key);
+    uint8_t version = v2 ? 2 : 1, sysid = f[v2 ? 5 : 3], compid = f[v2 ? 6 : 4];
+    uint64_t h = memo_hash(msgid, version, sysid, compid, key, len);
+    return memo_slot((Memo *)memos, h, msgid, version, sysid, compid, key, len, 0);
+}
+
+/* The frame f (flen bytes, unsigned) as the remembered rewrite m leaves it, written to out; its length. */
+static Py_ssize_t memo_apply(const Memo *m, const uint8_t *f, Py_ssize_t flen, uint8_t *out) {
+    if (!m->repack) {
+        memcpy(out, f, (size_t)flen);
+        return flen;
+    }
+    int v2 = f[0] == 0xFD, hdr = v2 ? 10 : 6, len = f[1];
+    uint8_t payload[MAX_PAYLOAD];
+    memset(payload, 0, sizeof(payload));
+    memcpy(payload, f + hdr, (size_t)len);
+    for (int k = 0; k < m->n_patch; k++)
+        payload[m->patch_off[k]] = m->patch_val[k];
+    if (v2) {  /* codec.encode: trailing zeros cut, at least one byte kept */
+        len = MAX_PAYLOAD;
+        while (len > 1 && payload[len - 1] == 0)
+            len--;
+    }
+    memcpy(out, f, (size_t)hdr);
+    out[1] = (uint8_t)len;
+    memcpy(out + hdr, payload, (size_t)len);
+    uint16_t crc = 0xFFFF;
+    for (int j = 1; j < hdr + len; j++)
+        crc = crc_acc(crc, out[j]);
+    crc = crc_acc(crc, crc_extra[m->msgid]);
+    out[hdr + len] = (uint8_t)(crc & 0xff);
+    out[hdr + len + 1] = (uint8_t)(crc >> 8);
+    return hdr + len + 2;
+}
+
+/* Frames in d[0:n] if it is nothing but valid frames of known ids that nobody wants or that the memory
+ * answers (memos may be NULL: none; each answered frame is noted in hits), else -1. */
+static int fast_frames(const Wants *w, const Memo *memos, double rx_s, const uint8_t *d, Py_ssize_t n,
+                       int *n_signed, Hit *hits, int *n_hits) {
     Py_ssize_t i = 0;
-    int frames = 0, sgn = 0;
+    int frames = 0, sgn = 0, nh = 0;
     if (n == 0)
         return -1;
     while (i < n) {
@@ -150,9 +288,11 @@ static int fast_frames(const Wants *w, const uint8_t *d, Py_ssize_t n, int *n_si
         } else {
             return -1;
         }
-        if (msgid >= IDS || !BIT(known_ids, msgid) || BIT(w->wanted, msgid))
+        if (msgid >= IDS || !BIT(known_ids, msgid))
             return -1;
-        if (BIT(w->filtered, msgid) && (is_signed || filter_wants(w, msgid, d + payload, d[i + 1])))
+        int wanted = BIT(w->wanted, msgid) ||
+                     (BIT(w->filtered, msgid) && (is_signed || filter_wants(w, msgid, d + payload, d[i + 1])));
+        if (wanted && (memos == NULL || is_signed || !BIT(w->memo_ids, msgid) || nh >= MAX_HITS))
             return -1;
         uint16_t crc = 0xFFFF;
         for (Py_ssize_t j = i + 1; j < crc_at; j++)
@@ -160,11 +300,47 @@ static int fast_frames(const Wants *w, const uint8_t *d, Py_ssize_t n, int *n_si
         crc = crc_acc(crc, crc_extra[msgid]);
         if (crc != (uint16_t)(d[crc_at] | d[crc_at + 1] << 8))
             return -1;
+        if (wanted) {
+            const Memo *m = memo_find(memos, w, msgid, d + i);
+            if (m == NULL || !(rx_s < m->until_s))
+                return -1;
+            hits[nh].at = i;
+            hits[nh].end = end;
+            hits[nh].memo = m;
+            nh++;
+        }
         frames++;
         i = end;
     }
     *n_signed = sgn;
+    *n_hits = nh;
     return frames;
+}
+
+/* d[0:n] with the hits' frames rewritten, into out (cap bytes); its length, or -1 when it would outgrow a
+ * datagram (it then goes up, as it came). *rewritten: how many of them Python counted as rewrites. */
+static Py_ssize_t rewrite_datagram(const uint8_t *d, Py_ssize_t n, const Hit *hits, int nh, uint8_t *out,
+                                   Py_ssize_t cap, long *rewritten) {
+    Py_ssize_t o = 0, at = 0;
+    long rw = 0;
+    for (int k = 0; k < nh; k++) {
+        Py_ssize_t keep = hits[k].at - at;
+        if (o + keep + 10 + MAX_PAYLOAD + 2 > cap)
+            return -1;
+        memcpy(out + o, d + at, (size_t)keep);
+        o += keep;
+        o += memo_apply(hits[k].memo, d + hits[k].at, hits[k].end - hits[k].at, out + o);
+        rw += hits[k].memo->rewritten;
+        at = hits[k].end;
+    }
+    if (o + (n - at) > cap)
+        return -1;
+    memcpy(out + o, d + at, (size_t)(n - at));
+    o += n - at;
+    if (o > MAX_DATAGRAM)
+        return -1;
+    *rewritten = rw;
+    return o;
 }
 
 static int addr_equal(const struct sockaddr_storage *a, const struct sockaddr_storage *b) {
@@ -249,11 +425,15 @@ static int Route_init(Route *self, PyObject *args, PyObject *kw) {
     self->n_targets = 0;
     self->n = self->next = 0;
     memset(&self->wants, 0, sizeof(self->wants));
+    if (self->memos != NULL)
+        memset(self->memos, 0, MEMO_SLOTS * sizeof(Memo));
     return 0;
 }
 
-/* wanted: an 8192-byte bitmap of whole ids; filters: [(msgid, payload offset, 32-byte bitmap of values)]. */
-static int parse_wants(Wants *w, Py_buffer *wanted, PyObject *filters) {
+/* wanted: an 8192-byte bitmap of whole ids; filters: [(msgid, payload offset, 32-byte bitmap of values)];
+ * memo: NULL or [(msgid, offset, length)]: the ids whose rewrites the memory may repeat, each with the payload
+ * span its key leaves out. */
+static int parse_wants(Wants *w, Py_buffer *wanted, PyObject *filters, PyObject *memo) {
     if (wanted->len != IDS / 8) {
         PyErr_Format(PyExc_ValueError, "wanted must be %d bytes", IDS / 8);
         return -1;
@@ -292,20 +472,49 @@ static int parse_wants(Wants *w, Py_buffer *wanted, PyObject *filters) {
     }
     Py_DECREF(seq);
     fresh.n_filters = (int)nf;
+    if (memo != NULL) {
+        seq = PySequence_Fast(memo, "memo must be a sequence");
+        if (seq == NULL)
+            return -1;
+        Py_ssize_t nm = PySequence_Fast_GET_SIZE(seq);
+        if (nm > MAX_MEMO_IDS) {
+            Py_DECREF(seq);
+            PyErr_Format(PyExc_ValueError, "at most %d memo ids", MAX_MEMO_IDS);
+            return -1;
+        }
+        for (Py_ssize_t k = 0; k < nm; k++) {
+            unsigned int msgid, off, len;
+            if (!PyArg_ParseTuple(PySequence_Fast_GET_ITEM(seq, k), "III", &msgid, &off, &len)) {
+                Py_DECREF(seq);
+                return -1;
+            }
+            if (msgid >= IDS || off > MAX_PAYLOAD || len > MAX_PAYLOAD) {
+                Py_DECREF(seq);
+                PyErr_Format(PyExc_ValueError, "a memo id is (msgid < %d, offset, length <= 255)", IDS);
+                return -1;
+            }
+            fresh.memo[k].msgid = msgid;
+            fresh.memo[k].skip_off = off;
+            fresh.memo[k].skip_len = len;
+            fresh.memo_ids[msgid >> 3] |= (uint8_t)(1u << (msgid & 7));
+        }
+        Py_DECREF(seq);
+        fresh.n_memo = (int)nm;
+    }
     memcpy(w, &fresh, sizeof(fresh));
     return 0;
 }
 
 /* configure(all_up, family, peer or None, [(fd, family, addr), ...], wanted: 8192-byte bitmap,
- *           filters: [(msgid, payload offset, 32-byte bitmap of values)]) */
+ *           filters: [(msgid, payload offset, 32-byte bitmap of values)], memo: [(msgid, offset, length)]) */
 static PyObject *Route_configure(Route *self, PyObject *args) {
     int all_up, family;
-    PyObject *peer, *targets, *filters;
+    PyObject *peer, *targets, *filters, *memo = NULL;
     Py_buffer wanted;
-    if (!PyArg_ParseTuple(args, "piOOy*O", &all_up, &family, &peer, &targets, &wanted, &filters))
+    if (!PyArg_ParseTuple(args, "piOOy*O|O", &all_up, &family, &peer, &targets, &wanted, &filters, &memo))
         return NULL;
     self->all_up = 1;  /* until the whole configuration is in */
-    int rc = parse_wants(&self->wants, &wanted, filters);
+    int rc = parse_wants(&self->wants, &wanted, filters, memo);
     PyBuffer_Release(&wanted);
     if (rc < 0)
         return NULL;
@@ -438,18 +647,26 @@ static PyObject *Route_drain(Route *self, PyObject *args) {
         self->next = 0;
         self->rx_s = monotonic_s();
     }
-    long dgrams = 0, frames = 0, bytes = 0, sgn = 0;
+    long dgrams = 0, frames = 0, bytes = 0, bytes_out = 0, sgn = 0, rewritten = 0;
     long sent[MAX_TARGETS] = {0};
+    Hit hits[MAX_HITS];
     int err[MAX_TARGETS] = {0}, unsent[MAX_TARGETS];
     int lo = self->next, i = lo;
     PyObject *up = NULL;
     for (; i < self->n; i++) {
         struct msghdr *h = &self->msgs[i].msg_hdr;
         Py_ssize_t len = self->msgs[i].msg_len;
-        int s = 0, f = -1;
+        int s = 0, f = -1, nh = 0;
+        Py_ssize_t out_len = len;
+        long rw = 0;
         if (!self->all_up && !(h->msg_flags & MSG_TRUNC) && len <= MAX_DATAGRAM &&
             addr_equal(&self->addrs[i], &self->peer))
-            f = fast_frames(&self->wants, self->bufs[i], len, &s);
+            f = fast_frames(&self->wants, self->memos, self->rx_s, self->bufs[i], len, &s, hits, &nh);
+        if (f >= 0 && nh > 0) {
+            out_len = rewrite_datagram(self->bufs[i], len, hits, nh, self->obuf, (Py_ssize_t)sizeof(self->obuf), &rw);
+            if (out_len < 0)
+                f = -1;
+        }
         if (f < 0) {
             /* Up to Python, after the fast ones before it. */
             PyObject *data;
@@ -473,10 +690,14 @@ static PyObject *Route_drain(Route *self, PyObject *args) {
             }
             break;
         }
-        self->iov[i].iov_len = (size_t)len;
+        if (nh > 0)
+            memcpy(self->bufs[i], self->obuf, (size_t)out_len);
+        self->iov[i].iov_len = (size_t)out_len;
         dgrams++;
         frames += f;
         bytes += len;
+        bytes_out += out_len;
+        rewritten += rw;
         sgn += s;
     }
     double lat = 0.0;
@@ -540,8 +761,110 @@ static PyObject *Route_drain(Route *self, PyObject *args) {
         up = Py_None;
         Py_INCREF(up);
     }
-    return Py_BuildValue("(llllddNNNNO)", dgrams, frames, bytes, sgn, self->rx_s, lat, tsent, terr, tover, up,
-                         self->next < self->n ? Py_True : Py_False);
+    return Py_BuildValue("(llllllddNNNNO)", dgrams, frames, bytes, bytes_out, sgn, rewritten, self->rx_s, lat, tsent,
+                         terr, tover, up, self->next < self->n ? Py_True : Py_False);
+}
+
+/* learn(frame, out, until_s, rewritten) -> bool: remember that ``frame`` (one whole unsigned frame of a memo
+ * id) left as ``out`` (Python's bytes for it: the same, or re-packed), for frames with its key received before
+ * until_s (monotonic); rewritten: Python counted it as a rewrite. False when it is not one this route can
+ * repeat byte for byte (not a memo id, a signed frame, more than MEMO_PATCH bytes changed, ...). */
+static PyObject *Route_learn(Route *self, PyObject *args) {
+    Py_buffer raw, out;
+    double until_s;
+    int counted;
+    if (!PyArg_ParseTuple(args, "y*y*dp", &raw, &out, &until_s, &counted))
+        return NULL;
+    const uint8_t *f = raw.buf, *o = out.buf;
+    Py_ssize_t n = raw.len;
+    int ok = 0;
+    Memo m;
+    memset(&m, 0, sizeof(m));
+    const MemoSpec *spec = NULL;
+    int v2 = n >= 8 && f[0] == 0xFD, hdr = v2 ? 10 : 6;
+    if (n >= 8 && (v2 || f[0] == 0xFE) && n == hdr + f[1] + 2 && !(v2 && f[2] != 0)) {
+        m.msgid = v2 ? ((uint32_t)f[7] | (uint32_t)f[8] << 8 | (uint32_t)f[9] << 16) : f[5];
+        if (m.msgid < IDS && BIT(self->wants.memo_ids, m.msgid))
+            spec = memo_spec(&self->wants, m.msgid);
+    }
+    if (spec != NULL) {
+        m.version = v2 ? 2 : 1;
+        m.sysid = f[v2 ? 5 : 3];
+        m.compid = f[v2 ? 6 : 4];
+        m.until_s = until_s;
+        m.rewritten = counted ? 1 : 0;
+        m.key_len = (uint8_t)memo_key(spec, f + hdr, f[1], m.key);
+        if (out.len == n && !memcmp(o, f, (size_t)n)) {
+            ok = 1;  /* it left as it came */
+        } else if (out.len >= hdr + 2 && o[0] == f[0] && out.len == hdr + o[1] + 2) {
+            uint8_t was[MAX_PAYLOAD], now[MAX_PAYLOAD];
+            memset(was, 0, sizeof(was));
+            memset(now, 0, sizeof(now));
+            memcpy(was, f + hdr, f[1]);
+            memcpy(now, o + hdr, o[1]);
+            ok = 1;
+            for (int j = 0; j < MAX_PAYLOAD && ok; j++) {
+                if (was[j] == now[j])
+                    continue;
+                if (m.n_patch == MEMO_PATCH || (!v2 && j >= f[1])) {
+                    ok = 0;
+                    break;
+                }
+                m.patch_off[m.n_patch] = (uint8_t)j;
+                m.patch_val[m.n_patch] = now[j];
+                m.n_patch++;
+            }
+            m.repack = 1;
+            if (ok) {  /* kept only if repeating it gives Python's bytes exactly */
+                uint8_t again[10 + MAX_PAYLOAD + 2];
+                Py_ssize_t len = memo_apply(&m, f, n, again);
+                ok = len == out.len && !memcmp(again, o, (size_t)len);
+            }
+        }
+    }
+    PyBuffer_Release(&raw);
+    PyBuffer_Release(&out);
+    if (!ok)
+        Py_RETURN_FALSE;
+    if (self->memos == NULL) {
+        self->memos = calloc(MEMO_SLOTS, sizeof(Memo));
+        if (self->memos == NULL)
+            return PyErr_NoMemory();
+    }
+    m.hash = memo_hash(m.msgid, m.version, m.sysid, m.compid, m.key, m.key_len);
+    *memo_slot(self->memos, m.hash, m.msgid, m.version, m.sysid, m.compid, m.key, m.key_len, 1) = m;
+    Py_RETURN_TRUE;
+}
+
+/* forget(): drop every remembered rewrite (a new profile, a restarted clock). */
+static PyObject *Route_forget(Route *self, PyObject *noargs) {
+    if (self->memos != NULL)
+        memset(self->memos, 0, MEMO_SLOTS * sizeof(Memo));
+    Py_RETURN_NONE;
+}
+
+/* verdict(data, rx_s) -> None (it goes up) or (bytes sent, frames rewritten): what drain() would do with this
+ * datagram from the peer, received at rx_s, under the route's configuration and memory; for tests. */
+static PyObject *Route_verdict(Route *self, PyObject *args) {
+    Py_buffer data;
+    double rx_s;
+    if (!PyArg_ParseTuple(args, "y*d", &data, &rx_s))
+        return NULL;
+    Hit hits[MAX_HITS];
+    int s = 0, nh = 0, f = -1;
+    long rw = 0;
+    Py_ssize_t len = data.len;
+    if (!self->all_up && len <= MAX_DATAGRAM)
+        f = fast_frames(&self->wants, self->memos, rx_s, data.buf, len, &s, hits, &nh);
+    if (f >= 0 && nh > 0)
+        len = rewrite_datagram(data.buf, data.len, hits, nh, self->obuf, (Py_ssize_t)sizeof(self->obuf), &rw);
+    PyObject *res = NULL;
+    if (f < 0 || len < 0)
+        res = Py_None, Py_INCREF(res);
+    else
+        res = Py_BuildValue("(y#l)", nh > 0 ? (const char *)self->obuf : (const char *)data.buf, len, rw);
+    PyBuffer_Release(&data);
+    return res;
 }
 
 /* check(data, wanted[, filters]) -> frames or -1: the fast path's verdict on one datagram, for tests. */
@@ -559,11 +882,11 @@ static PyObject *fp_check(PyObject *mod, PyObject *args) {
     PyObject *none = NULL;
     if (filters == NULL)
         filters = none = PyTuple_New(0);
-    int rc = filters == NULL ? -1 : parse_wants(w, &wanted, filters);
+    int rc = filters == NULL ? -1 : parse_wants(w, &wanted, filters, NULL);
     Py_XDECREF(none);
-    int s = 0, f = -1;
+    int s = 0, f = -1, nh = 0;
     if (rc == 0)
-        f = fast_frames(w, data.buf, data.len, &s);
+        f = fast_frames(w, NULL, 0.0, data.buf, data.len, &s, NULL, &nh);
     PyMem_Free(w);
     PyBuffer_Release(&data);
     PyBuffer_Release(&wanted);
@@ -594,12 +917,16 @@ static PyObject *fp_set_dialect(PyObject *mod, PyObject *args) {
 
 static void Route_dealloc(Route *self) {
     free(self->bufs);
+    free(self->memos);
     Py_TYPE(self)->tp_free((PyObject *)self);
 }
 
 static PyMethodDef Route_methods[] = {
     {"configure", (PyCFunction)Route_configure, METH_VARARGS, "Set the peer, the targets and the wanted ids."},
     {"drain", (PyCFunction)Route_drain, METH_VARARGS, "Receive, forward what nobody wants, return the next up."},
+    {"learn", (PyCFunction)Route_learn, METH_VARARGS, "Remember how Python rewrote one frame, to repeat it."},
+    {"forget", (PyCFunction)Route_forget, METH_NOARGS, "Drop every remembered rewrite."},
+    {"verdict", (PyCFunction)Route_verdict, METH_VARARGS, "What drain() would send for one datagram (tests)."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -640,5 +967,8 @@ PyMODINIT_FUNC PyInit__fastpath(void) {
     PyModule_AddIntConstant(m, "BATCH", BATCH);
     PyModule_AddIntConstant(m, "IDS", IDS);
     PyModule_AddIntConstant(m, "MAX_FILTERS", MAX_FILTERS);
+    PyModule_AddIntConstant(m, "MAX_MEMO_IDS", MAX_MEMO_IDS);
+    PyModule_AddIntConstant(m, "MEMO_SLOTS", MEMO_SLOTS);
+    PyModule_AddIntConstant(m, "MEMO_PATCH", MEMO_PATCH);
     return m;
 }

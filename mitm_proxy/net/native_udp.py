@@ -13,6 +13,12 @@ targets' outbound rules, and reconfigures the route when that changed. A profile
 off, a recorder attached or a route rule set therefore take effect from the next batch on, as they do
 between two datagrams on the Python path.
 
+A frame the stages want may still stay in C: for the ids the pipeline lets the route repeat (``memo`` of
+:class:`~mitm_proxy.core.pipeline.FastWants`), each endpoint registers its route's ``learn`` with the pipeline;
+after Python rewrote such a frame, the route remembers it and rewrites later frames with the same key itself
+(counted as the pipeline counts them), until the stage's time is up. A new token (another profile, a restarted
+clock) makes it forget everything (mitm_proxy/README.md, "The fast path").
+
 ``SECUAV_PROXY_PYTHON=1`` in the environment (or a build without a C compiler) gives the pure-Python
 endpoints (:func:`enabled`).
 """
@@ -44,7 +50,8 @@ try:
 except ImportError:  # not built (no C compiler at install time, or not Linux/macOS): the Python path
     _fastpath = None
 
-__all__ = ["FORCE_PYTHON_ENV", "NativeUdpEndpoint", "available", "enabled", "filter_specs", "id_bits", "route_wants"]
+__all__ = ["FORCE_PYTHON_ENV", "NativeUdpEndpoint", "available", "enabled", "filter_specs", "id_bits", "memo_specs",
+           "route_wants"]
 
 FORCE_PYTHON_ENV = "SECUAV_PROXY_PYTHON"
 _IDS = 65536  # the route's id bitmap; higher ids are never forwarded by it (none is in the dialect)
@@ -72,14 +79,22 @@ def id_bits(ids: frozenset[int] | set[int]) -> bytes:
 _NONE = id_bits(frozenset())
 
 
-def route_wants(ids: frozenset[int], filters: dict[int, tuple[int, frozenset[int]]]) -> tuple[bytes, list[Any]]:
-    """What the route takes for the pipeline's wanted ids and field filters (:meth:`Pipeline.fast_wanted`): the
-    bitmap of the ids wanted whole and the filters (:func:`filter_specs`); beyond the route's ``MAX_FILTERS``,
-    the ids of the last filters are wanted whole."""
+def route_wants(ids: frozenset[int], filters: dict[int, tuple[int, frozenset[int]]],
+                memo: dict[int, tuple[int, int]] | None = None) -> tuple[bytes, list[Any], list[Any]]:  # fmt: skip
+    """What the route takes for the pipeline's wanted ids, field filters and memo ids (:meth:`Pipeline.fast_wanted`):
+    the bitmap of the ids wanted whole, the filters (:func:`filter_specs`) and the memo ids (:func:`memo_specs`);
+    beyond the route's ``MAX_FILTERS``, the ids of the last filters are wanted whole, and beyond ``MAX_MEMO_IDS``
+    the last memo ids always go up."""
     if len(filters) > _fastpath.MAX_FILTERS:
         filters = dict(sorted(filters.items())[: _fastpath.MAX_FILTERS])
     whole = ids - filters.keys() if filters else ids  # a filtered id is the filter's to decide
-    return id_bits(whole), filter_specs(filters)
+    return id_bits(whole), filter_specs(filters), memo_specs(memo or {})
+
+
+def memo_specs(memo: dict[int, tuple[int, int]]) -> list[tuple[int, int, int]]:
+    """The ids whose rewrites the route may repeat (``msgid -> (offset, length)`` of the payload span their key
+    leaves out) as the route takes them: ``(msgid, offset, length)``, ids in order, at most ``MAX_MEMO_IDS``."""
+    return [(msgid, off, n) for msgid, (off, n) in sorted(memo.items())[: _fastpath.MAX_MEMO_IDS]]
 
 
 def filter_specs(filters: dict[int, tuple[int, frozenset[int]]]) -> list[tuple[int, int, bytes]]:
@@ -136,6 +151,7 @@ class NativeUdpEndpoint(UdpEndpoint):
         self._route: Any = None
         self._binding: _Binding | None = None
         self._state: Any = ()  # what the route was last configured with (never equal to a real state)
+        self._token: Any = ()  # what the route's memory was learnt under (FastWants.token)
         self._targets: tuple[NativeUdpEndpoint, ...] = ()
         self._skipped: tuple[NativeUdpEndpoint, ...] = ()  # muted targets the route leaves out
         self.fast_datagrams = 0  # received datagrams the route forwarded without Python
@@ -181,13 +197,25 @@ class NativeUdpEndpoint(UdpEndpoint):
         self._backlog_bytes = 0
         self._sock.close()
         self._sock = self._route = None
+        if self._binding is not None:
+            _unlearn(self._binding, self._learn)
 
     def bind_fast(self, receiver: Callable[[bytes, float], None], link: Link, direction: Direction,
                   targets: Sequence[BaseEndpoint]) -> None:  # fmt: skip
         """What arrives here goes to ``link`` as ``direction`` and leaves through ``targets`` (the link calls it
         when ``receiver`` is its own; while the endpoint's receiver is something else, nothing takes the fast path)."""
+        old = self._binding
+        if old is not None:
+            _unlearn(old, self._learn)
         self._binding = _Binding(receiver, link, direction, targets)
         self._state = ()
+        link.pipeline.learners.setdefault(direction, []).append(self._learn)
+
+    def _learn(self, frame: bytes, out: bytes, until_s: float, counted: bool) -> None:
+        """The pipeline rewrote ``frame`` into ``out``, and may be repeated until ``until_s``: the route keeps it
+        (only while the route is on, for the memo ids it was configured with; it checks the rest)."""
+        if self._route is not None and self._state:
+            self._route.learn(frame, out, until_s, counted)
 
     # -- sending (the Python path's datagrams) -------------------------------------------------------
     def _write(self, data: bytes) -> bool:
@@ -268,8 +296,8 @@ class NativeUdpEndpoint(UdpEndpoint):
 
     # -- receiving -------------------------------------------------------------------------------------
     def _fast_state(self) -> tuple[Any, ...] | None:
-        """What the route needs now: ``(peer, (wanted ids, field filters), targets and their peers, muted targets
-        left out)``, or None: all up."""
+        """What the route needs now: ``(peer, FastWants, targets and their peers, muted targets left out)``, or
+        None: all up."""
         b = self._binding
         if b is None or self.receiver is not b.receiver or self.peer is None or self._gated_in or not b.targets:
             return None
@@ -304,10 +332,13 @@ class NativeUdpEndpoint(UdpEndpoint):
             self._targets = self._skipped = ()
             self._route.configure(True, self._family, None, (), _NONE, ())
             return
-        peer, (ids, filters), targets, self._skipped = state
+        peer, wants, targets, self._skipped = state
         self._targets = tuple(ep for ep, _ in targets)
+        if wants.token != self._token:  # another profile or a restarted clock: what was learnt may not hold
+            self._token = wants.token
+            self._route.forget()
         self._route.configure(False, self._family, peer, [(ep._fd, ep._family, p) for ep, p in targets],
-                              *route_wants(ids, filters))  # fmt: skip
+                              *route_wants(wants.ids, wants.filters, wants.memo))  # fmt: skip
 
     def _readable(self) -> None:
         route = self._route
@@ -326,9 +357,9 @@ class NativeUdpEndpoint(UdpEndpoint):
             if isinstance(res, int):  # the socket reported an error (an ICMP error, with IP_RECVERR)
                 self.error_received(OSError(res, os.strerror(res)))
                 return
-            dgrams, frames, nbytes, signed, rx_s, lat_s, sent, errs, unsent, up, more = res
+            dgrams, frames, nbytes, nbytes_out, signed, rewritten, rx_s, lat_s, sent, errs, unsent, up, more = res
             if dgrams:
-                self._account(dgrams, frames, nbytes, signed, rx_s, lat_s, sent, errs, unsent)
+                self._account(dgrams, frames, nbytes, nbytes_out, signed, rewritten, rx_s, lat_s, sent, errs, unsent)
             if up is not None:
                 self._arrived(*up)
                 if more:  # handling it may have changed what is wanted (a stage, a peer): ask again
@@ -336,10 +367,10 @@ class NativeUdpEndpoint(UdpEndpoint):
             if not more:
                 return
 
-    def _account(self, dgrams: int, frames: int, nbytes: int, signed: int, rx_s: float, lat_s: float,
-                 sent: tuple[int, ...], errs: tuple[int, ...],
+    def _account(self, dgrams: int, frames: int, nbytes: int, nbytes_out: int, signed: int, rewritten: int,
+                 rx_s: float, lat_s: float, sent: tuple[int, ...], errs: tuple[int, ...],
                  unsent: tuple[list[bytes] | None, ...]) -> None:  # fmt: skip
-        """Count what the route forwarded as the Python path counts it (pipeline, link and endpoints)."""
+        """Count what the route forwarded (and rewrote) as the Python path counts it (pipeline, link and endpoints)."""
         b = self._binding
         assert b is not None
         st = b.link.pipeline.stats.directions[b.direction]
@@ -347,9 +378,11 @@ class NativeUdpEndpoint(UdpEndpoint):
         st.frames_in += frames
         st.bytes_in += nbytes
         st.frames_out += frames
-        st.bytes_out += nbytes
+        st.bytes_out += nbytes_out
         if signed:
             st.signed += signed
+        if rewritten:
+            st.rewritten += rewritten
         hist = b.link.stats.latency_hist
         hist.count += dgrams
         if lat_s > hist.max_s:
@@ -373,3 +406,10 @@ class NativeUdpEndpoint(UdpEndpoint):
                 ep._queue(rest)
         if any(unsent):
             self._configure()  # a target has a queue now: the rest of the batch goes through Python, behind it
+
+
+def _unlearn(binding: _Binding, learn: Callable[..., None]) -> None:
+    """Take an endpoint's ``learn`` back from the pipeline it was registered with."""
+    found = binding.link.pipeline.learners.get(binding.direction)
+    if found is not None and learn in found:
+        found.remove(learn)

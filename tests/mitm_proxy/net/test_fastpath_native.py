@@ -176,7 +176,8 @@ def test_more_filters_than_the_route_holds_leave_the_rest_wanted_whole() -> None
     from mitm_proxy.net import _fastpath  # type: ignore[attr-defined]
 
     many = {msgid: (0, frozenset({1})) for msgid in range(200, 200 + _fastpath.MAX_FILTERS + 4)}
-    whole, specs = native_udp.route_wants(frozenset(many) | {0}, many)
+    whole, specs, memo = native_udp.route_wants(frozenset(many) | {0}, many)
+    assert memo == []
     assert [msgid for msgid, _, _ in specs] == sorted(many)[: _fastpath.MAX_FILTERS]
     assert whole == native_udp.id_bits(frozenset(sorted(many)[_fastpath.MAX_FILTERS :]) | {0})
     _fastpath.check(b"", whole, specs)  # the route takes them
