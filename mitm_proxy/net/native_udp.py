@@ -155,6 +155,7 @@ class NativeUdpEndpoint(UdpEndpoint):
         self._targets: tuple[NativeUdpEndpoint, ...] = ()
         self._skipped: tuple[NativeUdpEndpoint, ...] = ()  # muted targets the route leaves out
         self.fast_datagrams = 0  # received datagrams the route forwarded without Python
+        self.fast_rewritten = 0  # frames among them the route rewrote from its memory
         # Datagrams the kernel would not take at once, sent when the socket is writable again (as asyncio's
         # transport does): up to MAX_PENDING_SEND_BYTES, beyond that dropped and counted (send_overflow).
         self._backlog: deque[bytes] = deque()
@@ -199,6 +200,11 @@ class NativeUdpEndpoint(UdpEndpoint):
         self._sock = self._route = None
         if self._binding is not None:
             _unlearn(self._binding, self._learn)
+
+    def snapshot(self) -> dict[str, Any]:
+        out = super().snapshot()
+        out["fast"] = {"datagrams": self.fast_datagrams, "rewritten": self.fast_rewritten}
+        return out
 
     def bind_fast(self, receiver: Callable[[bytes, float], None], link: Link, direction: Direction,
                   targets: Sequence[BaseEndpoint]) -> None:  # fmt: skip
@@ -383,6 +389,7 @@ class NativeUdpEndpoint(UdpEndpoint):
             st.signed += signed
         if rewritten:
             st.rewritten += rewritten
+            self.fast_rewritten += rewritten
         hist = b.link.stats.latency_hist
         hist.count += dgrams
         if lat_s > hist.max_s:
