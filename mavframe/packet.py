@@ -58,3 +58,6 @@ class Packet:
     origin: str = ""  # for an injected packet, what made it: "inject", "duplicate", "replay" (counted apart)
     release_s: float = 0.0  # monotonic time before which it must not be sent (delay)
     notes: list[str] = field(default_factory=list)  # who changed it and why, for the record index
+    # Set by a stage that offers ``memo_fields``: until this monotonic time, the pipeline lets the fast route
+    # repeat what the stage did to this frame for frames of the same key (None: not to be repeated).
+    steady_until_s: float | None = None
