@@ -174,7 +174,8 @@ def pure_rules(draw: st.DrawFn, always_on: bool) -> dict[str, Any]:
         "scale": {"factor": draw(st.floats(-2.0, 3.0))},
     }[kind]
     kind = kind.removesuffix("_sigmas")
-    field = draw(st.sampled_from(["current_distance", "current_distance", "max_distance", "signal_quality"]))
+    field = draw(st.sampled_from(["current_distance", "current_distance", "max_distance", "signal_quality",
+                                  "quaternion[1]"]))  # fmt: skip
     if field == "signal_quality":
         kind, params = "set", {"value": float(draw(st.sampled_from([0, 1, 100])))}
     if not always_on:
@@ -200,6 +201,8 @@ def pure_rules(draw: st.DrawFn, always_on: bool) -> dict[str, Any]:
 def pure_profiles(draw: st.DrawFn) -> Profile:
     clock = draw(st.sampled_from(["activation", "activation", "vehicle"]))
     rules = draw(st.lists(pure_rules(always_on=clock == "vehicle"), min_size=1, max_size=4))
+    if draw(st.booleans()):  # what another message's rules do is theirs alone
+        rules.append(rule("ramp", None, message="GLOBAL_POSITION_INT", target_field="relative_alt", rate_per_s=1.0))
     return make_profile(*rules, clock=clock, seed=draw(st.integers(0, 9)))
 
 
@@ -215,12 +218,14 @@ def ds_fields(draw: st.DrawFn) -> dict[str, Any]:
 
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @example(make_profile(rule("bias", 1, offset_m=0.5, start_s=2.0, end_s=3.0, repeat_period_s=5.0)),
-         distance(1, 200, 77), 2.5, DOWN, [0.0, 0.5, 0.999])  # fmt: skip
+         distance(1, 200, 77), 2.5, DOWN, [(0.0, None), (0.5, distance(1, 300, 9)), (0.999, None)])  # fmt: skip
 @given(pure_profiles(), ds_fields(), st.floats(-0.5, 20.0), st.sampled_from([DOWN, UP]),
-       st.lists(st.floats(0.0, 1.0), min_size=1, max_size=6))  # fmt: skip
+       st.lists(st.tuples(st.floats(0.0, 1.0), st.none() | ds_fields()), min_size=1, max_size=6))  # fmt: skip
 def test_a_frame_equal_but_for_its_time_gets_the_same_verdict_until_steady_until(
-    profile: Profile, a: dict[str, Any], t_a: float, direction: Direction, fractions: list[float]
+    profile: Profile, a: dict[str, Any], t_a: float, direction: Direction, later: list[Any]
 ) -> None:
+    """``later``: when each repeat comes (a fraction of the time to steady_until), and another frame the
+    engine sees just before it (the fast route takes only the repeats)."""
     engine = Engine(profile, scenario=WALL)
     engine.activate(T0)
     assert DS in engine.memo_fields and engine.memo_fields[DS] == "time_boot_ms"
@@ -231,14 +236,17 @@ def test_a_frame_equal_but_for_its_time_gets_the_same_verdict_until_steady_until
     if profile.clock == "vehicle":
         assert until == math.inf
     span = min(until, now_s + 1e4) - 1e-6  # a microsecond clear of the edge
-    for i, f in enumerate(fractions):
+    for i, (f, other) in enumerate(later):
         b = dict(a, time_boot_ms=(a["time_boot_ms"] + 1 + 7919 * i) % 2**32)
         when = now_s + f * (span - now_s)
         if when >= now_s:
+            if other is not None:
+                engine.process(when, DS, other, direction, 1, 1)
             assert engine.process(when, DS, b, direction, 1, 7) == verdict, (when, until)
     # Not needlessly short: it ends where a window on the chain opens or closes.
     t = a["time_boot_ms"] * 1e-3 if profile.clock == "vehicle" else now_s - T0
-    chain = [r for r in profile.rules if r.target.sensor_ids() is None or a["id"] in r.target.sensor_ids()]
+    chain = [r for r in profile.rules if r.target.message == "DISTANCE_SENSOR"]
+    chain = [r for r in chain if r.target.sensor_ids() is None or a["id"] in r.target.sensor_ids()]
     chain = [r for r in chain if r.target.direction in (direction.value, "both")]
     if until == math.inf:
         assert all(Window.of(r).next_edge(t) == math.inf for r in chain)
