@@ -47,6 +47,15 @@ that forges "reads 0" says so), and ``garbage`` ignores both (a sensor gone
 mad). ``out_of_range: attack`` attacks every value and bounds it by the wire type
 only, as before. Frame rules (drop, delay, intermittent) act on every frame.
 Offline arrays (``Engine.apply_array``) carry no limits: NaN is their "no reading".
+
+Repeating a verdict: for the ids in ``Engine.memo_fields`` (``msgid -> the field left out``, the
+message's time field, or ``None``), the verdict on a frame is a function of its payload less that field,
+of its sysid and direction, and of the time. ``Engine.steady_until(now_s, msgid, fields, direction, sysid)``
+says until when it stays the one :meth:`Engine.process` just gave: the next edge of a window on the frame's
+chain (``inf`` when none comes), until the next :meth:`Engine.activate` (``Engine.epoch`` counts them). The
+proxy's fast route repeats such a rewrite in C without asking the engine again (mitm_proxy/README.md,
+"The fast path"). Only rules of a ``pure`` primitive (bias, set, scale) qualify; a message whose frames
+teach the engine something (the position, the primary rangefinder, the vehicle clock) never does.
 """
 
 from __future__ import annotations
@@ -112,6 +121,29 @@ class Window:
             d %= self.period_s
         return d if d < self.length_s else None
 
+    @property
+    def always_on(self) -> bool:
+        """In force from the clock's zero on, for good: :meth:`tau` is never ``None`` at ``t_s >= 0``."""
+        return self.start_s == 0.0 and (self.length_s == math.inf or (self.period_s is not None
+                                                                      and self.length_s >= self.period_s))  # fmt: skip
+
+    def next_edge(self, t_s: float) -> float:
+        """The first time after ``t_s`` at which whether :meth:`tau` is ``None`` may change (``inf``: never).
+
+        The window is half-open (``[start, start + length)``, recurring), so ``tau(x) is None`` is the same
+        for every ``x`` in ``[t_s, next_edge(t_s))``."""
+        if t_s < self.start_s:
+            return self.start_s
+        length, period = self.length_s, self.period_s
+        if period is None:
+            end = self.start_s + length  # inf + start is inf
+            return end if t_s < end else math.inf
+        if length >= period:  # one occurrence runs into the next: on for good
+            return math.inf
+        into = (t_s - self.start_s) % period  # as tau reads it
+        edge = t_s + (length - into if into < length else period - into)
+        return edge if edge > t_s else math.nextafter(t_s, math.inf)
+
 
 @dataclass(slots=True)
 class _Compiled:
@@ -146,10 +178,24 @@ class _State:
     # sysid -> DISTANCE_SENSOR id -> (min m, max m, invalid, downward), for RANGEFINDER (ArduPilot's primary)
     rangefinders: validity.Rangefinders = field(default_factory=dict)
     chains: dict[tuple[int, int, int, Direction], tuple[_Compiled, ...]] = field(default_factory=dict)
+    windows: dict[tuple[int, int, int, Direction], tuple[Window, ...]] = field(default_factory=dict)  # of chains
     sample: Sample = field(default_factory=Sample)
 
 
 _MAX_CACHED_CHAINS = 4096
+_EDGE_MARGIN_S = 1e-6  # steady_until ends this much before a window's edge
+
+
+def _repeatable(r: _Compiled) -> bool:
+    """A value rule whose verdict on a frame depends on the frame (and its window) only."""
+    return r.prim.pure and not r.stateful and not r.needs_position and r.field is not None
+
+
+def _sensor_id(st: _State, msgid: int, msg: MessageSpec, fields: Mapping[str, Any], sysid: int) -> int:
+    """The sensor id a frame's chain is chosen by: its id field; RANGEFINDER's, the primary rangefinder's."""
+    if msgid == validity.RANGEFINDER_ID:
+        return validity.primary(st.rangefinders, sysid)
+    return fields.get(msg.id_field, -1) if msg.id_field is not None else -1
 
 
 def _run_chain(rules: Sequence[_Compiled], s: Sample, working: dict[str, float]) -> tuple[int, ...]:
@@ -249,7 +295,12 @@ class Engine:
             ids |= self.frame_ops.message_ids
         self.message_ids: frozenset[int] = frozenset(ids)
         self._live = self._new_state()
+        # Under ``clock: vehicle`` a message without a boot time of its own takes the last one any frame brought.
+        self._clock_read = self.profile.clock == "vehicle" and any(
+            m.time_field != "time_boot_ms" for m in self._msg_by_id.values())  # fmt: skip
         self.field_filters: dict[int, tuple[str, frozenset[int]]] = self._field_filters()
+        self.memo_fields: dict[int, str | None] = self._memo_fields()
+        self.epoch = 0  # counts activate(): what was learnt of an earlier activation's verdicts no longer holds
 
     def _field_filters(self) -> dict[int, tuple[str, frozenset[int]]]:
         """For the ids in :attr:`message_ids` whose untargeted frames :meth:`process` forwards without a trace:
@@ -263,9 +314,7 @@ class Engine:
         take whole messages), and not the vehicle's clock unless nothing reads it back (under ``clock:
         vehicle`` a message without a boot time of its own takes the last one any frame brought)."""
         ops = frozenset() if self.frame_ops is None else self.frame_ops.message_ids
-        clock_read = self.profile.clock == "vehicle" and any(
-            m.time_field != "time_boot_ms" for m in self._msg_by_id.values())  # fmt: skip
-        if clock_read:
+        if self._clock_read:
             return {}
         out: dict[int, tuple[str, frozenset[int]]] = {}
         for msgid, rules in self._live.plans.items():
@@ -279,6 +328,40 @@ class Engine:
             if any(r.ids is None for r in rules):
                 continue
             out[msgid] = (msg.id_field, frozenset().union(*(r.ids for r in rules)))  # type: ignore[arg-type]
+        return out
+
+    def _memo_fields(self) -> dict[int, str | None]:
+        """The ids whose verdict :meth:`steady_until` vouches for: ``msgid -> the field left out of the key``
+        (the message's time field when nothing reads it) or ``None`` (the whole payload is the key).
+
+        A message qualifies when the verdict on its frames is a function of the payload (less that field)
+        and of the time alone: every rule on it is :attr:`~attack_profiles.primitives.base.Primitive.pure`
+        (no frame rule: drop, delay... are not repeated), and nothing the engine learns comes from its frames
+        (the position, the primary rangefinder, the vehicle clock another message reads, a frame operation).
+        Under ``clock: vehicle`` its own boot time is the clock, so every rule on it must be always on."""
+        if self._clock_read:
+            return {}
+        ops = frozenset() if self.frame_ops is None else self.frame_ops.message_ids
+        vehicle = self.profile.clock == "vehicle"
+        out: dict[int, str | None] = {}
+        for msgid, msg in self._msg_by_id.items():
+            if msgid in ops:
+                continue
+            rules = self._live.plans.get(msgid, ())
+            if self._tracks_position and msgid == LOCAL_POSITION_NED_ID:
+                continue
+            if self._tracks_rangefinders and msgid in validity.RANGED:
+                continue
+            if not all(_repeatable(r) for r in rules):
+                continue
+            if vehicle and (msg.time_field != "time_boot_ms" or not all(r.window.always_on for r in rules)):
+                continue
+            time_field = msg.time_field
+            if time_field is not None and any(
+                    r.field == time_field or (r.where is not None and any(n == time_field for n, _ in r.where))
+                    for r in rules):  # fmt: skip
+                time_field = None
+            out[msgid] = time_field
         return out
 
     def _extend_specs(self) -> None:
@@ -354,6 +437,7 @@ class Engine:
         if rebuild:
             self._live = self._new_state()
         self._live.active_at_s = now_s
+        self.epoch += 1
         if self.frame_ops is not None:
             self.frame_ops.activate(now_s)
 
@@ -391,10 +475,7 @@ class Engine:
         t = self._clock(st, now_s, msg, fields, sysid)  # first: it also tracks the vehicle's clock
         if t is None:
             return FORWARD
-        if msgid == validity.RANGEFINDER_ID:
-            sid = validity.primary(st.rangefinders, sysid)
-        else:
-            sid = fields.get(msg.id_field, -1) if msg.id_field is not None else -1
+        sid = _sensor_id(st, msgid, msg, fields, sysid)
         rules = self._chain(st, msgid, sysid, sid, direction)
         if not rules:
             return FORWARD
@@ -428,6 +509,39 @@ class Engine:
         if changed and fields is not original:
             changed = _whole_arrays(changed, msg, original)
         return Action(fields=changed or None, delay_s=s.delay_s, rules=acted, clamped=tuple(clamped))
+
+    def steady_until(
+        self, now_s: float, msgid: int, fields: Mapping[str, Any], direction: Direction, sysid: int
+    ) -> float | None:
+        """Until when (the caller's monotonic clock, as :meth:`process`'s ``now_s``) every frame of ``msgid``
+        from ``sysid`` in ``direction`` whose payload, less the field :attr:`memo_fields` leaves out, equals
+        that of the frame just processed at ``now_s`` with ``fields`` gets the verdict that frame got
+        (``inf``: until the next :meth:`activate`); ``None`` when ``msgid`` is not in :attr:`memo_fields` or
+        the profile was never activated.
+
+        Only the rules' windows can change such a verdict, so the answer is the next edge of a window on
+        the frame's chain (the same edge for a rule that did not act: it may begin to)."""
+        st = self._live
+        active_at = st.active_at_s
+        if msgid not in self.memo_fields or active_at is None:
+            return None
+        if self.profile.clock == "vehicle":  # the message's rules are always on
+            return math.inf
+        msg = self._msg_by_id[msgid]
+        key = (msgid, sysid, _sensor_id(st, msgid, msg, fields, sysid), direction)
+        windows = st.windows.get(key)
+        if windows is None:
+            windows = tuple(dict.fromkeys(r.window for r in self._chain(st, *key)))  # the distinct ones
+            if len(st.windows) < _MAX_CACHED_CHAINS:
+                st.windows[key] = windows
+        t = now_s - active_at
+        edge = math.inf  # an empty chain: steady for good
+        for w in windows:
+            e = w.next_edge(t)
+            if e < edge:
+                edge = e
+        # Margin: the clock's time into the window is one subtraction away from now_s, rounded either way.
+        return active_at + edge - _EDGE_MARGIN_S if edge != math.inf else math.inf
 
     def _chain(self, st: _State, msgid: int, sysid: int, sid: int, direction: Direction) -> tuple[_Compiled, ...]:
         """The rules that target this (message, vehicle, sensor, direction), in profile order; cached."""

@@ -41,6 +41,7 @@ class BiasRule(RuleBase):
 class Bias(Primitive):
     kind = "bias"
     rule_model = BiasRule
+    pure = True  # offset_sigmas: the sigma is the sensor's, and the sensor id is in the key
 
     def __init__(self, rule: BiasRule, ctx: Context) -> None:
         super().__init__(rule, ctx)

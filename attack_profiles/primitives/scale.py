@@ -18,6 +18,7 @@ class ScaleRule(RuleBase):
 class Scale(Primitive):
     kind = "scale"
     rule_model = ScaleRule
+    pure = True
 
     def __init__(self, rule: ScaleRule, ctx: Context) -> None:
         super().__init__(rule, ctx)

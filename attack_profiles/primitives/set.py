@@ -40,6 +40,7 @@ class SetRule(RuleBase):
 class Set(Primitive):
     kind = "set"
     rule_model = SetRule
+    pure = True
 
     def __init__(self, rule: SetRule, ctx: Context) -> None:
         super().__init__(rule, ctx)

@@ -21,12 +21,21 @@ mission_shift) run after the value rules on the frames they target, and on the c
 :meth:`AttackStage.due` / :meth:`AttackStage.next_due_s`, which the pipeline's ``tick`` asks.
 Whoever drives the clock (the link) sets :attr:`AttackStage.on_schedule`; the stage calls it when
 what is due may have changed: a profile installed or cleared, the bypass switched, a recording begun.
+
+Repeated rewrites: for a frame of a message in :attr:`AttackStage.memo_fields` (the engine's
+``memo_fields`` less the carriers still watched), the stage sets ``pkt.steady_until_s`` to the engine's
+``steady_until``: until then every frame of the same message, sysid and direction whose payload, less
+the field named there (its time field, or none), is this one's gets this one's verdict, so the pipeline's
+fast route may repeat the rewrite without the stage (mitm_proxy/README.md, "The fast path"). A frame
+dropped or delayed is never repeated. What was learnt so stands while :attr:`AttackStage.memo_token` does
+not change (another profile, the same one restarted).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 
+from attack_profiles.engine import Engine
 from mavframe import codec
 from mavframe.packet import Direction, Header, Packet
 from mitm_proxy.stages.attack_slot import AttackSlot
@@ -43,6 +52,7 @@ class AttackStage:
         self.slot = slot
         self._enabled = active
         self.on_schedule: Callable[[], None] | None = None
+        self._token: tuple[Engine, int] | None = None
         slot.listeners.append(self._rescheduled)
 
     @property
@@ -103,6 +113,25 @@ class AttackStage:
         """Of ``message_ids``, the ones wanted only for a few values of an id field (the pipeline's module doc)."""
         return self.slot.field_filters
 
+    @property
+    def memo_fields(self) -> dict[int, str | None]:
+        """Of ``message_ids``, those whose verdict the fast route may repeat until ``pkt.steady_until_s``:
+        ``msgid -> the field left out of the key`` (None: the whole payload); the same dict while nothing
+        changed."""
+        return self.slot.memo_fields
+
+    @property
+    def memo_token(self) -> object:
+        """Changes (by ``==`` and by identity) whenever a verdict learnt before may no longer hold: another
+        engine, or the same one activated again. None without a profile."""
+        engine = self.slot.engine
+        if engine is None:
+            return None
+        token = self._token
+        if token is None or token[0] is not engine or token[1] != engine.epoch:
+            token = self._token = (engine, engine.epoch)
+        return token
+
     def signed_untouched(self, header: Header) -> None:
         """The pipeline left a signed frame the profile targets alone (no key): the slot's state says so.
 
@@ -127,6 +156,9 @@ class AttackStage:
                 return [pkt]
         fields = codec.decode(pkt)
         action = engine.process(now_s, h.msgid, fields, pkt.direction, h.sysid, h.compid)
+        if h.msgid in self.slot.memo_fields and not (action.drop or action.delay_s > 0.0):
+            # (asked of the frame as it came, before its fields take the rewrite)
+            pkt.steady_until_s = engine.steady_until(now_s, h.msgid, fields, pkt.direction, h.sysid)
         ops = engine.frame_ops
         if not action.untouched:
             notes = [f"attack:{engine.profile.name}:rules[{i}]" for i in action.rules]
@@ -143,6 +175,7 @@ class AttackStage:
             pkt.notes.extend(notes)
         if ops is None or h.msgid not in ops.message_ids:
             return [pkt]
+        pkt.steady_until_s = None  # what frame operations do is not repeated (none takes a memo message)
         before = len(pkt.notes)
         pkts = ops.process(pkt, now_s, self.slot.sysid)
         prefix = f"attack:{engine.profile.name}:"

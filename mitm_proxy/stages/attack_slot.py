@@ -39,7 +39,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, TypeVar
 
 from attack_profiles.control import profile_from_payload
 from attack_profiles.directions import check_no_uplink, describe, directions_of
@@ -56,6 +56,7 @@ from secuav_common.scenario import Scenario
 __all__ = ["AttackSlot"]
 
 log = logging.getLogger(__name__)
+_V = TypeVar("_V")
 
 
 class _Built(NamedTuple):
@@ -79,6 +80,7 @@ class AttackSlot:
         self._watch: TrueCopyWatch | None = None
         self._ids: frozenset[int] = frozenset()  # the engine's message ids and the watched carriers'
         self._filters: dict[int, tuple[str, frozenset[int]]] = {}  # the engine's, less the watched carriers
+        self._memo: dict[int, str | None] = {}  # the engine's memo_fields, less the watched carriers
         self._directions: tuple[str, ...] = ()  # of the engine's profile, kept with it as the hash is
         self.on_install: list[Callable[[AttackSlot], None]] = []  # told after each install or clear (the recorder)
         # False while the proxy is built (its log says warnings only then): it calls say_notes() once it runs
@@ -100,6 +102,13 @@ class AttackSlot:
         ``msgid -> (field, values)`` (:attr:`attack_profiles.engine.Engine.field_filters`); a carrier still
         watched is wanted whole."""
         return self._filters
+
+    @property
+    def memo_fields(self) -> dict[int, str | None]:
+        """Of :attr:`message_ids`, those whose verdict the fast route may repeat (``msgid -> the field left out
+        of the key``, :attr:`attack_profiles.engine.Engine.memo_fields`); a carrier still watched must reach the
+        stage. The same dict while nothing changes."""
+        return self._memo
 
     @property
     def watching(self) -> frozenset[int]:
@@ -148,9 +157,10 @@ class AttackSlot:
 
     def _want(self, engine: Engine, watch: TrueCopyWatch) -> None:
         """What the stage wants while ``watch`` waits: the engine's ids and the carriers', the engine's field
-        filters less the carriers (a carrier still watched is wanted whole)."""
+        filters and memo fields less the carriers (a carrier still watched is wanted whole, every frame)."""
         self._ids = engine.message_ids | watch.message_ids
-        self._filters = _filters(engine, watch)
+        self._filters = _less_watched(engine.field_filters, watch)
+        self._memo = _less_watched(engine.memo_fields, watch)
 
     def signed_untouched(self, sysid: int, msgid: int) -> None:
         """A signed frame of ``sysid`` the profile targets passed unchanged: the proxy has no signing key."""
@@ -234,7 +244,7 @@ class AttackSlot:
     def _watch_carriers(self, engine: Engine | None) -> None:
         self._directions = tuple(directions_of(None if engine is None else engine.profile))
         if engine is None:
-            self._watch, self._ids, self._filters = None, frozenset(), {}
+            self._watch, self._ids, self._filters, self._memo = None, frozenset(), {}, {}
             return
         watch = self._watch = TrueCopyWatch(findings(engine.profile), self._sent)
         self._want(engine, watch)
@@ -252,8 +262,8 @@ class AttackSlot:
                                                       "note": note})  # fmt: skip
 
 
-def _filters(engine: Engine, watch: TrueCopyWatch) -> dict[int, tuple[str, frozenset[int]]]:
-    found = engine.field_filters
+def _less_watched(found: dict[int, _V], watch: TrueCopyWatch) -> dict[int, _V]:
+    """``found`` less the carriers ``watch`` waits for; ``found`` itself when it holds none (same identity)."""
     if not found or not watch.message_ids & found.keys():
         return found
     return {msgid: f for msgid, f in found.items() if msgid not in watch.message_ids}

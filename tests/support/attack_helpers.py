@@ -17,11 +17,11 @@ def make_profile(*rules: dict[str, Any], clock: str = "activation", seed: int = 
 
 
 def rule(kind: str, sensor_id: Any = 0, message: str = "DISTANCE_SENSOR", **params: Any) -> dict[str, Any]:
-    """A rule dict; target keys (field, direction, sysid) may be given with a ``target_`` prefix."""
+    """A rule dict; target keys (field, direction, sysid, where) may be given with a ``target_`` prefix."""
     target: dict[str, Any] = {"message": message}
     if sensor_id is not None:
         target["sensor_id"] = sensor_id
-    for key in ("field", "direction", "sysid"):
+    for key in ("field", "direction", "sysid", "where"):
         if f"target_{key}" in params:
             target[key] = params.pop(f"target_{key}")
     return {"target": target, "kind": kind, **params}
