@@ -284,8 +284,8 @@ async def test_a_sensor_filter_rewrites_its_sensor_passes_the_others_and_moves_w
     udp_port: Callable[[], int],
 ) -> None:
     """A bias on DISTANCE_SENSOR sensor 3: its frames are rewritten, the other sensors' leave byte for byte (on the
-    fast path without going up to Python); a swap to sensor 0, acknowledged, moves that from the next datagram
-    on, and no frame is lost or reordered on the way."""
+    fast path without going up to Python, and sensor 3's too once the first taught the route its rewrite); a swap
+    to sensor 0, acknowledged, moves that from the next datagram on, and no frame is lost or reordered on the way."""
     from attack_profiles.profile import parse_profile
 
     def bias_on(sid: int) -> Any:
@@ -313,6 +313,10 @@ async def test_a_sensor_filter_rewrites_its_sensor_passes_the_others_and_moves_w
             if sid == target:
                 assert after != before and parse_all(after)[0].current_distance == 600
                 assert split(after).frames[0][0].seq == h.seq
+                pkt = Packet(raw, h, Direction.DOWNLINK, 0, 0.0)
+                codec.decode(pkt)["current_distance"] = 600
+                pkt.changed = True
+                assert after == codec.encode(pkt)  # the Python path's re-pack, byte for byte, wherever it was made
                 rewritten += 1
             else:
                 assert after == before  # byte for byte
@@ -327,16 +331,20 @@ async def test_a_sensor_filter_rewrites_its_sensor_passes_the_others_and_moves_w
             assert check(first, await gcs.datagrams(len(first)), 3) == 40  # i % 4 == 3, but no heartbeat
             ep = proxy.links[0].vehicle
             fast = ep.fast_datagrams if isinstance(ep, native_udp.NativeUdpEndpoint) else None
-            if fast is not None:  # all but sensor 3's frames and the first datagram stayed in C
-                assert fast == 200 - 40 - 1
+            if fast is not None:  # all but the first datagram and sensor 3's first frame stayed in C: sensor 3's
+                assert fast == 200 - 1 - 1  # others differ from it only in their time, and the route repeats it
+                assert ep.fast_rewritten == 40 - 1
             assert proxy.slots[1].offer(bias_on(0)).ok
             second = batch(200)
             await _send_paced(vehicle, second, port)
             assert check(second, await gcs.datagrams(len(second)), 0) == 50
             down = proxy.stats_snapshot()[1]["downlink"]
             assert down["frames_in"] == down["frames_out"] == 400 and down["rewritten"] == 90
-            if fast is not None:
-                assert ep.fast_datagrams - fast == 200 - 50
+            if fast is not None:  # the swap made the route forget sensor 3: sensor 0's first frame taught it
+                assert ep.fast_datagrams - fast == 200 - 1
+                assert ep.fast_rewritten == 40 - 1 + 50 - 1
+                assert proxy.stats_snapshot()[1]["endpoints"][ep.name]["fast"] == {
+                    "datagrams": ep.fast_datagrams, "rewritten": 88}
     finally:
         vehicle.close()
         gcs.sock.close()
