@@ -161,6 +161,13 @@ def rewrite_ids(datagrams: list[bytes], share: float = 0.10) -> tuple[list[int],
     return chosen, n / len(frames)
 
 
+def write_rewrite_profile(path: Path, ids: list[int]) -> Path:
+    """The bench's rewrite profile: a 0.5 m bias on the DISTANCE_SENSOR ``ids`` (:func:`rewrite_ids`)."""
+    path.write_text("name: bench-rewrite-10pc\nrules:\n  - target: {message: DISTANCE_SENSOR, "
+                    f"sensor_id: {ids}, field: current_distance}}\n    kind: bias\n    offset_m: 0.5\n")  # fmt: skip
+    return path
+
+
 # -- 2. the relays under test ---------------------------------------------------------------------
 class BareRelay(asyncio.DatagramProtocol):
     """The floor: receive, send to the fixed peer. Nothing parsed."""
@@ -424,9 +431,7 @@ def main() -> int:
     datagrams = recorded if args.batching == "recorded" else [f for d in recorded for f in frames_of(d)]
     ids, share = rewrite_ids(datagrams)
     work = Path(tempfile.mkdtemp(prefix="proxy-bench-"))
-    profile = work / "rewrite10.yaml"
-    profile.write_text("name: bench-rewrite-10pc\nrules:\n  - target: {message: DISTANCE_SENSOR, "
-                       f"sensor_id: {ids}, field: current_distance}}\n    kind: bias\n    offset_m: 0.5\n")  # fmt: skip
+    profile = write_rewrite_profile(work / "rewrite10.yaml", ids)
     mode = "one frame per datagram" if args.batching == "frame" else "as recorded"
     origin = str(args.tlog) if args.tlog else f"secuav-sim ({args.record_s:g} s at 1x)"
     print(f"telemetry: {len(recorded)} datagrams from {origin}, {frames_per_dgram:.2f} frames each, replayed {mode}; "
