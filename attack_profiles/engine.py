@@ -20,7 +20,7 @@ Rules apply in profile order, each to the value the previous rules left. A rule
 that drops the frame ends the chain. Stateful primitives keep their state per
 target (vehicle, sensor id), and every call of :meth:`Engine.apply_array` starts
 from fresh state, so it is repeatable; the live state starts at
-:meth:`Engine.activate`.
+`Engine.activate`.
 
 No reading: A sensor says "I have no reading" in the value itself, and an offset
 must not turn that into a believable one (ArduPilot on the ground sends
@@ -51,8 +51,8 @@ Offline arrays (``Engine.apply_array``) carry no limits: NaN is their "no readin
 Repeating a verdict: for the ids in ``Engine.memo_fields`` (``msgid -> the field left out``, the
 message's time field, or ``None``), the verdict on a frame is a function of its payload less that field,
 of its sysid and direction, and of the time. ``Engine.steady_until(now_s, msgid, fields, direction, sysid)``
-says until when it stays the one :meth:`Engine.process` just gave: the next edge of a window on the frame's
-chain (``inf`` when none comes), until the next :meth:`Engine.activate` (``Engine.epoch`` counts them). The
+says until when it stays the one `Engine.process` just gave: the next edge of a window on the frame's
+chain (``inf`` when none comes), until the next `Engine.activate` (``Engine.epoch`` counts them). The
 proxy's fast route repeats such a rewrite in C without asking the engine again (mitm_proxy/README.md,
 "The fast path"). Only rules of a ``pure`` primitive (bias, set, scale) qualify; a message whose frames
 teach the engine something (the position, the primary rangefinder, the vehicle clock) never does.

@@ -70,8 +70,9 @@ class Primitive(ABC):
     rule_model: ClassVar[type[RuleBase]]
     stateful: ClassVar[bool] = False  # must see samples outside its window
     # The value it writes is a function of the value it is given and of the sample's key and fields only:
-    # not of tau or the time, no randomness, no state. The proxy may then repeat a rewrite it saw for later
-    # frames with the same payload (Engine.memo_fields); a plugin that does not say so is never repeated.
+    # not of tau or the time, no randomness, no state, and it neither drops nor delays the frame. The proxy may
+    # then repeat a rewrite it saw for later frames with the same payload (Engine.memo_fields); a plugin that
+    # does not say so is never repeated.
     pure: ClassVar[bool] = False
 
     def __init__(self, rule: RuleBase, ctx: Context) -> None:

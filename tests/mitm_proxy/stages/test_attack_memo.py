@@ -12,8 +12,6 @@ from typing import Any
 
 import pytest
 
-from attack_profiles.primitives.base import Sample
-from attack_profiles.primitives.bias import Bias
 from attack_profiles.profile import Profile, parse_profile
 from mavframe.frames import split
 from mavframe.packet import Direction, Packet
@@ -76,22 +74,14 @@ def test_dropped_delayed_and_untargeted_frames_are_not_repeated() -> None:
     assert stage.process(p, now) == [p] and p.steady_until_s is None
 
 
-@pytest.mark.parametrize("does", ["drop", "delay"])
-def test_a_pure_rule_that_drops_or_delays_is_not_repeated(monkeypatch: pytest.MonkeyPatch, does: str) -> None:
-    """No built-in pure rule drops or delays; a plugin's might: the stage does not offer such a verdict."""
-
-    def apply(self: Bias, s: Sample, tau_s: float | None) -> None:
-        if does == "drop":
-            s.drop = True
-        else:
-            s.delay_s = 0.3
-
-    monkeypatch.setattr(Bias, "apply", apply)
-    stage = staged(prof(ds("bias", 1, offset_m=0.5)))
-    assert stage.memo_fields == {DS: "time_boot_ms"}
+def test_a_plugin_primitive_that_does_not_say_it_is_pure_is_never_repeated() -> None:
+    """The example plugin's moving_bias (examples/plugin, installed by scripts/setup.sh as an outside package)
+    keeps state and reads the position: the stage offers nothing, and a frame it rewrote is not marked."""
+    stage = staged(prof(ds("moving_bias", 1, offset=0.5)))
+    assert stage.memo_fields == {}
     p = packet(pack(distance(sensor_id=1)))
-    out = stage.process(p, time.monotonic())
-    assert out == ([] if does == "drop" else [p]) and p.steady_until_s is None
+    (out,) = stage.process(p, time.monotonic())
+    assert out.steady_until_s is None
 
 
 def test_a_carrier_still_watched_is_not_offered_until_seen() -> None:
