@@ -147,8 +147,8 @@ def main() -> int:
         lines += ["", "## Soak", "", f"`.venv/bin/python {' '.join(argv)}` (a steady stream while the attack",
                   "profile is swapped every second; see the script's doc):", "", "```text", out, "```"]  # fmt: skip
     lines += ["", "## Not regenerated here", "",
-              "Longer runs have their own scripts and are not part of this page's run"
-              + ("" if soak is not None else ": the 10-minute soak (`benchmarks/soak_bench.py`)") + ",",
+              "Longer runs have their own scripts and are not part of this page's run:"
+              + ("" if soak is not None else " the 10-minute soak (`benchmarks/soak_bench.py`),"),
               "per-endpoint rules (`benchmarks/routes_bench.py`), the web console",
               "(`benchmarks/console_bench.py`), plugin discovery (`benchmarks/plugin_discovery_bench.py`).",
               ""]  # fmt: skip
