@@ -159,31 +159,18 @@ def _compile(
     return to_fields, to_values
 
 
-_BYTE_FIELDS: dict[tuple[int, str], int | None] = {}
-
-
 def byte_field(msgid: int, name: str) -> int | None:
     """Payload offset of ``name``, a one-byte unsigned scalar field of message ``msgid`` (e.g. DISTANCE_SENSOR
     ``id``: 11), or None when it is not one (unknown, wider, signed, an array). A MAVLink 2 payload truncated
     before that offset holds 0 there, as :func:`decode` reads it."""
-    key = (msgid, name)
-    if key in _BYTE_FIELDS:
-        return _BYTE_FIELDS[key]
-    found = None
     cls = MAVLINK_MAP.get(msgid)
-    if cls is not None and name in cls.fieldnames:
-        i = cls.fieldnames.index(name)
-        if cls.fieldtypes[i] == "uint8_t" and cls.lengths[cls.orders[i]] == 1:
-            lay = _layout(cls)
-            tip = next(t for n, t, _, _ in lay.fields if n == name)
-            for offset in range(lay.size):  # the byte that moves this field and no other
-                probe = bytearray(lay.size)
-                probe[offset] = 1
-                if lay.unpacker.unpack(bytes(probe))[tip] == 1:
-                    found = offset
-                    break
-    _BYTE_FIELDS[key] = found
-    return found
+    if cls is None or name not in cls.fieldnames:
+        return None
+    i = cls.fieldnames.index(name)
+    if cls.fieldtypes[i] != "uint8_t" or cls.lengths[cls.orders[i]] != 1:
+        return None
+    span = field_span(msgid, name)
+    return None if span is None else span[0]
 
 
 _SPANS: dict[tuple[int, str], tuple[int, int] | None] = {}
