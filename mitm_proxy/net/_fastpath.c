@@ -343,6 +343,25 @@ static Py_ssize_t rewrite_datagram(const uint8_t *d, Py_ssize_t n, const Hit *hi
     return o;
 }
 
+/* What the route does with the datagram d[0:n] from its peer, received at rx_s: -1 when it goes up, else its
+ * frames, sent as they came (*n_hits 0) or, rewritten from the memory, as r->obuf[0:*out_len]. */
+static int route_datagram(Route *r, const uint8_t *d, Py_ssize_t n, double rx_s, int *n_signed, int *n_hits,
+                          Py_ssize_t *out_len, long *rewritten) {
+    Hit hits[MAX_HITS];
+    *n_hits = 0;
+    *rewritten = 0;
+    *out_len = n;
+    if (r->all_up || n > MAX_DATAGRAM)
+        return -1;
+    int f = fast_frames(&r->wants, r->memos, rx_s, d, n, n_signed, hits, n_hits);
+    if (f >= 0 && *n_hits > 0) {
+        *out_len = rewrite_datagram(d, n, hits, *n_hits, r->obuf, (Py_ssize_t)sizeof(r->obuf), rewritten);
+        if (*out_len < 0)
+            return -1;
+    }
+    return f;
+}
+
 static int addr_equal(const struct sockaddr_storage *a, const struct sockaddr_storage *b) {
     if (a->ss_family != b->ss_family)
         return 0;
@@ -649,7 +668,6 @@ static PyObject *Route_drain(Route *self, PyObject *args) {
     }
     long dgrams = 0, frames = 0, bytes = 0, bytes_out = 0, sgn = 0, rewritten = 0;
     long sent[MAX_TARGETS] = {0};
-    Hit hits[MAX_HITS];
     int err[MAX_TARGETS] = {0}, unsent[MAX_TARGETS];
     int lo = self->next, i = lo;
     PyObject *up = NULL;
@@ -659,14 +677,8 @@ static PyObject *Route_drain(Route *self, PyObject *args) {
         int s = 0, f = -1, nh = 0;
         Py_ssize_t out_len = len;
         long rw = 0;
-        if (!self->all_up && !(h->msg_flags & MSG_TRUNC) && len <= MAX_DATAGRAM &&
-            addr_equal(&self->addrs[i], &self->peer))
-            f = fast_frames(&self->wants, self->memos, self->rx_s, self->bufs[i], len, &s, hits, &nh);
-        if (f >= 0 && nh > 0) {
-            out_len = rewrite_datagram(self->bufs[i], len, hits, nh, self->obuf, (Py_ssize_t)sizeof(self->obuf), &rw);
-            if (out_len < 0)
-                f = -1;
-        }
+        if (!(h->msg_flags & MSG_TRUNC) && addr_equal(&self->addrs[i], &self->peer))
+            f = route_datagram(self, self->bufs[i], len, self->rx_s, &s, &nh, &out_len, &rw);
         if (f < 0) {
             /* Up to Python, after the fast ones before it. */
             PyObject *data;
@@ -850,16 +862,12 @@ static PyObject *Route_verdict(Route *self, PyObject *args) {
     double rx_s;
     if (!PyArg_ParseTuple(args, "y*d", &data, &rx_s))
         return NULL;
-    Hit hits[MAX_HITS];
-    int s = 0, nh = 0, f = -1;
+    int s = 0, nh = 0;
     long rw = 0;
-    Py_ssize_t len = data.len;
-    if (!self->all_up && len <= MAX_DATAGRAM)
-        f = fast_frames(&self->wants, self->memos, rx_s, data.buf, len, &s, hits, &nh);
-    if (f >= 0 && nh > 0)
-        len = rewrite_datagram(data.buf, data.len, hits, nh, self->obuf, (Py_ssize_t)sizeof(self->obuf), &rw);
+    Py_ssize_t len;
+    int f = route_datagram(self, data.buf, data.len, rx_s, &s, &nh, &len, &rw);
     PyObject *res = NULL;
-    if (f < 0 || len < 0)
+    if (f < 0)
         res = Py_None, Py_INCREF(res);
     else
         res = Py_BuildValue("(y#l)", nh > 0 ? (const char *)self->obuf : (const char *)data.buf, len, rw);
