@@ -405,7 +405,7 @@ class Pipeline:
     def _learn(self, learners: list[Learner], p: Packet, data: bytes, now_s: float) -> None:
         """Tell the fast routes how this frame left, when the stages said it may be repeated (the module doc)."""
         until = p.steady_until_s
-        if until is None or until <= now_s or p.header.msgid not in self._memo or p.header.signed:
+        if until is None or until <= now_s or p.header.msgid not in self._memo:  # (signed: learn is None)
             return
         if p.changed and data is p.raw:  # the re-pack failed (encode_error): that is Python's to count
             return

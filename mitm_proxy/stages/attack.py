@@ -175,7 +175,6 @@ class AttackStage:
             pkt.notes.extend(notes)
         if ops is None or h.msgid not in ops.message_ids:
             return [pkt]
-        pkt.steady_until_s = None  # what frame operations do is not repeated (none takes a memo message)
         before = len(pkt.notes)
         pkts = ops.process(pkt, now_s, self.slot.sysid)
         prefix = f"attack:{engine.profile.name}:"
