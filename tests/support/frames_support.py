@@ -6,11 +6,17 @@ codec against the reference implementation, not against our own idea of the wire
 
 from __future__ import annotations
 
+import socket
 import struct
 from typing import Any
 
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from mavframe import codec
+from mavframe.frames import split
+from mavframe.packet import Direction, Packet
+from mitm_proxy.net import native_udp
 
 DISTANCE_SENSOR = 132
 HEARTBEAT = 0
@@ -146,3 +152,22 @@ def read_strict(data: bytes, key: bytes = TEST_KEY) -> list[Any]:
         if msg is not None and msg.get_type() != "BAD_DATA":
             out.append(msg)
     return out
+
+
+def repacked(frame: bytes, **changed: Any) -> bytes:
+    """The Python path's bytes for one ``frame`` with ``changed`` fields (codec.encode, as the pipeline re-packs)."""
+    ((header, raw),) = split(frame).frames
+    pkt = Packet(raw, header, Direction.DOWNLINK, 0, 0.0)
+    codec.decode(pkt).update(changed)
+    pkt.changed = True
+    return codec.encode(pkt)
+
+
+def verdict_route(ids: frozenset[int], filters: dict[int, Any], memo: dict[int, tuple[int, int]]) -> Any:
+    """A compiled route configured with these wants (``native_udp.route_wants``) and a peer, never drained (no
+    socket): its ``verdict``/``learn``/``forget`` are what a proxy's route would do."""
+    from mitm_proxy.net import _fastpath  # type: ignore[attr-defined]  (not built: the caller skips, fast_path)
+
+    r = _fastpath.Route(-1)
+    r.configure(False, socket.AF_INET, ("127.0.0.1", 9), [], *native_udp.route_wants(ids, filters, memo))
+    return r

@@ -8,7 +8,6 @@ the same bytes too. Profiles are random pure rules (bias, set, scale) with windo
 
 from __future__ import annotations
 
-import socket
 from typing import Any
 
 import pytest
@@ -17,8 +16,7 @@ from hypothesis import strategies as st
 
 from mavframe.packet import Direction
 from mitm_proxy.core.pipeline import Pipeline
-from mitm_proxy.net import native_udp
-from tests.support.frames_support import heartbeat, mav, mavlink, pack
+from tests.support.frames_support import heartbeat, mav, mavlink, pack, verdict_route
 from tests.support.pipelines import bias, make
 
 pytestmark = pytest.mark.usefixtures("fast_path")  # skipped where it is not built, a failure under CI
@@ -29,13 +27,9 @@ DISTANCE_SENSOR = 132
 
 def taught_route(pipe: Pipeline) -> Any:
     """A C route configured from the pipeline's fast wants, registered as its learner (no socket: verdict only)."""
-    from mitm_proxy.net import _fastpath  # type: ignore[attr-defined]
-
-    r = _fastpath.Route(-1)
     wants = pipe.fast_wanted(DOWN)
     assert wants is not None
-    r.configure(False, socket.AF_INET, ("127.0.0.1", 9), [], *native_udp.route_wants(wants.ids, wants.filters,
-                                                                                     wants.memo))  # fmt: skip
+    r = verdict_route(wants.ids, wants.filters, wants.memo)
     pipe.learners[DOWN] = [r.learn]
     return r
 

@@ -8,7 +8,6 @@ one, a damaged one, one received after the stage's time was up) goes up to Pytho
 
 from __future__ import annotations
 
-import socket
 from typing import Any
 
 import pytest
@@ -16,10 +15,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from mavframe import codec
-from mavframe.frames import split
-from mavframe.packet import Direction, Packet
-from mitm_proxy.net import native_udp
-from tests.support.frames_support import heartbeat, mav, mavlink, pack, signed_mav
+from tests.support.frames_support import heartbeat, mav, mavlink, pack, repacked, signed_mav, verdict_route
 
 pytestmark = pytest.mark.usefixtures("fast_path")  # skipped where it is not built, a failure under CI
 
@@ -29,14 +25,7 @@ TIME_SPAN = codec.field_span(DISTANCE_SENSOR, "time_boot_ms")
 
 def route(memo: bool = True) -> Any:
     """A route that wants every DISTANCE_SENSOR and may repeat its rewrites (never drained: no socket)."""
-    from mitm_proxy.net import _fastpath  # type: ignore[attr-defined]
-
-    r = _fastpath.Route(-1)
-    wanted, filters, specs = native_udp.route_wants(
-        frozenset({DISTANCE_SENSOR}), {}, {DISTANCE_SENSOR: TIME_SPAN} if memo else {}
-    )
-    r.configure(False, socket.AF_INET, ("127.0.0.1", 9), [], wanted, filters, specs)
-    return r
+    return verdict_route(frozenset({DISTANCE_SENSOR}), {}, {DISTANCE_SENSOR: TIME_SPAN} if memo else {})
 
 
 def ds(t_ms: int, cm: int, sid: int = 0, *, v1: bool = False, tail: int = 1, seq: int = 0, quality: int = 0) -> bytes:
@@ -46,17 +35,6 @@ def ds(t_ms: int, cm: int, sid: int = 0, *, v1: bool = False, tail: int = 1, seq
     m = mav()
     m.seq = seq
     return pack(msg, m, v1=v1)
-
-
-def python_rewrite(frame: bytes, **changed: Any) -> bytes:
-    """The Python path's bytes for ``frame`` with ``changed`` fields (codec.encode, as the pipeline re-packs)."""
-    ((header, raw),) = split(frame).frames
-    pkt = Packet(raw, header, Direction.DOWNLINK, 0, 0.0)
-    codec.decode(pkt)
-    assert pkt.fields is not None
-    pkt.fields.update(changed)
-    pkt.changed = True
-    return codec.encode(pkt)
 
 
 @given(
@@ -74,10 +52,10 @@ def test_a_repeated_rewrite_is_what_python_packs(cm: int, new_cm: int, sid: int,
                                                  quality: int, t_a: int, t_b: int, seq: int) -> None:  # fmt: skip
     r = route()
     a = ds(t_a, cm, sid, v1=v1, tail=tail, quality=quality)
-    out_a = python_rewrite(a, current_distance=new_cm)
+    out_a = repacked(a, current_distance=new_cm)
     assert r.learn(a, out_a, 10.0, True) is True
     b = ds(t_b, cm, sid, v1=v1, tail=tail, quality=quality, seq=seq)  # the same key, another time and number
-    assert r.verdict(b, 5.0) == (python_rewrite(b, current_distance=new_cm), 1)
+    assert r.verdict(b, 5.0) == (repacked(b, current_distance=new_cm), 1)
     other = ds(t_b, cm ^ 1, sid, v1=v1, tail=tail, quality=quality)  # another key: Python's to decide
     assert r.verdict(other, 5.0) is None
 
@@ -93,7 +71,7 @@ def test_a_frame_left_as_it_came_is_repeated_as_it_came() -> None:
 def test_the_memory_holds_until_the_stage_said_and_not_after_a_forget() -> None:
     r = route()
     a = ds(1000, 250)
-    r.learn(a, python_rewrite(a, current_distance=300), 10.0, True)
+    r.learn(a, repacked(a, current_distance=300), 10.0, True)
     b = ds(2000, 250)
     assert r.verdict(b, 9.999) is not None
     assert r.verdict(b, 10.0) is None  # received when the time was up: Python decides again
@@ -104,7 +82,7 @@ def test_the_memory_holds_until_the_stage_said_and_not_after_a_forget() -> None:
 def test_only_memo_ids_are_learnt_and_only_whole_unsigned_frames() -> None:
     plain = route(memo=False)
     a = ds(1000, 250)
-    assert plain.learn(a, python_rewrite(a, current_distance=300), 10.0, True) is False
+    assert plain.learn(a, repacked(a, current_distance=300), 10.0, True) is False
     assert plain.verdict(ds(2000, 250), 1.0) is None
     r = route()
     assert r.learn(a + a, a + a, 10.0, False) is False  # not one frame
@@ -116,7 +94,7 @@ def test_only_memo_ids_are_learnt_and_only_whole_unsigned_frames() -> None:
 def test_signed_and_damaged_frames_with_a_known_key_go_up() -> None:
     r = route()
     a = ds(1000, 250)
-    r.learn(a, python_rewrite(a, current_distance=300), 10.0, True)
+    r.learn(a, repacked(a, current_distance=300), 10.0, True)
     s = pack(mavlink.MAVLink_distance_sensor_message(2000, 10, 4000, 250, 0, 0, 25, 255), signed_mav())
     assert r.verdict(s, 1.0) is None
     b = bytearray(ds(2000, 250))
@@ -127,12 +105,12 @@ def test_signed_and_damaged_frames_with_a_known_key_go_up() -> None:
 def test_a_rewrite_inside_a_datagram_keeps_the_frames_around_it() -> None:
     r = route()
     a = ds(1000, 250, tail=0)  # truncated: the rewrite changes the frame's length
-    r.learn(a, python_rewrite(a, current_distance=0), 10.0, True)
+    r.learn(a, repacked(a, current_distance=0), 10.0, True)
     hb = pack(heartbeat(), mav())
     b = ds(3000, 250, tail=0)
     sent = r.verdict(hb + b + hb, 1.0)
-    assert sent == (hb + python_rewrite(b, current_distance=0) + hb, 1)
-    assert len(python_rewrite(b, current_distance=0)) < len(b)
+    assert sent == (hb + repacked(b, current_distance=0) + hb, 1)
+    assert len(repacked(b, current_distance=0)) < len(b)
 
 
 def test_a_rewrite_of_more_bytes_than_the_route_keeps_is_not_learnt() -> None:
@@ -141,7 +119,7 @@ def test_a_rewrite_of_more_bytes_than_the_route_keeps_is_not_learnt() -> None:
     r = route()
     a = ds(1000, 250, quality=0)
     quaternion = [1.1, -2.3, 3.7, 7.9]  # 16 changed bytes, the fovs 8 more, the time 4, ...
-    out = python_rewrite(a, quaternion=quaternion, horizontal_fov=0.3, vertical_fov=0.7, current_distance=1,
+    out = repacked(a, quaternion=quaternion, horizontal_fov=0.3, vertical_fov=0.7, current_distance=1,
                          signal_quality=99, max_distance=1, min_distance=2, covariance=3,
                          time_boot_ms=0x12345678)  # fmt: skip
     changed = sum(x != y for x, y in zip(a[10:-2].ljust(255, b"\0"), out[10:-2].ljust(255, b"\0"), strict=True))

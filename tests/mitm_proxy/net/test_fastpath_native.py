@@ -35,6 +35,7 @@ from tests.support.frames_support import (
     mavlink,
     pack,
     parse_all,
+    repacked,
     signed_mav,
     unknown_frame,
 )
@@ -313,10 +314,7 @@ async def test_a_sensor_filter_rewrites_its_sensor_passes_the_others_and_moves_w
             if sid == target:
                 assert after != before and parse_all(after)[0].current_distance == 600
                 assert split(after).frames[0][0].seq == h.seq
-                pkt = Packet(raw, h, Direction.DOWNLINK, 0, 0.0)
-                codec.decode(pkt)["current_distance"] = 600
-                pkt.changed = True
-                assert after == codec.encode(pkt)  # the Python path's re-pack, byte for byte, wherever it was made
+                assert after == repacked(before, current_distance=600)  # Python's re-pack, wherever it was made
                 rewritten += 1
             else:
                 assert after == before  # byte for byte
