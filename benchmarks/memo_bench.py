@@ -35,6 +35,7 @@ from mitm_proxy.net import native_udp
 TLOG = Path(__file__).resolve().parents[1] / "tests" / "data" / "ardupilot-copter-guided.tlog"
 DISTANCE_SENSOR = 132
 _TIME = codec.field_span(DISTANCE_SENSOR, "time_boot_ms") or (0, 0)
+_ID = codec.byte_field(DISTANCE_SENSOR, "id") or 0
 
 
 def distinct_keys(frames: list[bytes], ids: list[int]) -> int:
@@ -44,7 +45,7 @@ def distinct_keys(frames: list[bytes], ids: list[int]) -> int:
         if f[0] != 0xFD or f[7] | f[8] << 8 | f[9] << 16 != DISTANCE_SENSOR:
             continue
         payload = bytearray(f[10 : 10 + f[1]])
-        if (payload[11] if len(payload) > 11 else 0) not in ids:
+        if (payload[_ID] if len(payload) > _ID else 0) not in ids:
             continue
         off, n = _TIME
         payload[off : off + n] = bytes(min(n, max(0, len(payload) - off)))
